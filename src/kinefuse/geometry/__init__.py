@@ -1,0 +1,1 @@
+"""Pure numpy geometry: rigid transforms, rotations, rigid fits, ray casting."""

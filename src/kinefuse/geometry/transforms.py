@@ -1,0 +1,155 @@
+"""Rigid transforms and rotations.
+
+Naming follows ``A2B``: ``sensor2world`` maps a point from the sensor frame into the world frame,
+``p_world = sensor2world @ [p_sensor, 1]``. Batched inputs have their batch axes first:
+transforms ``(..., 4, 4)``, points ``(..., 3)``.
+
+Sensor frames are OpenCV-style: x right, y down, z forward along the optical axis. The world is
+right-handed with z up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+def check_points(p: ArrayLike, name: str = "points") -> Array:
+    """Coerce to a float64 array whose last axis has length 3."""
+    a = np.asarray(p, dtype=np.float64)
+    if a.ndim == 0 or a.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (..., 3), got {a.shape}")
+    return a
+
+
+def check_transform(t: ArrayLike, name: str = "transform") -> Array:
+    """Coerce to a float64 array of shape ``(..., 4, 4)`` with a rigid bottom row."""
+    a = np.asarray(t, dtype=np.float64)
+    if a.ndim < 2 or a.shape[-2:] != (4, 4):
+        raise ValueError(f"{name} must have shape (..., 4, 4), got {a.shape}")
+    return a
+
+
+def make_transform(rotation: ArrayLike, translation: ArrayLike) -> Array:
+    """Build ``(..., 4, 4)`` transforms from rotations ``(..., 3, 3)`` and translations ``(..., 3)``."""
+    r = np.asarray(rotation, dtype=np.float64)
+    t = np.asarray(translation, dtype=np.float64)
+    out = np.zeros((*r.shape[:-2], 4, 4))
+    out[..., :3, :3] = r
+    out[..., :3, 3] = t
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def invert_transform(a2b: ArrayLike) -> Array:
+    """Inverse of rigid transforms ``(..., 4, 4)`` (``a2b`` -> ``b2a``), exact for rigid input."""
+    t = check_transform(a2b)
+    r = t[..., :3, :3]
+    rt = np.swapaxes(r, -1, -2)
+    return make_transform(rt, -np.einsum("...ij,...j->...i", rt, t[..., :3, 3]))
+
+
+def apply_transform(a2b: ArrayLike, p_a: ArrayLike) -> Array:
+    """Map points ``(..., 3)`` from frame A to frame B with one ``(4, 4)`` transform.
+
+    NaN points stay NaN.
+    """
+    t = check_transform(a2b)
+    p = check_points(p_a)
+    if t.shape != (4, 4):
+        raise ValueError(f"apply_transform takes one (4, 4) transform, got {t.shape}")
+    return p @ t[:3, :3].T + t[:3, 3]
+
+
+def rot_x(angle_rad: float) -> Array:
+    """Rotation about x by ``angle_rad`` (right-handed)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(angle_rad: float) -> Array:
+    """Rotation about y by ``angle_rad`` (right-handed)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(angle_rad: float) -> Array:
+    """Rotation about z by ``angle_rad`` (right-handed)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def look_at(position_m: ArrayLike, target_m: ArrayLike, roll_rad: float = 0.0) -> Array:
+    """``sensor2world`` of a camera at ``position_m`` whose optical axis points at ``target_m``.
+
+    The camera's x axis (image right) is kept horizontal, y (image down) points as far down as
+    possible; ``roll_rad`` then turns the camera about its optical axis (positive: image turns
+    clockwise as seen by the camera, i.e. right-handed about +z of the sensor).
+
+    Returns
+    -------
+    sensor2world : (4, 4) float
+    """
+    pos = check_points(position_m, "position_m").reshape(3)
+    tgt = check_points(target_m, "target_m").reshape(3)
+    z = tgt - pos
+    n = np.linalg.norm(z)
+    if n < 1e-9:
+        raise ValueError("look_at: position and target coincide; the camera has no direction")
+    z = z / n
+    up = np.array([0.0, 0.0, 1.0])
+    x = np.cross(z, up)  # image right: horizontal
+    if np.linalg.norm(x) < 1e-6:
+        raise ValueError("look_at: the camera looks straight up or down; give a tilted target")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)  # image down
+    r = np.stack([x, y, z], axis=1) @ rot_z(roll_rad)
+    return make_transform(r, pos)
+
+
+def rotation_angle_deg(r_a: ArrayLike, r_b: ArrayLike) -> NDArray[np.float64]:
+    """Angle of the rotation ``r_a^T r_b`` in degrees, for ``(..., 3, 3)`` inputs."""
+    a = np.asarray(r_a, dtype=np.float64)
+    b = np.asarray(r_b, dtype=np.float64)
+    rel = np.einsum("...ji,...jk->...ik", a, b)
+    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def kabsch(
+    src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None
+) -> Array:
+    """Rigid transform ``src2dst`` minimizing the (weighted) squared distances (Kabsch/Umeyama,
+    no scale). Rows with NaN in either set are ignored.
+
+    Parameters
+    ----------
+    src, dst : (N, 3) float
+        Corresponding points; at least 3 non-collinear finite pairs.
+    weights : (N,) float, optional
+
+    Returns
+    -------
+    src2dst : (4, 4) float
+    """
+    a = check_points(src, "src").reshape(-1, 3)
+    b = check_points(dst, "dst").reshape(-1, 3)
+    if a.shape != b.shape:
+        raise ValueError(f"src and dst must have the same shape, got {a.shape} and {b.shape}")
+    w = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    ok = np.isfinite(a).all(1) & np.isfinite(b).all(1) & np.isfinite(w) & (w > 0)
+    a, b, w = a[ok], b[ok], w[ok]
+    if len(a) < 3:
+        raise ValueError(f"kabsch needs at least 3 finite point pairs, got {len(a)}")
+    w = w / w.sum()
+    ca = w @ a
+    cb = w @ b
+    h = (a - ca).T @ ((b - cb) * w[:, None])
+    u, s, vt = np.linalg.svd(h)
+    if s[1] < 1e-12 * max(s[0], 1e-300):
+        raise ValueError("kabsch: the points are collinear; the rotation is not determined")
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return make_transform(r, cb - r @ ca)

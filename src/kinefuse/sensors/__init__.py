@@ -1,0 +1,1 @@
+"""Sensor models (intrinsics, poses, error models) and the simulated capture lab."""

@@ -1,0 +1,31 @@
+"""Skeleton topology as data: the Kinect v2 body (25 joints, 24 bones) and its capsule body."""
+
+from kinefuse.skeleton.kinect_v2 import (
+    BONES,
+    CAPSULE_RADII_M,
+    JOINT_INDEX,
+    JOINTS,
+    LEFT_RIGHT_PAIRS,
+    MIRROR_INDEX,
+    N_JOINTS,
+    PARENTS,
+    TrackingState,
+    bone_index_array,
+    capsule_radii,
+    joint_index,
+)
+
+__all__ = [
+    "BONES",
+    "CAPSULE_RADII_M",
+    "JOINTS",
+    "JOINT_INDEX",
+    "LEFT_RIGHT_PAIRS",
+    "MIRROR_INDEX",
+    "N_JOINTS",
+    "PARENTS",
+    "TrackingState",
+    "bone_index_array",
+    "capsule_radii",
+    "joint_index",
+]
