@@ -1,0 +1,94 @@
+"""Session store speed: append and read 10 minutes of 4 sensors at 30 Hz, and depth frames.
+
+Run: ``python benchmarks/bench_store.py``. Prints wall times and rates; target: reading the
+observations of 10 min x 4 sensors x 30 Hz well under 1 s.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from kinefuse.io.store import SessionStore
+from kinefuse.report.inspect import inspect_session
+from kinefuse.sensors.intrinsics import Intrinsics
+from kinefuse.skeleton import N_JOINTS
+
+SENSORS = 4
+FRAMES = 10 * 60 * 30  # 10 minutes at 30 Hz
+DEPTH_FRAMES = 30
+
+
+def main() -> None:
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench.sqlite"
+        store = SessionStore.create(path)
+        data = []
+        for k in range(SENSORS):
+            store.add_sensor(f"k{k}", f"SIM-{k}", Intrinsics())
+            states = rng.integers(0, 3, (FRAMES, N_JOINTS)).astype(np.int8)
+            joints = rng.normal([0, 0, 2.5], 0.5, (FRAMES, N_JOINTS, 3))
+            joints[states == 0] = np.nan
+            seq = np.arange(FRAMES)
+            data.append((seq, seq / 30.0, joints, states, seq / 30.0 + 0.05))
+        t0 = time.perf_counter()
+        for k, (seq, t, j, st, tr) in enumerate(data):
+            store.append_observations(f"k{k}", seq, t, j, st, t_receive_server_s=tr)
+        t_append = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for k, (seq, t, j, _st, _tr) in enumerate(data):
+            store.append_truth_observations(
+                f"k{k}",
+                seq,
+                t,
+                np.nan_to_num(j),
+                np.ones((FRAMES, N_JOINTS), bool),
+                np.zeros(FRAMES, bool),
+            )
+        t_truth = time.perf_counter() - t0
+        # per-frame appends, as a live recorder would do them (one transaction each)
+        t0 = time.perf_counter()
+        n_live = 300
+        for i in range(n_live):
+            store.append_observations(
+                "k0", [FRAMES + i], [0.0], data[0][2][i : i + 1], data[0][3][i : i + 1]
+            )
+        t_live = (time.perf_counter() - t0) / n_live
+        wall = (3000 + rng.normal(0, 3, (DEPTH_FRAMES, 424, 512))).round().astype(np.uint16)
+        t0 = time.perf_counter()
+        store.append_depth_frames("k0", np.arange(DEPTH_FRAMES), np.zeros(DEPTH_FRAMES), wall)
+        t_depth_w = (time.perf_counter() - t0) / DEPTH_FRAMES
+        store.close()
+
+        with SessionStore.open(path) as s:
+            t0 = time.perf_counter()
+            obs = [s.observations(f"k{k}") for k in range(SENSORS)]
+            t_read = time.perf_counter() - t0
+            assert all(o.n_frames >= FRAMES for o in obs)
+            t0 = time.perf_counter()
+            n = sum(d.shape[0] for _, _, d in s.iter_depth_frames("k0"))
+            t_depth_r = (time.perf_counter() - t0) / n
+            t0 = time.perf_counter()
+            inspect_session(s)
+            t_inspect = time.perf_counter() - t0
+        size_mb = path.stat().st_size / 1e6
+
+    rows = SENSORS * FRAMES
+    print(f"observations: {SENSORS} sensors x {FRAMES} frames = {rows} rows, file {size_mb:.1f} MB")
+    print(f"  append (one call per sensor): {t_append:.3f} s  ({rows / t_append:,.0f} rows/s)")
+    print(f"  append truth observations:    {t_truth:.3f} s")
+    print(f"  append one frame per call:    {1e3 * t_live:.2f} ms per frame (live recording)")
+    print(f"  read all:                     {t_read:.3f} s  (target < 1 s: {t_read < 1.0})")
+    print(f"  inspect_session:              {t_inspect:.3f} s")
+    print(
+        f"depth frames 512x424: write {1e3 * t_depth_w:.1f} ms/frame, "
+        f"read {1e3 * t_depth_r:.1f} ms/frame"
+    )
+
+
+if __name__ == "__main__":
+    main()

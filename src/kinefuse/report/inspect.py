@@ -1,0 +1,218 @@
+"""``kinefuse inspect``: what a session store holds and, for simulated sessions, how wrong the
+sensors were.
+
+The error figures compare each reported joint (not NaN) with the true joint in the same sensor
+frame at the capture instant (``Truth.observations``, matched by sequence number). This is
+evaluation code: it is the one place besides the simulator that reads the truth tables.
+"""
+
+from __future__ import annotations
+
+import warnings
+from os import PathLike
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import InputError
+from kinefuse.io.store import SessionStore
+from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
+
+__all__ = ["format_inspect", "inspect_session"]
+
+
+def _num(x: float | np.floating[Any] | None) -> float | None:
+    """A JSON-safe float: NaN and None become None."""
+    if x is None:
+        return None
+    f = float(x)
+    return None if np.isnan(f) else f
+
+
+def _median(x: NDArray[np.float64]) -> float | None:
+    return _num(np.median(x)) if x.size else None
+
+
+def _sensor_rate_hz(t_sensor_s: NDArray[np.float64]) -> float | None:
+    """Frame rate from capture times: 1 / median frame interval (robust to dropped frames)."""
+    if t_sensor_s.size < 2:
+        return None
+    dt = np.diff(np.sort(t_sensor_s))
+    dt = dt[dt > 0]
+    return _num(1.0 / np.median(dt)) if dt.size else None
+
+
+def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]:
+    """Summarize a session store as a JSON-able dict.
+
+    Parameters
+    ----------
+    store : SessionStore or path-like
+        An open store, or the path of one (opened read-only and closed again).
+
+    Returns
+    -------
+    dict
+        ``schema_version``, ``path``, ``meta``; ``sensors``: a list of per-sensor dicts
+        (``id``, ``serial``, ``frames``, ``frames_with_body``, ``rate_hz`` measured from the
+        sensor-clock timestamps, ``nominal_rate_hz``, ``duration_s``, ``depth_frames``,
+        ``clock_probes``, ``observation_error_m`` median or None); ``duration_s`` (longest
+        per-sensor span of capture times, seconds); ``joints`` (25); ``has_truth``;
+        ``tracking_state_fraction`` (``tracked``, ``inferred``, ``not_tracked`` over all
+        frames x joints of all sensors); ``observation_error_m`` (``median``, ``p95``,
+        ``by_joint`` {name: median}, ``by_state`` {``tracked``, ``inferred``}, ``samples``), or
+        None without truth; ``lr_swap_fraction`` (frames the simulator swapped left/right among
+        matched frames with a body) or None without truth; ``calibrations``;
+        ``fused_methods``. Distances in metres; a figure with no data is None.
+    """
+    if isinstance(store, SessionStore):
+        return _inspect(store)
+    if isinstance(store, str | PathLike):
+        with SessionStore.open(store) as s:
+            return _inspect(s)
+    raise InputError(
+        f"inspect_session: expected a SessionStore or the path of one, got {type(store).__name__}"
+    )
+
+
+def _inspect(store: SessionStore) -> dict[str, Any]:
+    meta = store.meta()
+    has_truth = store.has_truth()
+    truth = store.truth() if has_truth else None
+
+    sensors: list[dict[str, Any]] = []
+    state_counts = np.zeros(3, dtype=np.int64)
+    errors: list[NDArray[np.float64]] = []  # per sensor (M, 25), NaN where not reported
+    err_states: list[NDArray[np.int8]] = []
+    swapped_frames = 0
+    body_frames = 0
+    matched_any = False
+    spans: list[float] = []
+
+    for info in store.sensors():
+        obs = store.observations(info.id)
+        n = obs.n_frames
+        has_body = obs.has_body
+        state_counts += np.bincount(obs.states.ravel().astype(np.intp), minlength=3)[:3]
+        span = float(obs.t_sensor_s.max() - obs.t_sensor_s.min()) if n else 0.0
+        spans.append(span)
+        entry: dict[str, Any] = {
+            "id": info.id,
+            "serial": info.serial,
+            "frames": n,
+            "frames_with_body": int(has_body.sum()),
+            "rate_hz": _sensor_rate_hz(obs.t_sensor_s),
+            "nominal_rate_hz": info.rate_hz,
+            "duration_s": span,
+            "depth_frames": store.depth_frame_count(info.id),
+            "clock_probes": int(store.clock_probes(info.id).shape[0]),
+            "observation_error_m": None,
+        }
+        if truth is not None:
+            t_seq, _, t_joints, _, t_swapped = truth.observations(info.id)
+            _, i_obs, i_true = np.intersect1d(obs.seq, t_seq, return_indices=True)
+            if i_obs.size:
+                matched_any = True
+                err = np.linalg.norm(obs.joints_m[i_obs] - t_joints[i_true], axis=-1)
+                errors.append(err)
+                err_states.append(obs.states[i_obs])
+                body = has_body[i_obs]
+                body_frames += int(body.sum())
+                swapped_frames += int((t_swapped[i_true] & body).sum())
+                e = err[np.isfinite(err)]
+                entry["observation_error_m"] = _median(e)
+        sensors.append(entry)
+
+    total = int(state_counts.sum())
+    fractions = {
+        "tracked": _num(state_counts[TrackingState.TRACKED] / total) if total else None,
+        "inferred": _num(state_counts[TrackingState.INFERRED] / total) if total else None,
+        "not_tracked": _num(state_counts[TrackingState.NOT_TRACKED] / total) if total else None,
+    }
+
+    error_summary: dict[str, Any] | None = None
+    swap_fraction: float | None = None
+    if matched_any:
+        err = np.concatenate(errors, axis=0)  # (M, 25)
+        st = np.concatenate(err_states, axis=0)
+        ok = np.isfinite(err)
+        flat = err[ok]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN joints -> None
+            by_joint = np.nanmedian(err, axis=0) if err.shape[0] else np.full(N_JOINTS, np.nan)
+        error_summary = {
+            "median": _median(flat),
+            "p95": _num(np.percentile(flat, 95)) if flat.size else None,
+            "by_joint": {name: _num(v) for name, v in zip(JOINTS, by_joint, strict=True)},
+            "by_state": {
+                "tracked": _median(err[ok & (st == TrackingState.TRACKED)]),
+                "inferred": _median(err[ok & (st == TrackingState.INFERRED)]),
+            },
+            "samples": int(flat.size),
+        }
+        swap_fraction = _num(swapped_frames / body_frames) if body_frames else None
+
+    return {
+        "path": str(store.path),
+        "schema_version": meta.get("schema_version"),
+        "meta": meta,
+        "sensors": sensors,
+        "duration_s": max(spans) if spans else 0.0,
+        "joints": N_JOINTS,
+        "has_truth": has_truth,
+        "tracking_state_fraction": fractions,
+        "observation_error_m": error_summary,
+        "lr_swap_fraction": swap_fraction,
+        "calibrations": store.calibration_names(),
+        "fused_methods": store.fused_methods(),
+    }
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100.0 * x:.1f} %"
+
+
+def _cm(x: float | None) -> str:
+    return "-" if x is None else f"{100.0 * x:.1f} cm"
+
+
+def format_inspect(d: dict[str, Any]) -> str:
+    """A short human-readable table of :func:`inspect_session`'s result (distances in cm)."""
+    lines = [
+        f"session {d.get('path', '?')}  (schema {d['schema_version']}, "
+        f"created {d.get('meta', {}).get('created', '?')})",
+        f"duration {d['duration_s']:.2f} s, {d['joints']} joints, "
+        f"ground truth: {'yes' if d['has_truth'] else 'no'}",
+        "",
+        f"{'sensor':<12}{'frames':>8}{'body':>8}{'rate_hz':>9}{'depth':>7}{'probes':>8}"
+        f"{'err_median':>12}",
+    ]
+    for s in d["sensors"]:
+        rate = "-" if s["rate_hz"] is None else f"{s['rate_hz']:.2f}"
+        lines.append(
+            f"{s['id']:<12}{s['frames']:>8}{s['frames_with_body']:>8}{rate:>9}"
+            f"{s['depth_frames']:>7}{s['clock_probes']:>8}{_cm(s['observation_error_m']):>12}"
+        )
+    f = d["tracking_state_fraction"]
+    lines += [
+        "",
+        f"tracking states: tracked {_pct(f['tracked'])}, inferred {_pct(f['inferred'])}, "
+        f"not tracked {_pct(f['not_tracked'])}",
+    ]
+    e = d.get("observation_error_m")
+    if e is not None:
+        lines.append(
+            f"observation error vs truth: median {_cm(e['median'])}, p95 {_cm(e['p95'])}; "
+            f"tracked {_cm(e['by_state']['tracked'])}, inferred {_cm(e['by_state']['inferred'])}"
+        )
+        lines.append(f"left/right swapped: {_pct(d['lr_swap_fraction'])} of frames with a body")
+        lines.append("median error by joint:")
+        items = [f"{name:<14}{_cm(v):>9}" for name, v in e["by_joint"].items()]
+        for i in range(0, len(items), 3):
+            lines.append("  " + "   ".join(items[i : i + 3]))
+    if d.get("calibrations"):
+        lines.append(f"calibrations: {', '.join(d['calibrations'])}")
+    if d.get("fused_methods"):
+        lines.append(f"fused: {', '.join(d['fused_methods'])}")
+    return "\n".join(lines)
