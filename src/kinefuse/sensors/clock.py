@@ -1,0 +1,233 @@
+"""Sensor clocks: offset, drift, frame phase, timestamp jitter, latency and NTP-style probes.
+
+The lab's true time is the server's clock (the server is the time reference of a session). Each
+sensor's client stamps frames with its own clock::
+
+    t_sensor = offset_s + (1 + drift_ppm * 1e-6) * t_true + jitter
+
+and captures at its nominal rate on that clock with a phase of its own: the sensors are not
+synchronized. Every parameter is in :class:`ClockParams` with its unit and source.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ClockParams:
+    """How sensor clocks, capture and transport behave (one config, each value with its source)."""
+
+    frame_rate_hz: float = field(
+        default=30.0,
+        metadata={"unit": "Hz", "source": "Kinect v2 depth/body stream rate (Microsoft SDK 2.0)"},
+    )
+    offset_range_s: float = field(
+        default=1000.0,
+        metadata={
+            "unit": "s",
+            "source": "assumption: clients' clocks start at arbitrary times; offsets uniform in "
+            "[0, offset_range_s)",
+        },
+    )
+    drift_sigma_ppm: float = field(
+        default=20.0,
+        metadata={
+            "unit": "ppm",
+            "source": "assumption from typical PC quartz oscillators (+/-20-50 ppm tolerance); "
+            "normal, clipped at 3 sigma",
+        },
+    )
+    timestamp_jitter_s: float = field(
+        default=0.0002,
+        metadata={
+            "unit": "s",
+            "source": "assumption: Kinect v2 RelativeTime has 100 ns resolution; frame-to-frame "
+            "timing jitter of a fraction of a millisecond",
+        },
+    )
+    frame_drop_prob: float = field(
+        default=0.003,
+        metadata={"unit": "1", "source": "assumption: occasional USB 3 frame drops"},
+    )
+    latency_mean_s: float = field(
+        default=0.060,
+        metadata={
+            "unit": "s",
+            "source": "assumption in the range reported for Kinect v2 body-tracking output "
+            "(roughly 50-90 ms from motion to skeleton)",
+        },
+    )
+    latency_sigma_s: float = field(default=0.004, metadata={"unit": "s", "source": "assumption"})
+    network_delay_s: float = field(
+        default=0.0005,
+        metadata={"unit": "s", "source": "assumption: one-way delay on a wired LAN"},
+    )
+    network_jitter_s: float = field(
+        default=0.0005,
+        metadata={
+            "unit": "s",
+            "source": "assumption: exponential queueing delay added to network_delay_s",
+        },
+    )
+    probe_interval_s: float = field(
+        default=1.0, metadata={"unit": "s", "source": "design choice: one probe burst a second"}
+    )
+    probe_burst: int = field(
+        default=4, metadata={"unit": "1", "source": "design choice (NTP clock filter practice)"}
+    )
+    probe_turnaround_s: float = field(
+        default=0.0002,
+        metadata={"unit": "s", "source": "assumption: client time between receive and reply"},
+    )
+
+    def __post_init__(self) -> None:
+        if not self.frame_rate_hz > 0:
+            raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+        if not 0 <= self.frame_drop_prob < 1:
+            raise ValueError(f"frame_drop_prob must be in [0, 1), got {self.frame_drop_prob}")
+
+
+@dataclass(frozen=True)
+class SensorClock:
+    """One sensor's clock relative to true (server) time.
+
+    Attributes
+    ----------
+    offset_s : float
+        Sensor time at true time 0.
+    drift_ppm : float
+        Rate error: the sensor clock runs ``1 + drift_ppm * 1e-6`` times as fast as true time.
+    phase_s : float
+        Sensor time of the first frame grid point modulo the frame period.
+    """
+
+    offset_s: float
+    drift_ppm: float
+    phase_s: float
+
+    @property
+    def rate(self) -> float:
+        return 1.0 + self.drift_ppm * 1e-6
+
+    def to_sensor(self, t_true_s: ArrayLike) -> Array:
+        """Sensor-clock time of true times (no jitter)."""
+        return self.offset_s + self.rate * np.asarray(t_true_s, dtype=np.float64)
+
+    def to_true(self, t_sensor_s: ArrayLike) -> Array:
+        """True time of sensor-clock times (inverse of :meth:`to_sensor`)."""
+        return (np.asarray(t_sensor_s, dtype=np.float64) - self.offset_s) / self.rate
+
+    def to_dict(self) -> dict[str, float]:
+        return {"offset_s": self.offset_s, "drift_ppm": self.drift_ppm, "phase_s": self.phase_s}
+
+
+def draw_clock(rng: np.random.Generator, params: ClockParams = ClockParams()) -> SensorClock:
+    """A random sensor clock under ``params``."""
+    drift = (
+        float(
+            np.clip(
+                rng.normal(0.0, params.drift_sigma_ppm),
+                -3 * params.drift_sigma_ppm,
+                3 * params.drift_sigma_ppm,
+            )
+        )
+        if params.drift_sigma_ppm > 0
+        else 0.0
+    )
+    return SensorClock(
+        offset_s=float(rng.uniform(0.0, params.offset_range_s)),
+        drift_ppm=drift,
+        phase_s=float(rng.uniform(0.0, 1.0 / params.frame_rate_hz)),
+    )
+
+
+@dataclass(frozen=True)
+class CaptureTimes:
+    """The frames one sensor captured in a time span.
+
+    Attributes
+    ----------
+    seq : (N,) int64
+        Frame sequence numbers on the sensor's frame grid (gaps where frames were dropped).
+    t_true_s : (N,) float
+        True (server) time of each capture.
+    t_sensor_s : (N,) float
+        The sensor's timestamp of each capture (its clock, with timestamp jitter).
+    t_receive_server_s : (N,) float
+        When the server receives the frame's body data (capture + latency + network delay).
+    """
+
+    seq: NDArray[np.int64]
+    t_true_s: Array
+    t_sensor_s: Array
+    t_receive_server_s: Array
+
+
+def capture_times(
+    clock: SensorClock,
+    t_start_s: float,
+    t_end_s: float,
+    rng: np.random.Generator,
+    params: ClockParams = ClockParams(),
+) -> CaptureTimes:
+    """Frames a sensor captures between true times ``t_start_s`` and ``t_end_s``.
+
+    The frame grid is ``phase_s + k / frame_rate_hz`` on the sensor's clock; ``seq`` is ``k``.
+    """
+    if not t_end_s > t_start_s:
+        raise ValueError(f"capture span must be positive, got {t_start_s}..{t_end_s} s")
+    period = 1.0 / params.frame_rate_hz
+    s0, s1 = clock.to_sensor(t_start_s), clock.to_sensor(t_end_s)
+    k0 = int(np.ceil((float(s0) - clock.phase_s) / period))
+    k1 = int(np.floor((float(s1) - clock.phase_s) / period))
+    k = np.arange(k0, k1 + 1, dtype=np.int64)
+    keep = rng.random(k.size) >= params.frame_drop_prob
+    k = k[keep]
+    t_sensor_grid = clock.phase_s + k * period
+    t_true = clock.to_true(t_sensor_grid)
+    t_sensor = t_sensor_grid + rng.normal(0.0, params.timestamp_jitter_s, k.size)
+    latency = np.maximum(rng.normal(params.latency_mean_s, params.latency_sigma_s, k.size), 0.0)
+    net = params.network_delay_s + rng.exponential(params.network_jitter_s, k.size)
+    return CaptureTimes(
+        seq=k - k0 if k.size else k,
+        t_true_s=t_true,
+        t_sensor_s=t_sensor,
+        t_receive_server_s=t_true + latency + net,
+    )
+
+
+def clock_probes(
+    clock: SensorClock,
+    t_start_s: float,
+    t_end_s: float,
+    rng: np.random.Generator,
+    params: ClockParams = ClockParams(),
+) -> Array:
+    """Simulated NTP-style exchanges between the server and one sensor's client.
+
+    The server sends at ``t1`` (its clock), the client receives at ``t2`` and replies at ``t3``
+    (its clock), the server receives at ``t4``. Delays are asymmetric and random, as on a real
+    network, so an estimator has to cope with them.
+
+    Returns
+    -------
+    probes : (N, 4) float
+        Columns ``t1_server_s, t2_client_s, t3_client_s, t4_server_s``.
+    """
+    starts = np.arange(t_start_s, t_end_s, params.probe_interval_s)
+    burst = max(int(params.probe_burst), 1)
+    t1 = (starts[:, None] + 0.01 * np.arange(burst)[None, :]).reshape(-1)
+    n = t1.size
+    up = params.network_delay_s + rng.exponential(params.network_jitter_s, n)
+    down = params.network_delay_s + rng.exponential(params.network_jitter_s, n)
+    turn = params.probe_turnaround_s * (1.0 + rng.random(n))
+    t2 = clock.to_sensor(t1 + up)
+    t3 = t2 + turn * clock.rate
+    t4 = t1 + up + turn + down
+    return np.stack([t1, t2, t3, t4], axis=1)

@@ -1,0 +1,217 @@
+"""Sensor rigs: where the sensors stand (rig TOML files or the default layout) and where the actor
+starts.
+
+Rig file (TOML)::
+
+    [[sensor]]
+    id = "front"              # unique
+    serial = "000123"         # optional, default derived from the id
+    position_m = [3.0, 0.0, 1.1]
+    look_at_m = [0.0, 0.0, 1.0]
+    roll_deg = 0.0            # optional: rotation about the optical axis
+
+    [actor]                   # optional
+    position_m = [0.0, 0.0]   # where the actor's SpineBase starts on the floor
+    heading_deg = 0.0         # facing direction, from the world x axis toward y
+
+Positions are world metres, z up.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import RigError
+from kinefuse.geometry.transforms import look_at
+
+Array = NDArray[np.float64]
+
+DEFAULT_RADIUS_M = 3.0
+DEFAULT_HEIGHTS_M = (1.0, 1.2)
+DEFAULT_TARGET_HEIGHT_M = 1.0
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """One sensor of a rig: its id, serial number and true pose."""
+
+    id: str
+    serial: str
+    sensor2world: Array
+
+    @property
+    def position_m(self) -> Array:
+        return self.sensor2world[:3, 3]
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A set of sensors and the actor's starting place."""
+
+    sensors: tuple[SensorSpec, ...]
+    actor_position_m: tuple[float, float] = (0.0, 0.0)
+    actor_heading_deg: float = 0.0
+    description: str = field(default="")
+
+    def __post_init__(self) -> None:
+        if not self.sensors:
+            raise RigError("a rig needs at least one sensor")
+        ids = [s.id for s in self.sensors]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise RigError(f"sensor ids must be unique; repeated: {', '.join(dup)}")
+
+
+def _serial_for(sensor_id: str, index: int) -> str:
+    return f"SIM{index:03d}-{sensor_id}"
+
+
+def default_rig(n_sensors: int = 4, radius_m: float = DEFAULT_RADIUS_M) -> Rig:
+    """``n_sensors`` sensors evenly spaced on a circle of ``radius_m`` around the capture area.
+
+    Heights step from 1.0 to 1.2 m across the sensors (so that they are not all coplanar), each
+    looks at the centre of the area at 1.0 m height. Sensor 0 stands on the +x axis; the actor
+    starts at the centre facing it.
+    """
+    if not 1 <= n_sensors <= 16:
+        raise RigError(f"the default layout takes 1 to 16 sensors, got {n_sensors}")
+    if not 0.5 <= radius_m <= 10.0:
+        raise RigError(f"the default layout's radius must be 0.5 to 10 m, got {radius_m}")
+    lo, hi = DEFAULT_HEIGHTS_M
+    sensors = []
+    for i in range(n_sensors):
+        a = 2 * np.pi * i / n_sensors
+        h = lo if n_sensors == 1 else lo + (hi - lo) * i / (n_sensors - 1)
+        pos = np.array([radius_m * np.cos(a), radius_m * np.sin(a), h])
+        pose = look_at(pos, [0.0, 0.0, DEFAULT_TARGET_HEIGHT_M])
+        sid = f"k{i}"
+        sensors.append(SensorSpec(id=sid, serial=_serial_for(sid, i), sensor2world=pose))
+    return Rig(
+        sensors=tuple(sensors),
+        description=f"default: {n_sensors} sensors on a {radius_m:g} m circle",
+    )
+
+
+def _vec(table: dict[str, object], key: str, n: int, where: str) -> Array:
+    if key not in table:
+        raise RigError(f"{where}: missing '{key}' (a list of {n} numbers, metres)")
+    v = table[key]
+    if (
+        not isinstance(v, list)
+        or len(v) != n
+        or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+    ):
+        raise RigError(f"{where}: '{key}' must be a list of {n} numbers (metres), got {v!r}")
+    a = np.array(v, dtype=np.float64)
+    if not np.isfinite(a).all():
+        raise RigError(f"{where}: '{key}' must be finite, got {v!r}")
+    return a
+
+
+def parse_rig(text: str, *, source: str = "<rig>") -> Rig:
+    """Parse a rig file's TOML text. Errors name the file and the sensor."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RigError(f"{source}: not valid TOML ({exc})") from None
+    tables = data.get("sensor")
+    if not isinstance(tables, list) or not tables:
+        raise RigError(
+            f"{source}: no [[sensor]] tables; a rig lists each sensor as\n"
+            '[[sensor]]\nid = "front"\nposition_m = [3.0, 0.0, 1.1]\nlook_at_m = [0.0, 0.0, 1.0]'
+        )
+    unknown_top = set(data) - {"sensor", "actor"}
+    if unknown_top:
+        raise RigError(
+            f"{source}: unknown top-level keys {sorted(unknown_top)}; "
+            "expected [[sensor]] and [actor]"
+        )
+    sensors = []
+    for i, t in enumerate(tables):
+        if not isinstance(t, dict):
+            raise RigError(f"{source}: [[sensor]] #{i + 1} is not a table")
+        where = f"{source}: [[sensor]] #{i + 1}"
+        sid = t.get("id")
+        if not isinstance(sid, str) or not sid:
+            raise RigError(f"{where}: missing 'id' (a non-empty string)")
+        where += f" (id {sid!r})"
+        unknown = set(t) - {"id", "serial", "position_m", "look_at_m", "roll_deg"}
+        if unknown:
+            raise RigError(f"{where}: unknown keys {sorted(unknown)}")
+        pos = _vec(t, "position_m", 3, where)
+        tgt = _vec(t, "look_at_m", 3, where)
+        roll = t.get("roll_deg", 0.0)
+        if not isinstance(roll, int | float) or isinstance(roll, bool):
+            raise RigError(f"{where}: 'roll_deg' must be a number (degrees), got {roll!r}")
+        serial = t.get("serial", _serial_for(sid, i))
+        if not isinstance(serial, str):
+            raise RigError(f"{where}: 'serial' must be a string, got {serial!r}")
+        try:
+            pose = look_at(pos, tgt, np.radians(float(roll)))
+        except ValueError as exc:
+            raise RigError(f"{where}: {exc}") from None
+        sensors.append(SensorSpec(id=sid, serial=serial, sensor2world=pose))
+    actor = data.get("actor", {})
+    if not isinstance(actor, dict):
+        raise RigError(f"{source}: [actor] must be a table")
+    unknown = set(actor) - {"position_m", "heading_deg"}
+    if unknown:
+        raise RigError(f"{source}: [actor]: unknown keys {sorted(unknown)}")
+    pos2 = _vec(actor, "position_m", 2, f"{source}: [actor]") if "position_m" in actor else None
+    heading = actor.get("heading_deg", 0.0)
+    if not isinstance(heading, int | float) or isinstance(heading, bool):
+        raise RigError(f"{source}: [actor]: 'heading_deg' must be a number, got {heading!r}")
+    return Rig(
+        sensors=tuple(sensors),
+        actor_position_m=(0.0, 0.0) if pos2 is None else (float(pos2[0]), float(pos2[1])),
+        actor_heading_deg=float(heading),
+        description=source,
+    )
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read a rig file (TOML, see the module docstring)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RigError(f"rig file not found: {p}") from None
+    except UnicodeDecodeError:
+        raise RigError(f"{p}: not a text file; a rig file is TOML") from None
+    return parse_rig(text, source=str(p))
+
+
+def rig_to_toml(rig: Rig) -> str:
+    """TOML text of a rig (positions and look-at points of its sensors' poses)."""
+    lines = []
+    for s in rig.sensors:
+        pos = s.sensor2world[:3, 3]
+        tgt = pos + s.sensor2world[:3, 2]
+        # roll: angle of the image x axis below the horizontal plane
+        x = s.sensor2world[:3, 0]
+        ref = look_at(pos, tgt)[:3, 0]
+        roll = float(
+            np.degrees(np.arctan2(np.dot(np.cross(ref, x), s.sensor2world[:3, 2]), np.dot(ref, x)))
+        )
+        lines += [
+            "[[sensor]]",
+            f'id = "{s.id}"',
+            f'serial = "{s.serial}"',
+            f"position_m = [{pos[0]:.6f}, {pos[1]:.6f}, {pos[2]:.6f}]",
+            f"look_at_m = [{tgt[0]:.6f}, {tgt[1]:.6f}, {tgt[2]:.6f}]",
+            f"roll_deg = {roll:.6f}",
+            "",
+        ]
+    ax, ay = rig.actor_position_m
+    lines += [
+        "[actor]",
+        f"position_m = [{ax:.6f}, {ay:.6f}]",
+        f"heading_deg = {rig.actor_heading_deg:.6f}",
+        "",
+    ]
+    return "\n".join(lines)
