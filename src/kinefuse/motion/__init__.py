@@ -1,5 +1,52 @@
-"""Reading real motion (BVH, ASF/AMC) into Kinect v2 joint sequences."""
+"""Reading real motion (BVH, ASF/AMC) into Kinect v2 joint sequences.
 
+``load_motion(path)`` reads a file and retargets it onto the 25 Kinect v2 joints in the lab frame;
+``place`` puts the actor in the lab, ``resample`` changes the rate. See ``docs/motion.md``.
+"""
+
+from kinefuse.motion.asf_amc import AsfSkeleton, parse_amc, parse_asf, read_amc, read_asf
+from kinefuse.motion.bvh import parse_bvh, read_bvh
+from kinefuse.motion.load import find_asf_for, load_motion
+from kinefuse.motion.maps import BUILTIN_MAPS, NameMap, load_name_map, parse_name_map
+from kinefuse.motion.retarget import (
+    CORE_JOINTS,
+    SYNTHESIS_RULES,
+    UNITS_M,
+    estimate_height_m,
+    facing_direction,
+    place,
+    resample,
+    resolve_map,
+    retarget,
+    select_map,
+)
+from kinefuse.motion.source import SourceMotion
 from kinefuse.motion.types import Motion
 
-__all__ = ["Motion"]
+__all__ = [
+    "BUILTIN_MAPS",
+    "CORE_JOINTS",
+    "SYNTHESIS_RULES",
+    "UNITS_M",
+    "AsfSkeleton",
+    "Motion",
+    "NameMap",
+    "SourceMotion",
+    "estimate_height_m",
+    "facing_direction",
+    "find_asf_for",
+    "load_motion",
+    "load_name_map",
+    "parse_amc",
+    "parse_asf",
+    "parse_bvh",
+    "parse_name_map",
+    "place",
+    "read_amc",
+    "read_asf",
+    "read_bvh",
+    "resample",
+    "resolve_map",
+    "retarget",
+    "select_map",
+]

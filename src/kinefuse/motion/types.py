@@ -32,9 +32,7 @@ class Motion:
 
     positions: Array
     rate_hz: float
-    synthesized: NDArray[np.bool_] = field(
-        default_factory=lambda: np.zeros(N_JOINTS, dtype=bool)
-    )
+    synthesized: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_JOINTS, dtype=bool))
     source: str = ""
 
     def __post_init__(self) -> None:
