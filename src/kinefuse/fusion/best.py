@@ -1,0 +1,518 @@
+"""Our fusion ("best"): timestamp-aware, covariance-weighted, robust, swap-correcting, smoothed.
+
+Each part can be switched off (:class:`BestOptions`) so that its gain can be measured:
+
+``timestamp``
+    Every observation is placed at its capture time on the server clock and each sensor's stream
+    is interpolated to the common frame times. Off: the paper's frame assembly (each sensor's
+    latest observation in the frame window, whatever its age).
+``covariance``
+    Each sensor's joint is a full 3D measurement weighted by its covariance: depth noise along the
+    sensor's ray, lateral noise across it, inflated for ``INFERRED`` joints and joints the client
+    flagged as occluded. Off: every measurement gets the same isotropic weight.
+``robust``
+    Measurements that disagree with the others beyond a chi-square gate are down-weighted
+    (iteratively reweighted least squares with Huber weights on the Mahalanobis distance).
+    Off: plain weighted mean.
+``lr_swap``
+    Sensors that see the person from behind report left and right swapped. The body's facing
+    direction is agreed across sensors (a sensor whose reported facing points away from it cannot
+    be swapped; one whose facing points toward it may be) and each observation that contradicts
+    it is mirrored back. Off: observations used as reported.
+``temporal``
+    ``"smoother"`` (offline, Rauch-Tung-Striebel over a constant-velocity model per joint),
+    ``"filter"`` (causal Kalman filter, for live use) or ``None``.
+``bones``
+    Bone lengths are estimated over the session (median) and every frame is projected onto them,
+    moving each end in proportion to its uncertainty. Off: no constraint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import uniform_filter1d
+
+from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
+
+Array = NDArray[np.float64]
+
+#: Base measurement noise of a tracked joint, metres: lateral (across the ray) and axial (along
+#: it). Extremities are noisier (Wang et al. 2015, Otte et al. 2016: hands, wrists, ankles and feet
+#: have the largest errors). These are prior knowledge of the device, not fitted to any truth.
+_LATERAL_M = np.full(N_JOINTS, 0.015)
+_AXIAL_M = np.full(N_JOINTS, 0.025)
+for _name, _f in {
+    "WristLeft": 1.6,
+    "WristRight": 1.6,
+    "HandLeft": 1.8,
+    "HandRight": 1.8,
+    "HandTipLeft": 2.2,
+    "HandTipRight": 2.2,
+    "ThumbLeft": 2.2,
+    "ThumbRight": 2.2,
+    "AnkleLeft": 1.8,
+    "AnkleRight": 1.8,
+    "FootLeft": 2.0,
+    "FootRight": 2.0,
+    "ElbowLeft": 1.3,
+    "ElbowRight": 1.3,
+    "KneeLeft": 1.3,
+    "KneeRight": 1.3,
+    "Head": 1.2,
+}.items():
+    _LATERAL_M[JOINT_INDEX[_name]] *= _f
+    _AXIAL_M[JOINT_INDEX[_name]] *= _f
+
+#: Process noise (white acceleration spectral density, m^2/s^3) of the constant-velocity model:
+#: limbs accelerate harder than the trunk.
+_ACCEL_PSD = np.full(N_JOINTS, 4.0)
+for _name, _q in {
+    "WristLeft": 40.0,
+    "WristRight": 40.0,
+    "HandLeft": 60.0,
+    "HandRight": 60.0,
+    "HandTipLeft": 80.0,
+    "HandTipRight": 80.0,
+    "ThumbLeft": 80.0,
+    "ThumbRight": 80.0,
+    "ElbowLeft": 15.0,
+    "ElbowRight": 15.0,
+    "AnkleLeft": 40.0,
+    "AnkleRight": 40.0,
+    "FootLeft": 60.0,
+    "FootRight": 60.0,
+    "KneeLeft": 15.0,
+    "KneeRight": 15.0,
+}.items():
+    _ACCEL_PSD[JOINT_INDEX[_name]] = _q
+
+
+@dataclass(frozen=True)
+class BestOptions:
+    """Switches and tuning of the fusion (see the module docstring)."""
+
+    timestamp: bool = True
+    covariance: bool = True
+    robust: bool = True
+    lr_swap: bool = True
+    temporal: str | None = "smoother"
+    bones: bool = True
+    inferred_inflation: float = 4.0
+    occluded_inflation: float = 2.0
+    gate_chi2: float = 11.34  # chi-square, 3 dof, 99 %
+    max_interp_gap_s: float = 0.1
+    max_predict_s: float = 0.5
+    lateral_m: Array = field(default_factory=lambda: _LATERAL_M.copy())
+    axial_m: Array = field(default_factory=lambda: _AXIAL_M.copy())
+    accel_psd: Array = field(default_factory=lambda: _ACCEL_PSD.copy())
+
+    def __post_init__(self) -> None:
+        if self.temporal not in (None, "smoother", "filter"):
+            raise ValueError(
+                f"temporal must be None, 'smoother' or 'filter', got {self.temporal!r}"
+            )
+
+
+@dataclass(frozen=True)
+class SensorStream:
+    """One sensor's observations, ready for fusion.
+
+    Attributes
+    ----------
+    t_server_s : (N,) float
+        Capture times on the server clock.
+    joints_sensor : (N, 25, 3) float
+        Joints in the sensor frame (x right, y down, z forward), NaN = not tracked.
+    states : (N, 25) int8
+    sensor2world : (4, 4) float
+    occluded : (N, 25) bool or None
+        The client's occlusion flags, if any.
+    """
+
+    t_server_s: Array
+    joints_sensor: Array
+    states: NDArray[np.int8]
+    sensor2world: Array
+    occluded: NDArray[np.bool_] | None = None
+
+
+@dataclass(frozen=True)
+class FusedSkeleton:
+    """Fused joints on the frame grid.
+
+    Attributes
+    ----------
+    t_server_s : (T,) float
+    positions : (T, 25, 3) float
+        World frame; NaN where there was nothing to fuse and nothing to predict from.
+    variance_m2 : (T, 25) float
+        Trace of the position covariance / 3 (a per-axis variance), NaN where positions are NaN.
+    n_sensors : (T, 25) int
+        Sensors that contributed (after gating).
+    swaps : dict
+        Per sensor index, the number of observations mirrored back.
+    """
+
+    t_server_s: Array
+    positions: Array
+    variance_m2: Array
+    n_sensors: NDArray[np.intp]
+    swaps: dict[int, int]
+
+
+def _facing(p_world: Array) -> Array:
+    """Horizontal unit facing direction ``(..., 3)`` of skeletons ``(..., 25, 3)`` (NaN: none)."""
+    j = JOINT_INDEX
+    lr = (p_world[..., j["HipLeft"], :] - p_world[..., j["HipRight"], :]) + (
+        p_world[..., j["ShoulderLeft"], :] - p_world[..., j["ShoulderRight"], :]
+    )
+    f = np.cross(lr, np.array([0.0, 0.0, 1.0]))
+    f[..., 2] = 0.0
+    n = np.linalg.norm(f, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 1e-6, f / n, np.nan)
+
+
+def correct_swaps(
+    t_server_s: list[Array], p_world: list[Array], sensor_pos: Array, *, bin_s: float = 1 / 30
+) -> list[NDArray[np.bool_]]:
+    """Decide per observation whether left and right are swapped.
+
+    Parameters
+    ----------
+    t_server_s : list of (N_s,) float
+    p_world : list of (N_s, 25, 3) float
+    sensor_pos : (S, 3) float
+
+    Returns
+    -------
+    swapped : list of (N_s,) bool
+    """
+    n_s = len(p_world)
+    t_all = np.concatenate(t_server_s)
+    if t_all.size == 0 or n_s < 2:
+        return [np.zeros(len(t), bool) for t in t_server_s]
+    t0 = t_all.min()
+    n_bins = int((t_all.max() - t0) / bin_s) + 1
+    facing = [_facing(p) for p in p_world]
+    # direction from the body to the sensor, horizontal
+    toward = []
+    for s in range(n_s):
+        trunk = p_world[s][:, [JOINT_INDEX["SpineBase"], JOINT_INDEX["SpineShoulder"]]]
+        c = np.where(np.isfinite(trunk).all(-1, keepdims=True), trunk, 0.0).sum(1)
+        n_ok = np.isfinite(trunk).all(-1).sum(1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = c / np.where(n_ok > 0, n_ok, np.nan)[:, None]
+        u = sensor_pos[s] - c
+        u[:, 2] = 0.0
+        with np.errstate(invalid="ignore"):
+            toward.append(u / np.linalg.norm(u, axis=1, keepdims=True))
+    # per bin: the facing consensus. Votes: an unambiguous sensor (reported facing points away
+    # from it) votes its facing with weight 1; an ambiguous one votes its facing with weight 0.5
+    # and, only as a tie-breaker, nothing for the mirrored one.
+    votes = np.zeros((n_bins, 3))
+    for s in range(n_s):
+        b = ((t_server_s[s] - t0) / bin_s).astype(np.intp)
+        f = facing[s]
+        ok = np.isfinite(f).all(1) & np.isfinite(toward[s]).all(1)
+        amb = np.einsum("ni,ni->n", np.nan_to_num(f), np.nan_to_num(toward[s])) > 0
+        w = np.where(amb, 0.5, 1.0) * ok
+        np.add.at(votes, b[ok], (np.nan_to_num(f) * w[:, None])[ok])
+    # ambiguous sensors: the candidate consensus must respect that ambiguous facings could be
+    # mirrored; resolve by the smoothed unambiguous evidence over a 1 s window, then per bin.
+    k = max(round(1.0 / bin_s), 1)
+    smooth = uniform_filter1d(votes, size=k, axis=0, mode="nearest")
+    # bins with no evidence take the nearest bin's direction
+    norm = np.linalg.norm(smooth, axis=1)
+    have = norm > 1e-9
+    if not have.any():
+        return [np.zeros(len(t), bool) for t in t_server_s]
+    idx = np.where(have, np.arange(n_bins), -1)
+    idx = np.maximum.accumulate(idx)
+    first = np.argmax(have)
+    idx[idx < 0] = first
+    consensus = smooth[idx] / norm[idx, None]
+    out = []
+    for s in range(n_s):
+        b = np.clip(((t_server_s[s] - t0) / bin_s).astype(np.intp), 0, n_bins - 1)
+        f = facing[s]
+        agree = np.einsum("ni,ni->n", np.nan_to_num(f), consensus[b])
+        amb = np.einsum("ni,ni->n", np.nan_to_num(f), np.nan_to_num(toward[s])) > 0
+        out.append((agree < 0) & amb & np.isfinite(f).all(1))
+    return out
+
+
+def _measurement_cov(
+    p_sensor: Array,
+    states: NDArray[np.int8],
+    occluded: NDArray[np.bool_] | None,
+    r_s2w: Array,
+    opt: BestOptions,
+) -> Array:
+    """World covariance ``(N, 25, 3, 3)`` of measurements in one sensor."""
+    n = p_sensor.shape[0]
+    if not opt.covariance:
+        return np.broadcast_to(np.eye(3) * 0.03**2, (n, N_JOINTS, 3, 3)).copy()
+    ray = p_sensor / np.linalg.norm(p_sensor, axis=-1, keepdims=True)
+    ray = np.nan_to_num(ray)
+    inflate = np.ones((n, N_JOINTS))
+    inflate = np.where(states == TrackingState.INFERRED, opt.inferred_inflation, inflate)
+    if occluded is not None:
+        inflate = inflate * np.where(occluded, opt.occluded_inflation, 1.0)
+    lat2 = (opt.lateral_m**2)[None, :] * inflate**2
+    ax2 = (opt.axial_m**2)[None, :] * inflate**2
+    outer = ray[..., :, None] * ray[..., None, :]
+    cov_s = lat2[..., None, None] * (np.eye(3) - outer) + ax2[..., None, None] * outer
+    return np.einsum("ij,ntjk,lk->ntil", r_s2w, cov_s, r_s2w)
+
+
+def _interp_stream(
+    t_grid: Array, t_obs: Array, p: Array, cov: Array, max_gap_s: float
+) -> tuple[Array, Array]:
+    """Linear interpolation of one stream ``(N, 25, 3)`` to ``t_grid``; NaN across big gaps."""
+    order = np.argsort(t_obs, kind="stable")
+    t, p, cov = t_obs[order], p[order], cov[order]
+    k = np.searchsorted(t, t_grid, side="right")
+    i0 = np.clip(k - 1, 0, len(t) - 1)
+    i1 = np.clip(k, 0, len(t) - 1)
+    dt = t[i1] - t[i0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.where(dt > 0, (t_grid - t[i0]) / dt, 0.0)
+    inside = (k > 0) & (k < len(t)) & (dt <= max_gap_s)
+    # at the very ends, accept the nearest sample within half a frame
+    near_end = ((k == 0) & (t[0] - t_grid <= 1 / 60)) | ((k == len(t)) & (t_grid - t[-1] <= 1 / 60))
+    w = np.where(near_end, np.where(k == 0, 0.0, 1.0), w)
+    ok = inside | near_end
+    wv = w[:, None, None]
+    out = p[i0] * (1 - wv) + p[i1] * wv
+    # a joint missing at either neighbour is missing (unless the weight is 0/1 on the good one)
+    out = np.where(ok[:, None, None], out, np.nan)
+    c = np.maximum(cov[i0], cov[i1]) if cov.size else cov
+    c = np.where(np.isfinite(out)[..., None], c, np.nan)
+    return out, c
+
+
+def _latest_stream(
+    t_grid: Array, t_obs: Array, p: Array, cov: Array, window_s: float
+) -> tuple[Array, Array]:
+    order = np.argsort(t_obs, kind="stable")
+    t, p, cov = t_obs[order], p[order], cov[order]
+    k = np.searchsorted(t, t_grid, side="right") - 1
+    ok = (k >= 0) & (t_grid - t[np.maximum(k, 0)] < window_s)
+    kk = np.maximum(k, 0)
+    out = np.where(ok[:, None, None], p[kk], np.nan)
+    c = np.where(ok[:, None, None, None], cov[kk], np.nan)
+    return out, c
+
+
+def _robust_combine(
+    p: Array, cov: Array, opt: BestOptions
+) -> tuple[Array, Array, NDArray[np.intp]]:
+    """Combine ``(T, S, J, 3)`` measurements with ``(T, S, J, 3, 3)`` covariances."""
+    valid = np.asarray(np.isfinite(p).all(-1) & np.isfinite(cov).all((-1, -2)), dtype=bool)
+    eye = np.eye(3)
+    c = np.where(valid[..., None, None], cov, eye)
+    w_mat = np.linalg.inv(c)
+    w_mat = np.where(valid[..., None, None], w_mat, 0.0)
+    z = np.where(valid[..., None], p, 0.0)
+    rw: Array = valid.astype(np.float64)
+    x = np.full(p.shape[:1] + p.shape[2:], np.nan)
+    info = np.zeros(p.shape[:1] + p.shape[2:3] + (3, 3))
+    n_iter = 5 if opt.robust else 1
+    for it in range(n_iter):
+        wm = w_mat * rw[..., None, None]
+        info = wm.sum(axis=1)
+        rhs = np.einsum("tsjab,tsjb->tja", wm, z)
+        has = rw.sum(axis=1) > 0
+        info_safe = np.where(has[..., None, None], info, eye)
+        x = np.linalg.solve(info_safe, rhs[..., None])[..., 0]
+        x = np.where(has[..., None], x, np.nan)
+        if not opt.robust or it == n_iter - 1:
+            break
+        r = z - np.nan_to_num(x)[:, None]
+        d2 = np.einsum("tsja,tsjab,tsjb->tsj", r, w_mat, r)
+        # Huber weights on the Mahalanobis distance: full weight inside the gate, falling off
+        # as 1/d outside it
+        rw = valid * np.minimum(1.0, np.sqrt(opt.gate_chi2 / np.maximum(d2, 1e-12)))
+        # a measurement far outside the gate while others agree is dropped outright
+        rw = np.where(d2 > 4 * opt.gate_chi2, 0.0, rw)
+    used = (rw > 0.2).sum(axis=1)
+    has = rw.sum(axis=1) > 0
+    cov_x = np.linalg.inv(np.where(has[..., None, None], info, eye))
+    cov_x = np.where(has[..., None, None], cov_x, np.nan)
+    return x, cov_x, used
+
+
+def _kalman(
+    t: Array, z: Array, r_cov: Array, q_psd: Array, *, smooth: bool, max_predict_s: float
+) -> tuple[Array, Array]:
+    """Constant-velocity Kalman filter (and RTS smoother) per joint, batched over joints.
+
+    z : (T, J, 3) measurements (NaN = none), r_cov : (T, J, 3, 3).
+    Returns positions (T, J, 3) and position variance per axis (T, J).
+    """
+    n_t, n_j = z.shape[:2]
+    x = np.zeros((n_j, 6))
+    p = np.zeros((n_j, 6, 6))
+    started = np.zeros(n_j, bool)
+    last_meas = np.full(n_j, -np.inf)
+    xs_f = np.full((n_t, n_j, 6), np.nan)
+    ps_f = np.full((n_t, n_j, 6, 6), np.nan)
+    xs_p = np.full((n_t, n_j, 6), np.nan)
+    ps_p = np.full((n_t, n_j, 6, 6), np.nan)
+    fs = np.zeros((n_t, 6, 6))
+    h = np.zeros((3, 6))
+    h[:, :3] = np.eye(3)
+    i6 = np.eye(6)
+    for k in range(n_t):
+        dt = t[k] - t[k - 1] if k > 0 else 0.0
+        f = np.eye(6)
+        f[:3, 3:] = np.eye(3) * dt
+        fs[k] = f
+        q1 = np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+        q = np.kron(q1, np.eye(3))[None] * q_psd[:, None, None]
+        x = x @ f.T
+        p = f @ p @ f.T + q
+        xs_p[k], ps_p[k] = x, p
+        zk = z[k]
+        has = np.isfinite(zk).all(-1) & np.isfinite(r_cov[k]).all((-1, -2))
+        # initialise joints on their first measurement
+        init = has & ~started
+        if init.any():
+            x[init] = 0.0
+            x[init, :3] = zk[init]
+            p[init] = 0.0
+            p[init, :3, :3] = r_cov[k][init]
+            p[init, 3:, 3:] = np.eye(3) * 1.0  # 1 m/s a priori
+            started |= init
+            last_meas[init] = t[k]
+        upd = has & ~init
+        if upd.any():
+            pk = p[upd]
+            s = pk[:, :3, :3] + r_cov[k][upd]
+            kg = pk[:, :, :3] @ np.linalg.inv(s)
+            innov = zk[upd] - x[upd, :3]
+            x[upd] = x[upd] + np.einsum("jab,jb->ja", kg, innov)
+            p[upd] = (i6 - kg @ h) @ pk
+            last_meas[upd] = t[k]
+        alive = started & (t[k] - last_meas <= max_predict_s)
+        xs_f[k, alive], ps_f[k, alive] = x[alive], p[alive]
+    if not smooth:
+        return xs_f[..., :3], np.trace(ps_f[..., :3, :3], axis1=-2, axis2=-1) / 3
+    xs = xs_f.copy()
+    ps = ps_f.copy()
+    for k in range(n_t - 2, -1, -1):
+        ok = np.isfinite(xs[k]).all(-1) & np.isfinite(xs[k + 1]).all(-1)
+        if not ok.any():
+            continue
+        f = fs[k + 1]
+        pp = ps_p[k + 1][ok]
+        c = ps_f[k][ok] @ f.T @ np.linalg.inv(pp)
+        xs[k, ok] = xs_f[k, ok] + np.einsum("jab,jb->ja", c, xs[k + 1, ok] - xs_p[k + 1, ok])
+        ps[k, ok] = ps_f[k, ok] + c @ (ps[k + 1, ok] - pp) @ np.swapaxes(c, -1, -2)
+    return xs[..., :3], np.trace(ps[..., :3, :3], axis1=-2, axis2=-1) / 3
+
+
+def enforce_bone_lengths(
+    positions: Array, variance: Array, *, iterations: int = 3
+) -> tuple[Array, Array]:
+    """Project every frame onto constant bone lengths (each bone's median over the sequence).
+
+    Each bone's two ends move along the bone in proportion to their variances.
+
+    Returns the adjusted positions ``(T, 25, 3)`` and the lengths ``(24,)``.
+    """
+    bones = bone_index_array()
+    x = positions.copy()
+    seg = x[:, bones[:, 1]] - x[:, bones[:, 0]]
+    lengths = np.nanmedian(np.linalg.norm(seg, axis=-1), axis=0)
+    var = np.where(np.isfinite(variance), variance, np.inf)
+    for _ in range(iterations):
+        for b, (pa, ch) in enumerate(bones):
+            d = x[:, ch] - x[:, pa]
+            n = np.linalg.norm(d, axis=-1)
+            ok = np.isfinite(n) & (n > 1e-9) & np.isfinite(lengths[b])
+            if not ok.any():
+                continue
+            corr = np.where(ok, (n - lengths[b]) / np.where(ok, n, 1.0), 0.0)[
+                :, None
+            ] * np.nan_to_num(d)
+            vp, vc = var[:, pa], var[:, ch]
+            tot = vp + vc
+            with np.errstate(invalid="ignore", divide="ignore"):
+                wc = np.where(np.isfinite(tot) & (tot > 0), vc / tot, 0.5)
+            wc = np.where(np.isinf(vc) & np.isfinite(vp), 1.0, wc)
+            wc = np.where(np.isinf(vp) & np.isfinite(vc), 0.0, wc)
+            x[:, ch] -= wc[:, None] * corr
+            x[:, pa] += (1 - wc)[:, None] * corr
+    return x, lengths
+
+
+def fuse_best(
+    streams: list[SensorStream],
+    t_grid_s: Array,
+    options: BestOptions = BestOptions(),
+    *,
+    chunk: int = 2000,
+) -> FusedSkeleton:
+    """Fuse S sensor streams into one skeleton at the frame times ``t_grid_s`` ``(T,)``."""
+    if not streams:
+        raise ValueError("fuse_best needs at least one sensor stream")
+    t_grid = np.asarray(t_grid_s, dtype=np.float64)
+    opt = options
+    p_world, covs, t_obs = [], [], []
+    for s in streams:
+        r = s.sensor2world[:3, :3]
+        pw = s.joints_sensor @ r.T + s.sensor2world[:3, 3]
+        p_world.append(pw)
+        covs.append(_measurement_cov(s.joints_sensor, s.states, s.occluded, r, opt))
+        t_obs.append(np.asarray(s.t_server_s, dtype=np.float64))
+    swaps: dict[int, int] = {}
+    if opt.lr_swap:
+        sensor_pos = np.array([s.sensor2world[:3, 3] for s in streams])
+        flags = correct_swaps(t_obs, p_world, sensor_pos)
+        mirror = np.asarray(MIRROR_INDEX)
+        for i, fl in enumerate(flags):
+            swaps[i] = int(fl.sum())
+            if fl.any():
+                p_world[i][fl] = p_world[i][fl][:, mirror]
+                covs[i][fl] = covs[i][fl][:, mirror]
+    n_t, n_s = t_grid.size, len(streams)
+    fused = np.full((n_t, N_JOINTS, 3), np.nan)
+    fcov = np.full((n_t, N_JOINTS, 3, 3), np.nan)
+    used = np.zeros((n_t, N_JOINTS), dtype=np.intp)
+    for a in range(0, n_t, chunk):
+        tg = t_grid[a : a + chunk]
+        zs = np.full((tg.size, n_s, N_JOINTS, 3), np.nan)
+        cs = np.full((tg.size, n_s, N_JOINTS, 3, 3), np.nan)
+        for i in range(n_s):
+            if t_obs[i].size == 0:
+                continue
+            if opt.timestamp:
+                zs[:, i], cs[:, i] = _interp_stream(
+                    tg, t_obs[i], p_world[i], covs[i], opt.max_interp_gap_s
+                )
+            else:
+                zs[:, i], cs[:, i] = _latest_stream(tg, t_obs[i], p_world[i], covs[i], 1 / 30)
+        x, cx, u = _robust_combine(zs, cs, opt)
+        fused[a : a + chunk], fcov[a : a + chunk], used[a : a + chunk] = x, cx, u
+    if opt.temporal is not None:
+        pos, var = _kalman(
+            t_grid,
+            fused,
+            fcov,
+            opt.accel_psd,
+            smooth=opt.temporal == "smoother",
+            max_predict_s=opt.max_predict_s,
+        )
+    else:
+        pos = fused
+        var = np.trace(fcov, axis1=-2, axis2=-1) / 3
+    if opt.bones:
+        pos, _ = enforce_bone_lengths(pos, var)
+    return FusedSkeleton(
+        t_server_s=t_grid, positions=pos, variance_m2=var, n_sensors=used, swaps=swaps
+    )

@@ -1,0 +1,167 @@
+"""Our fusion: swap correction, covariance weighting, robustness, smoothing, bone lengths."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from kinefuse.fusion.best import (
+    BestOptions,
+    SensorStream,
+    correct_swaps,
+    enforce_bone_lengths,
+    fuse_best,
+)
+from kinefuse.geometry.transforms import apply_transform, invert_transform
+from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
+from kinefuse.sensors.rig import default_rig
+from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, TrackingState, bone_index_array
+
+J = JOINT_INDEX
+
+# a standing body facing +x (world), metres
+_POSE = {
+    "SpineBase": (0, 0, 1.0), "SpineMid": (0, 0, 1.25), "SpineShoulder": (0, 0, 1.45),
+    "Neck": (0, 0, 1.52), "Head": (0, 0, 1.65), "ShoulderLeft": (0, 0.18, 1.42),
+    "ElbowLeft": (0, 0.2, 1.15), "WristLeft": (0.05, 0.2, 0.9), "HandLeft": (0.07, 0.2, 0.82),
+    "HandTipLeft": (0.09, 0.2, 0.75), "ThumbLeft": (0.1, 0.17, 0.85),
+    "ShoulderRight": (0, -0.18, 1.42), "ElbowRight": (0, -0.2, 1.15),
+    "WristRight": (0.05, -0.2, 0.9), "HandRight": (0.07, -0.2, 0.82),
+    "HandTipRight": (0.09, -0.2, 0.75), "ThumbRight": (0.1, -0.17, 0.85),
+    "HipLeft": (0, 0.09, 0.95), "KneeLeft": (0.02, 0.1, 0.5), "AnkleLeft": (0, 0.1, 0.08),
+    "FootLeft": (0.12, 0.1, 0.03), "HipRight": (0, -0.09, 0.95), "KneeRight": (0.02, -0.1, 0.5),
+    "AnkleRight": (0, -0.1, 0.08), "FootRight": (0.12, -0.1, 0.03),
+}  # fmt: skip
+BASE = np.zeros((25, 3))
+for _n, _p in _POSE.items():
+    BASE[J[_n]] = _p
+
+
+def truth(t: np.ndarray) -> np.ndarray:
+    """A rigid body swaying along x (constant bone lengths)."""
+    p = np.repeat(BASE[None], t.size, 0)
+    p[..., 0] += 0.3 * np.sin(0.8 * t)[:, None]
+    return p
+
+
+def make_streams(rng, *, seconds=8.0, noise=0.02, swap_sensor="k2", swap_p=0.5, outlier_p=0.0):
+    rig = default_rig(4)
+    streams = []
+    params = ClockParams(frame_drop_prob=0.0)
+    for s in rig.sensors:
+        cap = capture_times(draw_clock(rng, params), 0.0, seconds, rng, params)
+        p = apply_transform(invert_transform(s.sensor2world), truth(cap.t_true_s))
+        p = p + rng.normal(0, noise, p.shape)
+        if s.id == swap_sensor:
+            sw = rng.random(len(p)) < swap_p
+            p[sw] = p[sw][:, MIRROR_INDEX]
+        if outlier_p:
+            bad = rng.random(p.shape[:2]) < outlier_p
+            p[bad] += rng.normal(0, 0.5, (bad.sum(), 3))
+        st = np.full(p.shape[:2], TrackingState.TRACKED, np.int8)
+        streams.append(SensorStream(cap.t_true_s, p, st, s.sensor2world))
+    return streams
+
+
+def mae(f, grid) -> float:
+    return float(np.nanmean(np.linalg.norm(f.positions - truth(grid), axis=-1)))
+
+
+def test_fusion_beats_every_single_sensor(rng) -> None:
+    streams = make_streams(rng, swap_p=0.0)
+    grid = np.arange(0.5, 7.5, 1 / 30)
+    fused = fuse_best(streams, grid)
+    assert np.isfinite(fused.positions).all()
+    assert mae(fused, grid) < 0.01  # 1 cm, from 2 cm per-axis noise per sensor
+
+
+def test_swaps_are_found_and_mirrored_back(rng) -> None:
+    streams = make_streams(rng, swap_p=0.4)
+    grid = np.arange(0.5, 7.5, 1 / 30)
+    on = fuse_best(streams, grid)
+    off = fuse_best(streams, grid, BestOptions(lr_swap=False))
+    n_swapped_sensor = on.swaps[2]
+    assert 0.3 * len(streams[2].t_server_s) < n_swapped_sensor < 0.5 * len(streams[2].t_server_s)
+    assert sum(v for k, v in on.swaps.items() if k != 2) == 0
+    assert mae(on, grid) < mae(off, grid)
+
+
+def test_swap_decision_uses_sensor_side() -> None:
+    # one sensor sees the front (+x), one the back (-x): the back one reports a mirrored body
+    t = np.arange(10) / 30.0
+    front = np.repeat(BASE[None], 10, 0)
+    back = front[:, MIRROR_INDEX]
+    flags = correct_swaps(
+        [t, t, t], [front, front.copy(), back], np.array([[3, 0, 1], [0, 3, 1], [-3, 0, 1.0]])
+    )
+    assert not flags[0].any() and not flags[1].any() and flags[2].all()
+
+
+def test_robust_rejects_outliers(rng) -> None:
+    streams = make_streams(rng, swap_p=0.0, outlier_p=0.05)
+    grid = np.arange(0.5, 7.5, 1 / 30)
+    on = fuse_best(streams, grid, BestOptions(temporal=None, bones=False))
+    off = fuse_best(streams, grid, BestOptions(temporal=None, bones=False, robust=False))
+    assert mae(on, grid) < 0.8 * mae(off, grid)
+
+
+def test_inferred_joints_weigh_less(rng) -> None:
+    streams = make_streams(rng, swap_p=0.0, noise=0.01)
+    # sensor 0 reports a badly biased, INFERRED left wrist
+    s0 = streams[0]
+    j = s0.joints_sensor.copy()
+    j[:, J["WristLeft"]] += 0.15
+    st = s0.states.copy()
+    st[:, J["WristLeft"]] = TrackingState.INFERRED
+    streams[0] = replace(s0, joints_sensor=j, states=st)
+    grid = np.arange(0.5, 7.5, 1 / 30)
+    opt = BestOptions(robust=False, temporal=None, bones=False)
+    w = fuse_best(streams, grid, opt).positions[:, J["WristLeft"]]
+    u = fuse_best(streams, grid, replace(opt, covariance=False)).positions[:, J["WristLeft"]]
+    e_w = np.linalg.norm(w - truth(grid)[:, J["WristLeft"]], axis=-1).mean()
+    e_u = np.linalg.norm(u - truth(grid)[:, J["WristLeft"]], axis=-1).mean()
+    assert e_w < 0.5 * e_u
+
+
+@pytest.mark.parametrize("temporal", ["smoother", "filter", None])
+def test_gaps_give_nan_not_wrong_numbers(rng, temporal) -> None:
+    streams = make_streams(rng, swap_p=0.0)
+    # nobody sees the head between 3 and 5 s
+    cut = []
+    for s in streams:
+        j = s.joints_sensor.copy()
+        gap = (s.t_server_s > 3.0) & (s.t_server_s < 5.0)
+        j[gap, J["Head"]] = np.nan
+        st = s.states.copy()
+        st[gap, J["Head"]] = TrackingState.NOT_TRACKED
+        cut.append(replace(s, joints_sensor=j, states=st))
+    grid = np.arange(0.5, 7.5, 1 / 30)
+    f = fuse_best(cut, grid, BestOptions(temporal=temporal, bones=False))
+    head = f.positions[:, J["Head"]]
+    mid = (grid > 3.6) & (grid < 4.4)
+    assert np.isnan(head[mid]).all()
+    assert np.isfinite(head[grid < 2.9]).all() and np.isfinite(head[grid > 5.3]).all()
+    assert np.isfinite(f.positions[:, J["SpineBase"]]).all()
+
+
+def test_bone_lengths_become_constant(rng) -> None:
+    t = np.arange(200) / 30
+    p = truth(t) + rng.normal(0, 0.01, (200, 25, 3))
+    out, lengths = enforce_bone_lengths(p, np.full((200, 25), 1e-4), iterations=10)
+    b = bone_index_array()
+    seg = np.linalg.norm(out[:, b[:, 1]] - out[:, b[:, 0]], axis=-1)
+    assert np.nanstd(seg, axis=0).max() < 0.002  # 2 mm
+    true_len = np.linalg.norm(BASE[b[:, 1]] - BASE[b[:, 0]], axis=-1)
+    np.testing.assert_allclose(lengths, true_len, atol=0.01)  # 1 cm
+
+
+def test_single_sensor_and_bad_options(rng) -> None:
+    streams = make_streams(rng, swap_p=0.0)[:1]
+    grid = np.arange(0.5, 7.5, 1 / 30)
+    assert np.isfinite(fuse_best(streams, grid).positions).any()
+    with pytest.raises(ValueError, match="at least one sensor"):
+        fuse_best([], grid)
+    with pytest.raises(ValueError, match="temporal must be"):
+        BestOptions(temporal="kalman")
