@@ -1,0 +1,27 @@
+"""Recompute the realism tables of ``docs/realism.md``.
+
+Real vs simulated two-Kinect disagreement (KinectMultiTrack logs, registration-independent
+procedure) and single simulated sensors against the truth::
+
+    python benchmarks/realism.py [--seed K] [--repeats N] [--json]
+
+Reads ``../shared/data`` beside the project. Exit status 0 when every realism target is met.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from kinefuse.report.realism import main
+
+if __name__ == "__main__":
+    data = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    args = sys.argv[1:]
+    if "--data" not in args:
+        args = ["--data", str(data), *args]
+    start = time.perf_counter()
+    status = main(args)
+    print(f"\n(computed in {time.perf_counter() - start:.1f} s)")
+    raise SystemExit(status)

@@ -1,0 +1,290 @@
+"""Reading real two-Kinect logs, and the realism of the simulated tracker against them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinefuse.errors import InputError
+from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
+from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.motion.types import Motion
+from kinefuse.report.realism import (
+    DEFAULT_HEADINGS,
+    FACING_FRONT,
+    MEDIAN_BAND,
+    QUOTED_REAL,
+    PairLayout,
+    capture_mismatch_std,
+    clip_speed,
+    disagreement,
+    format_single,
+    format_table,
+    motion_profile,
+    pair_by_receive_time,
+    real_disagreement,
+    realism_table,
+    single_sensor_realism,
+    walking_passes,
+)
+from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+KMT = DATA / "kinect" / "kinect_multitrack"
+WALK = DATA / "motion" / "cmu" / "02_walk_a.amc"
+
+
+def _logs() -> list[Path]:
+    files = sorted(KMT.glob("*.csv"))
+    if len(files) != 2:
+        pytest.skip(f"the two KinectMultiTrack logs are not at {KMT}")
+    return files
+
+
+@pytest.fixture(scope="module")
+def recordings() -> dict[int, MultitrackRecording]:
+    recs = [read_kinect_multitrack(f) for f in _logs()]
+    return {r.kinect_config: r for r in recs}
+
+
+@pytest.fixture(scope="module")
+def walk() -> Motion:
+    if not WALK.is_file():
+        pytest.skip(f"real motion not found at {WALK}")
+    from kinefuse.motion import load_motion
+
+    return load_motion(WALK)
+
+
+# -------------------------------------------------------------------------------------------
+# the reader
+
+
+def test_reader_on_the_real_logs(recordings: dict[int, MultitrackRecording]) -> None:
+    assert set(recordings) == {0, 1}
+    for rec in recordings.values():
+        assert len(rec.streams) == 2
+        assert rec.scenarios == (1, 2, 3)
+        a, b = rec.streams
+        assert a.n_frames == b.n_frames > 1000
+        for s in rec.streams:
+            assert s.joints_m.shape == (s.n_frames, 25, 3)
+            assert np.isfinite(s.joints_m).all()
+            # kinefuse sensor axes: y down, so the head is above (smaller y) the ankles
+            head = s.joints_m[:, JOINT_INDEX["Head"], 1]
+            ankle = s.joints_m[:, JOINT_INDEX["AnkleLeft"], 1]
+            assert (head < ankle - 1.0).mean() > 0.99
+            assert 2.0 < np.median(s.joints_m[:, JOINT_INDEX["SpineBase"], 2]) < 3.0
+            assert s.height_m == pytest.approx(1.0)
+            assert np.all(np.diff(s.t_receive_s) >= 0)
+            # Skeleton_Time is a 30 Hz clock: most frame steps are 33 ms
+            steps = np.diff(s.t_sensor_s)
+            assert np.median(steps) == pytest.approx(1 / 30, abs=0.002)  # 2 ms
+    front = recordings[1].stream("138.251.213.82")
+    assert abs(front.init_angle_rad) < 0.1
+    assert recordings[1].stream("138.251.207.136").init_angle_rad == pytest.approx(-0.6659, 1e-3)
+    with pytest.raises(KeyError, match=r"no sensor '1\.2\.3\.4'"):
+        recordings[0].stream("1.2.3.4")
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "log.csv"
+    p.write_text(text)
+    return p
+
+
+def _small_log(tmp_path: Path) -> tuple[list[str], list[list[str]]]:
+    lines = _logs()[0].read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [ln.split(",") for ln in lines[1:5]]
+    return header, rows
+
+
+def test_reader_reads_a_small_copy(tmp_path: Path) -> None:
+    header, rows = _small_log(tmp_path)
+    p = _write(tmp_path, "\n".join(",".join(r) for r in [header, *rows]) + "\n\n")
+    rec = read_kinect_multitrack(p)
+    assert [s.n_frames for s in rec.streams] == [2, 2]
+    assert rec.streams[0].t_receive_s[0] == 0.0
+
+
+def test_reader_errors(tmp_path: Path) -> None:
+    header, rows = _small_log(tmp_path)
+    with pytest.raises(InputError, match="no such file"):
+        read_kinect_multitrack(tmp_path / "missing.csv")
+    with pytest.raises(InputError, match="the file is empty"):
+        read_kinect_multitrack(_write(tmp_path, ""))
+    with pytest.raises(InputError, match="no data rows"):
+        read_kinect_multitrack(_write(tmp_path, ",".join(header) + "\n"))
+    cut = [c for c in header if not c.strip().startswith("Head_")]
+    with pytest.raises(InputError, match="missing columns: Head_X, Head_Y, Head_Z"):
+        read_kinect_multitrack(_write(tmp_path, ",".join(cut) + "\n"))
+    short = [header, rows[0], rows[1][:20]]
+    with pytest.raises(InputError, match=r"log.csv:3: row has 20 fields, the header has 87"):
+        read_kinect_multitrack(_write(tmp_path, "\n".join(",".join(r) for r in short)))
+    bad = [list(r) for r in rows]
+    bad[1][header.index(" Head_Y")] = " oops"
+    with pytest.raises(InputError, match=r"log.csv:3: column Head_Y holds 'oops', not a number"):
+        read_kinect_multitrack(_write(tmp_path, "\n".join(",".join(r) for r in [header, *bad])))
+    bad = [list(r) for r in rows]
+    bad[2][header.index(" Tracker_Time")] = " soon"
+    with pytest.raises(InputError, match=r"log.csv:4: column Tracker_Time holds 'soon'"):
+        read_kinect_multitrack(_write(tmp_path, "\n".join(",".join(r) for r in [header, *bad])))
+    bad = [list(r) for r in rows]
+    bad[3][header.index(" Kinect_Config")] = " 1"
+    with pytest.raises(InputError, match=r"mixed Kinect_Config values \[0, 1\]"):
+        read_kinect_multitrack(_write(tmp_path, "\n".join(",".join(r) for r in [header, *bad])))
+
+
+# -------------------------------------------------------------------------------------------
+# the procedure
+
+
+def test_pair_by_receive_time() -> None:
+    a = np.array([0.0, 0.033, 0.066, 0.5])
+    b = np.array([0.070, 0.010, 0.040])  # unsorted on purpose
+    ia, ib = pair_by_receive_time(a, b, max_gap_s=0.04)
+    assert ia.tolist() == [0, 1, 2]
+    assert ib.tolist() == [1, 2, 0]
+    ia, ib = pair_by_receive_time(a, np.array([]))
+    assert ia.size == ib.size == 0
+    with pytest.raises(InputError, match="max_gap_s must be positive"):
+        pair_by_receive_time(a, b, max_gap_s=0.0)
+    with pytest.raises(InputError, match="receive times must be finite"):
+        pair_by_receive_time([np.nan], b)
+
+
+def test_disagreement_removes_any_rigid_motion_and_detects_mirroring() -> None:
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(50, 25, 3)) * 0.3 + [0.0, 0.0, 2.5]
+    b2a = make_transform(rot_z(0.7), [0.3, -1.0, 0.2])
+    b = apply_transform(np.linalg.inv(b2a), a)
+    idx = np.arange(50)
+    d = disagreement(a, b, idx, idx)
+    assert d.median_m < 1e-9 and d.p95_m < 1e-9  # 1 nm
+    np.testing.assert_allclose(d.b2a, b2a, atol=1e-9)
+    assert d.mirrored_fraction == 0.0
+    mirrored = disagreement(a, b[:, list(MIRROR_INDEX)], idx, idx)
+    assert mirrored.mirrored_fraction > 0.9
+    with pytest.raises(InputError, match="only 0 paired joints are finite"):
+        disagreement(np.full_like(a, np.nan), b, idx, idx)
+    with pytest.raises(InputError, match=r"joints_a must have shape \(N, 25, 3\)"):
+        disagreement(a[:, :3], b, idx, idx)
+
+
+def test_capture_mismatch_std() -> None:
+    rng = np.random.default_rng(0)
+    ta = np.arange(300) / 30.0 + 100.0
+    tb = np.arange(300) / 30.0 + 7.0 + rng.normal(0, 0.02, 300)  # other clock, 20 ms spread
+    assert capture_mismatch_std(ta, tb) == pytest.approx(0.02, rel=0.15)
+    with pytest.raises(InputError, match="differ in length"):
+        capture_mismatch_std(ta, tb[:3])
+
+
+def test_real_figures_are_reproduced(recordings: dict[int, MultitrackRecording]) -> None:
+    for config, (median, p95) in QUOTED_REAL.items():
+        d = real_disagreement(recordings[config])
+        assert d.median_m == pytest.approx(median, abs=0.001)  # 1 mm, the quoted rounding
+        assert d.p95_m == pytest.approx(p95, abs=0.005)  # 5 mm
+        assert d.mirrored_fraction < 0.05
+        assert 0.015 < d.capture_mismatch_std_s < 0.035  # 15-35 ms
+
+
+def test_motion_profile_of_the_real_logs(recordings: dict[int, MultitrackRecording]) -> None:
+    for rec in recordings.values():
+        prof = motion_profile(rec)
+        assert 0.3 < prof.still_fraction < 0.7
+        assert 0.3 < prof.moving_speed_m_s < 0.9
+
+
+def test_layout_from_a_real_log(recordings: dict[int, MultitrackRecording]) -> None:
+    lay = PairLayout.from_recording(recordings[1])
+    front, side = lay.sensor2world()
+    assert np.linalg.norm(front[:2, 3]) == pytest.approx(2.39, abs=0.01)
+    assert front[2, 3] == pytest.approx(1.0)
+    # the side sensor sees the person 38 degrees off the front sensor's direction
+    ang = np.degrees(np.arctan2(side[1, 3], side[0, 3]) - np.arctan2(front[1, 3], front[0, 3]))
+    assert ang == pytest.approx(-35.0, abs=1.0)
+
+
+def test_walking_passes(walk: Motion) -> None:
+    passes = walking_passes(walk, [0.0, np.pi / 2], half_length_m=0.8, backward=True)
+    assert len(passes) == 4
+    for m, direction in zip(passes, ([1, 0], [-1, 0], [0, 1], [0, -1]), strict=True):
+        root = m.positions[:, JOINT_INDEX["SpineBase"], :2]
+        travel = root[-1] - root[0]
+        assert np.dot(travel / np.linalg.norm(travel), direction) > 0.95
+        assert 1.3 < np.linalg.norm(travel) < 1.7
+        assert np.linalg.norm(root.mean(axis=0)) < 0.2
+    slow = walking_passes(walk, [0.0], speed_m_s=0.5, still_fraction=0.5)[0]
+    assert clip_speed(walk) > 1.0
+    assert slow.duration_s > 2.0 * passes[0].duration_s
+    still = np.linalg.norm(np.diff(slow.positions, axis=0), axis=-1).max(axis=1) < 1e-12
+    assert 0.45 < still.mean() < 0.55
+    with pytest.raises(InputError, match="a walking clip is needed"):
+        walking_passes(Motion(np.repeat(walk.positions[:1], 10, axis=0), 30.0), [0.0])
+    with pytest.raises(InputError, match=r"still_fraction must be in \[0, 1\)"):
+        walking_passes(walk, [0.0], still_fraction=1.0)
+
+
+# -------------------------------------------------------------------------------------------
+# acceptance: the simulated tracker against the real sensors, and against the truth
+
+
+@pytest.fixture(scope="module")
+def table(walk: Motion) -> list:
+    return realism_table(KMT, walk, seed=0)
+
+
+def test_simulated_two_sensor_disagreement_matches_the_real_one(table: list) -> None:
+    assert [r.layout for r in table] == ["parallel", "45 deg"]
+    for row in table:
+        assert abs(row.median_ratio - 1.0) <= MEDIAN_BAND, row
+        assert row.within_band
+        # the unsynchronized capture is reproduced too (pair mismatch spread, 20 % band)
+        assert row.sim_mismatch_std_s == pytest.approx(row.real_mismatch_std_s, rel=0.2)
+    # seen from 45 degrees apart, two sensors disagree more than side by side, as real ones do
+    assert table[1].sim_median_m > table[0].sim_median_m
+    text = format_table(table)
+    assert "| parallel |" in text and "| 45 deg |" in text and "NO" not in text
+
+
+def test_single_sensor_realism(walk: Motion) -> None:
+    passes = walking_passes(walk, DEFAULT_HEADINGS[::2])
+    res = single_sensor_realism(passes, np.random.default_rng(0))
+    assert res.failures() == []
+    assert 0.03 <= res.median_of_joint_medians_m <= 0.10
+    assert 0.03 <= res.overall_median_m <= 0.10
+    assert res.extremity_median_m > res.core_median_m
+    assert res.inferred_median_m >= 2 * res.tracked_median_m
+    assert res.tracked_outside_view == 0
+    assert "INFERRED joints" in format_single(res)
+
+
+def test_failures_reports_what_is_missed() -> None:
+    from kinefuse.report.realism import SingleSensorRealism
+
+    bad = SingleSensorRealism(
+        median_of_joint_medians_m=0.2,
+        overall_median_m=0.02,
+        per_joint_median_m={},
+        core_median_m=0.1,
+        extremity_median_m=0.05,
+        tracked_median_m=0.1,
+        inferred_median_m=0.1,
+        state_fraction={"tracked": 1.0, "inferred": 0.0, "not_tracked": 0.0},
+        tracked_outside_view=3,
+        swapped_fraction=0.0,
+    )
+    text = " | ".join(bad.failures())
+    assert "median_of_joint_medians_m = 20.0 cm, outside 3-10 cm" in text
+    assert "overall_median_m = 2.0 cm" in text
+    assert "not worse than spine and shoulders" in text
+    assert "< 2 x tracked" in text
+    assert "3 joints outside the view reported TRACKED" in text
+
+
+def test_front_facing_passes_cover_the_measured_yaw() -> None:
+    assert max(abs(np.degrees(h)) for h in FACING_FRONT) <= 50.0
