@@ -1,9 +1,263 @@
-"""The ``kinefuse`` command line."""
+"""The ``kinefuse`` command line: parse, dispatch, report errors. Heavy modules load lazily."""
 
+from __future__ import annotations
+
+import argparse
+import json
 import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from kinefuse import __version__
+from kinefuse.errors import KinefuseError
 
 
-def main(argv: list[str] | None = None) -> int:
-    del argv
-    print("kinefuse: under construction", file=sys.stderr)
-    return 1
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def _add_simulate_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--skeleton", type=Path, help="the ASF of an .amc clip (default: found beside it)"
+    )
+    p.add_argument(
+        "--units",
+        choices=["m", "cm", "mm", "in", "asf"],
+        help="length unit of the clip (default: chosen so the subject's height is plausible)",
+    )
+    p.add_argument(
+        "--name-map",
+        type=Path,
+        help="TOML map from the clip's joint names to Kinect joints (docs/motion.md)",
+    )
+    rig = p.add_mutually_exclusive_group()
+    rig.add_argument("--rig", type=Path, help="rig file (TOML) with the sensors' poses")
+    rig.add_argument("--sensors", type=int, default=4, help="sensors of the default layout (4)")
+    p.add_argument("--seconds", type=_positive_float, help="length of the motion (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    p.add_argument(
+        "--calibration-seconds",
+        type=_nonneg_float,
+        default=20.0,
+        help="length of the wand-waving phase before the motion (20 s; 0 = none)",
+    )
+    p.add_argument(
+        "--depth-rate",
+        type=_positive_float,
+        default=10.0,
+        help="rate of the stored calibration depth frames, Hz (10)",
+    )
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from kinefuse.app import run_simulate
+
+    run_simulate(
+        clip=args.clip,
+        skeleton=args.skeleton,
+        units=args.units,
+        name_map=args.name_map,
+        rig=args.rig,
+        sensors=args.sensors,
+        seconds=args.seconds,
+        seed=args.seed,
+        calibration_s=args.calibration_seconds,
+        depth_rate_hz=args.depth_rate,
+        out=args.out,
+        progress=lambda m: print(m, file=sys.stderr),
+    )
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from kinefuse.io.store import SessionStore
+    from kinefuse.report.inspect import format_inspect, inspect_session
+
+    with SessionStore.open(args.session) as st:
+        info = inspect_session(st)
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        print(format_inspect(info))
+    return 0
+
+
+def _add_calibration_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--calibration", type=Path, help="calibration file (TOML) with sensor poses")
+    g.add_argument(
+        "--true-calibration",
+        action="store_true",
+        help="use the simulator's true sensor poses (evaluation only)",
+    )
+
+
+def _methods(text: str) -> tuple[str, ...]:
+    from kinefuse.fusion.session import METHODS
+
+    names = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in names if m not in METHODS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
+        )
+    return names
+
+
+def _cmd_fuse(args: argparse.Namespace) -> int:
+    from kinefuse.app import run_fuse
+
+    info = run_fuse(
+        session=args.session,
+        method=args.method,
+        out=args.out,
+        calibration=args.calibration,
+        true_calibration=args.true_calibration,
+    )
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        status = ", ".join(f"{k} {v}" for k, v in info["status"].items() if v)  # type: ignore[attr-defined]
+        print(
+            f"fused {info['frames']} frames with {info['method']} ({info['calibration']}) in "
+            f"{info['seconds']:.2f} s; joint status: {status}"
+        )
+        if info["out"]:
+            print(f"wrote {info['out']}")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from kinefuse.app import format_evaluate, run_evaluate
+
+    report = run_evaluate(
+        session=args.session,
+        methods=args.methods,
+        out_dir=args.out,
+        calibration=args.calibration,
+        true_calibration=args.true_calibration,
+    )
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(format_evaluate(report, args.methods))
+        for w in report.get("written", []):  # type: ignore[attr-defined]
+            print(f"wrote {w}")
+    return 0
+
+
+def _cmd_realism(args: argparse.Namespace) -> int:
+    from kinefuse.report.realism import main as realism_main
+
+    return realism_main(args.rest)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from kinefuse.app import run_demo
+
+    return run_demo(out_dir=args.out, seed=args.seed)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="kinefuse",
+        description="Markerless motion capture with several depth sensors (simulated lab).",
+    )
+    parser.add_argument("--version", action="version", version=f"kinefuse {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="simulate a session from the bundled clip and report on it")
+    p.add_argument("--out", type=Path, default=Path("kinefuse-demo"), help="output folder")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser("simulate", help="simulate a capture session of a real motion clip")
+    p.add_argument("--clip", type=Path, required=True, help="motion clip (.bvh or .amc)")
+    _add_simulate_args(p)
+    p.add_argument("--out", type=Path, required=True, help="session store to write (.sqlite)")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("fuse", help="fuse a session's joints into one skeleton")
+    p.add_argument("session", type=Path)
+    _add_calibration_args(p)
+    p.add_argument(
+        "--method",
+        default="best",
+        choices=["linear", "geometric", "nonlinear", "paper", "best"],
+        help="fusion method (best)",
+    )
+    p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc or .csv)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_fuse)
+
+    p = sub.add_parser("evaluate", help="compare fusion methods against the simulator's truth")
+    p.add_argument("session", type=Path)
+    _add_calibration_args(p)
+    p.add_argument(
+        "--methods",
+        type=_methods,
+        default=("linear", "geometric", "nonlinear", "paper", "best"),
+        help="comma-separated methods (all five)",
+    )
+    p.add_argument("--out", type=Path, help="folder for the paper-style tables and plots")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser(
+        "realism",
+        help="simulated vs real Kinect v2 two-sensor disagreement (docs/realism.md)",
+        add_help=False,
+    )
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="options of the realism report")
+    p.set_defaults(func=_cmd_realism)
+
+    p = sub.add_parser("inspect", help="summarize a session store")
+    p.add_argument("session", type=Path)
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_inspect)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if argv[:1] == ["realism"]:
+        # the realism report has its own option parser: hand it everything after the name
+        args = argparse.Namespace(func=_cmd_realism, rest=argv[1:])
+    else:
+        args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except KinefuseError as exc:
+        print(f"kinefuse: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("kinefuse: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        # the reader of our output went away (e.g. `| head`): not an error of ours
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -33,7 +33,7 @@ def check_transform(t: ArrayLike, name: str = "transform") -> Array:
 
 
 def make_transform(rotation: ArrayLike, translation: ArrayLike) -> Array:
-    """Build ``(..., 4, 4)`` transforms from rotations ``(..., 3, 3)`` and translations ``(..., 3)``."""
+    """Transforms ``(..., 4, 4)`` from rotations ``(..., 3, 3)`` and translations ``(..., 3)``."""
     r = np.asarray(rotation, dtype=np.float64)
     t = np.asarray(translation, dtype=np.float64)
     out = np.zeros((*r.shape[:-2], 4, 4))
@@ -118,9 +118,7 @@ def rotation_angle_deg(r_a: ArrayLike, r_b: ArrayLike) -> NDArray[np.float64]:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def kabsch(
-    src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None
-) -> Array:
+def kabsch(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None) -> Array:
     """Rigid transform ``src2dst`` minimizing the (weighted) squared distances (Kabsch/Umeyama,
     no scale). Rows with NaN in either set are ignored.
 

@@ -92,10 +92,12 @@ class Intrinsics:
         z = p[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.where(z > 0, 1.0 / z, np.nan)
-        return np.stack([self.fx * p[..., 0] * inv + self.cx, self.fy * p[..., 1] * inv + self.cy], -1)
+        return np.stack(
+            [self.fx * p[..., 0] * inv + self.cx, self.fy * p[..., 1] * inv + self.cy], -1
+        )
 
     def backproject(self, uv: ArrayLike, depth_m: ArrayLike) -> Array:
-        """Points ``(..., 3)`` at depth (z) ``depth_m`` ``(...)`` behind pixels ``uv`` ``(..., 2)``."""
+        """Points ``(..., 3)`` with z = ``depth_m`` ``(...)`` behind pixels ``uv`` ``(..., 2)``."""
         q = np.asarray(uv, dtype=np.float64)
         z = np.asarray(depth_m, dtype=np.float64)
         x = (q[..., 0] - self.cx) / self.fx * z
@@ -120,7 +122,5 @@ class Intrinsics:
     def pixel_rays(self) -> Array:
         """Unit ray directions ``(height, width, 3)`` through every pixel centre."""
         u, v = np.meshgrid(np.arange(self.width), np.arange(self.height))
-        d = np.stack(
-            [(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones(u.shape)], axis=-1
-        )
+        d = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones(u.shape)], axis=-1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)

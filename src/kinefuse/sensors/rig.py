@@ -11,8 +11,9 @@ Rig file (TOML)::
     roll_deg = 0.0            # optional: rotation about the optical axis
 
     [actor]                   # optional
-    position_m = [0.0, 0.0]   # where the actor's SpineBase starts on the floor
-    heading_deg = 0.0         # facing direction, from the world x axis toward y
+    position_m = [0.0, 0.0]   # where the actor's SpineBase starts on the floor (default: the
+                              # clip's path is centred on the origin)
+    heading_deg = 0.0         # initial facing direction, from the world x axis toward y
 
 Positions are world metres, z up.
 """
@@ -54,7 +55,7 @@ class Rig:
     """A set of sensors and the actor's starting place."""
 
     sensors: tuple[SensorSpec, ...]
-    actor_position_m: tuple[float, float] = (0.0, 0.0)
+    actor_position_m: tuple[float, float] | None = None
     actor_heading_deg: float = 0.0
     description: str = field(default="")
 
@@ -168,7 +169,7 @@ def parse_rig(text: str, *, source: str = "<rig>") -> Rig:
         raise RigError(f"{source}: [actor]: 'heading_deg' must be a number, got {heading!r}")
     return Rig(
         sensors=tuple(sensors),
-        actor_position_m=(0.0, 0.0) if pos2 is None else (float(pos2[0]), float(pos2[1])),
+        actor_position_m=None if pos2 is None else (float(pos2[0]), float(pos2[1])),
         actor_heading_deg=float(heading),
         description=source,
     )
@@ -207,11 +208,9 @@ def rig_to_toml(rig: Rig) -> str:
             f"roll_deg = {roll:.6f}",
             "",
         ]
-    ax, ay = rig.actor_position_m
-    lines += [
-        "[actor]",
-        f"position_m = [{ax:.6f}, {ay:.6f}]",
-        f"heading_deg = {rig.actor_heading_deg:.6f}",
-        "",
-    ]
+    lines += ["[actor]"]
+    if rig.actor_position_m is not None:
+        ax, ay = rig.actor_position_m
+        lines += [f"position_m = [{ax:.6f}, {ay:.6f}]"]
+    lines += [f"heading_deg = {rig.actor_heading_deg:.6f}", ""]
     return "\n".join(lines)

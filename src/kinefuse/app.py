@@ -1,0 +1,237 @@
+"""Application workflows behind the CLI: load, configure, run, report. No argument parsing here."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import InputError
+from kinefuse.io.store import SessionStore
+from kinefuse.motion.types import Motion
+from kinefuse.sensors.rig import Rig
+from kinefuse.skeleton import JOINT_INDEX
+
+Array = NDArray[np.float64]
+
+#: The demo's bundled clip: CMU subject 01, trial 01 (forward jumps, turn around), the original
+#: Acclaim ASF/AMC from the fairmotion repository (BSD); see ``kinefuse/data/LICENSE_clips.md``.
+DEMO_CLIP = "01_01.amc.gz"
+
+
+def demo_clip_path() -> Path:
+    """Path of the bundled demo clip inside the installed package."""
+    return Path(str(resources.files("kinefuse") / "data" / DEMO_CLIP))
+
+
+def place_actor(motion: Motion, rig: Rig) -> Motion:
+    """Put the actor where the rig says: its SpineBase at the rig's actor position at the first
+    frame, or, when the rig names none, the clip's path centred on the origin; facing the rig's
+    heading at the first frame; feet on the floor."""
+    from kinefuse.motion import place
+
+    if rig.actor_position_m is not None:
+        return place(motion, offset_m=rig.actor_position_m, heading_deg=rig.actor_heading_deg)
+    placed = place(motion, offset_m=(0.0, 0.0), heading_deg=rig.actor_heading_deg)
+    root = placed.positions[:, JOINT_INDEX["SpineBase"], :2]
+    centre = (root.min(axis=0) + root.max(axis=0)) / 2
+    return place(
+        motion,
+        offset_m=(float(-centre[0]), float(-centre[1])),
+        heading_deg=rig.actor_heading_deg,
+    )
+
+
+def run_simulate(
+    *,
+    clip: Path,
+    out: Path,
+    skeleton: Path | None = None,
+    units: str | None = None,
+    name_map: Path | None = None,
+    rig: Path | None = None,
+    sensors: int = 4,
+    seconds: float | None = None,
+    seed: int = 0,
+    calibration_s: float = 20.0,
+    depth_rate_hz: float = 10.0,
+    progress: Callable[[str], None] | None = None,
+) -> Path:
+    """Load a clip and a rig, place the actor, and simulate a session into ``out``."""
+    from kinefuse.motion import load_motion
+    from kinefuse.sensors.lab import LabConfig, simulate_session
+    from kinefuse.sensors.rig import default_rig, load_rig
+
+    say = progress or (lambda _m: None)
+    the_rig = load_rig(rig) if rig is not None else default_rig(sensors)
+    say(f"loading {clip}")
+    motion = load_motion(clip, skeleton=skeleton, units=units, name_map=name_map)
+    if seconds is not None and seconds > motion.duration_s + 1e-9:
+        raise InputError(
+            f"--seconds {seconds:g} is longer than the clip ({motion.duration_s:.2f} s); "
+            "give at most the clip's length or leave --seconds out"
+        )
+    motion = place_actor(motion, the_rig)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    config = LabConfig(
+        seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
+    )
+    return simulate_session(motion, the_rig, out, config, progress=say)
+
+
+def run_demo(*, out_dir: Path, seed: int = 0) -> int:
+    """The main job on the bundled clip: simulate a 4-sensor session and report on it."""
+    from kinefuse.report.inspect import format_inspect, inspect_session
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    session = out_dir / "session.sqlite"
+    print(f"kinefuse demo: simulating 4 Kinect v2 sensors watching {DEMO_CLIP}")
+    run_simulate(
+        clip=demo_clip_path(),
+        out=session,
+        seed=seed,
+        calibration_s=10.0,
+        progress=lambda m: print("  " + m),
+    )
+    with SessionStore.open(session) as st:
+        info = inspect_session(st)
+    (out_dir / "inspect.json").write_text(json.dumps(info, indent=2) + "\n")
+    print(format_inspect(info))
+    print(f"\nsession: {session}\nsummary: {out_dir / 'inspect.json'}")
+    return 0
+
+
+def resolve_poses(
+    store: SessionStore, calibration: Path | None, true_calibration: bool
+) -> tuple[dict[str, Array], str]:
+    """Sensor poses for fusion: a calibration file, the truth (evaluation only), or the
+    calibration stored in the session by ``kinefuse calibrate`` (full preferred over paper)."""
+    from kinefuse.calibration.calib_file import loads_calibration, read_calibration
+
+    if calibration is not None and true_calibration:
+        raise InputError("give either --calibration or --true-calibration, not both")
+    if true_calibration:
+        if not store.has_truth():
+            raise InputError(
+                f"{store.path} has no ground truth (a live recording): --true-calibration is only "
+                "for simulated sessions; calibrate it with `kinefuse calibrate`"
+            )
+        truth = store.truth()
+        return {s.id: truth.sensor(s.id)[0] for s in store.sensors()}, "true poses (simulator)"
+    if calibration is not None:
+        return read_calibration(calibration).sensor2world, str(calibration)
+    for name in ("full", "paper"):
+        text = store.calibration(name)
+        if text is not None:
+            return loads_calibration(text, source=f"{store.path} [{name}]").sensor2world, (
+                f"session calibration ({name})"
+            )
+    raise InputError(
+        f"{store.path} has no calibration: run `kinefuse calibrate {store.path} --method full` "
+        "first, or pass --calibration CALIB.toml (or --true-calibration for a simulated session)"
+    )
+
+
+def run_fuse(
+    *,
+    session: Path,
+    method: str,
+    out: Path | None,
+    calibration: Path | None,
+    true_calibration: bool,
+) -> dict[str, object]:
+    """Fuse a session with one method; store the result in the session and export it."""
+    from kinefuse.fusion.session import frame_grid, load_sensors, run_method
+    from kinefuse.fusion.status import status_counts
+    from kinefuse.io.export import export_skeleton
+
+    if out is not None:
+        from kinefuse.io.export import EXPORTERS
+
+        if out.suffix.lower() not in EXPORTERS:
+            raise InputError(
+                f"{out}: unknown output format {out.suffix or '(none)'!r}; use one of "
+                + ", ".join(sorted(EXPORTERS))
+            )
+    with SessionStore.open(session, writable=True) as store:
+        poses, source = resolve_poses(store, calibration, true_calibration)
+        sensors = load_sensors(store, poses)
+        grid = frame_grid(sensors)
+        res = run_method(sensors, grid, method)
+        store.write_fused(method, res.t_server_s, res.positions, res.status)
+    if out is not None:
+        export_skeleton(out, res.t_server_s, res.positions)
+    return {
+        "method": method,
+        "calibration": source,
+        "frames": int(res.t_server_s.size),
+        "seconds": res.seconds,
+        "status": status_counts(res.status),
+        "out": str(out) if out is not None else None,
+    }
+
+
+def run_evaluate(
+    *,
+    session: Path,
+    methods: tuple[str, ...],
+    out_dir: Path | None,
+    calibration: Path | None,
+    true_calibration: bool,
+) -> dict[str, object]:
+    """Compare fusion methods against the truth of a simulated session."""
+    from kinefuse.fusion.session import METHODS, load_sensors
+    from kinefuse.report.evaluate import evaluate, write_tables
+
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputError(
+            f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+        )
+    with SessionStore.open(session) as store:
+        if not store.has_truth():
+            raise InputError(
+                f"{session} has no ground truth, so there is nothing to evaluate against; "
+                "evaluate simulated sessions (kinefuse simulate)"
+            )
+        poses, source = resolve_poses(store, calibration, true_calibration)
+        sensors = load_sensors(store, poses)
+        report, results, truth = evaluate(store, sensors, methods)
+    report["calibration"] = source
+    if out_dir is not None:
+        written = write_tables(out_dir, report, results, sensors, truth, methods)
+        (out_dir / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
+        report["written"] = [str(p) for p in written]
+    return report
+
+
+def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
+    """A short text table of an evaluation."""
+    lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}", ""]
+    lines.append(f"{'method':<10} {'MAE cm':>8} {'RMSE cm':>8} {'p95 cm':>8} {'missing':>8}")
+    for m in methods:
+        r = report[m]
+        assert isinstance(r, dict)
+        lines.append(
+            f"{m:<10} {100 * r['mae_m']:8.2f} {100 * r['rmse_m']:8.2f} {100 * r['p95_m']:8.2f}"
+            f" {100 * r['missing_fraction']:7.1f}%"
+        )
+    occ = report.get("occlusion")
+    if isinstance(occ, dict):
+        lines.append(
+            f"\nocclusion detection vs ray casting: precision {occ['precision']:.2f}, "
+            f"recall {occ['recall']:.2f}"
+        )
+    abl = report.get("ablation")
+    if isinstance(abl, dict):
+        lines.append("\nablation of best (MAE without the part, and its gain):")
+        for part, v in abl.items():
+            lines.append(
+                f"  {part:<11} {100 * v['mae_without_m']:6.2f} cm   gain "
+                f"{100 * v['gain_m']:+.2f} cm ({v['gain_percent']:+.1f} %)"
+            )
+    return "\n".join(lines)
