@@ -226,3 +226,47 @@ def simulate_session(
     finally:
         store.close()
     return Path(out)
+
+
+def _fmt_value(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, tuple | list | np.ndarray):
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            return ", ".join(str(x) for x in v)
+        if a.size > 6:
+            shape = "x".join(str(n) for n in a.shape)
+            return f"{shape} values, {a.min():.4g} to {a.max():.4g}"
+        return ", ".join(f"{x:.4g}" for x in a.ravel())
+    return str(v)
+
+
+def describe_error_model(model: ErrorModel | None = None) -> str:
+    """Markdown tables of every simulator parameter: value, unit, kind and source.
+
+    ``docs/error_model.md`` embeds this text; a test keeps the two the same.
+    """
+    from dataclasses import fields
+
+    m = ErrorModel() if model is None else model
+    out = []
+    for group in fields(m):
+        params = getattr(m, group.name)
+        out += [
+            f"### `{group.name}`: {type(params).__name__}",
+            "",
+            "| parameter | value | unit | kind | source |",
+            "|---|---|---|---|---|",
+        ]
+        for f in fields(params):
+            md = dict(f.metadata)
+            src = str(md.get("source", "")).replace("|", "/").replace("\n", " ")
+            kind = md.get("kind", "assumption" if "assumption" in src.lower() else "")
+            out.append(
+                f"| `{f.name}` | {_fmt_value(getattr(params, f.name))} | {md.get('unit', '')} "
+                f"| {kind} | {src} |"
+            )
+        out.append("")
+    return "\n".join(out)

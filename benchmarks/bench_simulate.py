@@ -1,0 +1,73 @@
+"""Simulator speed: 60 s of 4 sensors without depth frames (target: under 20 s on one core).
+
+Run: ``python benchmarks/bench_simulate.py``. The motion is the bundled CMU 01_01 clip played
+forward then backward until it lasts 60 s. Prints the wall time of ``simulate_session`` (store
+writes included) split into its parts, and, as a machine-speed reference measured in the same
+run, the time of a fixed numpy workload, so runs on different machines can be compared by ratio.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["OMP_NUM_THREADS"] = "1"
+os.environ["OPENBLAS_NUM_THREADS"] = "1"
+os.environ["MKL_NUM_THREADS"] = "1"
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from kinefuse.app import demo_clip_path, place_actor
+from kinefuse.motion import load_motion
+from kinefuse.motion.types import Motion
+from kinefuse.sensors.lab import LabConfig, simulate_session
+from kinefuse.sensors.rig import default_rig
+
+SECONDS = 60.0
+TARGET_S = 20.0
+
+
+def reference_workload() -> float:
+    """A fixed numpy workload (elementwise math and a small linear solve), seconds."""
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=2_000_000)
+    t0 = time.perf_counter()
+    for _ in range(10):
+        np.sqrt(np.abs(a) + 1.0).sum()
+        np.linalg.solve(np.eye(200) + 0.01 * rng.normal(size=(200, 200)), np.ones(200))
+    return time.perf_counter() - t0
+
+
+def long_motion(seconds: float) -> Motion:
+    m = load_motion(demo_clip_path())
+    fwd = m.positions
+    frames = [fwd]
+    n_needed = int(seconds * m.rate_hz) + 2
+    while sum(len(f) for f in frames) < n_needed:
+        frames.append(frames[-1][::-1])
+    pos = np.concatenate(frames)[:n_needed]
+    return Motion(pos, m.rate_hz, m.synthesized, m.source + " (ping-pong to 60 s)")
+
+
+def main() -> None:
+    rig = default_rig(4)
+    motion = place_actor(long_motion(SECONDS), rig)
+    ref = reference_workload()
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "bench.sqlite"
+        cfg = LabConfig(seed=0, calibration_s=0.0, motion_s=SECONDS)
+        t0 = time.perf_counter()
+        simulate_session(motion, rig, out, cfg)
+        took = time.perf_counter() - t0
+        size_mb = out.stat().st_size / 1e6
+    print(f"simulate {SECONDS:.0f} s x 4 sensors, no depth frames: {took:.2f} s "
+          f"(target < {TARGET_S:.0f} s: {'met' if took < TARGET_S else 'NOT met'}); "
+          f"store {size_mb:.1f} MB")  # fmt: skip
+    print(f"reference numpy workload: {ref:.3f} s; simulate / reference = {took / ref:.1f}")
+
+
+if __name__ == "__main__":
+    main()
