@@ -1,0 +1,296 @@
+"""The calibration file: every sensor's pose in the world, as TOML (format in docs/calibration.md).
+
+Example::
+
+    format = "kinefuse-calibration"
+    format_version = 1
+    method = "full"
+    created = 2026-11-21T22:50:00Z
+    world = "wand: origin below the wand's first position, x along its first move; z up ..."
+    rms_mm = 1.9
+
+    [[sensor]]
+    id = "k0"
+    serial = "003456165147"
+    residual_mm = 1.7
+    sightings = 571
+    sensor2world = [
+        [0.70, -0.10, 0.70, -2.10],
+        [-0.71, -0.10, 0.70, -2.00],
+        [0.00, -0.99, -0.14, 1.20],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+
+    [sensor.intrinsics]
+    width = 512
+    height = 424
+    fx = 365.0
+    ...
+
+Lengths are metres except the fields named ``_mm``; ``sensor2world`` maps a point in the sensor
+frame (x right, y down, z forward) to the world (z up). Reading checks every field and says which
+one is wrong in which file.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.calibration.register import Registration
+from kinefuse.errors import InputError
+from kinefuse.sensors.intrinsics import Intrinsics
+
+Array = NDArray[np.float64]
+
+FORMAT = "kinefuse-calibration"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class SensorCalibration:
+    """One sensor in a calibration file.
+
+    Attributes
+    ----------
+    id : str
+    serial : str
+        Device serial number ("" when unknown).
+    sensor2world : (4, 4) float
+    intrinsics : Intrinsics
+        The intrinsics the wand detection used.
+    residual_m : float
+        The registration residual of this sensor, metres (NaN when unknown).
+    n_sightings : int
+        Number of wand sightings the pose rests on.
+    """
+
+    id: str
+    serial: str
+    sensor2world: Array
+    intrinsics: Intrinsics
+    residual_m: float
+    n_sightings: int
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationFile:
+    """A whole calibration: method, date, world definition and the sensors."""
+
+    method: str
+    created: _dt.datetime
+    sensors: tuple[SensorCalibration, ...]
+    world: str = ""
+    rms_m: float = float("nan")
+
+    def sensor(self, sensor_id: str) -> SensorCalibration:
+        """The entry of one sensor (KeyError naming the known ids otherwise)."""
+        for s in self.sensors:
+            if s.id == sensor_id:
+                return s
+        raise KeyError(
+            f"no sensor {sensor_id!r} in the calibration; it has: "
+            f"{', '.join(s.id for s in self.sensors)}"
+        )
+
+    @property
+    def sensor2world(self) -> dict[str, Array]:
+        """Poses by sensor id."""
+        return {s.id: s.sensor2world for s in self.sensors}
+
+
+def calibration_from_registration(
+    registration: Registration,
+    intrinsics: Mapping[str, Intrinsics],
+    *,
+    serials: Mapping[str, str] | None = None,
+    created: _dt.datetime | None = None,
+) -> CalibrationFile:
+    """Bundle a :class:`Registration` with the sensors' intrinsics and serials for writing.
+
+    ``created`` defaults to now (UTC). Every registered sensor needs its intrinsics.
+    """
+    missing = [sid for sid in registration.sensor_ids if sid not in intrinsics]
+    if missing:
+        raise InputError(f"no intrinsics given for sensor(s) {', '.join(missing)}")
+    ser = dict(serials or {})
+    sensors = tuple(
+        SensorCalibration(
+            id=sid,
+            serial=str(ser.get(sid, "")),
+            sensor2world=np.asarray(registration.sensor2world[k], dtype=np.float64),
+            intrinsics=intrinsics[sid],
+            residual_m=float(registration.residual_m[k]),
+            n_sightings=int(registration.n_sightings[k]),
+        )
+        for k, sid in enumerate(registration.sensor_ids)
+    )
+    when = created or _dt.datetime.now(_dt.UTC).replace(microsecond=0)
+    return CalibrationFile(
+        method=registration.method,
+        created=when,
+        sensors=sensors,
+        world=registration.world,
+        rms_m=float(registration.rms_m),
+    )
+
+
+def _mm(x_m: float) -> float:
+    return round(x_m * 1e3, 4) if math.isfinite(x_m) else float("nan")
+
+
+def _toml_str(text: str) -> str:
+    """A TOML basic string (JSON's escapes are valid TOML escapes)."""
+    return json.dumps(text)
+
+
+def _toml_float(x: float) -> str:
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return repr(float(x))
+
+
+def dumps_calibration(cal: CalibrationFile) -> str:
+    """The calibration as TOML text (one matrix row per line, floats written exactly)."""
+    created = cal.created
+    if created.tzinfo is None:
+        created = created.replace(tzinfo=_dt.UTC)
+    lines = [
+        f"format = {_toml_str(FORMAT)}",
+        f"format_version = {FORMAT_VERSION}",
+        f"method = {_toml_str(cal.method)}",
+        f"created = {created.isoformat()}",
+        f"world = {_toml_str(cal.world)}",
+        f"rms_mm = {_toml_float(_mm(cal.rms_m))}",
+    ]
+    for s in cal.sensors:
+        rows = ",\n".join(
+            "    [" + ", ".join(_toml_float(v) for v in row) + "]" for row in s.sensor2world
+        )
+        lines += [
+            "",
+            "[[sensor]]",
+            f"id = {_toml_str(s.id)}",
+            f"serial = {_toml_str(s.serial)}",
+            f"residual_mm = {_toml_float(_mm(s.residual_m))}",
+            f"sightings = {int(s.n_sightings)}",
+            f"sensor2world = [\n{rows},\n]",
+            "",
+            "[sensor.intrinsics]",
+        ]
+        for key, val in s.intrinsics.to_dict().items():
+            lines.append(f"{key} = {val if isinstance(val, int) else _toml_float(val)}")
+    return "\n".join(lines) + "\n"
+
+
+def write_calibration(path: str | Path, cal: CalibrationFile) -> None:
+    """Write the calibration to a TOML file (UTF-8)."""
+    Path(path).write_text(dumps_calibration(cal), encoding="utf-8")
+
+
+def _need(table: Mapping[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
+    if key not in table:
+        raise InputError(f"{where}: missing field '{key}'")
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, kind):
+        names = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
+        raise InputError(f"{where}: field '{key}' must be {names}, got {v!r}")
+    return v
+
+
+def _check_pose(m: Any, where: str) -> Array:
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: sensor2world must be a 4x4 array of numbers") from None
+    if a.shape != (4, 4) or not np.all(np.isfinite(a)):
+        raise InputError(f"{where}: sensor2world must be a finite 4x4 array, got shape {a.shape}")
+    r = a[:3, :3]
+    if (
+        not np.allclose(r.T @ r, np.eye(3), atol=1e-5)
+        or np.linalg.det(r) < 0
+        or not np.allclose(a[3], [0, 0, 0, 1])
+    ):
+        raise InputError(
+            f"{where}: sensor2world is not a rigid transform (rotation not orthonormal with "
+            "det +1, or last row not [0, 0, 0, 1])"
+        )
+    return a
+
+
+def loads_calibration(text: str, *, source: str = "<string>") -> CalibrationFile:
+    """Parse calibration TOML text; ``source`` names the file in error messages."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{source}: not valid TOML ({e})") from None
+    fmt = doc.get("format")
+    if fmt != FORMAT:
+        raise InputError(f"{source}: not a kinefuse calibration file (format = {fmt!r})")
+    ver = _need(doc, "format_version", int, source)
+    if ver > FORMAT_VERSION:
+        raise InputError(
+            f"{source}: format_version {ver} is newer than this kinefuse reads "
+            f"({FORMAT_VERSION}); update kinefuse"
+        )
+    method = _need(doc, "method", str, source)
+    created = _need(doc, "created", (_dt.datetime, _dt.date), source)
+    if not isinstance(created, _dt.datetime):
+        created = _dt.datetime(created.year, created.month, created.day, tzinfo=_dt.UTC)
+    world = doc.get("world", "")
+    rms = float(_need(doc, "rms_mm", (int, float), source)) * 1e-3 if "rms_mm" in doc else math.nan
+    tables = _need(doc, "sensor", list, source)
+    if not tables:
+        raise InputError(f"{source}: no [[sensor]] tables")
+    sensors = []
+    seen: set[str] = set()
+    for i, t in enumerate(tables):
+        where = f"{source}: sensor #{i + 1}"
+        if not isinstance(t, dict):
+            raise InputError(f"{where}: must be a table")
+        sid = _need(t, "id", str, where)
+        where = f"{source}: sensor {sid!r}"
+        if sid in seen:
+            raise InputError(f"{where}: duplicate sensor id")
+        seen.add(sid)
+        intr_t = _need(t, "intrinsics", dict, where)
+        try:
+            intr = Intrinsics.from_dict(intr_t)
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{where}: bad intrinsics ({e})") from None
+        sensors.append(
+            SensorCalibration(
+                id=sid,
+                serial=str(t.get("serial", "")),
+                sensor2world=_check_pose(_need(t, "sensor2world", list, where), where),
+                intrinsics=intr,
+                residual_m=float(_need(t, "residual_mm", (int, float), where)) * 1e-3,
+                n_sightings=int(_need(t, "sightings", int, where)),
+            )
+        )
+    return CalibrationFile(
+        method=method, created=created, sensors=tuple(sensors), world=str(world), rms_m=rms
+    )
+
+
+def read_calibration(path: str | Path) -> CalibrationFile:
+    """Read a calibration TOML file; clear :class:`~kinefuse.errors.InputError` if malformed."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{p}: calibration file not found") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not a text (UTF-8) file") from None
+    return loads_calibration(text, source=str(p))
