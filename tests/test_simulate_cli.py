@@ -63,8 +63,9 @@ def test_session_contents(walk_session) -> None:
 )
 def test_every_cmu_clip_simulates(tmp_path, shared_data, capsys, clip) -> None:
     out = tmp_path / "s.sqlite"
-    code, _, err = run(capsys, "simulate", "--clip", str(shared_data / "motion" / "cmu" / clip),
-                       "--seconds", "1", "--calibration-seconds", "0", "--out", str(out))  # fmt: skip
+    path = str(shared_data / "motion" / "cmu" / clip)
+    code, _, err = run(capsys, "simulate", "--clip", path, "--seconds", "1",
+                       "--calibration-seconds", "0", "--out", str(out))  # fmt: skip
     assert code == 0, err
     code, js, _ = run(capsys, "inspect", str(out), "--json")
     assert code == 0

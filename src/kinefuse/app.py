@@ -6,6 +6,7 @@ import json
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -234,4 +235,90 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
                 f"  {part:<11} {100 * v['mae_without_m']:6.2f} cm   gain "
                 f"{100 * v['gain_m']:+.2f} cm ({v['gain_percent']:+.1f} %)"
             )
+    return "\n".join(lines)
+
+
+def run_calibrate(
+    *, session: Path, method: str, out: Path | None, report_dir: Path | None = None
+) -> dict[str, Any]:
+    """Calibrate a session's sensors; write the calibration file and store it in the session.
+
+    The error figures (against the simulator's truth) are computed after the calibration, by
+    evaluation code, and only when the session has truth.
+    """
+    from kinefuse.calibration.calib_file import (
+        calibration_from_registration,
+        dumps_calibration,
+        write_calibration,
+    )
+    from kinefuse.calibration.session import METHODS, calibrate, gather
+
+    if method not in METHODS:
+        raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")
+    with SessionStore.open(session, writable=True) as store:
+        infos = {s.id: s for s in store.sensors()}
+        cal_in = gather(store)
+        reg = calibrate(cal_in, method)
+        cal = calibration_from_registration(
+            reg,
+            {k: v.intrinsics for k, v in infos.items()},
+            serials={k: v.serial for k, v in infos.items()},
+        )
+        store.write_calibration(method, dumps_calibration(cal))
+        if out is not None:
+            write_calibration(out, cal)
+        result: dict[str, Any] = {
+            "method": method,
+            "world": reg.world,
+            "rms_m": reg.rms_m,
+            "sensors": [
+                {
+                    "id": sid,
+                    "residual_m": float(reg.residual_m[k]),
+                    "sightings": int(reg.n_sightings[k]),
+                    "detected": int(cal_in.tracks[sid].found.sum()),
+                    "frames": len(cal_in.tracks[sid].found),
+                }
+                for k, sid in enumerate(reg.sensor_ids)
+            ],
+            "out": str(out) if out is not None else None,
+        }
+        if store.has_truth():
+            from kinefuse.report.calibration import calibration_errors, write_calibration_report
+
+            errs = calibration_errors(store, reg)
+            for s in result["sensors"]:
+                s.update(errs["by_sensor"][s["id"]])
+            for key in (
+                "alignment",
+                "mean_position_error_m",
+                "mean_rotation_error_deg",
+                "unaligned_mean_position_error_m",
+                "unaligned_mean_rotation_error_deg",
+            ):
+                result[key] = errs[key]
+            if report_dir is not None:
+                written = write_calibration_report(report_dir, store, cal_in, reg, method)
+                result["written"] = [str(p) for p in written]
+    return result
+
+
+def format_calibrate(r: dict[str, Any]) -> str:
+    lines = [f"calibration ({r['method']}): {r['world']}", ""]
+    has_err = "mean_position_error_m" in r
+    head = f"{'sensor':<8} {'sightings':>9} {'residual mm':>12}"
+    if has_err:
+        head += f" {'pos err mm':>11} {'rot err deg':>12}"
+    lines.append(head)
+    for s in r["sensors"]:
+        row = f"{s['id']:<8} {s['sightings']:>9} {1e3 * s['residual_m']:12.2f}"
+        if has_err:
+            row += f" {1e3 * s['position_error_m']:11.2f} {s['rotation_error_deg']:12.3f}"
+        lines.append(row)
+    if has_err:
+        lines.append(
+            f"\nmean error vs truth ({r['alignment']}-aligned): "
+            f"{1e3 * r['mean_position_error_m']:.2f} mm, {r['mean_rotation_error_deg']:.3f} deg"
+            f" (unaligned: {1e3 * r['unaligned_mean_position_error_m']:.2f} mm)"
+        )
     return "\n".join(lines)

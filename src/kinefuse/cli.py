@@ -163,10 +163,32 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from kinefuse.app import format_calibrate, run_calibrate
+
+    r = run_calibrate(
+        session=args.session, method=args.method, out=args.out, report_dir=args.report
+    )
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        print(format_calibrate(r))
+        for w in [r["out"], *r.get("written", [])]:
+            if w:
+                print(f"wrote {w}")
+    return 0
+
+
 def _cmd_realism(args: argparse.Namespace) -> int:
     from kinefuse.report.realism import main as realism_main
 
     return realism_main(args.rest)
+
+
+def _cmd_realdata(args: argparse.Namespace) -> int:
+    from kinefuse.report.real_fusion import main as realdata_main
+
+    return int(realdata_main(args.rest) or 0)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -193,6 +215,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate_args(p)
     p.add_argument("--out", type=Path, required=True, help="session store to write (.sqlite)")
     p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("calibrate", help="find every sensor's pose from the wand phase")
+    p.add_argument("session", type=Path)
+    p.add_argument(
+        "--method", choices=["paper", "full"], default="full", help="registration (full)"
+    )
+    p.add_argument("--out", type=Path, help="write the calibration file (TOML)")
+    p.add_argument(
+        "--report",
+        type=Path,
+        help="folder for the paper-style error plots (sessions with truth only)",
+    )
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("fuse", help="fuse a session's joints into one skeleton")
     p.add_argument("session", type=Path)
@@ -228,6 +264,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rest", nargs=argparse.REMAINDER, help="options of the realism report")
     p.set_defaults(func=_cmd_realism)
 
+    p = sub.add_parser(
+        "realdata",
+        help="fuse the real two-Kinect recordings and report their consistency (docs/real_data.md)",
+        add_help=False,
+    )
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="files and options of the report")
+    p.set_defaults(func=_cmd_realdata)
+
     p = sub.add_parser("inspect", help="summarize a session store")
     p.add_argument("session", type=Path)
     p.add_argument("--json", action="store_true", help="print JSON")
@@ -239,8 +283,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     if argv[:1] == ["realism"]:
-        # the realism report has its own option parser: hand it everything after the name
+        # these reports have their own option parsers: hand them everything after the name
         args = argparse.Namespace(func=_cmd_realism, rest=argv[1:])
+    elif argv[:1] == ["realdata"]:
+        args = argparse.Namespace(func=_cmd_realdata, rest=argv[1:])
     else:
         args = parser.parse_args(argv)
     try:

@@ -337,8 +337,11 @@ def _robust_combine(
         # Huber weights on the Mahalanobis distance: full weight inside the gate, falling off
         # as 1/d outside it
         rw = valid * np.minimum(1.0, np.sqrt(opt.gate_chi2 / np.maximum(d2, 1e-12)))
-        # a measurement far outside the gate while others agree is dropped outright
-        rw = np.where(d2 > 4 * opt.gate_chi2, 0.0, rw)
+        # a measurement far outside the gate is dropped outright, unless that would drop
+        # every measurement of the joint (two sensors that disagree: keep both, down-weighted)
+        far = d2 > 4 * opt.gate_chi2
+        keep_some = (valid & ~far).any(axis=1, keepdims=True)
+        rw = np.where(far & keep_some, 0.0, rw)
     used = (rw > 0.2).sum(axis=1)
     has = rw.sum(axis=1) > 0
     cov_x = np.linalg.inv(np.where(has[..., None, None], info, eye))

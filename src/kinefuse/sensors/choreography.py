@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.geometry.raycast import ray_capsules
 from kinefuse.geometry.transforms import rot_z
 from kinefuse.sensors.wand import Wand
-from kinefuse.skeleton import JOINT_INDEX
+from kinefuse.skeleton import JOINT_INDEX, bone_index_array, capsule_radii
 
 Array = NDArray[np.float64]
 
@@ -105,15 +106,23 @@ def make_wand_path(
 
 
 def holding_poses(
-    wand_centre: Array, rest_pose: Array, wand: Wand | None = None
+    wand_centre: Array,
+    rest_pose: Array,
+    wand: Wand | None = None,
+    *,
+    sensor_positions: Array | None = None,
+    height_m: float = 1.75,
 ) -> tuple[Array, Array]:
     """Body poses ``(N, 25, 3)`` of an actor holding the wand, and the handle directions ``(N, 3)``.
 
     ``rest_pose`` ``(25, 3)`` is a standing pose (the clip's first frame, feet on the floor). The
-    body turns to face the wand and stands back so that its straight right arm reaches the handle.
+    body faces the wand and stands back so that its straight right arm reaches the handle. Like a
+    careful operator, it stands where it neither hides the wand from a sensor nor stands right
+    behind it, for as many sensors as it can (``sensor_positions`` ``(S, 3)``; without them, it
+    faces the wand from outside the area).
     """
     wand = Wand() if wand is None else wand
-    c = np.asarray(wand_centre, dtype=np.float64)
+    c = np.asarray(wand_centre, dtype=np.float64).reshape(-1, 3)
     rest = np.asarray(rest_pose, dtype=np.float64)
     root = rest[_J["SpineBase"]].copy()
     root[2] = 0.0
@@ -128,35 +137,56 @@ def holding_poses(
     seg_len = np.linalg.norm(np.diff(body[[sh, el, wr, ha]], axis=0), axis=1)
     arm = float(seg_len.sum())
     reach = wand.radius_m + wand.stick_length_m + 0.9 * arm
-    n = len(c)
-    poses = np.empty((n, 25, 3))
-    handle = np.empty((n, 3))
-    # first guess: body centre behind the wand; refine once with the shoulder's real place
-    for_dir = c[:, :2] / np.maximum(np.linalg.norm(c[:, :2], axis=1, keepdims=True), 1e-9)
-    yaw = np.arctan2(-for_dir[:, 1], -for_dir[:, 0])  # face the wand from the outside in
-    for i in range(n):
-        r = rot_z(yaw[i] - yaw0)
-        b = body @ r.T
+    bones = bone_index_array()
+    radii = capsule_radii(height_m)
+
+    def place(centre: Array, yaw: float) -> tuple[Array, Array]:
+        b = body @ rot_z(yaw - yaw0).T
         shoulder = b[sh]
-        v = c[i, 2] - shoulder[2]
+        v = centre[2] - shoulder[2]
         horiz = np.sqrt(max(reach**2 - v**2, 0.2**2))
-        heading = np.array([np.cos(yaw[i]), np.sin(yaw[i])])
-        # place the body so that the right shoulder is `horiz` behind the wand along the heading
-        shift = c[i, :2] - heading * horiz - shoulder[:2]
-        b[:, :2] += shift
+        heading = np.array([np.cos(yaw), np.sin(yaw)])
+        # the right shoulder stands `horiz` behind the wand along the heading
+        b[:, :2] += centre[:2] - heading * horiz - shoulder[:2]
         shoulder = b[sh]
-        u = shoulder - c[i]
+        u = shoulder - centre
         u /= np.linalg.norm(u)
-        hand = c[i] + u * (wand.radius_m + wand.stick_length_m)
+        hand = centre + u * (wand.radius_m + wand.stick_length_m)
         d = hand - shoulder
         dist = np.linalg.norm(d)
         d /= max(dist, 1e-9)
-        scale = min(dist / arm, 1.0)
-        cum = np.concatenate([[0.0], np.cumsum(seg_len)]) * scale
+        cum = np.concatenate([[0.0], np.cumsum(seg_len)]) * min(dist / arm, 1.0)
         b[[sh, el, wr, ha]] = shoulder + cum[:, None] * d
-        tip_dir = d
-        b[_J["HandTipRight"]] = b[ha] + tip_dir * 0.06
-        b[_J["ThumbRight"]] = b[wr] + tip_dir * 0.05 + np.array([0.0, 0.0, 0.02])
-        poses[i] = b
-        handle[i] = u
+        b[_J["HandTipRight"]] = b[ha] + d * 0.06
+        b[_J["ThumbRight"]] = b[wr] + d * 0.05 + np.array([0.0, 0.0, 0.02])
+        return b, u
+
+    def hidden_from(b: Array, centre: Array) -> int:
+        if sensor_positions is None:
+            return 0
+        sp = np.asarray(sensor_positions, dtype=np.float64).reshape(-1, 3)
+        to = centre - sp
+        dist = np.linalg.norm(to, axis=1)
+        # with a margin: an arm or hand next to the line of sight crowds the wand's outline
+        t = ray_capsules(sp, to / dist[:, None], b[bones[:, 0]], b[bones[:, 1]], radii + 0.12)
+        # the body in front of the wand hides it; right behind it, it merges with it in depth
+        return int((t.min(axis=1) < dist + 0.7).sum())
+
+    n = len(c)
+    poses = np.empty((n, 25, 3))
+    handle = np.empty((n, 3))
+    out_dir = c[:, :2] / np.maximum(np.linalg.norm(c[:, :2], axis=1, keepdims=True), 1e-9)
+    default_yaw = np.arctan2(-out_dir[:, 1], -out_dir[:, 0])  # face the wand from outside in
+    candidates = np.linspace(0.0, 2 * np.pi, 12, endpoint=False)
+    for i in range(n):  # a few hundred calibration frames: the loop is not a hot path
+        best = place(c[i], float(default_yaw[i]))
+        best_hidden = hidden_from(best[0], c[i])
+        for yaw in candidates if best_hidden else ():
+            cand = place(c[i], float(default_yaw[i] + yaw))
+            h = hidden_from(cand[0], c[i])
+            if h < best_hidden:
+                best, best_hidden = cand, h
+                if h == 0:
+                    break
+        poses[i], handle[i] = best
     return poses, handle

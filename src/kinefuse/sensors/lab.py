@@ -166,6 +166,8 @@ def simulate_session(
             store.append_truth_wand(t_w, wand_track.at(t_w))
 
         rest_pose = motion.positions[0]
+        # the operator sees where the sensors stand and keeps out of their way
+        sensor_positions = np.array([s.sensor2world[:3, 3] for s in rig.sensors])
         for spec, ss in zip(rig.sensors, seq_sensors, strict=True):
             rng_clock, rng_intr, rng_track, rng_depth, rng_probe = (
                 np.random.default_rng(s) for s in ss.spawn(5)
@@ -184,7 +186,13 @@ def simulate_session(
                 pick = (cap.seq % step) == 0
                 t_true = cap.t_true_s[pick]
                 centres = wand_track.at(t_true)
-                poses, handles = holding_poses(centres, rest_pose, config.wand)
+                poses, handles = holding_poses(
+                    centres,
+                    rest_pose,
+                    config.wand,
+                    sensor_positions=sensor_positions,
+                    height_m=height,
+                )
                 frames = np.empty((t_true.size, intr.height, intr.width), dtype=np.uint16)
                 for i in range(t_true.size):
                     scene = Scene.from_pose(

@@ -1,0 +1,207 @@
+"""The server's side of calibration on a recorded session: sightings, registration, scale.
+
+Uses what a real server has: the calibration-phase depth frames, each sensor's clock probes, the
+sensors' intrinsics and the operator's protocol (where and how the wand was to be shown, stored
+in the session's metadata as the operator was told it). The truth is never read.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.calibration.common import WandTrack
+from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
+from kinefuse.calibration.register import (
+    Registration,
+    Sightings,
+    paper_positions_from_sightings,
+    register_full,
+    register_paper,
+)
+from kinefuse.calibration.wand_robust import detect_wand_sequence
+from kinefuse.errors import CalibrationError
+from kinefuse.io.store import SessionStore
+from kinefuse.sensors.wand import Wand
+from kinefuse.sync import estimate_clock
+
+Array = NDArray[np.float64]
+
+METHODS = ("paper", "full")
+
+
+@dataclass(frozen=True)
+class CalibrationInput:
+    """What calibration works from, gathered from a session."""
+
+    sightings: dict[str, Sightings]
+    tracks: dict[str, WandTrack]
+    floors: dict[str, FloorPlane]
+    protocol: dict[str, object]
+    phase_server_s: tuple[float, float]
+    frame_period_s: float  # median interval between a sensor's calibration depth frames
+
+
+def gather(store: SessionStore, *, floor_frames: int = 15) -> CalibrationInput:
+    """Detect the wand in every sensor's calibration frames and fit each sensor's floor."""
+    meta = store.meta()
+    phase = meta.get("calibration_phase_server_s")
+    wand_meta = meta.get("wand")
+    wand = Wand(**wand_meta) if isinstance(wand_meta, dict) else Wand()
+    sightings: dict[str, Sightings] = {}
+    tracks: dict[str, WandTrack] = {}
+    floors: dict[str, FloorPlane] = {}
+    empty = []
+    periods = []
+    for s in store.sensors():
+        if store.depth_frame_count(s.id) == 0:
+            empty.append(s.id)
+            continue
+        clock = estimate_clock(store.clock_probes(s.id))
+        ts: list[Array] = []
+        found_tracks: list[WandTrack] = []
+        firsts: list[NDArray[np.uint16]] = []
+        n_first = 0
+        for _seq, t_sensor, frames in store.iter_depth_frames(s.id):
+            ts.append(t_sensor)
+            found_tracks.append(detect_wand_sequence(frames, s.intrinsics, wand, name=s.id))
+            if n_first < floor_frames:
+                firsts.append(frames[: floor_frames - n_first])
+                n_first += len(firsts[-1])
+        track = WandTrack(
+            found=np.concatenate([t.found for t in found_tracks]),
+            centre_sensor_m=np.concatenate([t.centre_sensor_m for t in found_tracks]),
+            score=np.concatenate([t.score for t in found_tracks]),
+            n_points=np.concatenate([t.n_points for t in found_tracks]),
+            residual_m=np.concatenate([t.residual_m for t in found_tracks]),
+            reasons=tuple(r for t in found_tracks for r in t.reasons),
+        )
+        t_server = clock.to_server(np.concatenate(ts))
+        if len(t_server) > 1:
+            periods.append(float(np.median(np.diff(t_server))))
+        f = track.found
+        tracks[s.id] = track
+        sightings[s.id] = Sightings(t_server[f], track.centre_sensor_m[f], track.score[f])
+        # the per-pixel median of the first frames hides the moving actor and wand
+        stack = np.concatenate(firsts).astype(np.float64)
+        stack[stack == 0] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # pixels never valid stay NaN
+            med = np.nanmedian(stack, axis=0)
+        med = np.where(np.isfinite(med), med, 0).astype(np.uint16)
+        # a sensor that sees no floor gets its gravity from the others
+        with contextlib.suppress(CalibrationError):
+            floors[s.id] = fit_floor_plane(med, s.intrinsics, name=s.id)
+    if empty:
+        raise CalibrationError(
+            f"sensor(s) {', '.join(empty)} recorded no calibration depth frames; record a "
+            "calibration phase (kinefuse simulate --calibration-seconds 20, or wave the wand "
+            "while recording) before calibrating"
+        )
+    if not sightings:
+        raise CalibrationError(
+            f"{store.path}: the session has no calibration phase (no depth frames); record one "
+            "(kinefuse simulate --calibration-seconds 20)"
+        )
+    protocol = meta.get("wand_protocol")
+    return CalibrationInput(
+        sightings=sightings,
+        tracks=tracks,
+        floors=floors,
+        protocol=protocol if isinstance(protocol, dict) else {},
+        phase_server_s=(float(phase[0]), float(phase[1])) if isinstance(phase, list) else (0, 0),
+        frame_period_s=float(np.median(periods)) if periods else 1 / 30,
+    )
+
+
+def _protocol_windows(cal: CalibrationInput) -> tuple[tuple[float, float], tuple[float, float]]:
+    t0 = cal.phase_server_s[0]
+    o = cal.protocol.get("origin_hold_s")
+    a = cal.protocol.get("axis_hold_s")
+    if not (isinstance(o, list) and isinstance(a, list)):
+        raise CalibrationError(
+            "the session does not say when the wand was held at the origin and at the axis mark "
+            "(wand_protocol metadata); the paper's method needs both holds"
+        )
+    return (t0 + o[0], t0 + o[1]), (t0 + a[0], t0 + a[1])
+
+
+def scale_from_axis(cal: CalibrationInput, reg: Registration) -> float:
+    """The world's scale error, from the protocol's known move between the two holds.
+
+    Time-of-flight sensors measure range with a small distance-proportional error that a wand of
+    one sphere cannot reveal: a uniformly scaled world fits every sighting equally well. The
+    protocol's move along the axis mark has a known length (like the paper's wand move): the
+    ratio of the length seen in the registered world to the known one is the scale error.
+
+    Returns
+    -------
+    factor : float
+        Multiply world lengths by this (1.0 when the protocol has no known length).
+    """
+    length = cal.protocol.get("axis_length_m")
+    if not isinstance(length, int | float) or length <= 0:
+        return 1.0
+    ow, mw = _protocol_windows(cal)
+    origin, moved = _holds(cal, ow, mw)
+    seen = []
+    for k, sid in enumerate(reg.sensor_ids):
+        if sid in origin and sid in moved:
+            r, t = reg.sensor2world[k, :3, :3], reg.sensor2world[k, :3, 3]
+            seen.append(np.linalg.norm((r @ moved[sid] + t) - (r @ origin[sid] + t)))
+    if not seen:
+        return 1.0
+    return float(length) / float(np.median(seen))
+
+
+def _holds(
+    cal: CalibrationInput, ow: tuple[float, float], mw: tuple[float, float]
+) -> tuple[dict[str, Array], dict[str, Array]]:
+    """Median wand centre per sensor in each hold window (sensors that missed one are left out)."""
+    origin, moved = {}, {}
+    for sid, s in cal.sightings.items():
+        a = (s.t_server_s >= ow[0]) & (s.t_server_s <= ow[1])
+        b = (s.t_server_s >= mw[0]) & (s.t_server_s <= mw[1])
+        if a.sum() >= 2 and b.sum() >= 2:
+            origin[sid] = np.median(s.centre_sensor_m[a], axis=0)
+            moved[sid] = np.median(s.centre_sensor_m[b], axis=0)
+    return origin, moved
+
+
+def scale_registration(reg: Registration, factor: float) -> Registration:
+    """The registration with every sensor position scaled by ``factor`` about the world origin."""
+    if factor == 1.0:
+        return reg
+    poses = reg.sensor2world.copy()
+    poses[:, :3, 3] *= factor
+    return replace(
+        reg,
+        sensor2world=poses,
+        world=reg.world + f"; scaled by {factor:.5f} from the protocol's known axis length",
+    )
+
+
+def calibrate(cal: CalibrationInput, method: str, *, fix_scale: bool = True) -> Registration:
+    """Register the sensors with the paper's method or ours (``full``)."""
+    if method == "paper":
+        ow, mw = _protocol_windows(cal)
+        origin, moved = paper_positions_from_sightings(
+            cal.sightings, origin_window_s=ow, moved_window_s=mw
+        )
+        return register_paper(origin, moved)
+    if method == "full":
+        # sensors are not synchronized: match sightings across sensors by interpolating each
+        # track between consecutive frames, and only where the wand moved slowly (a moving wand
+        # between frames 1/10 s apart is not where linear interpolation puts it)
+        reg = register_full(
+            cal.sightings,
+            floors=cal.floors or None,
+            max_gap_s=1.6 * cal.frame_period_s,
+            max_speed_m_s=min(1.5, 0.05 / cal.frame_period_s),
+        )
+        return scale_registration(reg, scale_from_axis(cal, reg)) if fix_scale else reg
+    raise CalibrationError(f"unknown calibration method {method!r}; choose paper or full")

@@ -1,0 +1,89 @@
+"""End to end: kinefuse calibrate on simulated sessions, against the truth (issue 3)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinefuse.calibration.calib_file import loads_calibration, read_calibration
+from kinefuse.cli import main
+from kinefuse.io.store import SessionStore
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def simulate(out: Path, clip: Path, rig: str, seconds: float = 20.0) -> Path:
+    assert main(["simulate", "--clip", str(clip), "--rig", str(ROOT / "rigs" / rig),
+                 "--seconds", "0.5", "--calibration-seconds", str(seconds),
+                 "--out", str(out)]) == 0  # fmt: skip
+    return out
+
+
+@pytest.fixture(scope="module")
+def clip(shared_data) -> Path:
+    return shared_data / "motion" / "cmu" / "02_walk_a.amc"
+
+
+@pytest.fixture(scope="module")
+def tilted(tmp_path_factory, clip) -> Path:
+    return simulate(tmp_path_factory.mktemp("cal") / "tilted.sqlite", clip, "tilted4.toml")
+
+
+@pytest.fixture(scope="module")
+def level(tmp_path_factory, clip) -> Path:
+    return simulate(tmp_path_factory.mktemp("cal") / "level.sqlite", clip, "level4.toml")
+
+
+def calibrate_json(capsys, session: Path, method: str, *extra: str) -> dict:
+    assert main(["calibrate", str(session), "--method", method, "--json", *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_full_calibration_of_a_tilted_rig(tilted, tmp_path, capsys) -> None:
+    out = tmp_path / "calib.toml"
+    r = calibrate_json(capsys, tilted, "full", "--out", str(out), "--report", str(tmp_path))
+    assert r["method"] == "full" and len(r["sensors"]) == 4
+    assert r["mean_position_error_m"] <= 0.005  # 5 mm (paper: 7.3 +/- 8.5 mm, level rig)
+    assert r["mean_rotation_error_deg"] <= 0.5
+    for s in r["sensors"]:
+        assert s["sightings"] > 50 and s["residual_m"] < 0.005
+        assert {"position_error_m", "rotation_error_deg"} <= set(s)
+    # the file and the session hold the same calibration
+    cal = read_calibration(out)
+    with SessionStore.open(tilted) as st:
+        stored = loads_calibration(st.calibration("full") or "")
+    for a, b in zip(cal.sensors, stored.sensors, strict=True):
+        np.testing.assert_allclose(a.sensor2world, b.sensor2world, atol=1e-9)
+    assert (tmp_path / "calibration_errors_full.png").stat().st_size > 10_000
+    rows = (tmp_path / "calibration_vs_sightings_full.csv").read_text().splitlines()
+    assert rows[0].startswith("duration_s,mean_sightings") and len(rows) >= 4
+
+
+def test_paper_method_on_level_and_tilted_rigs(level, tilted, capsys) -> None:
+    r = calibrate_json(capsys, level, "paper")
+    assert r["mean_position_error_m"] <= 0.02  # 2 cm on the level rig it assumes
+    worse = calibrate_json(capsys, tilted, "paper")
+    # the tilted rig breaks its level assumption: it runs and its error is reported, not hidden
+    assert worse["mean_position_error_m"] > 5 * r["mean_position_error_m"]
+
+
+def test_calibration_feeds_fusion(tilted, capsys) -> None:
+    calibrate_json(capsys, tilted, "full")
+    assert main(["fuse", str(tilted), "--method", "best", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["calibration"] == "session calibration (full)" and info["frames"] > 10
+
+
+def test_session_without_calibration_phase(tmp_path, clip, capsys) -> None:
+    s = tmp_path / "nocal.sqlite"
+    assert main(["simulate", "--clip", str(clip), "--seconds", "0.5",
+                 "--calibration-seconds", "0", "--out", str(s)]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["calibrate", str(s)]) == 2
+    err = capsys.readouterr().err
+    assert "no calibration depth frames" in err and "k0" in err
+    assert main(["fuse", str(s)]) == 2
+    assert "has no calibration" in capsys.readouterr().err
