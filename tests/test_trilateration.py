@@ -329,17 +329,27 @@ def test_mirror_side_follows_the_reference():
         assert undecided.status.tolist() == [FusionStatus.DEGENERATE]
 
 
-def test_geometric_uses_the_three_nearest_sensors():
+def test_geometric_keeps_the_triple_the_other_sensors_agree_with():
     rng = np.random.default_rng(23)
     s2w = rig((0.5, 2.0, 1.0, 2.4, 1.5))
     truth = random_truth(rng, 4)
     obs = observe(truth, s2w)
-    res = fuse_geometric(obs, s2w)
-    assert (res.n_sensors == 3).all()
-    ranges = sensor_ranges(obs)
-    far = np.argmax(ranges, axis=1)  # (T, 25): the farthest sensor is never among them
-    t, j = np.meshgrid(np.arange(4), np.arange(N_JOINTS), indexing="ij")
-    assert not res.used[t, far, j].any()
+    exact = fuse_geometric(obs, s2w)
+    assert (exact.n_sensors == 3).all()
+    np.testing.assert_allclose(exact.positions, truth, atol=1e-6)  # 1 um
+    # with noisy ranges, the kept triple is the one whose point best fits every range
+    noisy = obs * (1 + rng.normal(0, 0.02, obs.shape[:3]) / np.linalg.norm(obs, axis=-1))[..., None]
+    res = fuse_geometric(noisy, s2w)
+    centres = s2w[:, :3, 3]
+    ranges = sensor_ranges(noisy)  # (T, S, 25)
+    cost = ((np.linalg.norm(res.positions[:, None] - centres[None, :, None], axis=-1) - ranges)
+            ** 2).sum(axis=1)  # fmt: skip
+    for tri in ((0, 1, 2), (1, 3, 4), (0, 2, 4)):
+        p = fuse_geometric(noisy, s2w, mask=np.isin(np.arange(5), tri)[None, :, None]
+                           .repeat(4, 0).repeat(N_JOINTS, 2)).positions  # fmt: skip
+        other = ((np.linalg.norm(p[:, None] - centres[None, :, None], axis=-1) - ranges)
+                 ** 2).sum(axis=1)  # fmt: skip
+        assert (cost <= other + 1e-12).all()
 
 
 # ------------------------------------------------------------------------ status helpers

@@ -315,25 +315,25 @@ def _robust_combine(
     valid = np.asarray(np.isfinite(p).all(-1) & np.isfinite(cov).all((-1, -2)), dtype=bool)
     eye = np.eye(3)
     c = np.where(valid[..., None, None], cov, eye)
-    w_mat = np.linalg.inv(c)
+    w_mat = _inv3(c)
     w_mat = np.where(valid[..., None, None], w_mat, 0.0)
     z = np.where(valid[..., None], p, 0.0)
     rw: Array = valid.astype(np.float64)
     x = np.full(p.shape[:1] + p.shape[2:], np.nan)
     info = np.zeros(p.shape[:1] + p.shape[2:3] + (3, 3))
-    n_iter = 5 if opt.robust else 1
+    n_iter = 4 if opt.robust else 1
     for it in range(n_iter):
         wm = w_mat * rw[..., None, None]
         info = wm.sum(axis=1)
         rhs = np.einsum("tsjab,tsjb->tja", wm, z)
         has = rw.sum(axis=1) > 0
         info_safe = np.where(has[..., None, None], info, eye)
-        x = np.linalg.solve(info_safe, rhs[..., None])[..., 0]
+        x = np.einsum("tjab,tjb->tja", _inv3(info_safe), rhs)
         x = np.where(has[..., None], x, np.nan)
         if not opt.robust or it == n_iter - 1:
             break
         r = z - np.nan_to_num(x)[:, None]
-        d2 = np.einsum("tsja,tsjab,tsjb->tsj", r, w_mat, r)
+        d2 = (np.einsum("tsjab,tsjb->tsja", w_mat, r) * r).sum(-1)
         # Huber weights on the Mahalanobis distance: full weight inside the gate, falling off
         # as 1/d outside it
         rw = valid * np.minimum(1.0, np.sqrt(opt.gate_chi2 / np.maximum(d2, 1e-12)))
@@ -344,79 +344,137 @@ def _robust_combine(
         rw = np.where(far & keep_some, 0.0, rw)
     used = (rw > 0.2).sum(axis=1)
     has = rw.sum(axis=1) > 0
-    cov_x = np.linalg.inv(np.where(has[..., None, None], info, eye))
+    cov_x = _inv3(np.where(has[..., None, None], info, eye))
     cov_x = np.where(has[..., None, None], cov_x, np.nan)
     return x, cov_x, used
+
+
+def _inv3(m: Array) -> Array:
+    """Inverses of ``(..., 3, 3)`` matrices by the adjugate (much faster than LAPACK per call)."""
+    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    co = np.stack(
+        [
+            e * i - f * h, c * h - b * i, b * f - c * e,
+            f * g - d * i, a * i - c * g, c * d - a * f,
+            d * h - e * g, b * g - a * h, a * e - b * d,
+        ],
+        axis=-1,
+    ).reshape(m.shape)  # fmt: skip
+    det = a * co[..., 0, 0] + b * co[..., 1, 0] + c * co[..., 2, 0]
+    return co / det[..., None, None]
 
 
 def _kalman(
     t: Array, z: Array, r_cov: Array, q_psd: Array, *, smooth: bool, max_predict_s: float
 ) -> tuple[Array, Array]:
-    """Constant-velocity Kalman filter (and RTS smoother) per joint, batched over joints.
+    """Constant-velocity Kalman filter (and RTS smoother) per joint and axis.
 
-    z : (T, J, 3) measurements (NaN = none), r_cov : (T, J, 3, 3).
-    Returns positions (T, J, 3) and position variance per axis (T, J).
+    Each axis of each joint is filtered on its own with the measurement's variance along that
+    axis (the diagonal of the fused covariance; the cross-axis terms were used where they matter
+    most, in the fusion across sensors). That makes every step plain element-wise arithmetic on
+    ``(J, 3)`` arrays; the recursion over frames is sequential by nature.
+
+    Parameters
+    ----------
+    t : (T,) float
+        Frame times, seconds.
+    z : (T, J, 3) float
+        Measurements (NaN = none).
+    r_cov : (T, J, 3, 3) float
+        Their covariances.
+    q_psd : (J,) float
+        White-acceleration spectral density per joint.
+
+    Returns
+    -------
+    positions : (T, J, 3) float
+        NaN before a joint's first measurement and more than ``max_predict_s`` after its last.
+    variance : (T, J) float
+        Position variance per axis (mean over the axes).
     """
     n_t, n_j = z.shape[:2]
-    x = np.zeros((n_j, 6))
-    p = np.zeros((n_j, 6, 6))
-    started = np.zeros(n_j, bool)
-    last_meas = np.full(n_j, -np.inf)
-    xs_f = np.full((n_t, n_j, 6), np.nan)
-    ps_f = np.full((n_t, n_j, 6, 6), np.nan)
-    xs_p = np.full((n_t, n_j, 6), np.nan)
-    ps_p = np.full((n_t, n_j, 6, 6), np.nan)
-    fs = np.zeros((n_t, 6, 6))
-    h = np.zeros((3, 6))
-    h[:, :3] = np.eye(3)
-    i6 = np.eye(6)
+    dt = np.diff(t, prepend=t[0])
+    r = np.diagonal(r_cov, axis1=-2, axis2=-1)  # (T, J, 3)
+    has_all = np.isfinite(z) & np.isfinite(r)
+    z0 = np.where(has_all, z, 0.0)
+    r0 = np.where(has_all, r, 1.0)
+    q = q_psd[:, None]
+    shape = (n_j, 3)
+    x, v = np.zeros(shape), np.zeros(shape)  # position, velocity
+    pxx, pxv, pvv = np.zeros(shape), np.zeros(shape), np.zeros(shape)  # covariance entries
+    started = np.zeros(shape, bool)
+    last = np.full(shape, -np.inf)
+    out_f = np.empty((5, n_t, n_j, 3))  # filtered x, v, pxx, pxv, pvv
+    out_p = np.empty((5, n_t, n_j, 3))  # predicted
+    alive = np.empty((n_t, n_j, 3), bool)
     for k in range(n_t):
-        dt = t[k] - t[k - 1] if k > 0 else 0.0
-        f = np.eye(6)
-        f[:3, 3:] = np.eye(3) * dt
-        fs[k] = f
-        q1 = np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
-        q = np.kron(q1, np.eye(3))[None] * q_psd[:, None, None]
-        x = x @ f.T
-        p = f @ p @ f.T + q
-        xs_p[k], ps_p[k] = x, p
-        zk = z[k]
-        has = np.isfinite(zk).all(-1) & np.isfinite(r_cov[k]).all((-1, -2))
-        # initialise joints on their first measurement
+        d = dt[k]
+        # predict
+        x = x + d * v
+        pxx = pxx + 2 * d * pxv + d * d * pvv + q * d**3 / 3
+        pxv = pxv + d * pvv + q * d**2 / 2
+        pvv = pvv + q * d
+        out_p[:, k] = x, v, pxx, pxv, pvv
+        has = has_all[k]
         init = has & ~started
-        if init.any():
-            x[init] = 0.0
-            x[init, :3] = zk[init]
-            p[init] = 0.0
-            p[init, :3, :3] = r_cov[k][init]
-            p[init, 3:, 3:] = np.eye(3) * 1.0  # 1 m/s a priori
-            started |= init
-            last_meas[init] = t[k]
-        upd = has & ~init
-        if upd.any():
-            pk = p[upd]
-            s = pk[:, :3, :3] + r_cov[k][upd]
-            kg = pk[:, :, :3] @ np.linalg.inv(s)
-            innov = zk[upd] - x[upd, :3]
-            x[upd] = x[upd] + np.einsum("jab,jb->ja", kg, innov)
-            p[upd] = (i6 - kg @ h) @ pk
-            last_meas[upd] = t[k]
-        alive = started & (t[k] - last_meas <= max_predict_s)
-        xs_f[k, alive], ps_f[k, alive] = x[alive], p[alive]
+        started |= has
+        # update (joints without a measurement get a zero gain)
+        s = pxx + r0[k]
+        kx = np.where(has, pxx / s, 0.0)
+        kv = np.where(has, pxv / s, 0.0)
+        innov = z0[k] - x
+        x = x + kx * innov
+        v = v + kv * innov
+        pxx, pxv, pvv = (1 - kx) * pxx, (1 - kx) * pxv, pvv - kv * pxv
+        # a joint's first measurement starts its filter: position measured, velocity unknown
+        x = np.where(init, z0[k], x)
+        v = np.where(init, 0.0, v)
+        pxx = np.where(init, r0[k], pxx)
+        pxv = np.where(init, 0.0, pxv)
+        pvv = np.where(init, 1.0, pvv)  # 1 m/s a priori
+        last = np.where(has, t[k], last)
+        alive[k] = started & (t[k] - last <= max_predict_s)
+        out_f[:, k] = x, v, pxx, pxv, pvv
+    xf, vf, fxx, fxv, fvv = out_f
     if not smooth:
-        return xs_f[..., :3], np.trace(ps_f[..., :3, :3], axis1=-2, axis2=-1) / 3
-    xs = xs_f.copy()
-    ps = ps_f.copy()
+        return (
+            np.where(alive, xf, np.nan),
+            np.where(alive.all(-1), fxx.mean(-1), np.nan),
+        )
+    xp, vp, qxx, qxv, qvv = out_p
+    # smoother gain C = P_f F^T P_p^-1 of the 2x2 blocks, for every frame at once
+    d = dt[1:, None, None]
+    a11, a12 = fxx[:-1] + d * fxv[:-1], fxv[:-1]  # (P_f F^T) rows
+    a21, a22 = fxv[:-1] + d * fvv[:-1], fvv[:-1]
+    b11, b12, b22 = qxx[1:], qxv[1:], qvv[1:]
+    det = b11 * b22 - b12 * b12
+    with np.errstate(invalid="ignore", divide="ignore"):
+        i11, i12, i22 = b22 / det, -b12 / det, b11 / det
+    c11, c12 = a11 * i11 + a12 * i12, a11 * i12 + a12 * i22
+    c21, c22 = a21 * i11 + a22 * i12, a21 * i12 + a22 * i22
+    xs, vs, sxx = xf.copy(), vf.copy(), fxx.copy()
+    sxv, svv = fxv.copy(), fvv.copy()
     for k in range(n_t - 2, -1, -1):
-        ok = np.isfinite(xs[k]).all(-1) & np.isfinite(xs[k + 1]).all(-1)
-        if not ok.any():
-            continue
-        f = fs[k + 1]
-        pp = ps_p[k + 1][ok]
-        c = ps_f[k][ok] @ f.T @ np.linalg.inv(pp)
-        xs[k, ok] = xs_f[k, ok] + np.einsum("jab,jb->ja", c, xs[k + 1, ok] - xs_p[k + 1, ok])
-        ps[k, ok] = ps_f[k, ok] + c @ (ps[k + 1, ok] - pp) @ np.swapaxes(c, -1, -2)
-    return xs[..., :3], np.trace(ps[..., :3, :3], axis1=-2, axis2=-1) / 3
+        ok = alive[k] & alive[k + 1]
+        dx, dv = xs[k + 1] - xp[k + 1], vs[k + 1] - vp[k + 1]
+        xs[k] = np.where(ok, xf[k] + c11[k] * dx + c12[k] * dv, xf[k])
+        vs[k] = np.where(ok, vf[k] + c21[k] * dx + c22[k] * dv, vf[k])
+        e11, e12 = sxx[k + 1] - qxx[k + 1], sxv[k + 1] - qxv[k + 1]
+        e22 = svv[k + 1] - qvv[k + 1]
+        # P_s = P_f + C (P_s' - P_p') C^T, 2x2 per axis
+        m11 = c11[k] * e11 + c12[k] * e12
+        m12 = c11[k] * e12 + c12[k] * e22
+        m21 = c21[k] * e11 + c22[k] * e12
+        m22 = c21[k] * e12 + c22[k] * e22
+        sxx[k] = np.where(ok, fxx[k] + m11 * c11[k] + m12 * c12[k], fxx[k])
+        sxv[k] = np.where(ok, fxv[k] + m11 * c21[k] + m12 * c22[k], fxv[k])
+        svv[k] = np.where(ok, fvv[k] + m21 * c21[k] + m22 * c22[k], fvv[k])
+    return (
+        np.where(alive, xs, np.nan),
+        np.where(alive.all(-1), sxx.mean(-1), np.nan),
+    )
 
 
 def enforce_bone_lengths(

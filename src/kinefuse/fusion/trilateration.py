@@ -462,6 +462,29 @@ def _linear(
     return pos, status, plane_mean, plane_normal
 
 
+def _three_spheres(
+    a: Array, b: Array, cc: Array, ra: Array, rb: Array, rc: Array, ref: Array
+) -> tuple[Array, NDArray[np.bool_]]:
+    """Closed-form intersection of three spheres per problem (``(n, 3)`` centres, ``(n,)`` radii).
+
+    Returns the intersection on the reference's side of the centres' plane and where the spheres
+    do not meet (then the nearest point in the plane).
+    """
+    d_ab = np.linalg.norm(b - a, axis=1)
+    ex = (b - a) / d_ab[:, None]
+    i = np.einsum("ni,ni->n", ex, cc - a)
+    ey = cc - a - i[:, None] * ex
+    j = np.linalg.norm(ey, axis=1)
+    ey /= j[:, None]
+    ez = np.cross(ex, ey)
+    x = (ra**2 - rb**2 + d_ab**2) / (2.0 * d_ab)
+    y = (ra**2 - rc**2 + i**2 + j**2) / (2.0 * j) - (i / j) * x
+    z2 = ra**2 - x**2 - y**2
+    base = a + x[:, None] * ex + y[:, None] * ey
+    z = np.sqrt(np.maximum(z2, 0.0)) * _side(ref, base, ez)
+    return base + z[:, None] * ez, z2 < 0
+
+
 def solve_geometric(
     centres: ArrayLike,
     ranges: ArrayLike,
@@ -470,6 +493,13 @@ def solve_geometric(
     mask: ArrayLike | None = None,
 ) -> Solution:
     """Closed-form three-sphere intersection (paper C) of ``N`` problems.
+
+    Paper C's system has exactly three sensors. With more, every non-degenerate triple of the
+    available sensors is intersected in closed form and the triple whose point agrees best with
+    all the available ranges (least sum of squared range residuals) is kept: the plausible
+    solution, chosen by the sensors that did not take part. (A truncated, MSAC-style cost would
+    resist one grossly wrong range better, but on simulated Kinect sessions, where every range
+    errs by centimetres, it chose worse triples: least squares it is.)
 
     Parameters
     ----------
@@ -485,8 +515,7 @@ def solve_geometric(
     Returns
     -------
     Solution
-        ``used`` marks the three sensors chosen per problem: the nearest three (smallest sum of
-        ranges) whose triangle is not degenerate.
+        ``used`` marks the three sensors chosen per problem.
     """
     c, r, ref, use = _check_problem(centres, ranges, reference, mask)
     n_prob, k = r.shape
@@ -509,38 +538,50 @@ def solve_geometric(
     )
     good_triangle = area2 > 1e-6 * longest**2  # (n_triples,)
     valid = use[:, triples].all(axis=2) & good_triangle[None, :]  # (N, n_triples)
-    score = np.where(valid, np.where(use, r, 0.0)[:, triples].sum(axis=2), np.inf)
-    best = np.argmin(score, axis=1)
-    has = valid[np.arange(n_prob), best]
+    has = valid.any(axis=1)
     degenerate = (n_use >= MIN_SENSORS) & ~has
     pos[degenerate] = ref[degenerate]
     status[degenerate] = FusionStatus.DEGENERATE
     used[degenerate] = use[degenerate]
 
     idx = np.flatnonzero(has)
-    tri = triples[best[idx]]  # (n, 3)
-    a, b, cc = c[tri[:, 0]], c[tri[:, 1]], c[tri[:, 2]]
-    ra, rb, rc = (r[idx, tri[:, m]] for m in range(3))
-    d_ab = np.linalg.norm(b - a, axis=1)
-    ex = (b - a) / d_ab[:, None]
-    i = np.einsum("ni,ni->n", ex, cc - a)
-    ey = cc - a - i[:, None] * ex
-    j = np.linalg.norm(ey, axis=1)
-    ey /= j[:, None]
-    ez = np.cross(ex, ey)
-    x = (ra**2 - rb**2 + d_ab**2) / (2.0 * d_ab)
-    y = (ra**2 - rc**2 + i**2 + j**2) / (2.0 * j) - (i / j) * x
-    z2 = ra**2 - x**2 - y**2
-    base = a + x[:, None] * ex + y[:, None] * ey
-    z = np.sqrt(np.maximum(z2, 0.0)) * _side(ref[idx], base, ez)
-    p = base + z[:, None] * ez
-    st = np.where(z2 < 0, FusionStatus.NO_INTERSECTION, FusionStatus.PLANAR).astype(np.int8)
-    undecided = ~np.isfinite(ref[idx]).all(axis=1)
+    if idx.size == 0:
+        return Solution(pos, status, np.zeros(n_prob, dtype=np.int32), used)
+    r_i, use_i, ref_i = r[idx], use[idx], ref[idx]
+    best_cost = np.full(idx.size, np.inf)
+    best_p = np.full((idx.size, 3), np.nan)
+    best_miss = np.zeros(idx.size, dtype=bool)
+    best_t = np.zeros(idx.size, dtype=np.intp)
+    for t, (ia, ib, ic) in enumerate(triples):
+        ok = valid[idx, t]
+        if not ok.any():
+            continue
+        n_ok = int(ok.sum())
+        p, miss = _three_spheres(
+            np.broadcast_to(c[ia], (n_ok, 3)),
+            np.broadcast_to(c[ib], (n_ok, 3)),
+            np.broadcast_to(c[ic], (n_ok, 3)),
+            r_i[ok, ia],
+            r_i[ok, ib],
+            r_i[ok, ic],
+            ref_i[ok],
+        )
+        res = np.linalg.norm(p[:, None, :] - c[None], axis=2) - np.where(use_i[ok], r_i[ok], 0)
+        cost = np.where(use_i[ok], res * res, 0.0) @ np.ones(k)
+        sel = np.flatnonzero(ok)
+        better = cost < best_cost[sel]
+        upd = sel[better]
+        best_cost[upd] = cost[better]
+        best_p[upd] = p[better]
+        best_miss[upd] = miss[better]
+        best_t[upd] = t
+    st = np.where(best_miss, FusionStatus.NO_INTERSECTION, FusionStatus.PLANAR).astype(np.int8)
+    undecided = ~np.isfinite(ref_i).all(axis=1)
     st[undecided] = FusionStatus.DEGENERATE
-    p[undecided] = np.nan
-    pos[idx] = p
+    best_p[undecided] = np.nan
+    pos[idx] = best_p
     status[idx] = st
-    used[idx[:, None], tri] = True
+    used[idx[:, None], triples[best_t]] = True
     return Solution(pos, status, np.zeros(n_prob, dtype=np.int32), used)
 
 
