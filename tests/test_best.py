@@ -17,26 +17,17 @@ from kinefuse.fusion.best import (
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
 from kinefuse.sensors.rig import default_rig
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, TrackingState, bone_index_array
+from kinefuse.skeleton import (
+    JOINT_INDEX,
+    MIRROR_INDEX,
+    TrackingState,
+    bone_index_array,
+    standing_pose,
+)
 
 J = JOINT_INDEX
 
-# a standing body facing +x (world), metres
-_POSE = {
-    "SpineBase": (0, 0, 1.0), "SpineMid": (0, 0, 1.25), "SpineShoulder": (0, 0, 1.45),
-    "Neck": (0, 0, 1.52), "Head": (0, 0, 1.65), "ShoulderLeft": (0, 0.18, 1.42),
-    "ElbowLeft": (0, 0.2, 1.15), "WristLeft": (0.05, 0.2, 0.9), "HandLeft": (0.07, 0.2, 0.82),
-    "HandTipLeft": (0.09, 0.2, 0.75), "ThumbLeft": (0.1, 0.17, 0.85),
-    "ShoulderRight": (0, -0.18, 1.42), "ElbowRight": (0, -0.2, 1.15),
-    "WristRight": (0.05, -0.2, 0.9), "HandRight": (0.07, -0.2, 0.82),
-    "HandTipRight": (0.09, -0.2, 0.75), "ThumbRight": (0.1, -0.17, 0.85),
-    "HipLeft": (0, 0.09, 0.95), "KneeLeft": (0.02, 0.1, 0.5), "AnkleLeft": (0, 0.1, 0.08),
-    "FootLeft": (0.12, 0.1, 0.03), "HipRight": (0, -0.09, 0.95), "KneeRight": (0.02, -0.1, 0.5),
-    "AnkleRight": (0, -0.1, 0.08), "FootRight": (0.12, -0.1, 0.03),
-}  # fmt: skip
-BASE = np.zeros((25, 3))
-for _n, _p in _POSE.items():
-    BASE[J[_n]] = _p
+BASE = standing_pose()  # at the origin facing +x, metres
 
 
 def truth(t: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from kinefuse.sensors.depth import (
 )
 from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.wand import Wand
-from kinefuse.skeleton import JOINT_INDEX, JOINTS
+from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -50,34 +50,16 @@ QUIET = replace(
     multipath_max_mm=0.0,
 )
 
-_POSE = {  # a person standing at the origin facing +x, right hand raised (metres)
-    "SpineBase": (0.0, 0.0, 1.0),
-    "SpineMid": (0.0, 0.0, 1.25),
-    "SpineShoulder": (0.0, 0.0, 1.45),
-    "Neck": (0.0, 0.0, 1.52),
-    "Head": (0.0, 0.0, 1.65),
-    "ShoulderLeft": (0.0, 0.2, 1.42),
-    "ElbowLeft": (0.0, 0.25, 1.15),
-    "WristLeft": (0.0, 0.27, 0.9),
-    "HandLeft": (0.0, 0.28, 0.82),
-    "HandTipLeft": (0.0, 0.28, 0.74),
-    "ThumbLeft": (0.03, 0.27, 0.82),
-    "ShoulderRight": (0.0, -0.2, 1.42),
+_RIGHT_HAND_RAISED = {
     "ElbowRight": (0.2, -0.3, 1.3),
     "WristRight": (0.4, -0.3, 1.45),
     "HandRight": (0.48, -0.3, 1.5),
     "HandTipRight": (0.55, -0.3, 1.53),
     "ThumbRight": (0.48, -0.26, 1.52),
-    "HipLeft": (0.0, 0.1, 0.95),
-    "KneeLeft": (0.0, 0.11, 0.5),
-    "AnkleLeft": (0.0, 0.12, 0.08),
-    "FootLeft": (0.12, 0.12, 0.03),
-    "HipRight": (0.0, -0.1, 0.95),
-    "KneeRight": (0.0, -0.11, 0.5),
-    "AnkleRight": (0.0, -0.12, 0.08),
-    "FootRight": (0.12, -0.12, 0.03),
 }
-POSE = np.array([_POSE[n] for n in JOINTS])
+POSE = standing_pose()  # at the origin facing +x, right hand raised in front (metres)
+for _name, _xyz in _RIGHT_HAND_RAISED.items():
+    POSE[JOINT_INDEX[_name]] = _xyz
 
 
 def _pole_scene(distance_m: float = 2.0, radius_m: float = 0.1) -> tuple[Scene, np.ndarray]:

@@ -31,7 +31,7 @@ from kinefuse.report.real_fusion import (
     unique_frames,
     world_from_floor,
 )
-from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, TrackingState
+from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, TrackingState, standing_pose
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MT_DIR = SHARED / "kinect" / "kinect_multitrack"
@@ -54,22 +54,7 @@ def real_reports() -> dict[str, dict]:
     }
 
 
-# a standing body facing +x (world), metres
-_POSE = {
-    "SpineBase": (0, 0, 1.0), "SpineMid": (0, 0, 1.25), "SpineShoulder": (0, 0, 1.45),
-    "Neck": (0, 0, 1.52), "Head": (0, 0, 1.65), "ShoulderLeft": (0, 0.18, 1.42),
-    "ElbowLeft": (0, 0.2, 1.15), "WristLeft": (0.05, 0.2, 0.9), "HandLeft": (0.07, 0.2, 0.82),
-    "HandTipLeft": (0.09, 0.2, 0.75), "ThumbLeft": (0.1, 0.17, 0.85),
-    "ShoulderRight": (0, -0.18, 1.42), "ElbowRight": (0, -0.2, 1.15),
-    "WristRight": (0.05, -0.2, 0.9), "HandRight": (0.07, -0.2, 0.82),
-    "HandTipRight": (0.09, -0.2, 0.75), "ThumbRight": (0.1, -0.17, 0.85),
-    "HipLeft": (0, 0.09, 0.95), "KneeLeft": (0.02, 0.1, 0.5), "AnkleLeft": (0, 0.1, 0.08),
-    "FootLeft": (0.12, 0.1, 0.03), "HipRight": (0, -0.09, 0.95), "KneeRight": (0.02, -0.1, 0.5),
-    "AnkleRight": (0, -0.1, 0.08), "FootRight": (0.12, -0.1, 0.03),
-}  # fmt: skip
-BASE = np.zeros((25, 3))
-for _n, _p in _POSE.items():
-    BASE[J[_n]] = _p
+BASE = standing_pose()  # at the origin facing +x, metres
 
 
 def _truth(t: np.ndarray) -> np.ndarray:

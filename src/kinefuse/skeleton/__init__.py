@@ -13,6 +13,7 @@ from kinefuse.skeleton.kinect_v2 import (
     bone_index_array,
     capsule_radii,
     joint_index,
+    standing_pose,
 )
 
 __all__ = [
@@ -28,4 +29,5 @@ __all__ = [
     "bone_index_array",
     "capsule_radii",
     "joint_index",
+    "standing_pose",
 ]

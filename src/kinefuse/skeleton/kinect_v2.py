@@ -183,3 +183,36 @@ def capsule_radii(height_m: float = REFERENCE_HEIGHT_M) -> NDArray[np.float64]:
         raise ValueError(f"subject height must be 0.5 to 2.5 m, got {height_m!r} m")
     scale = height_m / REFERENCE_HEIGHT_M
     return np.array([CAPSULE_RADII_M[c] * scale for _, c in BONES], dtype=np.float64)
+
+
+#: A 1.75 m adult standing upright, arms hanging, at the world origin facing +x (z up), metres.
+_STANDING_M: Final[dict[str, tuple[float, float, float]]] = {
+    "SpineBase": (0.0, 0.0, 1.0), "SpineMid": (0.0, 0.0, 1.25),
+    "SpineShoulder": (0.0, 0.0, 1.45), "Neck": (0.0, 0.0, 1.52), "Head": (0.0, 0.0, 1.65),
+    "ShoulderLeft": (0.0, 0.18, 1.42), "ElbowLeft": (0.0, 0.2, 1.15),
+    "WristLeft": (0.05, 0.2, 0.9), "HandLeft": (0.07, 0.2, 0.82),
+    "HandTipLeft": (0.09, 0.2, 0.75), "ThumbLeft": (0.1, 0.17, 0.85),
+    "ShoulderRight": (0.0, -0.18, 1.42), "ElbowRight": (0.0, -0.2, 1.15),
+    "WristRight": (0.05, -0.2, 0.9), "HandRight": (0.07, -0.2, 0.82),
+    "HandTipRight": (0.09, -0.2, 0.75), "ThumbRight": (0.1, -0.17, 0.85),
+    "HipLeft": (0.0, 0.09, 0.95), "KneeLeft": (0.02, 0.1, 0.5), "AnkleLeft": (0.0, 0.1, 0.08),
+    "FootLeft": (0.12, 0.1, 0.03), "HipRight": (0.0, -0.09, 0.95),
+    "KneeRight": (0.02, -0.1, 0.5), "AnkleRight": (0.0, -0.1, 0.08),
+    "FootRight": (0.12, -0.1, 0.03),
+}  # fmt: skip
+
+
+def standing_pose(height_m: float = REFERENCE_HEIGHT_M) -> NDArray[np.float64]:
+    """A person standing upright with arms hanging, at the world origin facing +x, z up.
+
+    A reference pose for tests, benchmarks and examples (not measured from anyone).
+
+    Returns
+    -------
+    joints : (25, 3) float
+        Metres, in :data:`JOINTS` order, scaled to ``height_m``.
+    """
+    if not 0.5 <= height_m <= 2.5:
+        raise ValueError(f"subject height must be 0.5 to 2.5 m, got {height_m!r} m")
+    pose = np.array([_STANDING_M[n] for n in JOINTS], dtype=np.float64)
+    return pose * (height_m / REFERENCE_HEIGHT_M)
