@@ -973,7 +973,7 @@ def fuse_paper(
         ``used`` is the selection. Joints with fewer than 3 selected sensors get the mean of the
         selected sensors' own world-frame measurements and ``TOO_FEW_SENSORS``.
     """
-    j, t, world, ranges, avail = _prepare(joints_sensor, sensor2world, mask, states)
+    j, t, _, _, avail = _prepare(joints_sensor, sensor2world, mask, states)
     if occlusion is None:
         if intrinsics is None:
             raise InputError(
@@ -991,17 +991,15 @@ def fuse_paper(
             )
         occluded, n_int = np.asarray(occlusion[0]), np.asarray(occlusion[1])
     selected = select_sensors(occluded, n_int, avail)
-    use_p = _to_problems(selected)
-    sol = solve_nonlinear(
-        t[:, :3, 3],
-        _to_problems(ranges),
-        _reference(_to_problems(world), use_p),
-        mask=use_p,
+    return fuse_nonlinear(
+        j,
+        t,
+        mask=selected,
+        states=states,
         c_threshold=c_threshold,
         max_iter=max_iter,
         out_of_plane=out_of_plane,
     )
-    return _to_result(sol, j.shape[0])
 
 
 def trilaterate(
