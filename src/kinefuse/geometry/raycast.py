@@ -35,41 +35,12 @@ def ray_capsules(
         Nearest hit in front of the origin (t > 0), ``inf`` for a miss. Rays that start inside a
         capsule report the exit point.
     """
-    o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(dirs, dtype=np.float64)
+    o = np.asarray(origins, dtype=np.float64)
+    o_b = o.reshape(1, 1, 3) if o.ndim == 1 else np.broadcast_to(o, d.shape)[None]
     a_ = np.asarray(a, dtype=np.float64)
     b_ = np.asarray(b, dtype=np.float64)
-    r = np.asarray(radius, dtype=np.float64)
-    o = np.broadcast_to(o, d.shape)
-    ba = b_ - a_  # (C, 3)
-    baba = np.einsum("ci,ci->c", ba, ba)  # (C,)
-    oa = o[:, None, :] - a_[None, :, :]  # (N, C, 3)
-    bard = d @ ba.T  # (N, C)
-    baoa = np.einsum("nci,ci->nc", oa, ba)
-    rdoa = np.einsum("nci,ni->nc", oa, d)
-    oaoa = np.einsum("nci,nci->nc", oa, oa)
-    r2 = r * r
-    qa = baba - bard * bard
-    qb = baba * rdoa - baoa * bard
-    qc = baba * oaoa - baoa * baoa - r2 * baba
-    h = qb * qb - qa * qc
-    t = np.full(bard.shape, np.inf)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sq = np.sqrt(np.maximum(h, 0.0))
-        t_cyl = (-qb - sq) / qa
-        y = baoa + t_cyl * bard
-        body = (h >= 0) & (qa > 1e-12) & (y > 0) & (y < baba) & (t_cyl > 0)
-        t = np.where(body, t_cyl, t)
-        # end caps: spheres at a and b
-        for oc in (oa, oa - ba[None, :, :]):
-            bb = np.einsum("nci,ni->nc", oc, d)
-            cc = np.einsum("nci,nci->nc", oc, oc) - r2
-            hh = bb * bb - cc
-            tc = -bb - np.sqrt(np.maximum(hh, 0.0))
-            tc = np.where(tc > 0, tc, -bb + np.sqrt(np.maximum(hh, 0.0)))
-            hit = (hh >= 0) & (tc > 0)
-            t = np.where(hit & (tc < t), tc, t)
-    return t
+    return ray_capsules_batched(o_b, d[None], a_[None], b_[None], radius)[0]
 
 
 def ray_spheres(origins: ArrayLike, dirs: ArrayLike, centre: ArrayLike, radius: ArrayLike) -> Array:
