@@ -87,3 +87,17 @@ def test_session_without_calibration_phase(tmp_path, clip, capsys) -> None:
     assert "no calibration depth frames" in err and "k0" in err
     assert main(["fuse", str(s)]) == 2
     assert "has no calibration" in capsys.readouterr().err
+
+
+def test_evaluation_aligns_a_calibrations_own_world(level, tmp_path, capsys) -> None:
+    # the paper's calibration puts the world's origin at the wand, a metre above the floor
+    cal = tmp_path / "paper.toml"
+    calibrate_json(capsys, level, "paper", "--out", str(cal))
+    assert main(["evaluate", str(level), "--calibration", str(cal), "--methods", "best",
+                 "--json"]) == 0  # fmt: skip
+    own = json.loads(capsys.readouterr().out)
+    assert own["calibration_alignment"]["translation_m"][2] == pytest.approx(-1.0, abs=0.05)
+    assert main(["evaluate", str(level), "--true-calibration", "--methods", "best", "--json"]) == 0
+    true = json.loads(capsys.readouterr().out)
+    assert "calibration_alignment" not in true
+    assert own["best"]["mae_m"] == pytest.approx(true["best"]["mae_m"], abs=0.01)  # 1 cm

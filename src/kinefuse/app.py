@@ -220,7 +220,7 @@ def run_evaluate(
 ) -> dict[str, object]:
     """Compare fusion methods against the truth of a simulated session."""
     from kinefuse.fusion.session import METHODS, load_sensors
-    from kinefuse.report.evaluate import evaluate, write_tables
+    from kinefuse.report.evaluate import calibration_alignment, evaluate, write_tables
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -235,8 +235,19 @@ def run_evaluate(
             )
         poses, source = resolve_poses(store, calibration, true_calibration)
         sensors = load_sensors(store, poses)
-        report, results, truth = evaluate(store, sensors, methods)
+        truth2world = None
+        if not true_calibration:
+            truth2world, cal_error = calibration_alignment(store, poses)
+        report, results, truth = evaluate(store, sensors, methods, truth2world=truth2world)
     report["calibration"] = source
+    if truth2world is not None:
+        report["calibration_alignment"] = {
+            "note": "truth moved into the calibration's world by a translation and a rotation "
+            "about z fitted on the sensor poses",
+            "translation_m": [float(v) for v in truth2world[:3, 3]],
+            "yaw_deg": float(np.degrees(np.arctan2(truth2world[1, 0], truth2world[0, 0]))),
+            "calibration_mean_position_error_m": cal_error,
+        }
     if out_dir is not None:
         written = write_tables(out_dir, report, results, sensors, truth, methods)
         (out_dir / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
