@@ -29,16 +29,18 @@ def demo_clip_path() -> Path:
     return Path(str(resources.files("kinefuse") / "data" / DEMO_CLIP))
 
 
-def place_actor(motion: Motion, rig: Rig) -> Motion:
+def place_actor(motion: Motion, rig: Rig, seconds: float | None = None) -> Motion:
     """Put the actor where the rig says: its SpineBase at the rig's actor position at the first
-    frame, or, when the rig names none, the clip's path centred on the origin; facing the rig's
-    heading at the first frame; feet on the floor."""
+    frame, or, when the rig names none, the path of the part that is simulated (the first
+    ``seconds``, default all) centred on the origin; facing the rig's heading at the first
+    frame; feet on the floor."""
     from kinefuse.motion import place
 
     if rig.actor_position_m is not None:
         return place(motion, offset_m=rig.actor_position_m, heading_deg=rig.actor_heading_deg)
     placed = place(motion, offset_m=(0.0, 0.0), heading_deg=rig.actor_heading_deg)
-    root = placed.positions[:, JOINT_INDEX["SpineBase"], :2]
+    n = placed.n_frames if seconds is None else int(seconds * placed.rate_hz) + 1
+    root = placed.positions[:n, JOINT_INDEX["SpineBase"], :2]
     centre = (root.min(axis=0) + root.max(axis=0)) / 2
     return place(
         motion,
@@ -76,7 +78,7 @@ def run_simulate(
             f"--seconds {seconds:g} is longer than the clip ({motion.duration_s:.2f} s); "
             "give at most the clip's length or leave --seconds out"
         )
-    motion = place_actor(motion, the_rig)
+    motion = place_actor(motion, the_rig, seconds)
     out.parent.mkdir(parents=True, exist_ok=True)
     config = LabConfig(
         seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
