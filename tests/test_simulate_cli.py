@@ -118,3 +118,22 @@ def test_unknown_naming_lists_unmapped_joints(tmp_path, shared_data, capsys) -> 
     code, _, err = run(capsys, "simulate", "--clip", str(odd), "--out", str(tmp_path / "x.sqlite"))
     assert code == 2
     assert "KneeLeft" in err and "docs/motion.md" in err
+
+
+def test_existing_sessions_are_not_overwritten_by_accident(tmp_path, shared_data, capsys) -> None:
+    clip = str(shared_data / "motion" / "cmu" / "02_walk_a.amc")
+    out = tmp_path / "s.sqlite"
+    args = ["simulate", "--clip", clip, "--seconds", "0.3", "--calibration-seconds", "0",
+            "--out", str(out)]  # fmt: skip
+    assert main(args) == 0
+    code, _, err = run(capsys, *args)
+    assert code == 2 and "already exists" in err and "--force" in err
+    assert main([*args, "--force"]) == 0
+    # a live recording (no truth) is never replaced by a simulation
+    live = tmp_path / "live.sqlite"
+    with SessionStore.create(live) as st:
+        st.set_meta("generator", "a live recording")
+    code, _, err = run(capsys, *args[:-1], str(live), "--force")
+    assert code == 2 and "without ground truth" in err
+    with SessionStore.open(live) as st:
+        assert st.meta()["generator"] == "a live recording"

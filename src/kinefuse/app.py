@@ -62,9 +62,11 @@ def run_simulate(
     seed: int = 0,
     calibration_s: float = 20.0,
     depth_rate_hz: float = 10.0,
+    force: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> Path:
-    """Load a clip and a rig, place the actor, and simulate a session into ``out``."""
+    """Load a clip and a rig, place the actor, and simulate a session into ``out`` (replacing an
+    existing simulated session only with ``force``)."""
     from kinefuse.motion import load_motion
     from kinefuse.sensors.lab import LabConfig, simulate_session
     from kinefuse.sensors.rig import default_rig, load_rig
@@ -83,7 +85,7 @@ def run_simulate(
     config = LabConfig(
         seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
     )
-    return simulate_session(motion, the_rig, out, config, progress=say)
+    return simulate_session(motion, the_rig, out, config, overwrite=force, progress=say)
 
 
 def run_demo(*, out_dir: Path, seed: int = 0) -> int:
@@ -103,6 +105,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
         out=session,
         seed=seed,
         calibration_s=15.0,
+        force=True,
         progress=lambda m: say("   " + m),
     )
     with SessionStore.open(session) as st:

@@ -80,6 +80,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         calibration_s=args.calibration_seconds,
         depth_rate_hz=args.depth_rate,
         out=args.out,
+        force=args.force,
         progress=lambda m: print(m, file=sys.stderr),
     )
     print(f"wrote {args.out}")
@@ -214,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clip", type=Path, required=True, help="motion clip (.bvh or .amc)")
     _add_simulate_args(p)
     p.add_argument("--out", type=Path, required=True, help="session store to write (.sqlite)")
+    p.add_argument(
+        "--force", action="store_true", help="replace --out if it is a simulated session"
+    )
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("calibrate", help="find every sensor's pose from the wand phase")

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse import __version__
-from kinefuse.errors import InputError
+from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
@@ -112,11 +112,14 @@ def simulate_session(
     out: str | Path,
     config: LabConfig = LabConfig(),
     *,
+    overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> Path:
     """Simulate a capture session of ``motion`` (already placed in the lab) seen by ``rig``.
 
-    Writes one SQLite session store at ``out`` (replacing it) and returns its path.
+    Writes one SQLite session store at ``out`` and returns its path. An existing file is only
+    replaced with ``overwrite=True``, and never when it is a recording without ground truth
+    (a live session cannot be simulated again).
     Deterministic: the same inputs and ``config.seed`` give the same observation rows.
     """
     say = progress or (lambda _msg: None)
@@ -143,7 +146,22 @@ def simulate_session(
     seq_subject, seq_wand, *seq_sensors = root.spawn(2 + len(rig.sensors))
     subject = draw_subject_bias(np.random.default_rng(seq_subject), errs.tracker)
 
-    store = SessionStore.create(out, overwrite=True)
+    if Path(out).exists():
+        if not overwrite:
+            raise InputError(
+                f"{out} already exists; choose another --out, or pass --force to replace it"
+            )
+        try:
+            with SessionStore.open(out) as old:
+                live = not old.has_truth()
+        except StoreError:
+            live = False  # not a session store: nothing recorded to protect
+        if live:
+            raise InputError(
+                f"{out} is a recording without ground truth (a live session); kinefuse will not "
+                "overwrite it with a simulation: choose another --out"
+            )
+    store = SessionStore.create(out, overwrite=overwrite)
     try:
         store.set_meta("generator", f"kinefuse {__version__} simulate")
         store.set_meta("seed", int(config.seed))
