@@ -16,6 +16,7 @@ from kinefuse.sensors.tracker import (
     JOINT_GROUPS,
     SessionLatent,
     SubjectBias,
+    TrackerOutput,
     TrackerParams,
     body_visibility,
     describe_params,
@@ -223,24 +224,63 @@ def test_shapes_dtypes_and_reproducibility(walk: np.ndarray) -> None:
     assert not np.allclose(np.nan_to_num(a.joints_sensor), np.nan_to_num(c.joints_sensor))
 
 
-def test_nan_exactly_where_not_tracked_and_nothing_tracked_outside_view(
+def _followed(out: TrackerOutput, truth: np.ndarray) -> np.ndarray:
+    """The true joints the tracker follows (its labels, mirrored in swapped frames)."""
+    perm = np.where(out.swapped[:, None], np.asarray(MIRROR_INDEX), np.arange(N_JOINTS))
+    return np.take_along_axis(truth, perm[..., None], axis=1)
+
+
+def test_out_of_view_joints_are_inferred_and_nothing_tracked_outside_view(
     walk: np.ndarray,
 ) -> None:
     intr = Intrinsics()
     # close and off to the side: the feet and one arm leave the image
     s2w = look_at([1.2, -0.6, 1.6], [0.0, 0.4, 1.3])
     out = simulate_tracker(walk, s2w, intr, RADII, np.random.default_rng(1))
+    outside = ~intr.in_view(_followed(out, to_sensor(s2w, walk))) & ~out.dropout[:, None]
+    assert outside.sum() > 100
+    # as the SDK documents: a tracked body's joints the camera cannot see are inferred
+    assert (out.states[outside] == TrackingState.INFERRED).all()
+    assert np.isfinite(out.joints_sensor[outside]).all()
     nt = out.states == TrackingState.NOT_TRACKED
-    assert nt.any() and (~nt).any()
+    assert np.array_equal(nt, np.broadcast_to(out.dropout[:, None], nt.shape))
     assert np.array_equal(np.isnan(out.joints_sensor).any(-1), nt)
     assert np.array_equal(np.isnan(out.joints_sensor).all(-1), nt)
     tracked = out.states == TrackingState.TRACKED
     assert intr.in_view(out.joints_sensor)[tracked].all()
-    truth = to_sensor(s2w, walk)
-    perm = np.where(out.swapped[:, None], np.asarray(MIRROR_INDEX), np.arange(N_JOINTS))
-    followed = np.take_along_axis(truth, perm[..., None], axis=1)
-    assert intr.in_view(followed)[tracked].all()
-    assert not intr.in_view(followed)[nt & ~out.dropout[:, None]].any()
+    assert intr.in_view(_followed(out, to_sensor(s2w, walk)))[tracked].all()
+
+
+def test_out_of_view_joints_can_be_dropped_instead(walk: np.ndarray) -> None:
+    intr = Intrinsics()
+    s2w = look_at([1.2, -0.6, 1.6], [0.0, 0.4, 1.3])
+    params = dataclasses.replace(TrackerParams(), out_of_view_inferred=False)
+    out = simulate_tracker(walk, s2w, intr, RADII, np.random.default_rng(1), params)
+    nt = out.states == TrackingState.NOT_TRACKED
+    outside = ~intr.in_view(_followed(out, to_sensor(s2w, walk)))
+    assert outside.any()
+    assert np.array_equal(nt, outside | out.dropout[:, None])
+    assert np.array_equal(np.isnan(out.joints_sensor).all(-1), nt)
+
+
+def test_an_unseen_joint_is_guessed_without_its_truth(walk: np.ndarray) -> None:
+    """Where a joint is out of view, moving the true joint does not move what is reported."""
+    intr = Intrinsics()
+    s2w = look_at([1.2, -0.6, 1.6], [0.0, 0.4, 1.3])
+    params = quiet()
+    out = simulate_tracker(walk, s2w, intr, RADII, np.random.default_rng(3), params)
+    foot = JOINT_INDEX["FootLeft"]
+    outside = ~intr.in_view(to_sensor(s2w, walk))[:, foot] & ~out.swapped & ~out.dropout
+    assert outside.sum() > 10
+    moved = walk.copy()
+    moved[outside, foot] += np.array([0.0, 0.0, -0.3])  # further down, still out of view
+    out2 = simulate_tracker(moved, s2w, intr, RADII, np.random.default_rng(3), params)
+    np.testing.assert_allclose(
+        out2.joints_sensor[outside, foot], out.joints_sensor[outside, foot], atol=1e-12
+    )
+    # and the guess is a plausible foot: within a leg's length of the spine base
+    base = out.joints_sensor[outside, JOINT_INDEX["SpineBase"]]
+    assert (np.linalg.norm(out.joints_sensor[outside, foot] - base, axis=-1) < 1.2).all()
 
 
 def test_person_out_of_range_is_not_tracked(stand: np.ndarray) -> None:

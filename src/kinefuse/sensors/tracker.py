@@ -22,7 +22,8 @@ positions into what such a tracker reports, with these components (every number 
     the joint and around it against the capsules, ignoring the capsules the joint lies inside)
     are ``INFERRED``, with a much larger, biased error (pulled toward the last pose seen, held in
     the body frame, or the mirrored twin); joints outside the depth camera's view or range are
-    ``NOT_TRACKED`` (NaN).
+    ``INFERRED`` too, at the guess alone (the SDK documents that joints it cannot see are
+    inferred from the rest of the body).
 (d) **Left/right swaps**: a tracker assumes the person faces it; the probability that it labels
     the body mirrored rises with the facing angle and persists over runs of frames.
 (e) **Dropouts**: occasional runs of frames where the body is lost (all joints ``NOT_TRACKED``).
@@ -55,6 +56,7 @@ from kinefuse.skeleton import (
     N_JOINTS,
     TrackingState,
     bone_index_array,
+    standing_pose,
 )
 
 Array = NDArray[np.float64]
@@ -196,7 +198,7 @@ class TrackerParams:
             "share of the joint's depth below the visible surface (ray cast against the capsule "
             "body) that the tracker leaves in its estimate before the push-back; chosen so the "
             "simulated 45-degree layout disagrees more than the parallel one as the real logs "
-            "do (median ratio 1.35 real, 1.29 simulated), " + _KMT,
+            "do (median ratio 1.35 real, 1.32 simulated), " + _KMT,
         ),
     )
     pose_bias_sigma_m: tuple[float, ...] = field(
@@ -392,6 +394,19 @@ class TrackerParams:
             "joints",
             "assumption",
             "with fewer joints inside the view and range the body is lost (all NOT_TRACKED)",
+        ),
+    )
+    out_of_view_inferred: bool = field(
+        default=True,
+        metadata=_meta(
+            "flag",
+            "literature",
+            "joints of a tracked body outside the image or the depth range are reported INFERRED "
+            'at a position guessed from the rest of the body alone, not dropped: "a tracked '
+            "joint that cannot be seen by the camera is inferred, that is, the joint position "
+            'is calculated from surrounding joint data rather than captured by the camera" '
+            "(Kinect for Windows SDK 2.0, TrackingState enumeration); False drops them "
+            "(NOT_TRACKED)",
         ),
     )
     # (d) left/right swaps -----------------------------------------------------------------
@@ -696,6 +711,18 @@ def _body_axes(p: Array, up: Array) -> Array:
     return np.stack([right, forward, up_t], axis=-1)
 
 
+def _default_local(tb: Array, origin: Array) -> Array:
+    """A standing pose in body coordinates (right, forward, up) from the spine base ``(T, 25,
+    3)``, scaled to the believed body's spine-base-to-head length."""
+    std = standing_pose()  # facing +x, z up: right is -y
+    std_local = np.stack([-std[:, 1], std[:, 0], std[:, 2]], axis=-1)
+    base, head = JOINT_INDEX["SpineBase"], JOINT_INDEX["Head"]
+    std_local = std_local - std_local[base]
+    trunk = np.linalg.norm(tb[:, head] - origin, axis=-1)
+    scale = trunk / np.linalg.norm(std_local[head])
+    return std_local[None] * np.nan_to_num(scale, nan=1.0)[:, None, None]
+
+
 def _point_segment_distance(p: Array, a: Array, b: Array) -> Array:
     """Distance ``(T, P, C)`` from points ``(T, P, 3)`` to segments ``(T, C, 3)``."""
     ab = b - a  # (T, C, 3)
@@ -865,7 +892,7 @@ def simulate_tracker(
     sensor2world : (4, 4) float
         The sensor's pose.
     intrinsics : Intrinsics
-        Its depth camera (view and range decide ``NOT_TRACKED``).
+        Its depth camera (joints outside its view and range are guessed, ``INFERRED``).
     radii : (24,) float
         Capsule radius per bone (:func:`kinefuse.skeleton.capsule_radii`), metres.
     rng : numpy.random.Generator
@@ -1006,8 +1033,14 @@ def simulate_tracker(
     last = np.where(seen, np.arange(n_t)[:, None], -1)
     last = np.maximum.accumulate(last, axis=0)
     held = local[np.maximum(last, 0), ones[None, :]]
-    mirrored = local[:, list(MIRROR_INDEX)] * np.array([-1.0, 1.0, 1.0])
-    guess_local = np.where((last >= 0)[..., None], held, mirrored)
+    # never seen yet: the mirrored twin as last seen, else a default pose of the body's size
+    twin = list(MIRROR_INDEX)
+    mirrored = held[:, twin] * np.array([-1.0, 1.0, 1.0])
+    guess_local = np.where(
+        (last >= 0)[..., None],
+        held,
+        np.where((last[:, twin] >= 0)[..., None], mirrored, _default_local(tb, origin)),
+    )
     guess = origin[:, None, :] + np.einsum("tik,tjk->tji", axes_b, guess_local) + bias
     infer_body = inferred_latent(times, view).reshape(n_t, N_JOINTS, 3) * p.inferred_sigma_m
     infer_noise = np.einsum("tik,tjk->tji", axes_b, infer_body)
@@ -1016,9 +1049,14 @@ def simulate_tracker(
     states = np.full((n_t, N_JOINTS), TrackingState.INFERRED, dtype=np.int8)
     states[vis_b] = TrackingState.TRACKED
     out = np.where(vis_b[..., None], tracked_pos, inferred_pos)
+    if p.out_of_view_inferred:
+        # the camera saw nothing of a joint out of view: its position is the guess alone
+        out = np.where(in_view_b[..., None], out, guess + infer_noise)
+        not_tracked = np.broadcast_to(lost[:, None], (n_t, N_JOINTS))
+    else:
+        not_tracked = ~in_view_b | lost[:, None]
     # nothing reported TRACKED outside the view, even after the noise
     states[(states == TrackingState.TRACKED) & ~intrinsics.in_view(out)] = TrackingState.INFERRED
-    not_tracked = ~in_view_b | lost[:, None]
     states[not_tracked] = TrackingState.NOT_TRACKED
     out[not_tracked] = np.nan
     return TrackerOutput(
