@@ -31,3 +31,11 @@ def test_demo_runs_the_whole_pipeline(tmp_path, capsys) -> None:
     report = json.loads((out / "evaluation" / "evaluate.json").read_text())
     assert report["calibration"] == "session calibration (full)"
     assert report["best"]["mae_m"] < 0.6 * report["paper"]["mae_m"]
+    # every comparison and every part of the ablation comes with its 95 % interval
+    gains = [*report["comparisons"].values(), *report["ablation"].values()]
+    assert len(report["comparisons"]) == 5 and len(report["ablation"]) == 6
+    for g in gains:
+        low, high = g["gain_ci95_percent"]
+        assert low <= g["gain_percent"] <= high
+    assert report["comparisons"]["best vs paper"]["gain_ci95_percent"][0] > 40
+    assert "95 % interval" in text

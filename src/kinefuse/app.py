@@ -277,15 +277,26 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
             f"\nocclusion detection vs ray casting: precision {occ['precision']:.2f}, "
             f"recall {occ['recall']:.2f}"
         )
+    comp = report.get("comparisons")
+    if isinstance(comp, dict) and comp:
+        lines.append("\nMAE of a below b (95 % interval, block bootstrap over frames):")
+        for pair, v in comp.items():
+            lines.append(f"  {pair:<22} {_gain_text(v)}")
     abl = report.get("ablation")
     if isinstance(abl, dict):
         lines.append("\nablation of best (MAE without the part, and its gain):")
         for part, v in abl.items():
             lines.append(
                 f"  {part:<11} {100 * v['mae_without_m']:6.2f} cm   gain "
-                f"{100 * v['gain_m']:+.2f} cm ({v['gain_percent']:+.1f} %)"
+                f"{100 * v['gain_m']:+.2f} cm, {_gain_text(v)}"
             )
     return "\n".join(lines)
+
+
+def _gain_text(v: dict[str, Any]) -> str:
+    low, high = v["gain_ci95_percent"]
+    verdict = "gain" if low > 0 else ("loss" if high < 0 else "no clear difference")
+    return f"{v['gain_percent']:+6.1f} % [{low:+.1f}, {high:+.1f}] {verdict}"
 
 
 def run_calibrate(

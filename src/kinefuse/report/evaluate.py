@@ -20,7 +20,7 @@ from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
-from kinefuse.report.metrics import position_errors
+from kinefuse.report.metrics import gain_ci, position_errors
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState
 
 Array = NDArray[np.float64]
@@ -34,6 +34,16 @@ ABLATION: dict[str, BestOptions] = {
     "temporal": BestOptions(temporal=None),
     "bones": BestOptions(bones=False),
 }
+
+#: Method pairs whose MAE the report compares (the paper's ordering, then ours): ``(a, b)``
+#: reads "how much lower is a's MAE than b's".
+COMPARISONS = (
+    ("paper", "geometric"),
+    ("geometric", "linear"),
+    ("nonlinear", "linear"),
+    ("nonlinear", "geometric"),
+    ("best", "paper"),
+)
 
 ARM_JOINTS = ("ShoulderLeft", "ElbowLeft", "WristLeft", "ShoulderRight", "ElbowRight", "WristRight")
 LEG_JOINTS = ("HipLeft", "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight")
@@ -49,6 +59,12 @@ def truth_at(store: SessionStore, t_server_s: Array) -> Array:
             t_server_s, t, flat[:, k], left=np.nan, right=np.nan
         )
     return out
+
+
+def _gain(estimate: Array, reference: Array, truth: Array) -> dict[str, Any]:
+    """``gain_percent`` of ``estimate`` over ``reference`` with its 95 % interval."""
+    gain, low, high = gain_ci(estimate, reference, truth)
+    return {"gain_percent": gain, "gain_ci95_percent": [low, high]}
 
 
 def _summary(res: MethodResult, truth: Array) -> dict[str, Any]:
@@ -130,6 +146,11 @@ def evaluate(
     results = {m: run_method(sensors, grid, m) for m in methods}
     report: dict[str, Any] = {m: _summary(r, truth) for m, r in results.items()}
     report["occlusion"] = occlusion_score(store, sensors)
+    report["comparisons"] = {
+        f"{a} vs {b}": _gain(results[a].positions, results[b].positions, truth)
+        for a, b in COMPARISONS
+        if a in results and b in results
+    }
     if ablation and "best" in results:
         full = float(report["best"]["mae_m"])
         abl = {}
@@ -139,7 +160,7 @@ def evaluate(
             abl[part] = {
                 "mae_without_m": mae,
                 "gain_m": float(mae) - full,
-                "gain_percent": 100.0 * (float(mae) - full) / float(mae),
+                **_gain(results["best"].positions, r.positions, truth),
             }
         report["ablation"] = abl
     report["frames"] = int(grid.size)
