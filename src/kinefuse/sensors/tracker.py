@@ -21,9 +21,9 @@ positions into what such a tracker reports, with these components (every number 
 (c) **States**: joints hidden by the body from the sensor (rays cast from the optical centre to
     the joint and around it against the capsules, ignoring the capsules the joint lies inside)
     are ``INFERRED``, with a much larger, biased error (pulled toward the last pose seen, held in
-    the body frame, or the mirrored twin); joints outside the depth camera's view or range are
-    ``INFERRED`` too, at the guess alone (the SDK documents that joints it cannot see are
-    inferred from the rest of the body).
+    the body frame, else the mirrored twin as last seen, else a standing pose); joints outside
+    the depth camera's view or range are ``INFERRED`` too, at the guess alone (the SDK documents
+    that joints it cannot see are inferred from the rest of the body).
 (d) **Left/right swaps**: a tracker assumes the person faces it; the probability that it labels
     the body mirrored rises with the facing angle and persists over runs of frames.
 (e) **Dropouts**: occasional runs of frames where the body is lost (all joints ``NOT_TRACKED``).
