@@ -361,7 +361,8 @@ class TrackerParams:
             "1",
             "assumption",
             "weight of the guessed pose (last pose seen, held in the body frame; else the "
-            "mirrored twin) in an INFERRED joint's position",
+            "mirrored twin as last seen; else a standing pose) in the position of an occluded "
+            "INFERRED joint in view (one out of view is the guess alone)",
         ),
     )
     inferred_sigma_m: float = field(
