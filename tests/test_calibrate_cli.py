@@ -37,15 +37,18 @@ def level(tmp_path_factory, clip) -> Path:
     return simulate(tmp_path_factory.mktemp("cal") / "level.sqlite", clip, "level4.toml")
 
 
-def calibrate_json(capsys, session: Path, method: str, *extra: str) -> dict:
-    assert main(["calibrate", str(session), "--method", method, "--json", *extra]) == 0
+def calibrate_json(capsys, session: Path, method: str, *extra: str, code: int = 0) -> dict:
+    assert main(["calibrate", str(session), "--method", method, "--json", *extra]) == code
     return json.loads(capsys.readouterr().out)
 
 
 def test_full_calibration_of_a_tilted_rig(tilted, tmp_path, capsys) -> None:
     out = tmp_path / "calib.toml"
-    r = calibrate_json(capsys, tilted, "full", "--out", str(out), "--report", str(tmp_path))
+    report = tmp_path / "report"
+    r = calibrate_json(capsys, tilted, "full", "--out", str(out), "--report", str(report),
+                       "--store")  # fmt: skip
     assert r["method"] == "full" and len(r["sensors"]) == 4
+    assert r["grade"] == "good" and r["reasons"] == [] and r["stored_in_session"]
     assert r["mean_position_error_m"] <= 0.005  # 5 mm (paper: 7.3 +/- 8.5 mm, level rig)
     assert r["mean_rotation_error_deg"] <= 0.5
     for s in r["sensors"]:
@@ -57,21 +60,29 @@ def test_full_calibration_of_a_tilted_rig(tilted, tmp_path, capsys) -> None:
         stored = loads_calibration(st.calibration("full") or "")
     for a, b in zip(cal.sensors, stored.sensors, strict=True):
         np.testing.assert_allclose(a.sensor2world, b.sensor2world, atol=1e-9)
-    assert (tmp_path / "calibration_errors_full.png").stat().st_size > 10_000
-    rows = (tmp_path / "calibration_vs_sightings_full.csv").read_text().splitlines()
+    assert (report / "calibration_errors_full.png").stat().st_size > 10_000
+    rows = (report / "calibration_vs_sightings_full.csv").read_text().splitlines()
     assert rows[0].startswith("duration_s,mean_sightings") and len(rows) >= 4
 
 
-def test_paper_method_on_level_and_tilted_rigs(level, tilted, capsys) -> None:
+def test_paper_method_on_level_and_tilted_rigs(level, tilted, tmp_path, capsys) -> None:
     r = calibrate_json(capsys, level, "paper")
     assert r["mean_position_error_m"] <= 0.02  # 2 cm on the level rig it assumes
-    worse = calibrate_json(capsys, tilted, "paper")
-    # the tilted rig breaks its level assumption: it runs and its error is reported, not hidden
+    assert r["grade"] == "good", r["reasons"]
+    # the tilted rig breaks its level assumption: the grade says so from the calibration's own
+    # evidence (floor planes, residuals), it exits non-zero and writes nothing
+    out = tmp_path / "paper.toml"
+    worse = calibrate_json(capsys, tilted, "paper", "--out", str(out), code=3)
+    assert worse["grade"] == "failed" and not worse["accepted"] and not out.exists()
+    assert any("tilted" in why and "level" in why for why in worse["reasons"])
     assert worse["mean_position_error_m"] > 5 * r["mean_position_error_m"]
+    # --accept keeps it anyway
+    kept = calibrate_json(capsys, tilted, "paper", "--out", str(out), "--accept")
+    assert kept["grade"] == "failed" and kept["accepted"] and out.exists()
 
 
 def test_calibration_feeds_fusion(tilted, capsys) -> None:
-    calibrate_json(capsys, tilted, "full")
+    calibrate_json(capsys, tilted, "full", "--store")
     assert main(["fuse", str(tilted), "--method", "best", "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["calibration"] == "session calibration (full)" and info["frames"] > 10

@@ -152,7 +152,9 @@ def test_bad_registration_inputs_are_clear_errors() -> None:
     empty["k2"] = Sightings(np.zeros(0), np.zeros((0, 3)))
     with pytest.raises(CalibrationError, match=r"sensor\(s\) k2 have no wand sightings"):
         register_full(empty, origin="sensor")
-    with pytest.raises(CalibrationError, match="at least 2 sensors, got 1 \\(k0\\)"):
+    with pytest.raises(
+        CalibrationError, match=r"at least 2 sensors that saw the wand, got 1 \(k0\)"
+    ):
         register_full({"k0": s["k0"]}, origin="sensor")
     with pytest.raises(CalibrationError, match="origin='wand' needs the floor plane"):
         register_full(s)

@@ -57,3 +57,44 @@ def test_unknown_format_and_bad_shapes(tmp_path, skeleton) -> None:
         export_skeleton(tmp_path / "f.xyz", t, p)
     with pytest.raises(InputError, match=r"positions \(T, 25, 3\)"):
         export_skeleton(tmp_path / "f.csv", t, p[:, :20])
+
+
+# -- OpenSim reads every TRC kinefuse writes (issue 8) ---------------------------------------
+
+
+def _opensim():
+    try:
+        import opensim
+    except ImportError:
+        pytest.skip("opensim is not installed (pip install '.[test]' on CPython 3.11, x86_64)")
+    return opensim
+
+
+@pytest.mark.parametrize("axes", ["y-up", "z-up"])
+def test_trc_loads_in_opensim_with_every_frame_and_marker(tmp_path, axes) -> None:
+    opensim = _opensim()
+    from kinefuse.skeleton import standing_pose
+
+    t = (90 + np.arange(40)) / 30.0  # seconds from the session's start, frames on the grid
+    p = np.repeat(standing_pose()[None], 40, axis=0)
+    p[:, :, 0] += np.linspace(0, 1, 40)[:, None]  # walk along x
+    p[5, 24] = np.nan  # a missing marker
+    p[6] = np.nan  # a frame with no data at all
+    p[-1, -3:] = np.nan  # missing markers at the end of a row: OpenSim's column count
+    out = export_skeleton(tmp_path / "f.trc", t, p, trc_axes=axes)
+    table = opensim.TimeSeriesTableVec3(str(out))
+    assert table.getNumRows() == 40 and table.getNumColumns() == 25
+    assert list(table.getColumnLabels()) == list(JOINTS)
+    np.testing.assert_allclose(list(table.getIndependentColumn()), t, atol=1e-6)
+    assert table.getTableMetaDataAsString("Units") == "mm"
+    head = table.getDependentColumn("Head")
+    h = np.array([[head[i][k] for k in range(3)] for i in range(40)])
+    up = 1 if axes == "y-up" else 2
+    assert np.nanmedian(h[:, up]) == pytest.approx(1000 * np.nanmedian(p[:, 3, 2]), abs=1)
+    assert np.isnan(h[6]).all() and np.isfinite(h[7]).all()
+    thumb = table.getDependentColumn("ThumbRight")
+    assert np.isnan([thumb[5][k] for k in range(3)]).all()
+    if axes == "y-up":  # X = x, Y = z, Z = -y: right-handed
+        spine = table.getDependentColumn("SpineBase")
+        assert spine[0][0] == pytest.approx(1000 * p[0, 0, 0], abs=1e-2)
+        assert spine[0][2] == pytest.approx(-1000 * p[0, 0, 1], abs=1e-2)

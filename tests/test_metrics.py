@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.report.metrics import gain_ci, position_errors
+from kinefuse.report.metrics import bias_noise, gain, gain_ci, position_errors, verdict
 
 
 @pytest.fixture
@@ -56,3 +56,45 @@ def test_position_errors_leave_missing_out(truth) -> None:
     e = position_errors(est, truth)
     assert e["mae_m"] == pytest.approx(0.05) and e["p95_m"] == pytest.approx(0.05)
     assert e["frames"] == 290 and e["missing_fraction"] == pytest.approx(10 / 300)
+
+
+def test_gain_in_cm_and_percent_share_one_definition(truth) -> None:
+    # a solves fewer joints; on its own joints it is worse, while its full-set MAE looks better
+    a = truth + 0.03
+    b = truth + 0.02
+    b[:, :5] += 0.5  # b's error is large on joints a does not solve at all
+    a[:, :5] = np.nan
+    own_a = position_errors(a, truth)["mae_m"]
+    own_b = position_errors(b, truth)["mae_m"]
+    assert own_a < own_b  # the comparison of own MAEs would call a better
+    g = gain(a, b, truth)
+    r3 = np.sqrt(3)  # an offset of d on each axis is d * sqrt(3) away
+    assert g["gain_m"] == pytest.approx(-0.01 * r3)  # on the joints both solved, a is worse
+    assert g["gain_percent"] == pytest.approx(-50.0)
+    assert g["verdict"] == "loss" and g["common_fraction"] == pytest.approx(20 / 25)
+    assert g["mae_m"] == pytest.approx(0.03 * r3) and g["mae_reference_m"] == pytest.approx(
+        0.02 * r3
+    )
+    low, high = g["gain_ci95_m"]
+    assert low <= g["gain_m"] <= high
+
+
+def test_verdict_needs_an_interval_clear_of_zero() -> None:
+    assert verdict(0.5, 2.0) == "gain" and verdict(-2.0, -0.5) == "loss"
+    assert verdict(-0.1, 2.0) == "no clear difference"
+    assert verdict(0.0, 0.0) == "no clear difference"
+    assert verdict(0.001, 0.004) == "no clear difference"  # below what the report can print
+    assert verdict(float("nan"), 1.0) == "no clear difference"
+
+
+def test_bias_and_noise_split_a_fixed_offset_from_the_spread(rng, truth) -> None:
+    offset = np.array([0.05, -0.02, 0.03])
+    est = truth + offset + rng.normal(0.0, 0.01, truth.shape)
+    est[:, 7] = np.nan  # a joint never estimated
+    bn = bias_noise(est, truth)
+    spine = bn["by_joint"]["SpineBase"]
+    np.testing.assert_allclose(spine["bias_m"], offset, atol=0.003)  # 3 mm
+    assert spine["bias_vertical_m"] == pytest.approx(0.03, abs=0.003)
+    assert spine["noise_m"] == pytest.approx(0.01 * np.sqrt(3), rel=0.15)
+    assert bn["by_joint"]["HandLeft"] is None
+    assert bn["bias_norm_mean_m"] == pytest.approx(np.linalg.norm(offset), abs=0.003)

@@ -410,3 +410,18 @@ def test_partly_mappable_skeleton_gets_a_map_with_the_known_entries(text: str) -
     snippet = tomllib.loads(msg.split("A minimal map:\n", 1)[1])["joints"]
     assert snippet["Head"] == {"mean": ["Head", "Head/End"]}
     assert snippet["KneeLeft"] == "LeftKnee" and snippet["HipLeft"] == "?"
+    # the message names the command-line flag, not the Python argument
+    assert "--name-map MAP.toml" in msg and "name_map=" not in msg
+
+
+def test_suggestions_keep_the_side_and_the_body_part(text: str) -> None:
+    # a knee named oddly must not be suggested the collar of its side ("RightCollar" shares
+    # most letters with "RightKnee"), nor a knee of the other side
+    odd = text.replace("RightKnee", "RKneeJoint").replace("LeftHip", "Lthigh")
+    odd = odd.replace("RightKnee", "RKneeJoint")
+    with pytest.raises(RetargetError) as e:
+        retarget(parse_bvh(odd, path="odd.bvh"))
+    lines = {ln.split(" = ")[0]: ln for ln in str(e.value).splitlines() if ' = "?"' in ln}
+    assert "KneeRight" in lines and "Collar" not in lines["KneeRight"]
+    assert "'RKneeJoint'" in lines["KneeRight"]
+    assert "Right" not in lines.get("HipLeft", "")

@@ -388,7 +388,10 @@ def test_read_only_and_closed(tmp_path: Path, store: SessionStore) -> None:
     store.close()  # idempotent
     with (
         SessionStore.open(tmp_path / "s.sqlite") as s,
-        pytest.raises(StoreError, match=r"open read-only; use SessionStore.open\(path, writable"),
+        pytest.raises(
+            StoreError,
+            match=r"is open read-only \(kinefuse commands store results in a session only when",
+        ),
     ):
         s.set_meta("x", 1)
 

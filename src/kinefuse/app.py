@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.errors import InputError
+from kinefuse.errors import CalibrationError, InputError, KinefuseError, OutputError
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
 from kinefuse.sensors.rig import Rig
@@ -49,6 +49,67 @@ def place_actor(motion: Motion, rig: Rig, seconds: float | None = None) -> Motio
     )
 
 
+#: Extensions of other formats that a session store (SQLite) must not be written under.
+FOREIGN_SESSION_SUFFIXES = frozenset(
+    {".c3d", ".trc", ".csv", ".toml", ".json", ".bvh", ".amc", ".asf", ".mot", ".png", ".txt",
+     ".md", ".npy", ".npz", ".mkv", ".gz", ".html", ".xml", ".osim", ".py"}
+)  # fmt: skip
+
+
+def is_replaceable_simulation(path: Path) -> bool:
+    """True if ``path`` is a kinefuse session with ground truth (a simulation, which can be made
+    again) and no writer has it open; a live recording, or any other file, is never replaced."""
+    from kinefuse.io.outputs import is_kinefuse_session
+
+    if not is_kinefuse_session(path):
+        return False
+    if any(path.with_name(path.name + s).exists() for s in ("-wal", "-journal")):
+        return False  # open by a writer, or a crashed one left its journal: not ours to drop
+    try:
+        with SessionStore.open(path) as old:
+            return old.has_truth()
+    except KinefuseError:
+        return False
+
+
+def check_session_out(out: Path, force: bool) -> None:
+    """Refuse an ``--out`` for a new session: a foreign extension, or an existing file that is
+    not a simulated session (or is one, without ``--force``)."""
+    from kinefuse.io.outputs import check_output_folder, is_kinefuse_session
+
+    if out.suffix.lower() in FOREIGN_SESSION_SUFFIXES:
+        raise OutputError(
+            f"--out {out}: a session is a SQLite file, but {out.suffix!r} is the extension of "
+            "another format; name it .sqlite"
+        )
+    check_output_folder(out, "session")
+    if out.is_dir():
+        raise OutputError(f"--out {out} is a folder; give the path of a .sqlite file")
+    if not out.exists():
+        return
+    if not force:
+        raise OutputError(
+            f"{out} already exists; choose another --out, or pass --force to replace it (only a "
+            "simulated kinefuse session is ever replaced)"
+        )
+    if not is_kinefuse_session(out):
+        raise OutputError(
+            f"refusing to replace {out}: it is not a kinefuse session (checked by its content, "
+            "not its name); --force only replaces simulated sessions"
+        )
+    if any(out.with_name(out.name + s).exists() for s in ("-wal", "-journal")):
+        raise OutputError(
+            f"refusing to replace {out}: it is open by another process or was not closed cleanly "
+            f"(a {out.name}-wal or -journal file lies beside it); close that process, or run "
+            f"`kinefuse inspect {out}` once to recover it, then try again"
+        )
+    if not is_replaceable_simulation(out):
+        raise OutputError(
+            f"refusing to replace {out}: it is a recording without ground truth (a live session); "
+            "choose another --out"
+        )
+
+
 def run_simulate(
     *,
     clip: Path,
@@ -62,17 +123,32 @@ def run_simulate(
     seed: int = 0,
     calibration_s: float = 20.0,
     depth_rate_hz: float = 10.0,
+    room: tuple[float, float, float, float] | None = None,
     force: bool = False,
     progress: Callable[[str], None] | None = None,
-) -> Path:
-    """Load a clip and a rig, place the actor, and simulate a session into ``out`` (replacing an
-    existing simulated session only with ``force``)."""
+) -> dict[str, Any]:
+    """Load a clip and a rig, place the actor, and simulate a session into ``out``.
+
+    Everything that can be checked is checked before anything is written; the session is built
+    in a temporary file beside ``out``, marked complete, and renamed into place only when it is
+    whole, so an interrupted or failed run leaves any old ``out`` byte-identical. ``force``
+    replaces an existing simulated session, never another file or a live recording.
+
+    Returns
+    -------
+    dict
+        ``out`` (path), ``coverage`` (:func:`kinefuse.report.coverage.tracking_coverage`) and
+        ``warnings`` (list of str).
+    """
+    from kinefuse.io.outputs import atomic_file
     from kinefuse.motion import load_motion
+    from kinefuse.report.coverage import coverage_warnings, tracking_coverage
     from kinefuse.sensors.lab import LabConfig, simulate_session
     from kinefuse.sensors.rig import default_rig, load_rig
 
     say = progress or (lambda _m: None)
-    the_rig = load_rig(rig) if rig is not None else default_rig(sensors)
+    check_session_out(out, force)
+    the_rig = load_rig(rig, room=room) if rig is not None else default_rig(sensors, room=room)
     say(f"loading {clip}")
     motion = load_motion(clip, skeleton=skeleton, units=units, name_map=name_map)
     if seconds is not None and seconds > motion.duration_s + 1e-9:
@@ -81,66 +157,87 @@ def run_simulate(
             "give at most the clip's length or leave --seconds out"
         )
     motion = place_actor(motion, the_rig, seconds)
-    out.parent.mkdir(parents=True, exist_ok=True)
     config = LabConfig(
         seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
     )
-    return simulate_session(motion, the_rig, out, config, overwrite=force, progress=say)
+    with atomic_file(
+        out, what="session", recognizer=is_replaceable_simulation, suffix=".partial.sqlite"
+    ) as tmp:
+        tmp.unlink()  # the store creates its own file
+        simulate_session(motion, the_rig, tmp, config, progress=say)
+        with SessionStore.open(tmp, writable=True) as store:
+            coverage = tracking_coverage(store)
+            store.mark_complete()
+    warnings = coverage_warnings(coverage)
+    return {"out": out, "coverage": coverage, "warnings": warnings}
 
 
 def run_demo(*, out_dir: Path, seed: int = 0) -> int:
     """The main job, end to end on the bundled clip: simulate a 4-sensor session (wand phase,
     then the motion), calibrate the sensors from the wand, fuse the skeleton, export it, and
-    compare every fusion method against the truth."""
+    compare every fusion method against the truth.
+
+    Everything is built in a fresh folder beside ``out_dir`` and swapped in only when the whole
+    run succeeded, so an interrupted demo leaves the previous run's outputs as they were.
+    """
     from kinefuse.fusion.session import METHODS
+    from kinefuse.io.outputs import atomic_dir
     from kinefuse.report.inspect import format_inspect, inspect_session
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    session = out_dir / "session.sqlite"
     say = print
-    say(f"== 1/4 simulate: 4 Kinect v2 sensors watch CMU 01_01 ({DEMO_CLIP}), after 15 s of "
-        "wand waving")  # fmt: skip
-    run_simulate(
-        clip=demo_clip_path(),
-        out=session,
-        seed=seed,
-        calibration_s=15.0,
-        force=True,
-        progress=lambda m: say("   " + m),
-    )
-    with SessionStore.open(session) as st:
-        info = inspect_session(st)
-    (out_dir / "inspect.json").write_text(json.dumps(info, indent=2) + "\n")
-    say(format_inspect(info))
+    with atomic_dir(out_dir, what="demo output folder") as tmp:
+        session = tmp / "session.sqlite"
+        say(f"== 1/4 simulate: 4 Kinect v2 sensors watch CMU 01_01 ({DEMO_CLIP}), after 15 s "
+            "of wand waving")  # fmt: skip
+        sim = run_simulate(
+            clip=demo_clip_path(),
+            out=session,
+            seed=seed,
+            calibration_s=15.0,
+            progress=lambda m: say("   " + m),
+        )
+        for w in sim["warnings"]:
+            say(f"   warning: {w}")
+        with SessionStore.open(session) as st:
+            info = inspect_session(st)
+        (tmp / "inspect.json").write_text(json.dumps(info, indent=2) + "\n")
+        say(format_inspect(info))
 
-    say("\n== 2/4 calibrate: every sensor's pose from the wand seen in depth")
-    cal = run_calibrate(
-        session=session, method="full", out=out_dir / "calibration.toml", report_dir=out_dir
-    )
-    say(format_calibrate(cal))
-
-    say("\n== 3/4 fuse: one skeleton from the four sensors (method best)")
-    for ext in (".c3d", ".trc"):
-        fused = run_fuse(
+        say("\n== 2/4 calibrate: every sensor's pose from the wand seen in depth")
+        cal = run_calibrate(
             session=session,
-            method="best",
-            out=out_dir / f"fused{ext}",
+            method="full",
+            out=tmp / "calibration.toml",
+            report_dir=tmp / "calibration",
+            store_result=True,
+        )
+        say(format_calibrate(cal))
+        if cal["grade"] == "failed":
+            raise CalibrationError("the demo's calibration failed; see the reasons above")
+
+        say("\n== 3/4 fuse: one skeleton from the four sensors (method best)")
+        for ext in (".c3d", ".trc", ".csv"):
+            fused = run_fuse(
+                session=session,
+                method="best",
+                out=tmp / f"fused{ext}",
+                calibration=None,
+                true_calibration=False,
+            )
+        say(f"   {fused['frames']} frames in {fused['seconds']:.2f} s -> fused.c3d, fused.trc, "
+            "fused.csv")  # fmt: skip
+
+        say("\n== 4/4 evaluate: the paper's methods and ours against the truth")
+        report = run_evaluate(
+            session=session,
+            methods=METHODS,
+            out_dir=tmp / "evaluation",
             calibration=None,
             true_calibration=False,
         )
-    say(f"   {fused['frames']} frames in {fused['seconds']:.2f} s -> fused.c3d, fused.trc")
-
-    say("\n== 4/4 evaluate: the paper's methods and ours against the truth")
-    report = run_evaluate(
-        session=session,
-        methods=METHODS,
-        out_dir=out_dir / "evaluation",
-        calibration=None,
-        true_calibration=False,
-    )
-    say(format_evaluate(report, METHODS))
+        say(format_evaluate(report, METHODS))
     say(f"\noutputs in {out_dir}/: session.sqlite, inspect.json, calibration.toml, "
-        "calibration_errors_full.png, fused.c3d, fused.trc, evaluation/ (tables I-III, "
+        "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, evaluation/ (tables I-III, "
         "trajectories.png, evaluate.json)")  # fmt: skip
     return 0
 
@@ -183,28 +280,41 @@ def run_fuse(
     out: Path | None,
     calibration: Path | None,
     true_calibration: bool,
+    store_result: bool = False,
+    allow_incomplete: bool = False,
+    trc_axes: str = "y-up",
 ) -> dict[str, object]:
-    """Fuse a session with one method; store the result in the session and export it."""
+    """Fuse a session with one method and export the result.
+
+    The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
+    (the one case that writes to the session). The export's folder and kind are checked before
+    the work starts, so a bad ``out`` fails fast.
+    """
     from kinefuse.fusion.session import frame_grid, load_sensors, run_method
     from kinefuse.fusion.status import status_counts
-    from kinefuse.io.export import export_skeleton
+    from kinefuse.io.export import check_export_path, export_skeleton
+    from kinefuse.io.outputs import check_output_folder
 
     if out is not None:
-        from kinefuse.io.export import EXPORTERS
-
-        if out.suffix.lower() not in EXPORTERS:
-            raise InputError(
-                f"{out}: unknown output format {out.suffix or '(none)'!r}; use one of "
-                + ", ".join(sorted(EXPORTERS))
-            )
-    with SessionStore.open(session, writable=True) as store:
+        check_export_path(out)
+        check_output_folder(out, "export")
+    with SessionStore.open(session, writable=store_result) as store:
+        store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
         sensors = load_sensors(store, poses)
+        warnings = [
+            f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
+            for s in sensors
+            if not s.observations.has_body.any()
+        ]
         grid = frame_grid(sensors)
         res = run_method(sensors, grid, method)
-        store.write_fused(method, res.t_server_s, res.positions, res.status)
+        if store_result:
+            store.write_fused(method, res.t_server_s, res.positions, res.status)
     if out is not None:
-        export_skeleton(out, res.t_server_s, res.positions)
+        export_skeleton(
+            out, res.t_server_s, res.positions, residual_m=res.residual_m, trc_axes=trc_axes
+        )
     return {
         "method": method,
         "calibration": source,
@@ -212,6 +322,8 @@ def run_fuse(
         "seconds": res.seconds,
         "status": status_counts(res.status),
         "out": str(out) if out is not None else None,
+        "stored_in_session": store_result,
+        "warnings": warnings,
     }
 
 
@@ -222,9 +334,15 @@ def run_evaluate(
     out_dir: Path | None,
     calibration: Path | None,
     true_calibration: bool,
+    allow_incomplete: bool = False,
 ) -> dict[str, object]:
-    """Compare fusion methods against the truth of a simulated session."""
+    """Compare fusion methods against the truth of a simulated session (opened read-only).
+
+    ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
+    swapped in on success (an existing folder is replaced only if kinefuse made it).
+    """
     from kinefuse.fusion.session import METHODS, load_sensors
+    from kinefuse.io.outputs import atomic_dir, check_output_folder
     from kinefuse.report.evaluate import calibration_alignment, evaluate, write_tables
 
     unknown = [m for m in methods if m not in METHODS]
@@ -232,7 +350,10 @@ def run_evaluate(
         raise InputError(
             f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}"
         )
+    if out_dir is not None:
+        check_output_folder(out_dir, "evaluation folder")
     with SessionStore.open(session) as store:
+        store.require_complete(allow_incomplete=allow_incomplete)
         if not store.has_truth():
             raise InputError(
                 f"{session} has no ground truth, so there is nothing to evaluate against; "
@@ -254,23 +375,37 @@ def run_evaluate(
             "calibration_mean_position_error_m": cal_error,
         }
     if out_dir is not None:
-        written = write_tables(out_dir, report, results, sensors, truth, methods)
-        (out_dir / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
-        report["written"] = [str(p) for p in written]
+        with atomic_dir(out_dir, what="evaluation folder") as tmp:
+            written = write_tables(tmp, report, results, sensors, truth, methods)
+            report["written"] = [str(out_dir / p.name) for p in written] + [
+                str(out_dir / "evaluate.json")
+            ]
+            (tmp / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 
 
 def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
     """A short text table of an evaluation."""
+    common = report.get("common")
+    frac = common.get("joint_fraction", float("nan")) if isinstance(common, dict) else float("nan")
     lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}", ""]
-    lines.append(f"{'method':<10} {'MAE cm':>8} {'RMSE cm':>8} {'p95 cm':>8} {'missing':>8}")
+    lines.append(
+        f"{'method':<10} {'MAE cm':>8} {'common':>8} {'RMSE cm':>8} {'p95 cm':>8} "
+        f"{'coverage':>9} {'bias cm':>8} {'noise cm':>9}"
+    )
     for m in methods:
         r = report[m]
         assert isinstance(r, dict)
+        bn = r["bias_noise"]
         lines.append(
-            f"{m:<10} {100 * r['mae_m']:8.2f} {100 * r['rmse_m']:8.2f} {100 * r['p95_m']:8.2f}"
-            f" {100 * r['missing_fraction']:7.1f}%"
+            f"{m:<10} {100 * r['mae_m']:8.2f} {100 * r['mae_common_m']:8.2f} "
+            f"{100 * r['rmse_m']:8.2f} {100 * r['p95_m']:8.2f} {100 * r['coverage']:8.1f}% "
+            f"{100 * bn['bias_norm_mean_m']:8.2f} {100 * bn['noise_mean_m']:9.2f}"
         )
+    lines.append(
+        f"(MAE over each method's own joints; 'common' over the {100 * frac:.1f} % of frames x "
+        "joints every method solved; bias = mean offset per joint, noise = spread around it)"
+    )
     occ = report.get("occlusion")
     if isinstance(occ, dict):
         lines.append(
@@ -279,59 +414,81 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
         )
     comp = report.get("comparisons")
     if isinstance(comp, dict) and comp:
-        lines.append("\nMAE of a below b (95 % interval, block bootstrap over frames):")
+        lines.append("\ngain of a over b: MAE of b minus MAE of a on joints both solved (95 % "
+                     "interval, block bootstrap over frames):")  # fmt: skip
         for pair, v in comp.items():
             lines.append(f"  {pair:<22} {_gain_text(v)}")
     abl = report.get("ablation")
     if isinstance(abl, dict):
-        lines.append("\nablation of best (MAE without the part, and its gain):")
+        lines.append("\nablation of best (MAE without the part, and what the part gains):")
         for part, v in abl.items():
-            lines.append(
-                f"  {part:<11} {100 * v['mae_without_m']:6.2f} cm   gain "
-                f"{100 * v['gain_m']:+.2f} cm, {_gain_text(v)}"
-            )
+            lines.append(f"  {part:<11} {100 * v['mae_without_m']:6.2f} cm   {_gain_text(v)}")
     return "\n".join(lines)
 
 
 def _gain_text(v: dict[str, Any]) -> str:
     low, high = v["gain_ci95_percent"]
-    verdict = "gain" if low > 0 else ("loss" if high < 0 else "no clear difference")
-    return f"{v['gain_percent']:+6.1f} % [{low:+.1f}, {high:+.1f}] {verdict}"
+    return (
+        f"{100 * v['gain_m']:+6.2f} cm, {v['gain_percent']:+6.1f} % [{low:+.1f}, {high:+.1f}] "
+        f"{v['verdict']}"
+    )
 
 
 def run_calibrate(
-    *, session: Path, method: str, out: Path | None, report_dir: Path | None = None
+    *,
+    session: Path,
+    method: str,
+    out: Path | None,
+    report_dir: Path | None = None,
+    store_result: bool = False,
+    accept: bool = False,
+    allow_incomplete: bool = False,
 ) -> dict[str, Any]:
-    """Calibrate a session's sensors; write the calibration file and store it in the session.
+    """Calibrate a session's sensors and grade the result from its own residuals.
 
-    The error figures (against the simulator's truth) are computed after the calibration, by
-    evaluation code, and only when the session has truth.
+    The session is opened read-only unless ``store_result`` asks to store the calibration in it.
+    A calibration graded ``failed`` is written nowhere unless ``accept``. The error figures
+    (against the simulator's truth) are computed afterwards, by evaluation code, and only when
+    the session has truth.
     """
     from kinefuse.calibration.calib_file import (
         calibration_from_registration,
         dumps_calibration,
         write_calibration,
     )
+    from kinefuse.calibration.grade import grade_calibration
     from kinefuse.calibration.session import METHODS, calibrate, gather
+    from kinefuse.io.outputs import atomic_dir, check_output_folder
 
     if method not in METHODS:
         raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")
-    with SessionStore.open(session, writable=True) as store:
+    for target, what in ((out, "calibration file"), (report_dir, "calibration report")):
+        if target is not None:
+            check_output_folder(target, what)
+    with SessionStore.open(session, writable=store_result) as store:
+        store.require_complete(allow_incomplete=allow_incomplete)
         infos = {s.id: s for s in store.sensors()}
         cal_in = gather(store)
         reg = calibrate(cal_in, method)
+        grade = grade_calibration(reg, cal_in.floors)
         cal = calibration_from_registration(
             reg,
             {k: v.intrinsics for k, v in infos.items()},
             serials={k: v.serial for k, v in infos.items()},
         )
-        store.write_calibration(method, dumps_calibration(cal))
-        if out is not None:
-            write_calibration(out, cal)
+        text = dumps_calibration(cal)
+        usable = grade.grade != "failed" or accept
+        if usable and store_result:
+            store.write_calibration(method, text)
+        if usable and out is not None:
+            write_calibration(out, text)
         result: dict[str, Any] = {
             "method": method,
             "world": reg.world,
             "rms_m": reg.rms_m,
+            **grade.to_dict(),
+            "accepted": usable,
+            "stored_in_session": bool(usable and store_result),
             "sensors": [
                 {
                     "id": sid,
@@ -342,7 +499,7 @@ def run_calibrate(
                 }
                 for k, sid in enumerate(reg.sensor_ids)
             ],
-            "out": str(out) if out is not None else None,
+            "out": str(out) if out is not None and usable else None,
         }
         if store.has_truth():
             from kinefuse.report.calibration import calibration_errors, write_calibration_report
@@ -359,13 +516,27 @@ def run_calibrate(
             ):
                 result[key] = errs[key]
             if report_dir is not None:
-                written = write_calibration_report(report_dir, store, cal_in, reg, method)
-                result["written"] = [str(p) for p in written]
+                with atomic_dir(report_dir, what="calibration report") as tmp:
+                    written = write_calibration_report(tmp, store, cal_in, reg, method)
+                result["written"] = [str(report_dir / p.name) for p in written]
+        elif report_dir is not None:
+            result["report_note"] = (
+                "no report written: the error plots compare with the truth, and this session has "
+                "none (a live recording)"
+            )
     return result
 
 
 def format_calibrate(r: dict[str, Any]) -> str:
-    lines = [f"calibration ({r['method']}): {r['world']}", ""]
+    lines = [f"calibration ({r['method']}): {r['world']}", f"grade: {r['grade']}"]
+    lines += [f"  {why}" for why in r["reasons"]]
+    if r["grade"] == "failed":
+        lines.append(
+            "  the calibration was accepted anyway (--accept)"
+            if r["accepted"]
+            else "  nothing was written; fix the setup, or pass --accept to use it all the same"
+        )
+    lines.append("")
     has_err = "mean_position_error_m" in r
     head = f"{'sensor':<8} {'sightings':>9} {'residual mm':>12}"
     if has_err:

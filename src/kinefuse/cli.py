@@ -32,6 +32,18 @@ def _nonneg_float(text: str) -> float:
     return v
 
 
+def _room(text: str) -> tuple[float, float, float, float]:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 4 or not (v[0] < v[2] and v[1] < v[3]):
+        raise argparse.ArgumentTypeError(
+            f"expected XMIN,YMIN,XMAX,YMAX in metres with XMIN < XMAX and YMIN < YMAX, got {text!r}"
+        )
+    return (v[0], v[1], v[2], v[3])
+
+
 def _add_simulate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--skeleton", type=Path, help="the ASF of an .amc clip (default: found beside it)"
@@ -63,12 +75,19 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
         default=10.0,
         help="rate of the stored calibration depth frames, Hz (10)",
     )
+    p.add_argument(
+        "--room",
+        type=_room,
+        metavar="XMIN,YMIN,XMAX,YMAX",
+        help="the room's floor rectangle XMIN,YMIN,XMAX,YMAX in metres (default: the rig's "
+        "[room], else -4,-4,4,4; write --room=-5,-5,5,5); every sensor must stand inside it",
+    )
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from kinefuse.app import run_simulate
 
-    run_simulate(
+    r = run_simulate(
         clip=args.clip,
         skeleton=args.skeleton,
         units=args.units,
@@ -79,10 +98,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         seed=args.seed,
         calibration_s=args.calibration_seconds,
         depth_rate_hz=args.depth_rate,
+        room=args.room,
         out=args.out,
         force=args.force,
         progress=lambda m: print(m, file=sys.stderr),
     )
+    for w in r["warnings"]:
+        print(f"kinefuse: warning: {w}", file=sys.stderr)
     print(f"wrote {args.out}")
     return 0
 
@@ -122,6 +144,14 @@ def _methods(text: str) -> tuple[str, ...]:
     return names
 
 
+def _add_partial_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--partial",
+        action="store_true",
+        help="use an incomplete session (an interrupted simulation or recording) as it is",
+    )
+
+
 def _cmd_fuse(args: argparse.Namespace) -> int:
     from kinefuse.app import run_fuse
 
@@ -131,7 +161,12 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
         out=args.out,
         calibration=args.calibration,
         true_calibration=args.true_calibration,
+        store_result=args.store,
+        allow_incomplete=args.partial,
+        trc_axes=args.trc_axes,
     )
+    for w in info["warnings"]:  # type: ignore[attr-defined]
+        print(f"kinefuse: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(info, indent=2))
     else:
@@ -140,6 +175,8 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
             f"fused {info['frames']} frames with {info['method']} ({info['calibration']}) in "
             f"{info['seconds']:.2f} s; joint status: {status}"
         )
+        if info["stored_in_session"]:
+            print(f"stored the fused skeleton in {args.session} (method {info['method']})")
         if info["out"]:
             print(f"wrote {info['out']}")
     return 0
@@ -154,6 +191,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         out_dir=args.out,
         calibration=args.calibration,
         true_calibration=args.true_calibration,
+        allow_incomplete=args.partial,
     )
     if args.json:
         print(json.dumps(report, indent=2))
@@ -168,15 +206,32 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from kinefuse.app import format_calibrate, run_calibrate
 
     r = run_calibrate(
-        session=args.session, method=args.method, out=args.out, report_dir=args.report
+        session=args.session,
+        method=args.method,
+        out=args.out,
+        report_dir=args.report,
+        store_result=args.store,
+        accept=args.accept,
+        allow_incomplete=args.partial,
     )
     if args.json:
         print(json.dumps(r, indent=2))
     else:
         print(format_calibrate(r))
+        if r["stored_in_session"]:
+            print(f"stored the calibration in {args.session} (as {r['method']!r})")
         for w in [r["out"], *r.get("written", [])]:
             if w:
                 print(f"wrote {w}")
+        if r.get("report_note"):
+            print(r["report_note"])
+    if r["grade"] == "failed" and not r["accepted"]:
+        print(
+            f"kinefuse: error: calibration failed ({'; '.join(r['reasons'])}); nothing was "
+            "written (pass --accept to keep it anyway)",
+            file=sys.stderr,
+        )
+        return 3
     return 0
 
 
@@ -207,7 +262,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("demo", help="simulate a session from the bundled clip and report on it")
-    p.add_argument("--out", type=Path, default=Path("kinefuse-demo"), help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("kinefuse-demo"),
+        help="output folder (kinefuse-demo in the current folder; replaced only if an earlier "
+        "demo made it)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_demo)
 
@@ -216,7 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate_args(p)
     p.add_argument("--out", type=Path, required=True, help="session store to write (.sqlite)")
     p.add_argument(
-        "--force", action="store_true", help="replace --out if it is a simulated session"
+        "--force",
+        action="store_true",
+        help="replace --out if it is a simulated kinefuse session (never any other file)",
     )
     p.set_defaults(func=_cmd_simulate)
 
@@ -227,10 +290,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, help="write the calibration file (TOML)")
     p.add_argument(
+        "--store",
+        action="store_true",
+        help="also store the calibration in the session (otherwise the session is only read)",
+    )
+    p.add_argument(
+        "--accept",
+        action="store_true",
+        help="write a calibration even when it grades as failed (exit code 0)",
+    )
+    p.add_argument(
         "--report",
         type=Path,
         help="folder for the paper-style error plots (sessions with truth only)",
     )
+    _add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_calibrate)
 
@@ -244,6 +318,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="fusion method (best)",
     )
     p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc or .csv)")
+    p.add_argument(
+        "--trc-axes",
+        choices=["y-up", "z-up"],
+        default="y-up",
+        help="axes of a .trc export: OpenSim's Y up (default) or the lab's Z up",
+    )
+    p.add_argument(
+        "--store",
+        action="store_true",
+        help="also store the fused skeleton in the session (otherwise the session is only read)",
+    )
+    _add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_fuse)
 
@@ -257,6 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="comma-separated methods (all five)",
     )
     p.add_argument("--out", type=Path, help="folder for the paper-style tables and plots")
+    _add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_evaluate)
 
@@ -283,6 +370,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _exit_cleanly_on_sigterm() -> None:
+    """Turn SIGTERM into SystemExit, so that temporary files are removed on the way out (a
+    plain SIGTERM would end the process without running any cleanup)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def stop(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -293,10 +395,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = argparse.Namespace(func=_cmd_realdata, rest=argv[1:])
     else:
         args = parser.parse_args(argv)
+    _exit_cleanly_on_sigterm()
     try:
         return int(args.func(args))
     except KinefuseError as exc:
         print(f"kinefuse: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        # a file the user named that cannot be read or written: say which and why, no traceback
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"kinefuse: error:{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("kinefuse: interrupted", file=sys.stderr)

@@ -56,3 +56,12 @@ class SyncError(KinefuseError):
 
 class ProtocolError(KinefuseError):
     """A network peer sent something that breaks the wire protocol."""
+
+
+class OutputError(KinefuseError):
+    """An output file or folder could not be written, or would replace a file kinefuse did not
+    make. The message names the path and the reason; nothing already there was changed."""
+
+
+class IncompleteSessionError(StoreError):
+    """A session store was not completed (an interrupted recording or simulation)."""

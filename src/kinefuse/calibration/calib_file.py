@@ -194,9 +194,27 @@ def dumps_calibration(cal: CalibrationFile) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_calibration(path: str | Path, cal: CalibrationFile) -> None:
-    """Write the calibration to a TOML file (UTF-8)."""
-    Path(path).write_text(dumps_calibration(cal), encoding="utf-8")
+def is_calibration_file(path: Path) -> bool:
+    """True if ``path`` is a calibration file kinefuse wrote (its ``format`` key says so)."""
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8")).get("format") == FORMAT
+    except (OSError, ValueError):
+        return False
+
+
+def write_calibration(path: str | Path, cal: CalibrationFile | str) -> Path:
+    """Write the calibration (or its TOML text) to a file, atomically; an existing file is
+    replaced only if it is a kinefuse calibration file.
+
+    Raises
+    ------
+    OutputError
+        The file is someone else's, or could not be written.
+    """
+    from kinefuse.io.outputs import atomic_write_text
+
+    text = cal if isinstance(cal, str) else dumps_calibration(cal)
+    return atomic_write_text(path, text, what="calibration file", recognizer=is_calibration_file)
 
 
 def _need(table: Mapping[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:

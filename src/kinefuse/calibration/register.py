@@ -661,7 +661,9 @@ def register_full(
     ids = tuple(sightings)
     if len(ids) < 2:
         raise CalibrationError(
-            f"register_full needs at least 2 sensors, got {len(ids)} ({', '.join(ids) or 'none'})"
+            f"calibration needs at least 2 sensors that saw the wand, got {len(ids)} "
+            f"({', '.join(ids) or 'none'}); record a calibration phase in which every sensor sees "
+            "the wand"
         )
     for sid in ids:
         if not isinstance(sightings[sid], Sightings):

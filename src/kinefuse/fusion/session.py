@@ -51,6 +51,9 @@ class MethodResult:
     positions: Array  # (T, 25, 3) world, NaN where NO_DATA
     status: NDArray[np.int8]  # (T, 25) FusionStatus
     seconds: float  # wall time the method took (for reports)
+    #: (T, 25) a per-joint quality, metres, NaN where none: for ``best`` the RMS 3D position
+    #: uncertainty of the filter, for the range methods the RMS range residual of the solution
+    residual_m: Array | None = None
 
 
 def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[SensorData]:
@@ -145,6 +148,7 @@ def run_method(
         status = np.where(np.isfinite(pos).all(-1), FusionStatus.OK, FusionStatus.NO_DATA).astype(
             np.int8
         )
+        residual = np.sqrt(3.0 * fused.variance_m2)
     else:
         frames = assemble_latest(
             grid,
@@ -174,10 +178,29 @@ def run_method(
             c_threshold=c_threshold,
         )
         pos, status = res.positions, res.status
+        residual = _range_residual(pos, frames.joints, poses, res.used)
     return MethodResult(
         method=method,
         t_server_s=grid,
         positions=pos,
         status=np.asarray(status, dtype=np.int8),
         seconds=time.perf_counter() - t0,
+        residual_m=residual,
     )
+
+
+def _range_residual(
+    positions: Array, joints_sensor: Array, poses: Array, used: NDArray[np.bool_]
+) -> Array:
+    """RMS over the sensors used of ``|p - s_i| - r_i``, ``(T, 25)`` metres (NaN: none used).
+
+    ``positions (T, 25, 3)`` world, ``joints_sensor (T, S, 25, 3)``, ``poses (S, 4, 4)``,
+    ``used (T, S, 25)``.
+    """
+    centres = poses[:, :3, 3]  # (S, 3)
+    ranges = np.linalg.norm(joints_sensor, axis=-1)  # (T, S, 25)
+    dist = np.linalg.norm(positions[:, None] - centres[None, :, None, :], axis=-1)
+    r2 = np.where(used, (dist - ranges) ** 2, 0.0)
+    n = used.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(r2.sum(axis=1) / n), np.nan)

@@ -105,6 +105,30 @@ _JOINT_HINTS: Final[dict[str, tuple[str, str]]] = {
 }
 
 
+_SIDE_WORDS = (("left", "l"), ("right", "r"))
+
+
+def _side(name: str) -> str | None:
+    """``"l"``, ``"r"`` or None: the body side a joint name names (``LeftKnee``, ``rknee``,
+    ``Knee_R``, ``l_hip``)."""
+    import re
+
+    n = _normalize(name)
+    for word, letter in _SIDE_WORDS:
+        if word in n or re.search(rf"(^|[^a-z]){letter}([^a-z]|$)|^{letter}(?=[a-z]{{3}})", n):
+            return letter
+    return None
+
+
+def _sideless(name: str) -> str:
+    """The normalized name without its side word or letter."""
+    import re
+
+    n = _normalize(name)
+    n = re.sub(r"left|right", "", n)
+    return re.sub(r"(^|[^a-z])[lr]([^a-z]|$)|^[lr](?=[a-z]{3})", r"\1\2", n)
+
+
 def _normalize(name: str) -> str:
     """Case-folded name without any namespace prefix (``mixamorig:LeftArm`` -> ``leftarm``)."""
     base, sep, end = name.partition("/End")
@@ -187,8 +211,8 @@ def _unmappable(
         + f" finds {len(resolved)} of {N_JOINTS} Kinect joints.",
         f"Kinect joints it could not map (no rule can synthesize them): {', '.join(missing)}.",
         f"Source joints seen ({len(real)}): {', '.join(real)}.",
-        "Write a name map (TOML: Kinect joint = source joint) and pass it as "
-        "name_map=PATH; docs/motion.md ('Name maps') explains the format. A minimal map:",
+        "Write a name map (TOML: Kinect joint = source joint) and pass it with "
+        "--name-map MAP.toml; docs/motion.md ('Name maps') explains the format. A minimal map:",
         "",
         'name = "my-skeleton"',
         "[joints]",
@@ -202,11 +226,13 @@ def _unmappable(
         known = {example} | {
             n for m in BUILTIN_MAPS.values() for term in m.joints.get(j, ()) for n, _ in term
         }
+        # a suggestion must be on the same side and alike in the rest of its name
+        # ("RightCollar" is no knee, however much of "RightKnee" it shares)
         scored = [
-            (difflib.SequenceMatcher(None, _normalize(k), _normalize(r)).ratio(), r)
+            (difflib.SequenceMatcher(None, _sideless(k), _sideless(r)).ratio(), r)
             for k in sorted(known)
             for r in real
-            if r not in used
+            if r not in used and _side(k) == _side(r)
         ]
         best = max(scored, default=(0.0, ""))
         hint = f"; perhaps {best[1]!r}?" if best[0] >= 0.6 else ""

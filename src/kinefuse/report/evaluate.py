@@ -20,7 +20,7 @@ from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
-from kinefuse.report.metrics import gain_ci, position_errors
+from kinefuse.report.metrics import bias_noise, gain, position_errors
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState
 
 Array = NDArray[np.float64]
@@ -61,14 +61,10 @@ def truth_at(store: SessionStore, t_server_s: Array) -> Array:
     return out
 
 
-def _gain(estimate: Array, reference: Array, truth: Array) -> dict[str, Any]:
-    """``gain_percent`` of ``estimate`` over ``reference`` with its 95 % interval."""
-    gain, low, high = gain_ci(estimate, reference, truth)
-    return {"gain_percent": gain, "gain_ci95_percent": [low, high]}
-
-
-def _summary(res: MethodResult, truth: Array) -> dict[str, Any]:
+def _summary(res: MethodResult, truth: Array, common: NDArray[np.bool_]) -> dict[str, Any]:
     e = position_errors(res.positions, truth)
+    on_common = np.where(common[..., None], res.positions, np.nan)
+    c = position_errors(on_common, truth)
     return {
         "mae_m": e["mae_m"],
         "rmse_m": e["rmse_m"],
@@ -76,9 +72,12 @@ def _summary(res: MethodResult, truth: Array) -> dict[str, Any]:
         "median_m": e["median_m"],
         "frames": e["frames"],
         "missing_fraction": e["missing_fraction"],
+        "coverage": 1.0 - e["missing_fraction"],
+        "mae_common_m": c["mae_m"],
         "seconds": res.seconds,
         "status": status_counts(res.status),
         "by_joint": e["by_joint"],
+        "bias_noise": bias_noise(res.positions, truth),
     }
 
 
@@ -144,23 +143,26 @@ def evaluate(
     keep = np.isfinite(truth).all((1, 2))
     grid, truth = grid[keep], truth[keep]
     results = {m: run_method(sensors, grid, m) for m in methods}
-    report: dict[str, Any] = {m: _summary(r, truth) for m, r in results.items()}
+    # every method is also scored on the frames and joints that all of them solved
+    common = np.logical_and.reduce([np.isfinite(r.positions).all(-1) for r in results.values()])
+    report: dict[str, Any] = {m: _summary(r, truth, common) for m, r in results.items()}
+    report["common"] = {
+        "note": "mae_common_m of each method is over the frames x joints every method solved",
+        "joint_fraction": float(common.mean()) if common.size else 0.0,
+    }
     report["occlusion"] = occlusion_score(store, sensors)
     report["comparisons"] = {
-        f"{a} vs {b}": _gain(results[a].positions, results[b].positions, truth)
+        f"{a} vs {b}": gain(results[a].positions, results[b].positions, truth)
         for a, b in COMPARISONS
         if a in results and b in results
     }
     if ablation and "best" in results:
-        full = float(report["best"]["mae_m"])
         abl = {}
         for part, off in ABLATION.items():
             r = run_method(sensors, grid, "best", best_options=off)
-            mae = position_errors(r.positions, truth)["mae_m"]
             abl[part] = {
-                "mae_without_m": mae,
-                "gain_m": float(mae) - full,
-                **_gain(results["best"].positions, r.positions, truth),
+                "mae_without_m": position_errors(r.positions, truth)["mae_m"],
+                **gain(results["best"].positions, r.positions, truth),
             }
         report["ablation"] = abl
     report["frames"] = int(grid.size)

@@ -63,8 +63,11 @@ def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]
         frames x joints of all sensors); ``observation_error_m`` (``median``, ``p95``,
         ``by_joint`` {name: median}, ``by_state`` {``tracked``, ``inferred``}, ``samples``), or
         None without truth; ``lr_swap_fraction`` (frames the simulator swapped left/right among
-        matched frames with a body) or None without truth; ``calibrations``;
-        ``fused_methods``. Distances in metres; a figure with no data is None.
+        matched frames with a body) or None without truth; ``complete`` (the writer finished);
+        ``storage_bytes`` (``file``, ``depth_frames``, ``observations``); ``coverage``
+        (:func:`kinefuse.report.coverage.tracking_coverage`: how much of the time each sensor
+        saw the body, when fewer than 2 did; no truth used) and its ``warnings``;
+        ``calibrations``; ``fused_methods``. Distances in metres; a figure with no data is None.
     """
     if isinstance(store, SessionStore):
         return _inspect(store)
@@ -153,9 +156,16 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
         }
         swap_fraction = _num(swapped_frames / body_frames) if body_frames else None
 
+    from kinefuse.report.coverage import coverage_warnings, tracking_coverage
+
+    coverage = tracking_coverage(store)
     return {
         "path": str(store.path),
         "schema_version": meta.get("schema_version"),
+        "complete": store.complete,
+        "storage_bytes": store.storage_bytes(),
+        "coverage": coverage,
+        "warnings": coverage_warnings(coverage),
         "meta": meta,
         "sensors": sensors,
         "duration_s": max(spans) if spans else 0.0,
@@ -173,6 +183,10 @@ def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100.0 * x:.1f} %"
 
 
+def _pct0(x: float | None) -> str:
+    return "-" if x is None else f"{100.0 * x:.0f} %"
+
+
 def _cm(x: float | None) -> str:
     return "-" if x is None else f"{100.0 * x:.1f} cm"
 
@@ -183,15 +197,26 @@ def format_inspect(d: dict[str, Any]) -> str:
         f"session {d.get('path', '?')}  (schema {d['schema_version']}, "
         f"created {d.get('meta', {}).get('created', '?')})",
         f"duration {d['duration_s']:.2f} s, {d['joints']} joints, "
-        f"ground truth: {'yes' if d['has_truth'] else 'no'}",
-        "",
-        f"{'sensor':<12}{'frames':>8}{'body':>8}{'rate_hz':>9}{'depth':>7}{'probes':>8}"
-        f"{'err_median':>12}",
+        f"ground truth: {'yes' if d['has_truth'] else 'no'}, "
+        f"size {d['storage_bytes']['file'] / 1e6:.1f} MB "
+        f"(depth frames {d['storage_bytes']['depth_frames'] / 1e6:.1f} MB)",
     ]
+    if not d["complete"]:
+        lines.append(
+            "INCOMPLETE: the run that wrote this session did not finish; sensors or frames may "
+            "be missing (fuse, calibrate and evaluate refuse it unless given --partial)"
+        )
+    lines += [
+        "",
+        f"{'sensor':<12}{'frames':>8}{'body':>8}{'seen':>7}{'rate_hz':>9}{'depth':>7}"
+        f"{'probes':>8}{'err_median':>12}",
+    ]
+    cov = d["coverage"]["sensors"]
     for s in d["sensors"]:
         rate = "-" if s["rate_hz"] is None else f"{s['rate_hz']:.2f}"
+        seen = cov.get(s["id"], {}).get("body_fraction")
         lines.append(
-            f"{s['id']:<12}{s['frames']:>8}{s['frames_with_body']:>8}{rate:>9}"
+            f"{s['id']:<12}{s['frames']:>8}{s['frames_with_body']:>8}{_pct0(seen):>7}{rate:>9}"
             f"{s['depth_frames']:>7}{s['clock_probes']:>8}{_cm(s['observation_error_m']):>12}"
         )
     f = d["tracking_state_fraction"]
@@ -211,6 +236,8 @@ def format_inspect(d: dict[str, Any]) -> str:
         items = [f"{name:<14}{_cm(v):>9}" for name, v in e["by_joint"].items()]
         for i in range(0, len(items), 3):
             lines.append("  " + "   ".join(items[i : i + 3]))
+    for w in d.get("warnings", []):
+        lines.append(f"warning: {w}")
     if d.get("calibrations"):
         lines.append(f"calibrations: {', '.join(d['calibrations'])}")
     if d.get("fused_methods"):

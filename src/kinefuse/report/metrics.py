@@ -55,6 +55,92 @@ def position_errors(estimate: ArrayLike, truth: ArrayLike) -> dict[str, Any]:
     }
 
 
+#: A difference whose whole 95 % interval lies within this many percent of zero is reported as
+#: "no clear difference": it is below the precision the reports print.
+NEGLIGIBLE_PERCENT = 0.05
+
+
+def verdict(low_percent: float, high_percent: float) -> str:
+    """``"gain"``, ``"loss"`` or ``"no clear difference"`` for a 95 % interval of a gain.
+
+    The interval must exclude zero, and by more than :data:`NEGLIGIBLE_PERCENT`, to count.
+    """
+    if not (np.isfinite(low_percent) and np.isfinite(high_percent)):
+        return "no clear difference"
+    if low_percent > NEGLIGIBLE_PERCENT:
+        return "gain"
+    if high_percent < -NEGLIGIBLE_PERCENT:
+        return "loss"
+    return "no clear difference"
+
+
+def gain(
+    estimate: ArrayLike,
+    reference: ArrayLike,
+    truth: ArrayLike,
+    *,
+    block: int = 30,
+    n_boot: int = 1000,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """How much lower ``estimate``'s MAE is than ``reference``'s, on the joints both estimate.
+
+    One definition in both units: ``gain_m = MAE_ref - MAE_est`` and ``gain_percent = 100 *
+    gain_m / MAE_ref``, both over the same frames and joints (those where both are finite), so
+    they always have the same sign. Errors of neighbouring frames are correlated, so the 95 %
+    intervals come from a paired circular block bootstrap over frames (blocks of ``block``
+    frames, 1 s at 30 Hz).
+
+    Returns
+    -------
+    dict
+        ``gain_m``, ``gain_percent``, ``gain_ci95_m`` ``[low, high]``, ``gain_ci95_percent``,
+        ``verdict`` (:func:`verdict`), ``mae_m`` and ``mae_reference_m`` on the common joints,
+        ``common_fraction`` (share of frames x joints both estimate). NaN where nothing is common.
+    """
+    tru = np.asarray(truth, dtype=np.float64)
+    ea = np.linalg.norm(np.asarray(estimate, dtype=np.float64) - tru, axis=-1)
+    eb = np.linalg.norm(np.asarray(reference, dtype=np.float64) - tru, axis=-1)
+    ok = np.isfinite(ea) & np.isfinite(eb)
+    sa = np.where(ok, ea, 0.0).sum(axis=1)  # per-frame sums, (T,)
+    sb = np.where(ok, eb, 0.0).sum(axis=1)
+    cnt = ok.sum(axis=1).astype(np.float64)
+    nan = float("nan")
+    out: dict[str, Any] = {
+        "gain_m": nan,
+        "gain_percent": nan,
+        "gain_ci95_m": [nan, nan],
+        "gain_ci95_percent": [nan, nan],
+        "verdict": "no clear difference",
+        "mae_m": nan,
+        "mae_reference_m": nan,
+        "common_fraction": float(ok.mean()) if ok.size else 0.0,
+    }
+    if sb.sum() <= 0 or cnt.sum() == 0:
+        return out
+    n = sa.size
+    b = max(1, min(block, n))
+    n_blocks = -(-n // b)
+    rng = np.random.default_rng(seed)
+    starts = rng.integers(0, n, size=(n_boot, n_blocks))  # circular: every frame as likely
+    idx = ((starts[..., None] + np.arange(b)) % n).reshape(n_boot, -1)[:, :n]
+    a_, b_, c_ = sa[idx].sum(axis=1), sb[idx].sum(axis=1), np.maximum(cnt[idx].sum(axis=1), 1.0)
+    boot_m = (b_ - a_) / c_
+    boot_pct = 100.0 * (1.0 - a_ / np.maximum(b_, 1e-300))
+    low_m, high_m = np.percentile(boot_m, [2.5, 97.5])
+    low_p, high_p = np.percentile(boot_pct, [2.5, 97.5])
+    out.update(
+        gain_m=float((sb.sum() - sa.sum()) / cnt.sum()),
+        gain_percent=float(100.0 * (1.0 - sa.sum() / sb.sum())),
+        gain_ci95_m=[float(low_m), float(high_m)],
+        gain_ci95_percent=[float(low_p), float(high_p)],
+        verdict=verdict(float(low_p), float(high_p)),
+        mae_m=float(sa.sum() / cnt.sum()),
+        mae_reference_m=float(sb.sum() / cnt.sum()),
+    )
+    return out
+
+
 def gain_ci(
     estimate: ArrayLike,
     reference: ArrayLike,
@@ -64,30 +150,58 @@ def gain_ci(
     n_boot: int = 1000,
     seed: int = 0,
 ) -> tuple[float, float, float]:
-    """How much lower ``estimate``'s MAE is than ``reference``'s, in percent of the reference's,
-    with a 95 % confidence interval: ``(gain, low, high)``.
+    """``(gain_percent, low, high)`` of :func:`gain`: the percent gain and its 95 % interval."""
+    g = gain(estimate, reference, truth, block=block, n_boot=n_boot, seed=seed)
+    low, high = g["gain_ci95_percent"]
+    return g["gain_percent"], low, high
 
-    Both are ``(T, 25, 3)`` on the same frames as ``truth``. Errors of neighbouring frames are
-    correlated, so the interval comes from a paired circular block bootstrap over frames (blocks
-    of ``block`` frames, 1 s at 30 Hz): a gain whose interval excludes 0 is one this session
-    can tell apart from chance. Only joints both estimate are compared.
+
+def bias_noise(estimate: ArrayLike, truth: ArrayLike) -> dict[str, Any]:
+    """Split each joint's error into a fixed offset (bias) and its spread (noise).
+
+    ``bias`` is the mean signed error vector ``mean(estimate - truth)`` of a joint over the
+    frames it was estimated (world frame, metres; ``[x, y, z]``, with ``z`` the vertical);
+    ``noise`` is the RMS distance of the error vectors from that bias. For a gait study the bias
+    is what shifts every angle and step length by the same amount; the noise is what smoothing
+    or more sensors can remove.
+
+    Returns
+    -------
+    dict
+        ``by_joint``: ``{name: {"bias_m": [x, y, z], "bias_norm_m", "bias_vertical_m",
+        "noise_m"}}`` (None for a joint never estimated); ``bias_norm_mean_m``,
+        ``bias_vertical_mean_m`` (mean absolute vertical bias), ``noise_mean_m``: means over the
+        joints that were estimated.
     """
+    est = np.asarray(estimate, dtype=np.float64)
     tru = np.asarray(truth, dtype=np.float64)
-    ea = np.linalg.norm(np.asarray(estimate, dtype=np.float64) - tru, axis=-1)
-    eb = np.linalg.norm(np.asarray(reference, dtype=np.float64) - tru, axis=-1)
-    ok = np.isfinite(ea) & np.isfinite(eb)
-    sa = np.where(ok, ea, 0.0).sum(axis=1)  # per-frame sums, (T,)
-    sb = np.where(ok, eb, 0.0).sum(axis=1)
-    if sb.sum() <= 0:
+    d = est - tru  # (T, 25, 3)
+    ok = np.asarray(np.isfinite(d).all(-1))
+    n = ok.sum(axis=0)  # (25,)
+    dz = np.where(ok[..., None], d, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bias = dz.sum(axis=0) / n[:, None]  # (25, 3)
+        dev = np.where(ok, np.linalg.norm(d - bias[None], axis=-1), 0.0)
+        noise = np.sqrt((dev**2).sum(axis=0) / n)
+    by_joint: dict[str, Any] = {}
+    for j, name in enumerate(JOINTS):
+        if n[j] == 0:
+            by_joint[name] = None
+            continue
+        by_joint[name] = {
+            "bias_m": [float(v) for v in bias[j]],
+            "bias_norm_m": float(np.linalg.norm(bias[j])),
+            "bias_vertical_m": float(bias[j, 2]),
+            "noise_m": float(noise[j]),
+        }
+    have = n > 0
+    if not have.any():
         nan = float("nan")
-        return nan, nan, nan
-    gain = 100.0 * (1.0 - sa.sum() / sb.sum())
-    n = sa.size
-    b = max(1, min(block, n))
-    n_blocks = -(-n // b)
-    rng = np.random.default_rng(seed)
-    starts = rng.integers(0, n, size=(n_boot, n_blocks))  # circular: every frame as likely
-    idx = ((starts[..., None] + np.arange(b)) % n).reshape(n_boot, -1)[:, :n]
-    boot = 100.0 * (1.0 - sa[idx].sum(axis=1) / np.maximum(sb[idx].sum(axis=1), 1e-300))
-    low, high = np.percentile(boot, [2.5, 97.5])
-    return float(gain), float(low), float(high)
+        return {"by_joint": by_joint, "bias_norm_mean_m": nan, "bias_vertical_mean_m": nan,
+                "noise_mean_m": nan}  # fmt: skip
+    return {
+        "by_joint": by_joint,
+        "bias_norm_mean_m": float(np.linalg.norm(bias[have], axis=-1).mean()),
+        "bias_vertical_mean_m": float(np.abs(bias[have, 2]).mean()),
+        "noise_mean_m": float(noise[have].mean()),
+    }

@@ -1318,7 +1318,7 @@ def format_report(d: dict[str, Any]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m kinefuse.report.real_fusion PATH [PATH ...] [--json] [--registration ...]``."""
     ap = argparse.ArgumentParser(
-        prog="python -m kinefuse.report.real_fusion",
+        prog="kinefuse realdata",
         description="Fuse real two-Kinect KinectMultiTrack logs and report their consistency.",
     )
     ap.add_argument("paths", nargs="+", help="KinectMultiTrack CSV logs")

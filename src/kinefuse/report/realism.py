@@ -842,7 +842,7 @@ def format_single(res: SingleSensorRealism) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Recompute the realism tables: ``python -m kinefuse.report.realism [--data DIR]``."""
     ap = argparse.ArgumentParser(
-        prog="kinefuse-realism",
+        prog="kinefuse realism",
         description="Simulated vs real Kinect v2 two-sensor disagreement, and single-sensor "
         "error against the truth.",
     )

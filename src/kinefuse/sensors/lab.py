@@ -219,6 +219,8 @@ def simulate_session(
                         wand=config.wand,
                         wand_centre=centres[i],
                         wand_handle_dir=handles[i],
+                        room_min_xy_m=rig.room_min_xy_m,
+                        room_max_xy_m=rig.room_max_xy_m,
                     )
                     frames[i] = render_depth(scene, spec.sensor2world, intr, rng_depth, errs.depth)
                 store.append_depth_frames(spec.id, cap.seq[pick], cap.t_sensor_s[pick], frames)

@@ -15,7 +15,11 @@ Rig file (TOML)::
                               # clip's path is centred on the origin)
     heading_deg = 0.0         # initial facing direction, from the world x axis toward y
 
-Positions are world metres, z up.
+    [room]                    # optional: the floor rectangle the walls stand on
+    min_xy_m = [-4.0, -4.0]   # default: an 8 m x 8 m room centred on the origin
+    max_xy_m = [4.0, 4.0]
+
+Positions are world metres, z up. Every sensor must stand inside the room.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ Array = NDArray[np.float64]
 DEFAULT_RADIUS_M = 3.0
 DEFAULT_HEIGHTS_M = (1.0, 1.2)
 DEFAULT_TARGET_HEIGHT_M = 1.0
+DEFAULT_ROOM_MIN_XY_M = (-4.0, -4.0)
+DEFAULT_ROOM_MAX_XY_M = (4.0, 4.0)
 
 
 @dataclass(frozen=True)
@@ -58,21 +64,43 @@ class Rig:
     actor_position_m: tuple[float, float] | None = None
     actor_heading_deg: float = 0.0
     description: str = field(default="")
+    room_min_xy_m: tuple[float, float] = DEFAULT_ROOM_MIN_XY_M
+    room_max_xy_m: tuple[float, float] = DEFAULT_ROOM_MAX_XY_M
 
     def __post_init__(self) -> None:
+        where = f"{self.description}: " if self.description else ""
         if not self.sensors:
-            raise RigError("a rig needs at least one sensor")
+            raise RigError(f"{where}a rig needs at least one sensor")
         ids = [s.id for s in self.sensors]
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
-            raise RigError(f"sensor ids must be unique; repeated: {', '.join(dup)}")
+            raise RigError(f"{where}sensor ids must be unique; repeated: {', '.join(dup)}")
+        lo = np.asarray(self.room_min_xy_m, dtype=np.float64)
+        hi = np.asarray(self.room_max_xy_m, dtype=np.float64)
+        if lo.shape != (2,) or hi.shape != (2,) or not (np.isfinite(lo).all() and (lo < hi).all()):
+            raise RigError(
+                f"{where}the room's min_xy_m must be below its max_xy_m in x and y, got "
+                f"{self.room_min_xy_m} and {self.room_max_xy_m}"
+            )
+        for s in self.sensors:
+            x, y, z = (float(v) for v in s.position_m)
+            if not (lo[0] < x < hi[0] and lo[1] < y < hi[1] and z > 0.0):
+                raise RigError(
+                    f"{where}sensor {s.id!r} at [{x:.2f}, {y:.2f}, {z:.2f}] m is outside the room "
+                    f"(floor from {lo.tolist()} to {hi.tolist()} m, above z = 0); move it inside, "
+                    "or make the room larger ([room] in the rig file, or --room)"
+                )
+        object.__setattr__(self, "room_min_xy_m", (float(lo[0]), float(lo[1])))
+        object.__setattr__(self, "room_max_xy_m", (float(hi[0]), float(hi[1])))
 
 
 def _serial_for(sensor_id: str, index: int) -> str:
     return f"SIM{index:03d}-{sensor_id}"
 
 
-def default_rig(n_sensors: int = 4, radius_m: float = DEFAULT_RADIUS_M) -> Rig:
+def default_rig(
+    n_sensors: int = 4, radius_m: float = DEFAULT_RADIUS_M, *, room: Room | None = None
+) -> Rig:
     """``n_sensors`` sensors evenly spaced on a circle of ``radius_m`` around the capture area.
 
     Heights step from 1.0 to 1.2 m across the sensors (so that they are not all coplanar), each
@@ -92,9 +120,13 @@ def default_rig(n_sensors: int = 4, radius_m: float = DEFAULT_RADIUS_M) -> Rig:
         pose = look_at(pos, [0.0, 0.0, DEFAULT_TARGET_HEIGHT_M])
         sid = f"k{i}"
         sensors.append(SensorSpec(id=sid, serial=_serial_for(sid, i), sensor2world=pose))
+    half = max(DEFAULT_ROOM_MAX_XY_M[0], radius_m + 1.0)
+    x0, y0, x1, y1 = (-half, -half, half, half) if room is None else room
     return Rig(
         sensors=tuple(sensors),
         description=f"default: {n_sensors} sensors on a {radius_m:g} m circle",
+        room_min_xy_m=(x0, y0),
+        room_max_xy_m=(x1, y1),
     )
 
 
@@ -114,8 +146,14 @@ def _vec(table: dict[str, object], key: str, n: int, where: str) -> Array:
     return a
 
 
-def parse_rig(text: str, *, source: str = "<rig>") -> Rig:
-    """Parse a rig file's TOML text. Errors name the file and the sensor."""
+Room = tuple[float, float, float, float]
+
+
+def parse_rig(text: str, *, source: str = "<rig>", room: Room | None = None) -> Rig:
+    """Parse a rig file's TOML text. Errors name the file and the sensor.
+
+    ``room`` ``(xmin, ymin, xmax, ymax)`` metres, if given, overrides the file's ``[room]``.
+    """
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -126,11 +164,11 @@ def parse_rig(text: str, *, source: str = "<rig>") -> Rig:
             f"{source}: no [[sensor]] tables; a rig lists each sensor as\n"
             '[[sensor]]\nid = "front"\nposition_m = [3.0, 0.0, 1.1]\nlook_at_m = [0.0, 0.0, 1.0]'
         )
-    unknown_top = set(data) - {"sensor", "actor"}
+    unknown_top = set(data) - {"sensor", "actor", "room"}
     if unknown_top:
         raise RigError(
             f"{source}: unknown top-level keys {sorted(unknown_top)}; "
-            "expected [[sensor]] and [actor]"
+            "expected [[sensor]], [actor] and [room]"
         )
     sensors = []
     for i, t in enumerate(tables):
@@ -167,16 +205,28 @@ def parse_rig(text: str, *, source: str = "<rig>") -> Rig:
     heading = actor.get("heading_deg", 0.0)
     if not isinstance(heading, int | float) or isinstance(heading, bool):
         raise RigError(f"{source}: [actor]: 'heading_deg' must be a number, got {heading!r}")
+    room_t = data.get("room", {})
+    if not isinstance(room_t, dict):
+        raise RigError(f"{source}: [room] must be a table")
+    unknown = set(room_t) - {"min_xy_m", "max_xy_m"}
+    if unknown:
+        raise RigError(f"{source}: [room]: unknown keys {sorted(unknown)}")
+    lo = _vec(room_t, "min_xy_m", 2, f"{source}: [room]") if "min_xy_m" in room_t else None
+    hi = _vec(room_t, "max_xy_m", 2, f"{source}: [room]") if "max_xy_m" in room_t else None
+    if room is not None:
+        lo, hi = np.array(room[:2]), np.array(room[2:])
     return Rig(
         sensors=tuple(sensors),
         actor_position_m=None if pos2 is None else (float(pos2[0]), float(pos2[1])),
         actor_heading_deg=float(heading),
         description=source,
+        room_min_xy_m=DEFAULT_ROOM_MIN_XY_M if lo is None else (float(lo[0]), float(lo[1])),
+        room_max_xy_m=DEFAULT_ROOM_MAX_XY_M if hi is None else (float(hi[0]), float(hi[1])),
     )
 
 
-def load_rig(path: str | Path) -> Rig:
-    """Read a rig file (TOML, see the module docstring)."""
+def load_rig(path: str | Path, *, room: Room | None = None) -> Rig:
+    """Read a rig file (TOML, see the module docstring); ``room`` overrides its ``[room]``."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
@@ -184,7 +234,7 @@ def load_rig(path: str | Path) -> Rig:
         raise RigError(f"rig file not found: {p}") from None
     except UnicodeDecodeError:
         raise RigError(f"{p}: not a text file; a rig file is TOML") from None
-    return parse_rig(text, source=str(p))
+    return parse_rig(text, source=str(p), room=room)
 
 
 def rig_to_toml(rig: Rig) -> str:
@@ -213,4 +263,6 @@ def rig_to_toml(rig: Rig) -> str:
         ax, ay = rig.actor_position_m
         lines += [f"position_m = [{ax:.6f}, {ay:.6f}]"]
     lines += [f"heading_deg = {rig.actor_heading_deg:.6f}", ""]
+    (x0, y0), (x1, y1) = rig.room_min_xy_m, rig.room_max_xy_m
+    lines += ["[room]", f"min_xy_m = [{x0:.6f}, {y0:.6f}]", f"max_xy_m = [{x1:.6f}, {y1:.6f}]", ""]
     return "\n".join(lines)
