@@ -20,8 +20,6 @@ This is evaluation code: it reads the simulator's truth.
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -131,6 +129,10 @@ class Disagreement:
     capture_mismatch_std_s : float
         Spread of the capture-time difference of paired frames, from the sensors' own clocks
         (see :func:`capture_mismatch_std`); NaN when not computed.
+    mirrored : (P,) bool
+        Per pair: it fits better with stream B's left and right swapped.
+    frame_ok : (P,) bool
+        Per pair: it has a left/right twin finite in both streams (``mirrored`` is meaningful).
     """
 
     n_pairs: int
@@ -141,6 +143,8 @@ class Disagreement:
     b2a: Array
     mirrored_fraction: float
     capture_mismatch_std_s: float = float("nan")
+    mirrored: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    frame_ok: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 def disagreement(
@@ -184,7 +188,8 @@ def disagreement(
     frames = ok_m.any(axis=1)
     s0 = np.where(ok_m, d, 0.0).sum(axis=1)
     s1 = np.where(ok_m, d_mirror, 0.0).sum(axis=1)
-    mirrored = float((s1[frames] < s0[frames]).mean()) if frames.any() else float("nan")
+    mirrored_pairs = frames & (s1 < s0)
+    mirrored = float(mirrored_pairs[frames].mean()) if frames.any() else float("nan")
     per_joint = np.full(N_JOINTS, np.nan)
     has = ok.any(axis=0)
     per_joint[has] = np.nanmedian(d[:, has], axis=0)
@@ -196,6 +201,8 @@ def disagreement(
         per_joint_median_m=per_joint,
         b2a=b2a,
         mirrored_fraction=mirrored,
+        mirrored=mirrored_pairs,
+        frame_ok=frames,
     )
 
 
@@ -393,13 +400,14 @@ def walking_passes(
 
     ``speed_m_s`` replays the clip slower or faster so its median pelvis speed is that (a real
     recording's walking speed); ``still_fraction`` prepends a still stand (the first pose held)
-    so that this share of every pass is standing still. ``backward`` adds every pass played in
-    reverse too (walking backward while facing the heading).
+    so that this share of every pass is standing still (1.0: the pass is a stand only, as long
+    as the walk would have been). ``backward`` adds every pass played in reverse too (walking
+    backward while facing the heading).
     """
     if not half_length_m > 0:
         raise InputError(f"half_length_m must be positive, got {half_length_m}")
-    if not 0.0 <= still_fraction < 1.0:
-        raise InputError(f"still_fraction must be in [0, 1), got {still_fraction}")
+    if not 0.0 <= still_fraction <= 1.0:
+        raise InputError(f"still_fraction must be in [0, 1], got {still_fraction}")
     if speed_m_s is not None and not speed_m_s > 0:
         raise InputError(f"speed_m_s must be positive, got {speed_m_s}")
     root = motion.positions[:, JOINT_INDEX["SpineBase"], :2]
@@ -422,9 +430,13 @@ def walking_passes(
     rate = motion.rate_hz
     if speed_m_s is not None:
         rate = rate * speed_m_s / clip_speed(motion)
-    n_still = round(still_fraction / (1.0 - still_fraction) * seg.shape[0])
-    if n_still:
-        seg = np.concatenate([np.repeat(seg[:1], n_still, axis=0), seg])
+    if still_fraction >= 1.0 - 1e-9:  # a take that is all standing: stands only
+        seg = np.repeat(seg[:1], seg.shape[0], axis=0)
+        n_still = seg.shape[0]
+    else:
+        n_still = round(still_fraction / (1.0 - still_fraction) * seg.shape[0])
+        if n_still:
+            seg = np.concatenate([np.repeat(seg[:1], n_still, axis=0), seg])
     out = []
     for h in headings_rad:
         a = float(h) - base
@@ -458,6 +470,7 @@ class SimulatedPair:
     t_sensor_b_s: Array
     group_a: NDArray[np.int64]
     true_mismatch_s: Array
+    group_b: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def simulate_pair(
@@ -479,7 +492,7 @@ def simulate_pair(
     radii = capsule_radii(_subject_height(passes[0]))
     s2w = layout.sensor2world()
     intr = Intrinsics()
-    ja, jb, ia_all, ib_all, ta_all, tb_all, ga, mis = [], [], [], [], [], [], [], []
+    ja, jb, ia_all, ib_all, ta_all, tb_all, ga, gb, mis = [], [], [], [], [], [], [], [], []
     na = nb = 0
     for k, m in enumerate(passes):
         streams = []
@@ -510,6 +523,7 @@ def simulate_pair(
         ta_all.append(ca.t_sensor_s)
         tb_all.append(cb.t_sensor_s)
         ga.append(np.full(ca.t_sensor_s.size, k, dtype=np.int64))
+        gb.append(np.full(cb.t_sensor_s.size, k, dtype=np.int64))
         mis.append(ca.t_true_s[ia] - cb.t_true_s[ib])
         na += ca.t_sensor_s.size
         nb += cb.t_sensor_s.size
@@ -522,6 +536,7 @@ def simulate_pair(
         t_sensor_b_s=np.concatenate(tb_all),
         group_a=np.concatenate(ga),
         true_mismatch_s=np.concatenate(mis),
+        group_b=np.concatenate(gb),
     )
 
 
@@ -840,70 +855,11 @@ def format_single(res: SingleSensorRealism) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Recompute the realism tables: ``python -m kinefuse.report.realism [--data DIR]``."""
-    ap = argparse.ArgumentParser(
-        prog="kinefuse-realism",
-        description="Simulated vs real Kinect v2 two-sensor disagreement, and single-sensor "
-        "error against the truth.",
-    )
-    ap.add_argument(
-        "--data",
-        type=Path,
-        default=Path(__file__).resolve().parents[3].parent / "shared" / "data",
-        help="the shared data folder (default: ../shared/data beside the project)",
-    )
-    ap.add_argument("--clip", type=Path, default=None, help="walking clip (default CMU 02_walk_a)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=3, help="simulations pooled per layout")
-    ap.add_argument(
-        "--natural-speed",
-        action="store_true",
-        help="replay the clip at its own speed, without still stands (not the real logs' motion)",
-    )
-    ap.add_argument("--per-joint", action="store_true", help="also print per-joint medians")
-    ap.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
-    args = ap.parse_args(argv)
-    clip = args.clip or default_walk_path(args.data)
-    walk = load_walk(clip)
-    rows = realism_table(
-        args.data / "kinect" / "kinect_multitrack",
-        walk,
-        seed=args.seed,
-        repeats=args.repeats,
-        match_motion=not args.natural_speed,
-    )
-    passes = walking_passes(walk, DEFAULT_HEADINGS)
-    single = single_sensor_realism(passes, np.random.default_rng(args.seed))
-    if args.json:
-        print(
-            json.dumps(
-                {
-                    "pairs": [
-                        {**r.__dict__, "median_ratio": r.median_ratio, "ok": r.within_band}
-                        for r in rows
-                    ],
-                    "single_sensor": single.__dict__,
-                    "single_sensor_failures": single.failures(),
-                },
-                indent=2,
-            )
-        )
-    else:
-        speed = "its own speed" if args.natural_speed else "the real logs' speed and stands"
-        print(
-            f"clip: {clip} (replayed at {speed}), seed {args.seed}, "
-            f"{args.repeats} simulations per layout\n"
-        )
-        print(format_table(rows))
-        if args.per_joint:
-            print()
-            print(format_per_joint(rows))
-        print()
-        print(format_single(single))
-        bad = single.failures()
-        print("\nsingle-sensor targets: " + ("all met" if not bad else "; ".join(bad)))
-    ok = all(r.within_band for r in rows) and not single.failures()
-    return 0 if ok else 1
+    """``kinefuse realism``: real against simulated figures per take
+    (:func:`kinefuse.report.realism_takes.main` has the options)."""
+    from kinefuse.report.realism_takes import main as takes_main
+
+    return takes_main(argv)
 
 
 if __name__ == "__main__":
