@@ -55,17 +55,18 @@ from kinefuse.report.realism import (
     FACING_FRONT,
     PairLayout,
     _front_and_side,
+    _subject_height,
     default_walk_path,
     disagreement,
-    format_single,
     load_walk,
     motion_profile,
     pair_by_receive_time,
     simulate_pair,
-    single_sensor_realism,
     walking_passes,
 )
-from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, bone_index_array
+from kinefuse.report.realism_single import format_single, single_sensor_realism
+from kinefuse.sensors.tracker_params import TrackerParams
+from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, bone_index_array, standing_pose
 
 Array = NDArray[np.float64]
 
@@ -266,24 +267,51 @@ def layout_angle_deg(layout: PairLayout) -> float:
 
 
 def simulated_pair(
-    rec: MultitrackRecording, walk: Motion, seed: int, layout: PairLayout | None = None
+    rec: MultitrackRecording,
+    walk: Motion,
+    seed: int,
+    layout: PairLayout | None = None,
+    params: TrackerParams | None = None,
 ) -> StreamPair:
     """One simulated copy of a take (seeded): its layout, the walk at its speed profile."""
     lay = take_layout(rec) if layout is None else layout
     prof = motion_profile(rec)
-    passes = walking_passes(
-        walk,
-        FACING_FRONT,
-        speed_m_s=prof.moving_speed_m_s if prof.moving_speed_m_s > 0 else None,
-        still_fraction=prof.still_fraction,
-        backward=True,
-    )
+    passes = take_passes(walk, prof.still_fraction, prof.moving_speed_m_s)
     rng = np.random.default_rng([seed, 9, rec.kinect_config])
-    sim = simulate_pair(passes, lay, rng)
+    sim = simulate_pair(passes, lay, rng, params)
     return StreamPair(
         sim.joints_a, sim.joints_b, sim.t_sensor_a_s, sim.t_sensor_b_s,
         sim.group_a, sim.group_b, sim.idx_a, sim.idx_b,
     )  # fmt: skip
+
+
+def take_passes(walk: Motion, still_fraction: float, moving_speed_m_s: float) -> list[Motion]:
+    """The simulated person's motion for a take with this speed profile.
+
+    Walking passes facing the front sensor and 45 degrees to either side, forward and backward,
+    at the take's moving speed (:func:`kinefuse.report.realism.walking_passes`), and a stand
+    facing the front sensor (the real subjects stood facing it; feet apart and arms down,
+    :func:`kinefuse.skeleton.standing_pose` at the walker's height) as long as the take's share
+    of still frames asks. An all-standing take gets the stand alone.
+    """
+    if not 0.0 <= still_fraction <= 1.0:
+        raise InputError(f"still_fraction must be in [0, 1], got {still_fraction}")
+    standing = still_fraction >= 1.0 - 1e-9 or not moving_speed_m_s > 0
+    walks = walking_passes(
+        walk, FACING_FRONT, speed_m_s=None if standing else moving_speed_m_s, backward=True
+    )
+    total = sum(m.duration_s for m in walks)
+    stand_s = total if standing else still_fraction / (1.0 - still_fraction) * total
+    rate = walks[0].rate_hz
+    n = max(round(stand_s * rate), 4)
+    pose = standing_pose(_subject_height(walk))  # feet apart, arms down, facing +x
+    stand = Motion(
+        np.repeat(pose[None], n, axis=0),
+        rate,
+        walk.synthesized,
+        source=f"standing pose of {walk.source}'s height, facing the front sensor",
+    )
+    return [stand] if standing else [*walks, stand]
 
 
 @dataclass(frozen=True)
@@ -328,7 +356,12 @@ class TakeResult:
         }
 
 
-def compare_take(path: str | Path, walk: Motion, seeds: Sequence[int]) -> TakeResult:
+def compare_take(
+    path: str | Path,
+    walk: Motion,
+    seeds: Sequence[int],
+    params: TrackerParams | None = None,
+) -> TakeResult:
     """Real figures of a take and the simulated ones over ``seeds`` (mean and range)."""
     if not seeds:
         raise InputError("give at least one seed")
@@ -336,7 +369,7 @@ def compare_take(path: str | Path, walk: Motion, seeds: Sequence[int]) -> TakeRe
     real = real_pair(rec)
     real_f = pair_figures(real)
     lay = take_layout(rec, real)
-    sims = [pair_figures(simulated_pair(rec, walk, int(s), lay)) for s in seeds]
+    sims = [pair_figures(simulated_pair(rec, walk, int(s), lay, params)) for s in seeds]
     keys = (*FIGURE_KEYS, *EXTRA_KEYS)
     mean = {k: float(np.nanmean([f[k] for f in sims])) for k in keys}
     rng_ = {k: (float(np.nanmin([f[k] for f in sims])), float(np.nanmax([f[k] for f in sims])))

@@ -46,13 +46,16 @@ from scipy.special import ndtr
 from kinefuse.errors import InputError
 from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.tracker_body import (
-    _ar1,
     _body_axes,
     _check_rigid,
     _default_local,
     _dropout_mask,
-    _phi,
+    _smooth,
+    _smooth_along,
     body_visibility,
+    bone_lengths,
+    far_side,
+    hold_to_body,
     joint_radii,
 )
 from kinefuse.sensors.tracker_params import (
@@ -117,8 +120,10 @@ class SessionLatent:
         width_rad: float,
         n_features: int = 32,
     ) -> SessionLatent:
+        # tau_s = inf: a field of the view angle only, constant in time
+        omega = rng.normal(0.0, 1.0, n_features) / tau_s
         return cls(
-            omega_rad_s=rng.normal(0.0, 1.0 / tau_s, n_features),
+            omega_rad_s=np.asarray(omega, dtype=np.float64),
             kappa=np.round(rng.normal(0.0, 1.0 / width_rad, n_features)),
             phase_rad=rng.uniform(0.0, 2 * np.pi, (n_fields, n_features)),
             amplitude=rng.normal(size=(n_fields, n_features)),
@@ -155,6 +160,9 @@ class SubjectBias:
     inferred_latent : SessionLatent or None
         75 fields: the inferred-joint error per joint and body axis, in units of
         ``TrackerParams.inferred_sigma_m``.
+    view_latent : SessionLatent or None
+        75 fields constant in time: the view-dependent offset per joint and body axis, in units
+        of ``TrackerParams.view_bias_sigma_m``, as a function of the view angle.
         ``None`` latents are drawn per sensor inside :func:`simulate_tracker` (independent
         sensors).
     """
@@ -162,6 +170,7 @@ class SubjectBias:
     offsets_body_m: Array
     swap_latent: SessionLatent | None = None
     inferred_latent: SessionLatent | None = None
+    view_latent: SessionLatent | None = None
 
     def __post_init__(self) -> None:
         a = np.asarray(self.offsets_body_m, dtype=np.float64)
@@ -174,6 +183,8 @@ class SubjectBias:
             raise InputError("SubjectBias.swap_latent must have exactly 1 field")
         if self.inferred_latent is not None and self.inferred_latent.n_fields != 3 * N_JOINTS:
             raise InputError(f"SubjectBias.inferred_latent must have {3 * N_JOINTS} fields")
+        if self.view_latent is not None and self.view_latent.n_fields != 3 * N_JOINTS:
+            raise InputError(f"SubjectBias.view_latent must have {3 * N_JOINTS} fields")
 
     @classmethod
     def zero(cls) -> SubjectBias:
@@ -196,17 +207,18 @@ def draw_subject_bias(rng: np.random.Generator, params: TrackerParams | None = N
     mean = np.asarray(p.subject_bias_mean_m, dtype=np.float64)
     sigma = np.asarray(p.subject_bias_sigma_m, dtype=np.float64)
     offsets = mean + rng.normal(size=(N_JOINTS, 3)) * sigma[:, None]
-    swap, inferred = _draw_latents(rng, p)
-    return SubjectBias(offsets, swap_latent=swap, inferred_latent=inferred)
+    swap, inferred, view = _draw_latents(rng, p)
+    return SubjectBias(offsets, swap_latent=swap, inferred_latent=inferred, view_latent=view)
 
 
 def _draw_latents(
     rng: np.random.Generator, p: TrackerParams
-) -> tuple[SessionLatent, SessionLatent]:
+) -> tuple[SessionLatent, SessionLatent, SessionLatent]:
     width = np.radians(p.view_correlation_deg)
     return (
         SessionLatent.draw(rng, 1, p.swap_tau_s, width),
         SessionLatent.draw(rng, 3 * N_JOINTS, p.inferred_tau_s, width),
+        SessionLatent.draw(rng, 3 * N_JOINTS, np.inf, np.radians(p.view_bias_width_deg)),
     )
 
 
@@ -321,10 +333,11 @@ def simulate_tracker(
                 f"t_s must hold {n_t} finite capture times (one per truth frame), "
                 f"got shape {times.shape}"
             )
-    if subj.swap_latent is None or subj.inferred_latent is None:
-        own_swap, own_inferred = _draw_latents(rng, p)
-    swap_latent = subj.swap_latent if subj.swap_latent is not None else own_swap
-    inferred_latent = subj.inferred_latent if subj.inferred_latent is not None else own_inferred
+    if subj.swap_latent is None or subj.inferred_latent is None or subj.view_latent is None:
+        own = _draw_latents(rng, p)
+    swap_latent = subj.swap_latent if subj.swap_latent is not None else own[0]
+    inferred_latent = subj.inferred_latent if subj.inferred_latent is not None else own[1]
+    view_latent = subj.view_latent if subj.view_latent is not None else own[2]
     rot = s2w[:3, :3]
     ones = np.arange(N_JOINTS)
 
@@ -352,15 +365,15 @@ def simulate_tracker(
     sin_f = np.einsum("ti,ti->t", axes_true[:, :, 0], to_sensor)
     view = np.arctan2(sin_f, cos_f)  # the sensor's azimuth in the body frame
     facing = np.abs(view)
+    side_view = np.abs(np.sin(view))  # 0 seen from the front or back, 1 from the side
 
     # (e) body lost: dropouts, or too little of it in view
     lost = _dropout_mask(rng, n_t, dt, p) | (in_view.sum(axis=1) < p.min_joints_in_view)
 
-    # (d) swaps: a persistent latent process thresholded at the facing-dependent probability
+    # (d) swaps: a persistent latent process thresholded at the facing-dependent probability,
+    # which is zero up to a side view (a person facing the sensor is never mirrored)
     z = swap_latent(times, view)[:, 0]
-    x = (np.degrees(facing) - p.swap_angle_mid_deg) / p.swap_angle_width_deg
-    prob = p.swap_prob_max / (1.0 + np.exp(-x))
-    swapped = (ndtr(z) < prob) & ~lost
+    swapped = (ndtr(z) < swap_probability(facing, p)) & ~lost
 
     # what the tracker believes: the labels mirrored in swapped frames
     perm = np.where(swapped[:, None], np.asarray(MIRROR_INDEX)[None, :], ones[None, :])
@@ -380,26 +393,44 @@ def simulate_tracker(
     u = tb / np.maximum(rng_dist, 1e-12)[..., None]
     pull = p.surface_depth_gain * depth_b - p.surface_pushback_m
     tracked_pos = tb + bias - u * pull[..., None]
+    # view-dependent offset: a smooth function of the view angle shared by the session,
+    # growing from nothing (front or back view) to view_bias_sigma_m (side view)
+    vb = view_latent(np.zeros(n_t), view).reshape(n_t, N_JOINTS, 3)
+    vb *= np.asarray(p.view_bias_sigma_m)[None, :, None]
+    vb *= (side_view**p.view_bias_exponent)[:, None, None]
+    tracked_pos += np.einsum("tik,tjk->tji", axes_b, vb)
 
-    # per-sensor pose-dependent offset (slow) and jitter (fast, speed- and range-dependent)
-    pose_sigma = np.asarray(p.pose_bias_sigma_m)
-    tracked_pos += (
-        _ar1(rng, (n_t, N_JOINTS, 3), _phi(dt, p.pose_bias_tau_s)) * pose_sigma[None, :, None]
-    )
+    # per-sensor errors, smoothed as the SDK's output is: a slow pose-dependent offset, a
+    # correlated jitter, speed-dependent noise, the far side of the body seen around the trunk,
+    # and a small high-frequency jitter on top
+    shape = (n_t, N_JOINTS, 3)
     if n_t > 1:  # speed relative to the pelvis: limbs moving within the body
         vel = np.gradient(p_true, dt, axis=0)
         rel = vel - vel[:, JOINT_INDEX["SpineBase"]][:, None, :]
         speed_true = np.linalg.norm(rel, axis=-1)
+        body_speed = np.linalg.norm(vel, axis=-1).mean(axis=1)
     else:
         speed_true = np.zeros((n_t, N_JOINTS))
+        body_speed = np.zeros(n_t)
+    # the pose-dependent offset changes as the depth image changes: it runs on a "pose clock"
+    # that ticks with the body's movement (and slowly while the person holds still)
+    pose_clock = np.cumsum(dt * (p.pose_clock_floor + body_speed / p.pose_clock_speed_m_s))
+    pose_sigma = np.asarray(p.pose_bias_sigma_m)
+    pose_err = _smooth_along(rng, pose_clock, (N_JOINTS, 3), p.pose_bias_tau_s)
+    tracked_pos += pose_err * pose_sigma[None, :, None]
     speed = np.take_along_axis(speed_true, perm, axis=1)
     range_factor = (rng_dist / p.noise_reference_range_m) ** p.noise_range_exponent
     axis_factor = np.array([1.0, 1.0, p.depth_axis_factor])
     static = np.asarray(p.jitter_sigma_m)[None, :]
     moving = np.asarray(p.motion_noise_gain_s)[None, :] * speed
-    jitter = _ar1(rng, (n_t, N_JOINTS, 3), _phi(dt, p.jitter_tau_s)) * static[..., None]
-    jitter += _ar1(rng, (n_t, N_JOINTS, 3), _phi(dt, p.motion_noise_tau_s)) * moving[..., None]
+    jitter = _smooth(rng, shape, dt, p.jitter_tau_s) * static[..., None]
+    jitter += _smooth(rng, shape, dt, p.motion_noise_tau_s) * moving[..., None]
+    jitter += rng.standard_normal(shape) * p.hf_jitter_sigma_m
     tracked_pos += jitter * range_factor[..., None] * axis_factor
+    far = far_side(view, perm)  # (T, J) 0 near side or centre, 1 far side seen from the side
+    far_sigma = np.asarray(p.far_limb_sigma_m)[None, :] * far**p.far_limb_exponent
+    far_err = _smooth(rng, shape, dt, p.far_limb_tau_s) * far_sigma[..., None]
+    tracked_pos += np.einsum("tik,tjk->tji", axes_b, far_err)
 
     # (c) INFERRED joints: pulled toward a guessed pose
     local = np.einsum("tik,tji->tjk", axes_b, tb - origin[:, None, :])  # body-frame coords
@@ -418,10 +449,20 @@ def simulate_tracker(
     guess = origin[:, None, :] + np.einsum("tik,tjk->tji", axes_b, guess_local) + bias
     infer_body = inferred_latent(times, view).reshape(n_t, N_JOINTS, 3) * p.inferred_sigma_m
     infer_noise = np.einsum("tik,tjk->tji", axes_b, infer_body)
-    inferred_pos = (1.0 - p.inferred_blend) * tracked_pos + p.inferred_blend * guess + infer_noise
+    # the guess pulls the joint, but the body seen around it keeps it near: the pull is at most
+    # inferred_max_offset_m from where the tracker would have put it
+    pull_to_guess = guess - tracked_pos
+    size = np.linalg.norm(pull_to_guess, axis=-1, keepdims=True)
+    pull_to_guess *= np.minimum(1.0, p.inferred_max_offset_m / np.maximum(size, 1e-9))
+    inferred_pos = tracked_pos + p.inferred_blend * pull_to_guess + infer_noise
 
     states = np.full((n_t, N_JOINTS), TrackingState.INFERRED, dtype=np.int8)
     states[vis_b] = TrackingState.TRACKED
+    # the trunk, head and hips seen from the side: INFERRED in runs, more often the more
+    # side-on the view (a per-sensor smooth latent thresholded at the probability)
+    z_side = _smooth(rng, (n_t, N_JOINTS), dt, p.side_inferred_tau_s)
+    side_inf = never[None, :] & (ndtr(z_side) < side_inferred_probability(side_view, p)[:, None])
+    states[side_inf & vis_b] = TrackingState.INFERRED
     out = np.where(vis_b[..., None], tracked_pos, inferred_pos)
     if p.out_of_view_inferred:
         # the camera saw nothing of a joint out of view: its position is the guess alone
@@ -429,6 +470,11 @@ def simulate_tracker(
         not_tracked = np.broadcast_to(lost[:, None], (n_t, N_JOINTS))
     else:
         not_tracked = ~in_view_b | lost[:, None]
+    # the reported skeleton keeps plausible bone lengths: every bone is pulled toward the
+    # body's own length (fully for a guessed joint), its subtree moving with it
+    nominal = bone_lengths(tb + bias, seen)  # the body's size, from what was seen
+    weight = np.where(vis_b, p.bone_hold_tracked, p.bone_hold_inferred)
+    out = hold_to_body(out, nominal, weight)
     # nothing reported TRACKED outside the view, even after the noise
     states[(states == TrackingState.TRACKED) & ~intrinsics.in_view(out)] = TrackingState.INFERRED
     states[not_tracked] = TrackingState.NOT_TRACKED
@@ -441,3 +487,30 @@ def simulate_tracker(
         dropout=lost,
         facing_angle_rad=facing,
     )
+
+
+def swap_probability(facing_rad: ArrayLike, params: TrackerParams | None = None) -> Array:
+    """Probability that a frame is labelled left/right mirrored, by facing angle ``(T,)``.
+
+    A logistic rise toward ``swap_prob_max`` around ``swap_angle_mid_deg``, shifted and scaled
+    so that it is exactly zero up to ``swap_min_facing_deg`` (a person facing the sensor, or seen
+    from the side, is never mirrored).
+    """
+    p = TrackerParams() if params is None else params
+    f = np.degrees(np.asarray(facing_rad, dtype=np.float64))
+
+    def rise(x: Array | float) -> Array:
+        return np.asarray(
+            1.0 / (1.0 + np.exp(-(x - p.swap_angle_mid_deg) / p.swap_angle_width_deg))
+        )
+
+    lo = rise(p.swap_min_facing_deg)
+    return np.asarray(p.swap_prob_max * np.clip((rise(f) - lo) / (1.0 - lo), 0.0, 1.0))
+
+
+def side_inferred_probability(side_view: ArrayLike, params: TrackerParams | None = None) -> Array:
+    """Probability that the trunk, head and hips are INFERRED, by ``|sin(view)|`` ``(T,)``."""
+    p = TrackerParams() if params is None else params
+    s0 = np.sin(np.radians(p.side_inferred_onset_deg))
+    x = np.clip((np.asarray(side_view, dtype=np.float64) - s0) / max(1.0 - s0, 1e-9), 0.0, 1.0)
+    return np.asarray(p.side_inferred_max * x**2)

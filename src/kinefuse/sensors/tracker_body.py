@@ -16,9 +16,18 @@ from scipy.signal import lfilter
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules_batched
 from kinefuse.sensors.tracker_params import TrackerParams
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, bone_index_array, standing_pose
+from kinefuse.skeleton import (
+    JOINT_INDEX,
+    JOINTS,
+    MIRROR_INDEX,
+    N_JOINTS,
+    PARENTS,
+    bone_index_array,
+    standing_pose,
+)
 
 Array = NDArray[np.float64]
+_MIRROR: Final = np.asarray(MIRROR_INDEX)
 
 
 def _ar1(rng: np.random.Generator, shape: tuple[int, ...], phi: float) -> Array:
@@ -209,3 +218,143 @@ def _dropout_mask(
     np.add.at(marks, starts, 1)
     np.add.at(marks, ends, -1)
     return np.asarray(np.cumsum(marks)[:n_t] > 0)
+
+
+def _smooth(rng: np.random.Generator, shape: tuple[int, ...], dt_s: float, tau_s: float) -> Array:
+    """Stationary unit-variance smooth noise along axis 0: white noise through two first-order
+    low-pass stages of time constant ``tau_s`` (a critically damped second-order filter).
+
+    Its autocorrelation at lag ``k`` frames is ``phi^k (1 + k (1 - phi^2) / (1 + phi^2))`` with
+    ``phi = exp(-dt / tau)``: the frame-to-frame steps are far smaller than those of a first-order
+    process of the same variance, as the output of a smoothing filter is. The filter starts from
+    rest ``5 tau`` before the first frame (burn-in), so the sequence is stationary.
+    """
+    n = shape[0]
+    if n == 0:
+        return np.zeros(shape)
+    phi = _phi(dt_s, tau_s)
+    burn = int(min(np.ceil(5.0 * tau_s / dt_s), 3000))
+    e = rng.standard_normal((n + burn, *shape[1:]))
+    gain = np.sqrt((1.0 - phi * phi) ** 3 / (1.0 + phi * phi))
+    y = lfilter([gain], [1.0, -2.0 * phi, phi * phi], e, axis=0)
+    return np.asarray(y[burn:], dtype=np.float64)
+
+
+def _smooth_along(
+    rng: np.random.Generator, u: ArrayLike, shape_rest: tuple[int, ...], tau_u: float
+) -> Array:
+    """:func:`_smooth` noise sampled at the non-decreasing "times" ``u`` ``(T,)``.
+
+    The process runs on a uniform grid of ``u`` (step ``tau_u / 20``) and is interpolated
+    linearly: where ``u`` stands still, so does the noise. Returns ``(T, *shape_rest)``.
+    """
+    uu = np.asarray(u, dtype=np.float64)
+    n_t = uu.size
+    if n_t == 0:
+        return np.zeros((0, *shape_rest))
+    du = tau_u / 20.0
+    k = (uu - uu[0]) / du
+    n = int(np.floor(k[-1])) + 2
+    y = _smooth(rng, (n, *shape_rest), du, tau_u)
+    i = np.minimum(np.floor(k).astype(np.int64), n - 2)
+    f = (k - i).reshape(n_t, *([1] * len(shape_rest)))
+    return np.asarray((1.0 - f) * y[i] + f * y[i + 1], dtype=np.float64)
+
+
+def _topology() -> tuple[list[int], NDArray[np.bool_]]:
+    depth = np.zeros(N_JOINTS, dtype=np.int64)
+    for j in range(N_JOINTS):
+        k = j
+        while PARENTS[k] >= 0:
+            depth[j] += 1
+            k = PARENTS[k]
+    bones = bone_index_array()
+    order = sorted(range(len(bones)), key=lambda b: int(depth[bones[b, 1]]))
+    subtree = np.zeros((N_JOINTS, N_JOINTS), dtype=bool)  # subtree[j, k]: k is j or below j
+    for k in range(N_JOINTS):
+        a = k
+        while a >= 0:
+            subtree[a, k] = True
+            a = PARENTS[a]
+    return order, subtree
+
+
+_BONE_ORDER, _SUBTREE = _topology()
+
+#: +1 for the body's right joints, -1 for the left ones, 0 on the midline.
+_SIDE_SIGN: Final = np.array(
+    [1.0 if "Right" in n else -1.0 if "Left" in n else 0.0 for n in JOINTS]
+)
+
+
+def bone_lengths(joints: ArrayLike, seen: ArrayLike | None = None) -> Array:
+    """The body's bone lengths ``(24,)`` (:data:`kinefuse.skeleton.BONES` order), metres.
+
+    The median over the frames of ``joints`` ``(T, 25, 3)`` in which both ends of the bone are
+    ``seen`` ``(T, 25)`` bool (default: all frames). A bone never seen takes its mirrored twin's
+    length, else the standing pose's scaled to the body's spine-base-to-neck length.
+    """
+    p = np.asarray(joints, dtype=np.float64)
+    bones = bone_index_array()
+    length = np.linalg.norm(p[:, bones[:, 1]] - p[:, bones[:, 0]], axis=-1)
+    if seen is not None:
+        m = np.asarray(seen, dtype=bool)
+        length = np.where(m[:, bones[:, 0]] & m[:, bones[:, 1]], length, np.nan)
+    has = np.isfinite(length).any(axis=0)
+    out = np.full(len(bones), np.nan)
+    out[has] = np.nanmedian(length[:, has], axis=0)
+    if not has.all():
+        pairs = {(int(a), int(b)): k for k, (a, b) in enumerate(bones)}
+        std = standing_pose()
+        std_len = np.linalg.norm(std[bones[:, 1]] - std[bones[:, 0]], axis=-1)
+        base, neck = JOINT_INDEX["SpineBase"], JOINT_INDEX["Neck"]
+        trunk = np.nanmedian(np.linalg.norm(p[:, neck] - p[:, base], axis=-1))
+        scale = trunk / np.linalg.norm(std[neck] - std[base])
+        for k in np.flatnonzero(~has):
+            a, b = bones[k]
+            twin = pairs.get((int(_MIRROR[a]), int(_MIRROR[b])))
+            out[k] = out[twin] if twin is not None and has[twin] else std_len[k] * scale
+    return np.asarray(out, dtype=np.float64)
+
+
+def hold_to_body(joints: ArrayLike, nominal_m: ArrayLike, weight: ArrayLike) -> Array:
+    """Pull every bone of a reported skeleton toward the body's own length.
+
+    Parents first, each bone's child moves along the bone (its direction from the parent's
+    final position kept) so that its length becomes ``w * nominal + (1 - w) * reported``
+    (``w`` the child's weight). Only the child moves: a well-seen wrist below a guessed elbow
+    stays where it was seen, and its own bone is held next.
+
+    Parameters
+    ----------
+    joints : (T, 25, 3) float
+        Reported joints, finite, metres.
+    nominal_m : (24,) float
+        The body's bone lengths (:func:`bone_lengths`), metres.
+    weight : (T, 25) float
+        Per frame and child joint, 0 (leave the bone) to 1 (the nominal length).
+    """
+    out = np.array(joints, dtype=np.float64)
+    lengths = np.asarray(nominal_m, dtype=np.float64)
+    w = np.asarray(weight, dtype=np.float64)
+    bones = bone_index_array()
+    for b in _BONE_ORDER:
+        pa, ch = bones[b]
+        v = out[:, ch] - out[:, pa]
+        cur = np.linalg.norm(v, axis=-1)
+        target = w[:, ch] * lengths[b] + (1.0 - w[:, ch]) * cur
+        scale = np.where(cur > 1e-9, target / np.maximum(cur, 1e-9) - 1.0, 0.0)
+        out[:, ch] += v * scale[:, None]
+    return out
+
+
+def far_side(view_rad: ArrayLike, perm: ArrayLike) -> Array:
+    """How far on the hidden side of the body each reported joint is, ``(T, 25)`` in [0, 1].
+
+    ``view_rad`` (T,) is the sensor's azimuth in the body frame (positive: the sensor is on the
+    body's right); ``perm`` (T, 25) maps each reported label to the true joint it follows.
+    A left joint seen from straight right is 1, a near-side or midline joint 0.
+    """
+    s = np.sin(np.asarray(view_rad, dtype=np.float64))
+    sign = _SIDE_SIGN[np.asarray(perm)]
+    return np.asarray(np.clip(-sign * s[:, None], 0.0, 1.0), dtype=np.float64)
