@@ -14,21 +14,17 @@ from kinefuse.motion.types import Motion
 from kinefuse.report.realism import (
     DEFAULT_HEADINGS,
     FACING_FRONT,
-    MEDIAN_BAND,
     QUOTED_REAL,
     PairLayout,
     capture_mismatch_std,
     clip_speed,
     disagreement,
-    format_single,
-    format_table,
     motion_profile,
     pair_by_receive_time,
     real_disagreement,
-    realism_table,
-    single_sensor_realism,
     walking_passes,
 )
+from kinefuse.report.realism_single import format_single, single_sensor_realism
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -38,8 +34,8 @@ WALK = DATA / "motion" / "cmu" / "02_walk_a.amc"
 
 def _logs() -> list[Path]:
     files = sorted(KMT.glob("*.csv"))
-    if len(files) != 2:
-        pytest.skip(f"the two KinectMultiTrack logs are not at {KMT}")
+    if len(files) != 3:
+        pytest.skip(f"the three KinectMultiTrack takes are not at {KMT}")
     return files
 
 
@@ -63,7 +59,7 @@ def walk() -> Motion:
 
 
 def test_reader_on_the_real_logs(recordings: dict[int, MultitrackRecording]) -> None:
-    assert set(recordings) == {0, 1}
+    assert set(recordings) == {0, 1, 2}
     for rec in recordings.values():
         assert len(rec.streams) == 2
         assert rec.scenarios == (1, 2, 3)
@@ -96,7 +92,8 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def _small_log(tmp_path: Path) -> tuple[list[str], list[list[str]]]:
-    lines = _logs()[0].read_text().splitlines()
+    _logs()
+    lines = next(KMT.glob("Study_4_Kinect_0_*.csv")).read_text().splitlines()
     header = lines[0].split(",")
     rows = [ln.split(",") for ln in lines[1:5]]
     return header, rows
@@ -188,7 +185,9 @@ def test_real_figures_are_reproduced(recordings: dict[int, MultitrackRecording])
         d = real_disagreement(recordings[config])
         assert d.median_m == pytest.approx(median, abs=0.001)  # 1 mm, the quoted rounding
         assert d.p95_m == pytest.approx(p95, abs=0.005)  # 5 mm
-        assert d.mirrored_fraction < 0.05
+        # side by side and at 45 deg the trackers agree on left and right; at 90 deg they
+        # disagree while the person walks the square (15 %)
+        assert (d.mirrored_fraction < 0.05) if config < 2 else (0.1 < d.mirrored_fraction < 0.2)
         assert 0.015 < d.capture_mismatch_std_s < 0.035  # 15-35 ms
 
 
@@ -196,7 +195,7 @@ def test_motion_profile_of_the_real_logs(recordings: dict[int, MultitrackRecordi
     for rec in recordings.values():
         prof = motion_profile(rec)
         assert 0.3 < prof.still_fraction < 0.7
-        assert 0.3 < prof.moving_speed_m_s < 0.9
+        assert 0.3 < prof.moving_speed_m_s < 0.9  # m/s
 
 
 def test_layout_from_a_real_log(recordings: dict[int, MultitrackRecording]) -> None:
@@ -225,30 +224,16 @@ def test_walking_passes(walk: Motion) -> None:
     assert 0.45 < still.mean() < 0.55
     with pytest.raises(InputError, match="a walking clip is needed"):
         walking_passes(Motion(np.repeat(walk.positions[:1], 10, axis=0), 30.0), [0.0])
-    with pytest.raises(InputError, match=r"still_fraction must be in \[0, 1\)"):
-        walking_passes(walk, [0.0], still_fraction=1.0)
+    stand = walking_passes(walk, [0.0], still_fraction=1.0, backward=True)
+    assert len(stand) == 2
+    for m in stand:  # an all-standing take: the passes are stands
+        assert np.abs(np.diff(m.positions, axis=0)).max() == 0.0
+    with pytest.raises(InputError, match=r"still_fraction must be in \[0, 1\]"):
+        walking_passes(walk, [0.0], still_fraction=1.5)
 
 
 # -------------------------------------------------------------------------------------------
 # acceptance: the simulated tracker against the real sensors, and against the truth
-
-
-@pytest.fixture(scope="module")
-def table(walk: Motion) -> list:
-    return realism_table(KMT, walk, seed=0)
-
-
-def test_simulated_two_sensor_disagreement_matches_the_real_one(table: list) -> None:
-    assert [r.layout for r in table] == ["parallel", "45 deg"]
-    for row in table:
-        assert abs(row.median_ratio - 1.0) <= MEDIAN_BAND, row
-        assert row.within_band
-        # the unsynchronized capture is reproduced too (pair mismatch spread, 20 % band)
-        assert row.sim_mismatch_std_s == pytest.approx(row.real_mismatch_std_s, rel=0.2)
-    # seen from 45 degrees apart, two sensors disagree more than side by side, as real ones do
-    assert table[1].sim_median_m > table[0].sim_median_m
-    text = format_table(table)
-    assert "| parallel |" in text and "| 45 deg |" in text and "NO" not in text
 
 
 def test_single_sensor_realism(walk: Motion) -> None:
@@ -264,7 +249,7 @@ def test_single_sensor_realism(walk: Motion) -> None:
 
 
 def test_failures_reports_what_is_missed() -> None:
-    from kinefuse.report.realism import SingleSensorRealism
+    from kinefuse.report.realism_single import SingleSensorRealism
 
     bad = SingleSensorRealism(
         median_of_joint_medians_m=0.2,

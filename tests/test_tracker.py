@@ -53,6 +53,12 @@ def quiet(**changes: object) -> TrackerParams:
         inferred_blend=0.0,
         swap_prob_max=0.0,
         dropout_rate_hz=0.0,
+        view_bias_sigma_m=ZERO,
+        far_limb_sigma_m=ZERO,
+        hf_jitter_sigma_m=0.0,
+        bone_hold_tracked=0.0,
+        bone_hold_inferred=0.0,
+        side_inferred_max=0.0,
     )
     base.update(changes)
     return dataclasses.replace(TrackerParams(), **base)  # type: ignore[arg-type]
@@ -343,12 +349,33 @@ def test_jitter_level_and_correlation_match_the_parameters(stand: np.ndarray) ->
     sd = e.std(axis=0) / scale
     np.testing.assert_allclose(sd[:2], sigma, rtol=0.3)  # lateral: sigma
     np.testing.assert_allclose(sd[2], 2.0 * sigma, rtol=0.3)  # depth: twice
+    # smoothed (two low-pass stages): lag-1 correlation 2 phi / (1 + phi^2), tiny steps
+    phi = np.exp(-(1 / 30) / TrackerParams().jitter_tau_s)
     lag1 = np.corrcoef(e[1:, 0], e[:-1, 0])[0, 1]
-    assert lag1 == pytest.approx(np.exp(-(1 / 30) / 0.15), abs=0.08)
+    assert lag1 == pytest.approx(2 * phi / (1 + phi**2), abs=0.005)
+    step = np.diff(e[:, 0]).std() / scale
+    assert step == pytest.approx(sigma * (1 - phi) * np.sqrt(2 / (1 + phi**2)), rel=0.2)
+    assert step < 0.15 * sigma  # a first-order process of this tau would step 0.36 sigma
+
+
+def test_still_jitter_is_small_and_bones_keep_their_length(stand: np.ndarray) -> None:
+    """The default tracker on a person standing still: sub-millimetre frame-to-frame steps of
+    the spine (real: 0.35-0.6 mm, docs/realism.md) and limb bones that barely change length."""
+    s2w = sensor_at(2.4, 0.0)
+    long_stand = np.repeat(stand[:1], 300, axis=0)
+    out = simulate_tracker(long_stand, s2w, Intrinsics(), RADII, np.random.default_rng(5))
+    spine = [JOINT_INDEX[n] for n in ("SpineBase", "SpineMid", "SpineShoulder", "Neck")]
+    step = np.linalg.norm(np.diff(out.joints_sensor[:, spine], axis=0), axis=-1)
+    assert 0.1e-3 < np.median(step) < 1.0e-3  # 0.1-1 mm a frame
+    bones = [("ShoulderLeft", "ElbowLeft"), ("HipRight", "KneeRight")]
+    for a, b in bones:
+        v = out.joints_sensor[:, JOINT_INDEX[b]] - out.joints_sensor[:, JOINT_INDEX[a]]
+        length = np.linalg.norm(v, axis=-1)
+        assert length.std() / length.mean() < 0.02  # CV under 2 % while still
 
 
 def test_occluded_joints_are_inferred_and_worse(walk: np.ndarray) -> None:
-    params = TrackerParams()
+    params = dataclasses.replace(TrackerParams(), side_inferred_max=0.0)
     s2w = sensor_at(0.0, -2.5)  # the walk goes along +x: a side view of the right side
     out = simulate_tracker(walk, s2w, Intrinsics(), RADII, np.random.default_rng(9), params)
     inferred = out.states == TrackingState.INFERRED
@@ -361,6 +388,35 @@ def test_occluded_joints_are_inferred_and_worse(walk: np.ndarray) -> None:
     err = np.linalg.norm(out.joints_sensor - truth, axis=-1)
     tracked = out.states == TrackingState.TRACKED
     assert np.median(err[inferred]) > 1.5 * np.median(err[tracked])
+
+
+def test_trunk_is_inferred_only_from_the_side(walk: np.ndarray) -> None:
+    trunk = [JOINT_INDEX[n] for n in TrackerParams().never_inferred]
+    side = simulate_tracker(
+        walk, sensor_at(0.0, -2.5), Intrinsics(), RADII, np.random.default_rng(9)
+    )
+    front = simulate_tracker(
+        walk, sensor_at(3.0, 0.0), Intrinsics(), RADII, np.random.default_rng(9)
+    )
+    inf_side = (side.states[:, trunk] == TrackingState.INFERRED).mean()
+    inf_front = (front.states[:, trunk] == TrackingState.INFERRED).mean()
+    assert 0.02 < inf_side < 0.6
+    assert inf_front == 0.0
+
+
+def test_far_limbs_disagree_more_from_the_side(walk: np.ndarray) -> None:
+    """Seen from the right, the left (far) elbow errs more than the right one, and more than
+    when the far-limb error is switched off."""
+    s2w = sensor_at(0.0, -2.5)
+    truth = to_sensor(s2w, walk)
+    errs = []
+    for far in (TrackerParams().far_limb_sigma_m, ZERO):
+        params = quiet(far_limb_sigma_m=far)
+        out = simulate_tracker(walk, s2w, Intrinsics(), RADII, np.random.default_rng(2), params)
+        errs.append(np.linalg.norm(out.joints_sensor - truth, axis=-1))
+    e_left, e_right = JOINT_INDEX["ElbowLeft"], JOINT_INDEX["ElbowRight"]
+    assert np.median(errs[0][:, e_left]) > 2.0 * np.median(errs[0][:, e_right])
+    assert np.median(errs[0][:, e_left]) > 2.0 * np.median(errs[1][:, e_left])
 
 
 def test_facing_away_swaps_left_and_right(walk: np.ndarray) -> None:

@@ -11,17 +11,16 @@ Two checks (``docs/realism.md`` shows the table and how to recompute it):
    :mod:`kinefuse.sensors.tracker`, unsynchronized 30 Hz capture with the receiver's jitter.
    The subject-level bias is common to both sensors and invisible here; the view-dependent bias,
    jitter, inferred joints and swaps are what show.
-2. **One simulated sensor against the truth** (:func:`single_sensor_realism`): error level per
-   joint, extremities worse than the trunk, inferred joints at least twice as wrong as tracked
-   ones, nothing outside the view reported tracked.
+2. **One simulated sensor against the truth**
+   (:func:`kinefuse.report.realism_single.single_sensor_realism`).
+3. **Figures per take**, real beside simulated (:mod:`kinefuse.report.realism_takes`, the
+   ``kinefuse realism`` command).
 
 This is evaluation code: it reads the simulator's truth.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -30,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import apply_transform, invert_transform, kabsch, look_at
+from kinefuse.geometry.transforms import apply_transform, kabsch, look_at
 from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
@@ -43,20 +42,17 @@ from kinefuse.sensors.tracker import (
 )
 from kinefuse.skeleton import (
     JOINT_INDEX,
-    JOINTS,
     MIRROR_INDEX,
     N_JOINTS,
-    TrackingState,
     capsule_radii,
 )
 
 Array = NDArray[np.float64]
 
-#: Real figures the issue quotes for the shipped KinectMultiTrack logs (median, p95), metres.
-QUOTED_REAL = {0: (0.021, 0.10), 1: (0.029, 0.14)}
-LAYOUT_NAMES = {0: "parallel", 1: "45 deg"}
-#: The acceptance band of the simulated median around the real one.
-MEDIAN_BAND = 0.30
+#: Real figures quoted for the shipped KinectMultiTrack takes (median, p95), metres, by
+#: ``Kinect_Config`` (issues 6 and 9).
+QUOTED_REAL = {0: (0.021, 0.10), 1: (0.029, 0.14), 2: (0.065, 0.47)}
+LAYOUT_NAMES = {0: "parallel", 1: "45 deg", 2: "90 deg"}
 
 _CORE = ("SpineBase", "SpineMid", "SpineShoulder", "ShoulderLeft", "ShoulderRight")
 _EXTREMITIES = (
@@ -131,6 +127,10 @@ class Disagreement:
     capture_mismatch_std_s : float
         Spread of the capture-time difference of paired frames, from the sensors' own clocks
         (see :func:`capture_mismatch_std`); NaN when not computed.
+    mirrored : (P,) bool
+        Per pair: it fits better with stream B's left and right swapped.
+    frame_ok : (P,) bool
+        Per pair: it has a left/right twin finite in both streams (``mirrored`` is meaningful).
     """
 
     n_pairs: int
@@ -141,6 +141,8 @@ class Disagreement:
     b2a: Array
     mirrored_fraction: float
     capture_mismatch_std_s: float = float("nan")
+    mirrored: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    frame_ok: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 def disagreement(
@@ -184,7 +186,8 @@ def disagreement(
     frames = ok_m.any(axis=1)
     s0 = np.where(ok_m, d, 0.0).sum(axis=1)
     s1 = np.where(ok_m, d_mirror, 0.0).sum(axis=1)
-    mirrored = float((s1[frames] < s0[frames]).mean()) if frames.any() else float("nan")
+    mirrored_pairs = frames & (s1 < s0)
+    mirrored = float(mirrored_pairs[frames].mean()) if frames.any() else float("nan")
     per_joint = np.full(N_JOINTS, np.nan)
     has = ok.any(axis=0)
     per_joint[has] = np.nanmedian(d[:, has], axis=0)
@@ -196,6 +199,8 @@ def disagreement(
         per_joint_median_m=per_joint,
         b2a=b2a,
         mirrored_fraction=mirrored,
+        mirrored=mirrored_pairs,
+        frame_ok=frames,
     )
 
 
@@ -393,13 +398,14 @@ def walking_passes(
 
     ``speed_m_s`` replays the clip slower or faster so its median pelvis speed is that (a real
     recording's walking speed); ``still_fraction`` prepends a still stand (the first pose held)
-    so that this share of every pass is standing still. ``backward`` adds every pass played in
-    reverse too (walking backward while facing the heading).
+    so that this share of every pass is standing still (1.0: the pass is a stand only, as long
+    as the walk would have been). ``backward`` adds every pass played in reverse too (walking
+    backward while facing the heading).
     """
     if not half_length_m > 0:
         raise InputError(f"half_length_m must be positive, got {half_length_m}")
-    if not 0.0 <= still_fraction < 1.0:
-        raise InputError(f"still_fraction must be in [0, 1), got {still_fraction}")
+    if not 0.0 <= still_fraction <= 1.0:
+        raise InputError(f"still_fraction must be in [0, 1], got {still_fraction}")
     if speed_m_s is not None and not speed_m_s > 0:
         raise InputError(f"speed_m_s must be positive, got {speed_m_s}")
     root = motion.positions[:, JOINT_INDEX["SpineBase"], :2]
@@ -422,9 +428,13 @@ def walking_passes(
     rate = motion.rate_hz
     if speed_m_s is not None:
         rate = rate * speed_m_s / clip_speed(motion)
-    n_still = round(still_fraction / (1.0 - still_fraction) * seg.shape[0])
-    if n_still:
-        seg = np.concatenate([np.repeat(seg[:1], n_still, axis=0), seg])
+    if still_fraction >= 1.0 - 1e-9:  # a take that is all standing: stands only
+        seg = np.repeat(seg[:1], seg.shape[0], axis=0)
+        n_still = seg.shape[0]
+    else:
+        n_still = round(still_fraction / (1.0 - still_fraction) * seg.shape[0])
+        if n_still:
+            seg = np.concatenate([np.repeat(seg[:1], n_still, axis=0), seg])
     out = []
     for h in headings_rad:
         a = float(h) - base
@@ -458,6 +468,7 @@ class SimulatedPair:
     t_sensor_b_s: Array
     group_a: NDArray[np.int64]
     true_mismatch_s: Array
+    group_b: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def simulate_pair(
@@ -479,7 +490,7 @@ def simulate_pair(
     radii = capsule_radii(_subject_height(passes[0]))
     s2w = layout.sensor2world()
     intr = Intrinsics()
-    ja, jb, ia_all, ib_all, ta_all, tb_all, ga, mis = [], [], [], [], [], [], [], []
+    ja, jb, ia_all, ib_all, ta_all, tb_all, ga, gb, mis = [], [], [], [], [], [], [], [], []
     na = nb = 0
     for k, m in enumerate(passes):
         streams = []
@@ -510,6 +521,7 @@ def simulate_pair(
         ta_all.append(ca.t_sensor_s)
         tb_all.append(cb.t_sensor_s)
         ga.append(np.full(ca.t_sensor_s.size, k, dtype=np.int64))
+        gb.append(np.full(cb.t_sensor_s.size, k, dtype=np.int64))
         mis.append(ca.t_true_s[ia] - cb.t_true_s[ib])
         na += ca.t_sensor_s.size
         nb += cb.t_sensor_s.size
@@ -522,6 +534,7 @@ def simulate_pair(
         t_sensor_b_s=np.concatenate(tb_all),
         group_a=np.concatenate(ga),
         true_mismatch_s=np.concatenate(mis),
+        group_b=np.concatenate(gb),
     )
 
 
@@ -540,116 +553,6 @@ def simulate_layout_disagreement(
         sim.t_sensor_a_s[sim.idx_a], sim.t_sensor_b_s[sim.idx_b], sim.group_a[sim.idx_a]
     )
     return replace(res, capture_mismatch_std_s=spread)
-
-
-# ------------------------------------------------------------------------------------------
-# one sensor against the truth
-
-
-@dataclass(frozen=True)
-class SingleSensorRealism:
-    """Single-sensor error figures of simulated sensors against the truth, metres."""
-
-    median_of_joint_medians_m: float
-    overall_median_m: float
-    per_joint_median_m: dict[str, float]
-    core_median_m: float
-    extremity_median_m: float
-    tracked_median_m: float
-    inferred_median_m: float
-    state_fraction: dict[str, float]
-    tracked_outside_view: int
-    swapped_fraction: float
-
-    def failures(self) -> list[str]:
-        """The realism targets this result misses (empty when all are met)."""
-        out = []
-        for nm in ("median_of_joint_medians_m", "overall_median_m"):
-            v = getattr(self, nm)
-            if not 0.03 <= v <= 0.10:
-                out.append(f"{nm} = {v * 100:.1f} cm, outside 3-10 cm")
-        if not self.extremity_median_m > self.core_median_m:
-            out.append(
-                f"extremities ({self.extremity_median_m * 100:.1f} cm) not worse than spine and "
-                f"shoulders ({self.core_median_m * 100:.1f} cm)"
-            )
-        if not self.inferred_median_m >= 2.0 * self.tracked_median_m:
-            out.append(
-                f"inferred {self.inferred_median_m * 100:.1f} cm < 2 x tracked "
-                f"{self.tracked_median_m * 100:.1f} cm"
-            )
-        if self.tracked_outside_view:
-            out.append(f"{self.tracked_outside_view} joints outside the view reported TRACKED")
-        return out
-
-
-def ring_layout(
-    n_sensors: int = 4, *, radii_m: Sequence[float] = (2.0, 2.5, 3.0, 3.5)
-) -> list[Array]:
-    """``sensor2world`` of ``n_sensors`` on a 2-3.5 m ring, 1.0-1.2 m high, facing the centre."""
-    if n_sensors < 1:
-        raise InputError(f"n_sensors must be at least 1, got {n_sensors}")
-    out = []
-    for k in range(n_sensors):
-        az = 2 * np.pi * k / n_sensors + np.pi / 8
-        r = float(radii_m[k % len(radii_m)])
-        h = 1.0 + 0.2 * k / max(n_sensors - 1, 1)
-        pos = np.array([r * np.cos(az), r * np.sin(az), h])
-        out.append(look_at(pos, np.array([0.0, 0.0, 1.0])))
-    return out
-
-
-def single_sensor_realism(
-    passes: Sequence[Motion],
-    rng: np.random.Generator,
-    params: TrackerParams | None = None,
-    *,
-    sensors: Sequence[Array] | None = None,
-) -> SingleSensorRealism:
-    """Every sensor of ``sensors`` (default :func:`ring_layout`) against the truth, pooled."""
-    tp = TrackerParams() if params is None else params
-    rigs = ring_layout() if sensors is None else list(sensors)
-    if not passes:
-        raise InputError("no motion to simulate")
-    subj = draw_subject_bias(rng, tp)
-    radii = capsule_radii(_subject_height(passes[0]))
-    intr = Intrinsics()
-    errs, states, outside, swapped = [], [], 0, []
-    t0 = 0.0
-    for m in passes:
-        t = np.arange(0.0, m.duration_s, 1.0 / 30.0)
-        truth = m.at(t)
-        for s2w in rigs:
-            out = simulate_tracker(truth, s2w, intr, radii, rng, tp, subject=subj, t_s=t0 + t)
-            tsens = apply_transform(invert_transform(s2w), truth)
-            errs.append(np.linalg.norm(out.joints_sensor - tsens, axis=-1))
-            states.append(out.states)
-            swapped.append(out.swapped)
-            tracked = out.states == TrackingState.TRACKED
-            # the point the tracker follows: the mirrored twin in swapped frames
-            perm = np.where(out.swapped[:, None], np.asarray(MIRROR_INDEX), np.arange(N_JOINTS))
-            followed = np.take_along_axis(tsens, perm[..., None], axis=1)
-            outside += int((tracked & ~intr.in_view(out.joints_sensor)).sum())
-            outside += int((tracked & ~intr.in_view(followed)).sum())
-        t0 += m.duration_s + 10.0  # the passes are separate moments of the session
-    e = np.concatenate(errs)
-    st = np.concatenate(states)
-    per_joint = np.array([np.median(e[np.isfinite(e[:, j]), j]) for j in range(N_JOINTS)])
-    core = [JOINT_INDEX[n] for n in _CORE]
-    ext = [JOINT_INDEX[n] for n in _EXTREMITIES]
-    fin = np.isfinite(e)
-    return SingleSensorRealism(
-        median_of_joint_medians_m=float(np.median(per_joint)),
-        overall_median_m=float(np.median(e[fin])),
-        per_joint_median_m={n: float(per_joint[j]) for j, n in enumerate(JOINTS)},
-        core_median_m=float(np.median(per_joint[core])),
-        extremity_median_m=float(np.median(per_joint[ext])),
-        tracked_median_m=float(np.median(e[st == TrackingState.TRACKED])),
-        inferred_median_m=float(np.median(e[st == TrackingState.INFERRED])),
-        state_fraction={s.name.lower(): float((st == s).mean()) for s in TrackingState},
-        tracked_outside_view=outside,
-        swapped_fraction=float(np.concatenate(swapped).mean()),
-    )
 
 
 # ------------------------------------------------------------------------------------------
@@ -677,233 +580,12 @@ DEFAULT_HEADINGS = tuple(np.radians(np.arange(0.0, 360.0, 45.0)))
 FACING_FRONT = tuple(np.radians([-45.0, 0.0, 45.0]))
 
 
-@dataclass(frozen=True)
-class RealismRow:
-    layout: str
-    real_median_m: float
-    real_p95_m: float
-    quoted_median_m: float
-    quoted_p95_m: float
-    sim_median_m: float
-    sim_p95_m: float
-    real_mismatch_std_s: float
-    sim_mismatch_std_s: float
-    real_pairs: int
-    sim_pairs: int
-    real_mirrored: float
-    sim_mirrored: float
-    real_per_joint_m: tuple[float, ...]
-    sim_per_joint_m: tuple[float, ...]
-
-    @property
-    def median_ratio(self) -> float:
-        return self.sim_median_m / self.real_median_m
-
-    @property
-    def within_band(self) -> bool:
-        return abs(self.median_ratio - 1.0) <= MEDIAN_BAND
-
-
-def realism_table(
-    kinect_dir: str | Path,
-    walk: Motion,
-    *,
-    seed: int = 0,
-    params: TrackerParams | None = None,
-    receiver: ReceiverParams | None = None,
-    facing_rad: Sequence[float] = FACING_FRONT,
-    half_length_m: float = 1.0,
-    repeats: int = 1,
-    match_motion: bool = True,
-) -> list[RealismRow]:
-    """Real vs simulated two-sensor disagreement for every KinectMultiTrack log in a folder.
-
-    For each log, the simulated person faces the front sensor along each of ``facing_rad`` and
-    walks through the spot forward and backward (:func:`walking_passes`); with ``match_motion``
-    the clip is replayed at the log's measured walking speed with its share of still frames
-    (:func:`motion_profile`), so that the unsynchronized capture costs the same as in the real
-    recording. ``repeats`` independent simulations are pooled per layout.
-    """
-    files = sorted(Path(kinect_dir).glob("*.csv"))
-    if not files:
-        raise InputError(f"no KinectMultiTrack CSV logs in {kinect_dir}")
-    rows = []
-    for f in files:
-        rec = read_kinect_multitrack(f)
-        real = real_disagreement(rec, max_gap_s=(receiver or ReceiverParams()).max_gap_s)
-        layout = PairLayout.from_recording(rec)
-        prof = motion_profile(rec)
-        passes = walking_passes(
-            walk,
-            facing_rad,
-            half_length_m=half_length_m,
-            speed_m_s=prof.moving_speed_m_s if match_motion else None,
-            still_fraction=prof.still_fraction if match_motion else 0.0,
-            backward=True,
-        )
-        rng = np.random.default_rng([seed, rec.kinect_config])
-        sims = [
-            simulate_pair(passes, layout, rng, params, receiver=receiver) for _ in range(repeats)
-        ]
-        ja = np.concatenate([s.joints_a for s in sims])
-        jb = np.concatenate([s.joints_b for s in sims])
-        offs_a = np.cumsum([0] + [s.joints_a.shape[0] for s in sims[:-1]])
-        offs_b = np.cumsum([0] + [s.joints_b.shape[0] for s in sims[:-1]])
-        ia = np.concatenate([s.idx_a + o for s, o in zip(sims, offs_a, strict=True)])
-        ib = np.concatenate([s.idx_b + o for s, o in zip(sims, offs_b, strict=True)])
-        sim = disagreement(ja, jb, ia, ib)
-        spread = float(
-            np.mean(
-                [
-                    capture_mismatch_std(
-                        s.t_sensor_a_s[s.idx_a], s.t_sensor_b_s[s.idx_b], s.group_a[s.idx_a]
-                    )
-                    for s in sims
-                ]
-            )
-        )
-        q = QUOTED_REAL.get(rec.kinect_config, (float("nan"), float("nan")))
-        rows.append(
-            RealismRow(
-                layout=layout.name,
-                real_median_m=real.median_m,
-                real_p95_m=real.p95_m,
-                quoted_median_m=q[0],
-                quoted_p95_m=q[1],
-                sim_median_m=sim.median_m,
-                sim_p95_m=sim.p95_m,
-                real_mismatch_std_s=real.capture_mismatch_std_s,
-                sim_mismatch_std_s=spread,
-                real_pairs=real.n_pairs,
-                sim_pairs=sim.n_pairs,
-                real_mirrored=real.mirrored_fraction,
-                sim_mirrored=sim.mirrored_fraction,
-                real_per_joint_m=tuple(float(v) for v in real.per_joint_median_m),
-                sim_per_joint_m=tuple(float(v) for v in sim.per_joint_median_m),
-            )
-        )
-    return rows
-
-
-def format_table(rows: Sequence[RealismRow]) -> str:
-    """The comparison as a Markdown table (centimetres, milliseconds)."""
-    lines = [
-        "| layout | real median (quoted) | real p95 (quoted) | sim median | sim p95 | "
-        "sim/real median | within +/-30 % | pair mismatch std real / sim | "
-        "L/R disagree real / sim |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r.layout} | {r.real_median_m * 100:.2f} cm ({r.quoted_median_m * 100:.1f}) "
-            f"| {r.real_p95_m * 100:.1f} cm ({r.quoted_p95_m * 100:.0f}) "
-            f"| {r.sim_median_m * 100:.2f} cm | {r.sim_p95_m * 100:.1f} cm "
-            f"| {r.median_ratio:.2f} | {'yes' if r.within_band else 'NO'} "
-            f"| {r.real_mismatch_std_s * 1e3:.0f} / {r.sim_mismatch_std_s * 1e3:.0f} ms "
-            f"| {r.real_mirrored * 100:.1f} / {r.sim_mirrored * 100:.1f} % |"
-        )
-    return "\n".join(lines)
-
-
-def format_per_joint(rows: Sequence[RealismRow]) -> str:
-    """Per-joint median disagreement, real / simulated, per layout (centimetres)."""
-    head = "| joint | " + " | ".join(f"{r.layout} real / sim" for r in rows) + " |"
-    lines = [head, "|---" * (len(rows) + 1) + "|"]
-    for j, name in enumerate(JOINTS):
-        cells = [
-            f"{r.real_per_joint_m[j] * 100:.1f} / {r.sim_per_joint_m[j] * 100:.1f}" for r in rows
-        ]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def format_single(res: SingleSensorRealism) -> str:
-    """The single-sensor figures as Markdown."""
-    fr = res.state_fraction
-    lines = [
-        "| figure | value | target |",
-        "|---|---|---|",
-        f"| median over joints of the per-joint median | "
-        f"{res.median_of_joint_medians_m * 100:.1f} cm | 3-10 cm |",
-        f"| overall median | {res.overall_median_m * 100:.1f} cm | 3-10 cm |",
-        f"| wrists, hands, ankles, feet (median of joint medians) | "
-        f"{res.extremity_median_m * 100:.1f} cm | > spine and shoulders |",
-        f"| spine and shoulders | {res.core_median_m * 100:.1f} cm | |",
-        f"| TRACKED joints | {res.tracked_median_m * 100:.1f} cm | |",
-        f"| INFERRED joints | {res.inferred_median_m * 100:.1f} cm | >= 2 x TRACKED |",
-        f"| TRACKED joints outside the view | {res.tracked_outside_view} | 0 |",
-        f"| states tracked / inferred / not tracked | {fr['tracked']:.2f} / "
-        f"{fr['inferred']:.2f} / {fr['not_tracked']:.2f} | |",
-        f"| frames left/right swapped | {res.swapped_fraction:.2f} | |",
-    ]
-    return "\n".join(lines)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Recompute the realism tables: ``python -m kinefuse.report.realism [--data DIR]``."""
-    ap = argparse.ArgumentParser(
-        prog="kinefuse realism",
-        description="Simulated vs real Kinect v2 two-sensor disagreement, and single-sensor "
-        "error against the truth.",
-    )
-    ap.add_argument(
-        "--data",
-        type=Path,
-        default=Path(__file__).resolve().parents[3].parent / "shared" / "data",
-        help="the shared data folder (default: ../shared/data beside the project)",
-    )
-    ap.add_argument("--clip", type=Path, default=None, help="walking clip (default CMU 02_walk_a)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--repeats", type=int, default=3, help="simulations pooled per layout")
-    ap.add_argument(
-        "--natural-speed",
-        action="store_true",
-        help="replay the clip at its own speed, without still stands (not the real logs' motion)",
-    )
-    ap.add_argument("--per-joint", action="store_true", help="also print per-joint medians")
-    ap.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
-    args = ap.parse_args(argv)
-    clip = args.clip or default_walk_path(args.data)
-    walk = load_walk(clip)
-    rows = realism_table(
-        args.data / "kinect" / "kinect_multitrack",
-        walk,
-        seed=args.seed,
-        repeats=args.repeats,
-        match_motion=not args.natural_speed,
-    )
-    passes = walking_passes(walk, DEFAULT_HEADINGS)
-    single = single_sensor_realism(passes, np.random.default_rng(args.seed))
-    if args.json:
-        print(
-            json.dumps(
-                {
-                    "pairs": [
-                        {**r.__dict__, "median_ratio": r.median_ratio, "ok": r.within_band}
-                        for r in rows
-                    ],
-                    "single_sensor": single.__dict__,
-                    "single_sensor_failures": single.failures(),
-                },
-                indent=2,
-            )
-        )
-    else:
-        speed = "its own speed" if args.natural_speed else "the real logs' speed and stands"
-        print(
-            f"clip: {clip} (replayed at {speed}), seed {args.seed}, "
-            f"{args.repeats} simulations per layout\n"
-        )
-        print(format_table(rows))
-        if args.per_joint:
-            print()
-            print(format_per_joint(rows))
-        print()
-        print(format_single(single))
-        bad = single.failures()
-        print("\nsingle-sensor targets: " + ("all met" if not bad else "; ".join(bad)))
-    ok = all(r.within_band for r in rows) and not single.failures()
-    return 0 if ok else 1
+    """``kinefuse realism``: real against simulated figures per take
+    (:func:`kinefuse.report.realism_takes.main` has the options)."""
+    from kinefuse.report.realism_takes import main as takes_main
+
+    return takes_main(argv)
 
 
 if __name__ == "__main__":
