@@ -66,3 +66,9 @@ def read_only_copy(tmp_path):
             folder.chmod(stat.S_IRWXU)
             for f in folder.iterdir():
                 f.chmod(stat.S_IRUSR | stat.S_IWUSR)
+
+
+@pytest.fixture
+def readonly_folder(read_only_copy) -> Path:
+    """An empty folder nobody can write into (see :func:`read_only_copy`)."""
+    return read_only_copy()

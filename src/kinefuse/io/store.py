@@ -1333,6 +1333,18 @@ class SessionStore:
                 ],
             )
 
+    def write_truth_info(self, key: str, value: object) -> None:
+        """Store (replace) a JSON-able piece of truth under ``key`` (e.g. the true movement axes
+        of a range-of-motion phase); read back only by evaluation code, via :meth:`Truth.info`."""
+        what = f"write_truth_info({key!r})"
+        if not isinstance(key, str) or not key or key == "synthesized":
+            raise InputError(f"{what}: key must be a non-empty string other than 'synthesized'")
+        text = _json_dumps(value, what)
+        with self._transaction(what) as conn:
+            conn.execute(
+                "INSERT OR REPLACE INTO truth_info (key, value) VALUES (?, ?)", (key, text)
+            )
+
     def has_truth(self) -> bool:
         """True if the session holds any ground truth (a simulated session)."""
         for table in ("truth_motion", "truth_sensors", "truth_observations", "truth_wand"):
@@ -1375,6 +1387,13 @@ class Truth:
         syn = np.array(json.loads(info[0]), dtype=bool)
         joints = _unblob([r[1] for r in rows], _F8, (N_JOINTS, 3), "truth motion")
         return _column(rows, 0), joints, syn
+
+    def info(self, key: str) -> object | None:
+        """The truth stored under ``key`` by :meth:`SessionStore.write_truth_info`, or None."""
+        row = self._store._db.execute(
+            "SELECT value FROM truth_info WHERE key = ?", (key,)
+        ).fetchone()
+        return None if row is None else json.loads(row[0])
 
     def sensor(self, sensor_id: str) -> tuple[Array, dict[str, float]]:
         """``(sensor2world (4, 4), clock dict)`` of one sensor."""

@@ -416,6 +416,7 @@ def _amc_kinematics(
     parents = [-1]
     index = {"root": 0}
     positions = [trans]
+    rotations = [g["root"] @ c_root]
     for name, b in sk.bones.items():
         parent = b.parent or "root"
         c = _rotation(b.axis_order, (b.axis_deg * axis_to_rad)[None, :])[0]
@@ -434,11 +435,13 @@ def _amc_kinematics(
         names.append(name)
         parents.append(index[parent])
         positions.append(start[name])
+        rotations.append(g[name] @ c)
     for name, b in sk.bones.items():
         if not b.children:
             names.append(name + END_SITE_SUFFIX)
             parents.append(index[name])
             positions.append(end[name])
+            rotations.append(rotations[index[name]])
     return SourceMotion(
         names=tuple(names),
         parents=tuple(parents),
@@ -447,6 +450,7 @@ def _amc_kinematics(
         path=path,
         fmt="asf/amc",
         asf_unit_m=0.0254 / sk.length_mult,
+        rotations=np.stack(np.broadcast_arrays(*rotations), axis=1),
     )
 
 
@@ -465,4 +469,5 @@ def read_amc(amc_path: str | Path, asf_path: str | Path, *, rate_hz: float = 120
         fmt=motion.fmt,
         asf_unit_m=motion.asf_unit_m,
         notes=motion.notes,
+        rotations=motion.rotations,
     )

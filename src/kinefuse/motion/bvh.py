@@ -280,8 +280,9 @@ def _read_frames(lines: list[str], start: int, n_channels: int, path: str) -> tu
     return data, dt
 
 
-def _forward_kinematics(joints: list[_Joint], data: Array) -> Array:
-    """Positions ``(T, J, 3)`` of every joint and End Site; loop over joints, not frames."""
+def _forward_kinematics(joints: list[_Joint], data: Array) -> tuple[Array, Array]:
+    """Positions ``(T, J, 3)`` and global rotations ``(T, J, 3, 3)`` of every joint and End Site
+    (an End Site has no channels: its parent's rotation); loop over joints, not frames."""
     t = data.shape[0]
     n = len(joints)
     pos = np.zeros((t, n, 3))
@@ -305,7 +306,7 @@ def _forward_kinematics(joints: list[_Joint], data: Array) -> Array:
             pr = rot[:, j.parent]
             pos[:, i] = pos[:, j.parent] + np.einsum("tij,tj->ti", pr, trans)
             rot[:, i] = pr @ local
-    return pos
+    return pos, rot
 
 
 def parse_bvh(text: str, *, path: str = "<string>", drop_tpose: bool = True) -> SourceMotion:
@@ -323,7 +324,8 @@ def parse_bvh(text: str, *, path: str = "<string>", drop_tpose: bool = True) -> 
     Returns
     -------
     SourceMotion
-        Positions ``(T, J, 3)`` of every joint and End Site, in file units, y up.
+        Positions ``(T, J, 3)`` of every joint and End Site, in file units, y up, and their
+        global rotations (:attr:`SourceMotion.rotations`).
 
     Raises
     ------
@@ -338,7 +340,7 @@ def parse_bvh(text: str, *, path: str = "<string>", drop_tpose: bool = True) -> 
         j.first_channel = n_channels
         n_channels += len(j.channels)
     data, dt = _read_frames(lines, tk.motion_line + 1, n_channels, path)
-    pos = _forward_kinematics(joints, data)
+    pos, rot = _forward_kinematics(joints, data)
     notes: list[str] = []
     if drop_tpose:
         roots = [i for i, j in enumerate(joints) if j.parent < 0]
@@ -361,6 +363,7 @@ def parse_bvh(text: str, *, path: str = "<string>", drop_tpose: bool = True) -> 
                 k = 1
         if k:
             pos = pos[k:]
+            rot = rot[k:]
             notes.append(
                 f"dropped leading frame(s) {', '.join(str(i) for i in range(k))} "
                 "(an inserted T-pose)"
@@ -376,6 +379,7 @@ def parse_bvh(text: str, *, path: str = "<string>", drop_tpose: bool = True) -> 
         path=path,
         fmt="bvh",
         notes=tuple(notes),
+        rotations=rot,
     )
 
 

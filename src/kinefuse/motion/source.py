@@ -75,6 +75,10 @@ class SourceMotion:
         section; the CMU value ``0.0254 / 0.45`` for BVH files, which carry no units).
     notes : tuple of str
         What the reader did on the way (frames dropped, ...), for provenance.
+    rotations : (T, J, 3, 3) float or None
+        Global rotation of every joint's frame (BVH: the frame its channels rotate; ASF: the
+        bone's ``axis`` frame, ``G @ C``) to the file's axes, per frame; End Sites carry their
+        parent's. Computed during forward kinematics; None when a reader does not provide it.
     """
 
     names: tuple[str, ...]
@@ -85,6 +89,7 @@ class SourceMotion:
     fmt: str
     asf_unit_m: float = 0.0254 / 0.45
     notes: tuple[str, ...] = ()
+    rotations: Array | None = None
 
     def __post_init__(self) -> None:
         p = np.asarray(self.positions, dtype=np.float64)
@@ -93,6 +98,11 @@ class SourceMotion:
         if len(self.parents) != len(self.names):
             raise ValueError(f"parents has {len(self.parents)} entries for {len(self.names)} names")
         object.__setattr__(self, "positions", p)
+        if self.rotations is not None:
+            r = np.asarray(self.rotations, dtype=np.float64)
+            if r.shape != (*p.shape[:2], 3, 3):
+                raise ValueError(f"rotations must have shape {(*p.shape[:2], 3, 3)}, got {r.shape}")
+            object.__setattr__(self, "rotations", r)
 
     @property
     def n_frames(self) -> int:

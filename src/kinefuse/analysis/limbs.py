@@ -1,0 +1,131 @@
+"""The limbs analysis parameterizes, as data: joints, parent limb, axes and what is observable.
+
+A limb is named by the Kinect v2 bone it follows (``"upper_arm_left"`` = ShoulderLeft ->
+ElbowLeft). The root limb is the pelvis (SpineBase, its frame from the hips and SpineMid); it gets
+the body coordinate system. Every other limb rotates about its ``proximal`` joint (the centre of
+its joint sphere) relative to its ``parent`` limb's normalized frame.
+
+For position-only skeletons (fused sessions) a limb's orientation about its own long axis (its
+*twist*) comes from a neighbour joint, ``twist_ref``: the vector ``twist_ref[1] - twist_ref[0]``
+(the elbow plane for the upper arm, the knee plane for the thigh, the thumb for the forearm, the
+foot for the shank, the shoulder line for the trunk, the hip line for the pelvis). Limbs without
+one (head, foot) have an unobservable twist; their frame is carried from the parent by the
+minimal rotation and their twist is reported as not observable.
+
+Body frame (from the body planes of the default pose): ``x`` anterior (frontal-plane normal,
+forward), ``y`` to the subject's left (sagittal-plane normal), ``z`` superior (transverse-plane
+normal, up). Right-handed: ``x × y = z``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+from kinefuse.skeleton import JOINT_INDEX
+
+
+@dataclass(frozen=True)
+class Limb:
+    """One limb of the analysis skeleton.
+
+    Attributes
+    ----------
+    name : str
+        e.g. ``"thigh_left"``.
+    proximal, distal : str
+        Kinect joints at the limb's ends; the limb rotates about ``proximal``.
+    parent : str or None
+        Parent limb (whose normalized frame the samples are expressed in); None for the root.
+    n_axes : int
+        Movement axes the joint has for its swing (1: hinge such as the knee; 2: ball or saddle
+        such as the hip). The calibration phase moves the limb along that many main directions.
+    twist_ref : tuple of two str, or ()
+        Joints whose difference gives the twist reference for position-only skeletons.
+    twist_observable : bool
+        Whether the twist is observable from positions alone.
+    side : str
+        ``"left"``, ``"right"`` or ``""`` (midline).
+    """
+
+    name: str
+    proximal: str
+    distal: str
+    parent: str | None
+    n_axes: int
+    twist_ref: tuple[str, ...]
+    side: str = ""
+
+    @property
+    def twist_observable(self) -> bool:
+        return len(self.twist_ref) == 2
+
+    @property
+    def proximal_index(self) -> int:
+        return JOINT_INDEX[self.proximal]
+
+    @property
+    def distal_index(self) -> int:
+        return JOINT_INDEX[self.distal]
+
+
+def _sided(side: str) -> tuple[Limb, ...]:
+    s = side.capitalize()
+    return (
+        Limb(
+            f"upper_arm_{side}",
+            f"Shoulder{s}",
+            f"Elbow{s}",
+            "trunk",
+            2,
+            (f"Elbow{s}", f"Wrist{s}"),
+            side,
+        ),
+        Limb(
+            f"forearm_{side}",
+            f"Elbow{s}",
+            f"Wrist{s}",
+            f"upper_arm_{side}",
+            1,
+            (f"Hand{s}", f"Thumb{s}"),
+            side,
+        ),
+        Limb(f"thigh_{side}", f"Hip{s}", f"Knee{s}", "pelvis", 2, (f"Knee{s}", f"Ankle{s}"), side),
+        Limb(
+            f"shank_{side}",
+            f"Knee{s}",
+            f"Ankle{s}",
+            f"thigh_{side}",
+            1,
+            (f"Ankle{s}", f"Foot{s}"),
+            side,
+        ),
+        Limb(f"foot_{side}", f"Ankle{s}", f"Foot{s}", f"shank_{side}", 1, (), side),
+    )
+
+
+#: The root limb: origin SpineBase, long axis SpineBase -> SpineMid, twist from the hip line.
+PELVIS: Final = Limb("pelvis", "SpineBase", "SpineMid", None, 0, ("HipRight", "HipLeft"))
+
+#: All limbs, parents before children. The pelvis first (root, body frame), then 12 limbs.
+LIMBS: Final[tuple[Limb, ...]] = (
+    PELVIS,
+    Limb("trunk", "SpineMid", "SpineShoulder", "pelvis", 2, ("ShoulderRight", "ShoulderLeft")),
+    Limb("head", "Neck", "Head", "trunk", 2, ()),
+    *_sided("left"),
+    *_sided("right"),
+)
+LIMB_NAMES: Final[tuple[str, ...]] = tuple(limb.name for limb in LIMBS)
+LIMB_INDEX: Final[dict[str, int]] = {n: i for i, n in enumerate(LIMB_NAMES)}
+#: Index of each limb's parent limb in :data:`LIMBS` (-1 for the pelvis).
+LIMB_PARENTS: Final[tuple[int, ...]] = tuple(
+    -1 if limb.parent is None else LIMB_INDEX[limb.parent] for limb in LIMBS
+)
+
+
+def limb(name: str) -> Limb:
+    """The limb called ``name``; a clear error naming the known limbs otherwise."""
+    try:
+        return LIMBS[LIMB_INDEX[name]]
+    except KeyError:
+        raise KeyError(f"unknown limb {name!r}; the limbs are: {', '.join(LIMB_NAMES)}") from None

@@ -1,0 +1,325 @@
+"""The workflow of ``kinefuse analyze``: inputs -> skeleton sequences -> paper B -> files.
+
+Inputs (the extension decides): a session store (``.sqlite``: fused here with ``--method``,
+read-only, nothing is written into it), a BVH or ASF/AMC clip (``.bvh``, ``.amc``, with their
+source rotations), a marker file (``.trc``, ``.c3d``, through a marker map).
+
+The calibration phase (the frames the movement axes are learned from) is, in this order:
+``--calibration-phase START:END`` (seconds on the input's time base: the server clock of a
+session, the clip's time from 0), the range-of-motion phase a session stored in its metadata
+(``rom_phase_server_s``, written by ``kinefuse simulate --rom``), or, when there is none, the
+whole input; the report's ``calibration_phase.source`` and ``statement`` say which, and what
+that means for the figures.
+
+Output folder (fresh: created, or an existing empty folder; never a folder with files in it):
+one input writes its files straight into it; several inputs write one subfolder each
+(``01_<stem>``, ``02_<stem>``, ...) plus the consistency figures in ``analysis.json``. Every
+file goes through a temporary file and an atomic rename. Formats in ``docs/analysis.md``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.analysis.sequence import SkeletonSequence
+from kinefuse.errors import InputError
+from kinefuse.io.atomic import WriteError, atomic_write_text
+
+Array = NDArray[np.float64]
+
+#: Axis-extraction methods, the one the angles use first (Direction Joining), then the paper's
+#: alternatives it is compared with.
+AXIS_METHODS = ("dj", "pca", "em")
+SESSION_EXT = (".sqlite", ".db")
+MOTION_EXT = (".bvh", ".amc")
+MARKER_EXT = (".trc", ".c3d")
+
+
+@dataclass(frozen=True, eq=False)
+class AnalysisInput:
+    """One input of ``kinefuse analyze`` as a skeleton sequence."""
+
+    path: Path
+    kind: str  # "session", "motion" or "markers"
+    seq: SkeletonSequence
+    stored_phase_s: tuple[float, float] | None = None  # a session's ROM phase (metadata)
+    fusion: dict[str, Any] | None = None  # method, calibration, frames (sessions)
+
+
+def _kind(path: Path) -> str:
+    from kinefuse.motion.source import motion_suffix
+
+    ext = motion_suffix(path)
+    if ext in SESSION_EXT:
+        return "session"
+    if ext in MOTION_EXT:
+        return "motion"
+    if ext in MARKER_EXT:
+        return "markers"
+    raise InputError(
+        f"{path}: cannot analyse {ext or 'a file without extension'!r}; kinefuse analyze reads a "
+        "session (.sqlite), a clip (.bvh, .amc) or a marker file (.trc, .c3d)"
+    )
+
+
+def sequence_from_session(
+    path: Path,
+    *,
+    method: str = "best",
+    calibration: Path | None = None,
+    true_calibration: bool = False,
+) -> AnalysisInput:
+    """Fuse a session (read-only) with one method and return it as a skeleton sequence.
+
+    The fusion is that of ``kinefuse fuse`` (clocks, occlusion test, ``method``) with the
+    session's stored calibration, a calibration file or the true poses; the result is not
+    stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
+    """
+    from kinefuse.app import resolve_poses
+    from kinefuse.fusion.session import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.io.store import SessionStore
+
+    if method not in METHODS:
+        raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
+    with SessionStore.open(path) as store:
+        poses, source = resolve_poses(store, calibration, true_calibration)
+        sensors = load_sensors(store, poses)
+        grid = frame_grid(sensors)
+        res = run_method(sensors, grid, method)
+        meta = store.meta()
+    phase = meta.get("rom_phase_server_s")
+    stored = None
+    if isinstance(phase, list) and len(phase) == 2:
+        stored = (float(phase[0]), float(phase[1]))
+    t = res.t_server_s
+    seq = SkeletonSequence.from_kinect(
+        res.positions,
+        t_s=t,
+        rate_hz=float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0,
+        source=f"{path} fused with {method} ({source})",
+    )
+    return AnalysisInput(
+        path=path,
+        kind="session",
+        seq=seq,
+        stored_phase_s=stored,
+        fusion={"method": method, "calibration": source, "frames": int(grid.size)},
+    )
+
+
+def load_input(
+    path: Path,
+    *,
+    marker_map: Path | str | None = None,
+    method: str = "best",
+    calibration: Path | None = None,
+    true_calibration: bool = False,
+) -> AnalysisInput:
+    """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc)."""
+    from kinefuse.io.sequences import sequence_from_markers, sequence_from_motion_file
+
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    kind = _kind(path)
+    if kind != "markers" and marker_map is not None:
+        raise InputError(f"{path}: --map is for marker files (.trc, .c3d), not a {kind}")
+    if kind != "session" and (calibration is not None or true_calibration):
+        raise InputError(f"{path}: --calibration/--true-calibration are for sessions (.sqlite)")
+    if kind == "session":
+        return sequence_from_session(
+            path, method=method, calibration=calibration, true_calibration=true_calibration
+        )
+    if kind == "motion":
+        return AnalysisInput(path=path, kind=kind, seq=sequence_from_motion_file(path))
+    return AnalysisInput(
+        path=path, kind=kind, seq=sequence_from_markers(path, marker_map=marker_map)
+    )
+
+
+def prepare_out(out: Path) -> Path:
+    """Create the output folder, or accept an existing empty one; refuse anything else."""
+    if out.exists():
+        if not out.is_dir():
+            raise WriteError(f"{out} exists and is not a folder; choose a fresh output folder")
+        if any(out.iterdir()):
+            raise WriteError(
+                f"{out} already holds files; kinefuse analyze writes into a fresh folder only "
+                "(it never overwrites files it did not make): choose a new --out"
+            )
+        return out
+    try:
+        out.mkdir(parents=True)
+    except OSError as e:
+        raise WriteError(
+            f"{out}: cannot create the output folder: {e.strerror or e}; choose another --out"
+        ) from None
+    return out
+
+
+def write_limb_frames(path: Path, t_s: Array, limbs: Sequence[str], transforms: Array) -> Path:
+    """``limb_frames.csv``: per frame and limb, the normalized frame's origin and axes (world).
+
+    Columns ``time_s, limb, origin_x_m, origin_y_m, origin_z_m, x_x, x_y, x_z, y_x, y_y, y_z,
+    z_x, z_y, z_z``: the origin (limb midpoint, metres) and the unit axes x (forward), y (left),
+    z (up in the default pose) of the limb's normalized frame in world coordinates; empty cells
+    where the limb is missing.
+    """
+    buf = io.StringIO()
+    buf.write(
+        "time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n"
+    )
+    origin = transforms[..., :3, 3]
+    axes = np.swapaxes(transforms[..., :3, :3], -1, -2).reshape(*transforms.shape[:2], 9)
+    vals = np.concatenate([origin, axes], axis=-1)  # (T, L, 12)
+    for k in range(vals.shape[0]):
+        tk = f"{t_s[k]:.6f}"
+        for i, name in enumerate(limbs):
+            row = vals[k, i]
+            cells = ",".join("" if not np.isfinite(v) else f"{v:.6f}" for v in row)
+            buf.write(f"{tk},{name},{cells}\n")
+    return atomic_write_text(path, buf.getvalue())
+
+
+def _choose_phase(
+    given: tuple[float, float] | None, inp: AnalysisInput
+) -> tuple[tuple[float, float], str, str]:
+    """(phase, source, statement) for an input."""
+    seq = inp.seq
+    t0, t1 = float(seq.t_s[0]), float(seq.t_s[-1])
+    if given is not None:
+        lo, hi = given
+        if hi <= lo:
+            raise InputError(f"--calibration-phase {lo:g}:{hi:g}: the end must be after the start")
+        if hi < t0 or lo > t1:
+            raise InputError(
+                f"--calibration-phase {lo:g}:{hi:g} s lies outside {inp.path} "
+                f"({t0:.2f} to {t1:.2f} s on its time base)"
+            )
+        return (lo, hi), "given (--calibration-phase)", (
+            "movement axes learned from the given calibration phase; angles over the whole input"
+        )
+    if inp.stored_phase_s is not None:
+        return inp.stored_phase_s, "the session's range-of-motion phase (rom_phase_server_s)", (
+            "movement axes learned from the session's range-of-motion phase; angles over the "
+            "whole input"
+        )
+    return (t0, t1), "none: the whole input", (
+        "no calibration phase: normalization, default pose and limb frames are computed as "
+        "usual; the movement axes are learned from the input's own motion, so a limb that does "
+        "not move along a direction during the take gets fewer axes (its status says so) and "
+        "its angles read about the directions it did move in. No axis or twist error against "
+        "a truth is computed (there are no true axes without a range-of-motion phase)."
+    )
+
+
+def json_default(o: object) -> object:
+    """JSON encoder fallback: numpy scalars and arrays, NaN -> None."""
+    if isinstance(o, np.ndarray):
+        return [json_default(v) for v in o.tolist()] if o.ndim else json_default(o.item())
+    if isinstance(o, np.generic):
+        return json_default(o.item())
+    if isinstance(o, float):
+        return o if np.isfinite(o) else None
+    if isinstance(o, tuple):
+        return list(o)
+    raise TypeError(f"cannot write {type(o).__name__} to JSON")
+
+
+def clean_json(value: object) -> object:
+    """Replace NaN/inf floats (also nested, also numpy) by None so the JSON is strict."""
+    if isinstance(value, dict):
+        return {str(k): clean_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [clean_json(v) for v in value]
+    if isinstance(value, np.ndarray | np.generic):
+        return clean_json(value.tolist())
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    return value
+
+
+def write_json(path: Path, report: dict[str, Any]) -> Path:
+    return atomic_write_text(path, json.dumps(clean_json(report), indent=2) + "\n")
+
+
+def run_analyze(
+    inputs: Sequence[Path],
+    *,
+    out: Path,
+    calibration_phase: tuple[float, float] | None = None,
+    marker_map: Path | str | None = None,
+    method: str = "best",
+    calibration: Path | None = None,
+    true_calibration: bool = False,
+    plots: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Analyse one or several inputs into a fresh folder ``out``; returns the report."""
+    from kinefuse.report.analysis import analyse_one, consistency_report
+
+    say = progress or (lambda _m: None)
+    if not inputs:
+        raise InputError("give at least one input file")
+    loaded = []
+    for p in inputs:
+        say(f"loading {p}")
+        loaded.append(
+            load_input(
+                Path(p),
+                marker_map=marker_map,
+                method=method,
+                calibration=calibration,
+                true_calibration=true_calibration,
+            )
+        )
+    prepare_out(out)
+    if plots:
+        import matplotlib
+
+        matplotlib.use("Agg")  # the command draws to files only
+    reports = []
+    results = []
+    for k, inp in enumerate(loaded):
+        folder = out if len(loaded) == 1 else out / f"{k + 1:02d}_{inp.path.stem}"
+        if folder != out:
+            prepare_out(folder)
+        phase, source, statement = _choose_phase(calibration_phase, inp)
+        say(f"analysing {inp.path} (calibration phase: {source})")
+        t0 = time.perf_counter()
+        rep, res = analyse_one(
+            inp,
+            folder,
+            phase=phase,
+            phase_source=source,
+            statement=statement,
+            plots=plots,
+            true_calibration=true_calibration,
+        )
+        rep["wall_time_s"] = time.perf_counter() - t0
+        reports.append(rep)
+        results.append(res)
+    report: dict[str, Any]
+    if len(reports) == 1:
+        report = reports[0]
+    else:
+        report = {"inputs": reports}
+        report.update(consistency_report(results))
+    report["out"] = str(out)
+    write_json(out / "analysis.json", report)
+    return report
+
+
+def format_analyze(report: dict[str, Any]) -> str:
+    """A short text summary of an analysis report."""
+    from kinefuse.report.analysis import format_report
+
+    return format_report(report)

@@ -1,0 +1,467 @@
+"""Marker maps: how optical markers become Kinect v2 joint centres.
+
+A marker map is a TOML file::
+
+    name = "plug-in-gait"            # shown in provenance (default: the file name)
+    description = "..."              # optional
+    up = "+z"                        # optional: the file axis that points up (default: inferred)
+
+    [pelvis]                         # needed only by hip_joint_centre entries
+    method = "harrington2007"        # or "bell1990"
+    rasis = "RASI"
+    lasis = "LASI"
+    rpsis = "RPSI"                   # rpsis + lpsis, or
+    lpsis = "LPSI"
+    # sacrum = "SACR"                # one sacral marker instead of the two PSIS
+
+    [joints]                         # Kinect v2 joint = rule
+    SpineBase = { mean = ["RASI", "LASI", "RPSI", "LPSI"] }
+    HipLeft = { hip_joint_centre = "left" }
+    KneeLeft = [{ mean = ["LKNE", "LKNM"] }, "LKNE"]   # alternatives: the first the file has
+    AnkleLeft = "LANK"                                 # one marker
+    SpineMid = { blend = { STRN = 0.5, T10 = 0.5 } }   # weights adding up to 1
+
+Rules: a marker name; ``{ mean = [...] }`` (midpoint of several markers); ``{ blend = {...} }``
+(weighted sum, weights add up to 1); ``{ hip_joint_centre = "left" | "right" }`` (a regression
+from the ``[pelvis]`` markers); or a list of these as alternatives (the first whose markers
+are all in the file wins). Every joint of ``[joints]`` is required: when no alternative can be
+built, :func:`apply_marker_map` fails naming the missing markers and the file's markers. A
+joint is missing in a frame when any marker of its rule is missing there. ``SpineBase`` must be
+mapped (it is the root of the Kinect tree); joints a map leaves out are absent from the
+sequence. Marker names match exactly, else ignoring case and any namespace prefix
+(``Derrick:LASI`` matches ``LASI``).
+
+Hip joint centres (in the pelvis frame of the ISB recommendation, Wu et al. 2002: origin at the
+ASIS midpoint, x anterior within the plane of the ASIS and the PSIS midpoint (or sacrum), z from
+the left to the right ASIS, y = z x x superior; PW = inter-ASIS distance, PD = distance from the
+ASIS midpoint to the PSIS midpoint or sacrum; side s = +1 right, -1 left):
+
+* ``harrington2007``: Harrington, Nathan, Morris & Nokes (2007), "Prediction of the hip joint
+  centre in adults, children, and patients with cerebral palsy based on magnetic resonance
+  imaging", J. Biomech. 40:595-602, the equations without leg length:
+  ``x = -0.24 PD - 9.9 mm``, ``y = -0.30 PW - 10.9 mm``, ``z = s (0.33 PW + 7.3 mm)``.
+* ``bell1990``: Bell, Pedersen & Brand (1990), "A comparison of the accuracy of several hip
+  center location prediction methods", J. Biomech. 23:617-621:
+  ``x = -0.19 PW``, ``y = -0.30 PW``, ``z = s 0.36 PW``.
+
+The shipped maps (package data ``kinefuse/data/markermaps/``) are listed by
+:func:`shipped_marker_maps`; ``docs/analysis.md`` explains how to write one.
+"""
+
+from __future__ import annotations
+
+import difflib
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import InputError
+from kinefuse.io.markers import MarkerData, up_rotation
+from kinefuse.skeleton import JOINTS
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "HJC_METHODS",
+    "JointRule",
+    "MarkerMap",
+    "PelvisSpec",
+    "apply_marker_map",
+    "hip_joint_centres",
+    "load_marker_map",
+    "parse_marker_map",
+    "select_marker_map",
+    "shipped_marker_maps",
+]
+
+#: Hip joint centre regressions (see the module docstring for the equations and sources).
+HJC_METHODS: Final = ("harrington2007", "bell1990")
+
+
+@dataclass(frozen=True)
+class JointRule:
+    """One way to compute a joint: ``kind`` ``"blend"`` (weighted markers) or ``"hjc"``."""
+
+    kind: str
+    markers: tuple[tuple[str, float], ...] = ()
+    side: str = ""
+
+    def marker_names(self, pelvis: PelvisSpec | None) -> tuple[str, ...]:
+        if self.kind == "hjc":
+            return pelvis.marker_names() if pelvis is not None else ()
+        return tuple(n for n, _ in self.markers)
+
+
+@dataclass(frozen=True)
+class PelvisSpec:
+    """The pelvis markers of a hip joint centre regression."""
+
+    method: str
+    rasis: str
+    lasis: str
+    rpsis: str = ""
+    lpsis: str = ""
+    sacrum: str = ""
+
+    def marker_names(self) -> tuple[str, ...]:
+        back = (self.sacrum,) if self.sacrum else (self.rpsis, self.lpsis)
+        return (self.rasis, self.lasis, *back)
+
+
+@dataclass(frozen=True)
+class MarkerMap:
+    """Kinect joint -> alternatives of :class:`JointRule` (see the module docstring)."""
+
+    name: str
+    joints: dict[str, tuple[JointRule, ...]] = field(default_factory=dict)
+    pelvis: PelvisSpec | None = None
+    up: str | None = None
+    description: str = ""
+    origin: str = "built-in"
+
+
+def _rule_error(where: str, joint: str, message: str) -> InputError:
+    return InputError(
+        f"{where}: marker map entry for {joint!r}: {message}. An entry is a marker name, "
+        "{ mean = [MARKERS] }, { blend = { MARKER = WEIGHT, ... } }, "
+        '{ hip_joint_centre = "left" | "right" } or a list of these (alternatives); see '
+        "docs/analysis.md"
+    )
+
+
+def _parse_rule(spec: Any, joint: str, where: str) -> JointRule:
+    if isinstance(spec, str):
+        if not spec.strip():
+            raise _rule_error(where, joint, "the marker name is empty")
+        return JointRule("blend", ((spec, 1.0),))
+    if not isinstance(spec, Mapping) or len(spec) != 1:
+        raise _rule_error(where, joint, f"cannot read {spec!r}")
+    ((key, val),) = spec.items()
+    if key == "mean":
+        if (
+            not isinstance(val, list)
+            or not val
+            or not all(isinstance(n, str) and n.strip() for n in val)
+        ):
+            raise _rule_error(where, joint, f"mean must be a list of marker names, got {val!r}")
+        return JointRule("blend", tuple((n, 1.0 / len(val)) for n in val))
+    if key == "blend":
+        if not isinstance(val, Mapping) or not val:
+            raise _rule_error(where, joint, f"blend must be a table MARKER = WEIGHT, got {val!r}")
+        term = []
+        for n, w in val.items():
+            if isinstance(w, bool) or not isinstance(w, int | float):
+                raise _rule_error(where, joint, f"the weight of {n!r} must be a number, got {w!r}")
+            term.append((str(n), float(w)))
+        total = sum(w for _, w in term)
+        if abs(total - 1.0) > 1e-6:
+            raise _rule_error(
+                where, joint, f"blend weights must add up to 1, they add to {total:g}"
+            )
+        return JointRule("blend", tuple(term))
+    if key == "hip_joint_centre":
+        if val not in ("left", "right"):
+            raise _rule_error(
+                where, joint, f'hip_joint_centre must be "left" or "right", got {val!r}'
+            )
+        return JointRule("hjc", side=str(val))
+    raise _rule_error(where, joint, f"unknown rule {key!r}")
+
+
+def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> MarkerMap:
+    """Build a :class:`MarkerMap` from the parsed TOML tables (see the module docstring).
+
+    Raises
+    ------
+    InputError
+        Unknown keys or joints, malformed rules, a hip joint centre without ``[pelvis]``.
+    """
+    unknown = sorted(set(data) - {"name", "description", "up", "pelvis", "joints"})
+    if unknown:
+        raise InputError(
+            f"{origin}: unknown keys {unknown}; a marker map has name, description, up, "
+            "[pelvis] and [joints]"
+        )
+    joints_t = data.get("joints")
+    if not isinstance(joints_t, Mapping) or not joints_t:
+        raise InputError(
+            f'{origin}: no [joints] table; write e.g.\n[joints]\nSpineBase = {{ mean = ["RASI", '
+            '"LASI", "RPSI", "LPSI"] }\n(see docs/analysis.md)'
+        )
+    up = data.get("up")
+    if up is not None:
+        if not isinstance(up, str):
+            raise InputError(f'{origin}: up must be a string such as "+y", got {up!r}')
+        up_rotation(up)
+    pelvis = None
+    if "pelvis" in data:
+        pt = data["pelvis"]
+        if not isinstance(pt, Mapping):
+            raise InputError(f"{origin}: [pelvis] must be a table")
+        bad = sorted(set(pt) - {"method", "rasis", "lasis", "rpsis", "lpsis", "sacrum"})
+        if bad:
+            raise InputError(
+                f"{origin}: [pelvis] has unknown keys {bad}; it takes method, rasis, lasis and "
+                "rpsis + lpsis or sacrum"
+            )
+        method = pt.get("method", "harrington2007")
+        if method not in HJC_METHODS:
+            raise InputError(
+                f"{origin}: [pelvis] method must be one of {', '.join(HJC_METHODS)}, got {method!r}"
+            )
+        for k in ("rasis", "lasis"):
+            if not isinstance(pt.get(k), str) or not pt[k]:
+                raise InputError(f"{origin}: [pelvis] needs {k} = MARKER")
+        has_psis = isinstance(pt.get("rpsis"), str) and isinstance(pt.get("lpsis"), str)
+        has_sacrum = isinstance(pt.get("sacrum"), str)
+        if has_psis == has_sacrum:
+            raise InputError(
+                f"{origin}: [pelvis] needs either rpsis and lpsis, or sacrum (exactly one of them)"
+            )
+        pelvis = PelvisSpec(
+            method=str(method),
+            rasis=pt["rasis"],
+            lasis=pt["lasis"],
+            rpsis=pt.get("rpsis", ""),
+            lpsis=pt.get("lpsis", ""),
+            sacrum=pt.get("sacrum", ""),
+        )
+    joints: dict[str, tuple[JointRule, ...]] = {}
+    for joint, spec in joints_t.items():
+        if joint not in JOINTS:
+            close = difflib.get_close_matches(joint, JOINTS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise InputError(
+                f"{origin}: {joint!r} is not a Kinect v2 joint{hint}; the 25 names are: "
+                f"{', '.join(JOINTS)}"
+            )
+        alts = spec if isinstance(spec, list) else [spec]
+        if not alts:
+            raise _rule_error(origin, joint, "the list of alternatives is empty")
+        rules = tuple(_parse_rule(a, joint, origin) for a in alts)
+        if any(r.kind == "hjc" for r in rules) and pelvis is None:
+            raise _rule_error(origin, joint, "hip_joint_centre needs a [pelvis] table")
+        joints[joint] = rules
+    if "SpineBase" not in joints:
+        raise InputError(
+            f"{origin}: the map must give SpineBase (the root of the Kinect tree), e.g. "
+            'SpineBase = { mean = ["RASI", "LASI", "RPSI", "LPSI"] }'
+        )
+    desc = data.get("description", "")
+    return MarkerMap(
+        name=str(data.get("name", name)),
+        joints=joints,
+        pelvis=pelvis,
+        up=up,
+        description=str(desc),
+        origin=origin,
+    )
+
+
+def load_marker_map(path: str | Path) -> MarkerMap:
+    """Read a marker map from a TOML file (format in the module docstring).
+
+    Raises
+    ------
+    InputError
+        Unreadable file, TOML syntax error, unknown keys, joints or rules.
+    """
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            data = tomllib.load(fh)
+    except OSError as e:
+        raise InputError(f"{p}: cannot read the marker map: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: not valid TOML: {e}") from None
+    return parse_marker_map(data, name=p.stem, origin=str(p))
+
+
+def shipped_marker_maps() -> dict[str, MarkerMap]:
+    """The maps shipped in ``kinefuse/data/markermaps/``, by name."""
+    folder = resources.files("kinefuse") / "data" / "markermaps"
+    out: dict[str, MarkerMap] = {}
+    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
+        if entry.name.endswith(".toml"):
+            data = tomllib.loads(entry.read_text(encoding="utf-8"))
+            m = parse_marker_map(data, name=entry.name[:-5], origin=f"built-in {entry.name}")
+            out[m.name] = m
+    return out
+
+
+# ------------------------------------------------------------------------------ resolution
+
+
+def _loose(name: str) -> str:
+    return name.rsplit(":", 1)[-1].strip().casefold()
+
+
+class _Finder:
+    def __init__(self, names: Sequence[str]) -> None:
+        self.names = list(names)
+        self.exact = {n: i for i, n in enumerate(names)}
+        groups: dict[str, list[int]] = {}
+        for i, n in enumerate(names):
+            groups.setdefault(_loose(n), []).append(i)
+        self.loose = {k: v[0] for k, v in groups.items() if len(v) == 1}
+
+    def __call__(self, name: str) -> int | None:
+        if name in self.exact:
+            return self.exact[name]
+        return self.loose.get(_loose(name))
+
+
+def _resolve(mmap: MarkerMap, finder: _Finder) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
+    """(joint -> the first buildable rule, joint -> missing markers of each alternative)."""
+    chosen: dict[str, JointRule] = {}
+    missing: dict[str, list[str]] = {}
+    for joint, rules in mmap.joints.items():
+        why = []
+        for rule in rules:
+            lack = [n for n in rule.marker_names(mmap.pelvis) if finder(n) is None]
+            if not lack:
+                chosen[joint] = rule
+                break
+            why.append(", ".join(lack))
+        else:
+            missing[joint] = why
+    return chosen, missing
+
+
+def select_marker_map(markers: MarkerData) -> MarkerMap:
+    """The shipped map whose every joint the file's markers can build.
+
+    Raises
+    ------
+    InputError
+        No shipped map fits; names the best candidate's missing markers and how to pass a map.
+    """
+    finder = _Finder(markers.names)
+    best: tuple[int, MarkerMap, dict[str, list[str]]] | None = None
+    for m in shipped_marker_maps().values():
+        chosen, missing = _resolve(m, finder)
+        if not missing:
+            return m
+        if best is None or len(chosen) > best[0]:
+            best = (len(chosen), m, missing)
+    assert best is not None  # the package ships maps
+    raise InputError(
+        f"{markers.path}: no shipped marker map fits its {len(markers.names)} markers "
+        f"({', '.join(markers.names)}). The closest, {best[1].name!r}, lacks "
+        + "; ".join(f"{j}: {' | '.join(w)}" for j, w in best[2].items())
+        + ". Write a marker map for this marker set and pass it with --map MAP.toml "
+        "(docs/analysis.md, 'Marker maps')."
+    )
+
+
+def hip_joint_centres(
+    rasis: Array, lasis: Array, back: Array, method: str = "harrington2007"
+) -> tuple[Array, Array]:
+    """Left and right hip joint centres from the pelvis markers, by a published regression.
+
+    Parameters
+    ----------
+    rasis, lasis : (..., 3) float
+        Right and left anterior superior iliac spine markers, metres.
+    back : (..., 3) float
+        The PSIS midpoint (or the sacral marker), metres.
+    method : {"harrington2007", "bell1990"}
+        Equations and sources in the module docstring.
+
+    Returns
+    -------
+    left, right : (..., 3) float
+        Hip joint centres, metres, in the markers' frame; NaN where a marker is NaN.
+    """
+    if method not in HJC_METHODS:
+        raise InputError(f"method must be one of {', '.join(HJC_METHODS)}, got {method!r}")
+    mid = 0.5 * (rasis + lasis)
+    z = rasis - lasis
+    pw = np.linalg.norm(z, axis=-1, keepdims=True)
+    z = z / np.where(pw > 0, pw, np.nan)
+    a = mid - back
+    a = a - (a * z).sum(-1, keepdims=True) * z
+    x = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    y = np.cross(z, x)
+    pd = np.linalg.norm(mid - back, axis=-1, keepdims=True)
+    if method == "harrington2007":
+        cx, cy, cz = -0.24 * pd - 0.0099, -0.30 * pw - 0.0109, 0.33 * pw + 0.0073
+    else:
+        cx, cy, cz = -0.19 * pw, -0.30 * pw, 0.36 * pw
+    base = mid + cx * x + cy * y
+    return base - cz * z, base + cz * z
+
+
+def apply_marker_map(
+    markers: MarkerData, mmap: MarkerMap
+) -> tuple[Array, tuple[str, ...], tuple[str, ...]]:
+    """Joint centres from markers through a map.
+
+    Parameters
+    ----------
+    markers : MarkerData
+    mmap : MarkerMap
+
+    Returns
+    -------
+    positions : (T, J, 3) float
+        Joint centres, metres, z up; NaN where a marker of the joint's rule is missing.
+    joint_names : tuple of str, length J
+        The mapped Kinect joints, in :data:`kinefuse.skeleton.JOINTS` order.
+    notes : tuple of str
+        Which alternative each joint used when it was not the first.
+
+    Raises
+    ------
+    InputError
+        A joint of the map cannot be built: names the joint, the missing markers of each
+        alternative, the file's markers and close matches.
+    """
+    finder = _Finder(markers.names)
+    chosen, missing = _resolve(mmap, finder)
+    if missing:
+        lines = [
+            f"{markers.path}: the marker map {mmap.name!r} ({mmap.origin}) names markers the "
+            "file does not have:"
+        ]
+        for joint, why in missing.items():
+            wanted = [n for w in why for n in w.split(", ")]
+            close = {c for n in wanted for c in difflib.get_close_matches(n, markers.names, n=2)}
+            hint = f" (close: {', '.join(sorted(close))})" if close else ""
+            lines.append(f"  {joint}: missing {' | or | '.join(why)}{hint}")
+        lines.append(f"The file's {len(markers.names)} markers: {', '.join(markers.names)}.")
+        lines.append("Fix the map (docs/analysis.md, 'Marker maps') or pass another with --map.")
+        raise InputError("\n".join(lines))
+    p = markers.positions
+    names = tuple(j for j in JOINTS if j in chosen)
+    out = np.full((p.shape[0], len(names), 3), np.nan)
+    hips: tuple[Array, Array] | None = None
+    notes = []
+    for k, joint in enumerate(names):
+        rule = chosen[joint]
+        if rule is not mmap.joints[joint][0]:
+            alt = mmap.joints[joint].index(rule) + 1
+            notes.append(f"{joint} from alternative {alt} ({', '.join(rule.marker_names(None))})")
+        if rule.kind == "hjc":
+            if hips is None:
+                pv = mmap.pelvis
+                assert pv is not None  # parse_marker_map checks it
+                col = {n: int(finder(n) or 0) for n in pv.marker_names()}
+                back = (
+                    p[:, col[pv.sacrum]]
+                    if pv.sacrum
+                    else 0.5 * (p[:, col[pv.rpsis]] + p[:, col[pv.lpsis]])
+                )
+                hips = hip_joint_centres(p[:, col[pv.rasis]], p[:, col[pv.lasis]], back, pv.method)
+            out[:, k] = hips[0] if rule.side == "left" else hips[1]
+        else:
+            idx = [int(finder(n) or 0) for n, _ in rule.markers]  # all found (_resolve)
+            w = np.array([wt for _, wt in rule.markers], dtype=np.float64)
+            out[:, k] = np.einsum("tkc,k->tc", p[:, idx], w)
+    return out, names, tuple(notes)

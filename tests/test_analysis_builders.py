@@ -1,0 +1,86 @@
+"""Skeleton-sequence builders: clips with their rotations, marker files, fused sessions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinefuse.analysis_app import load_input, prepare_out
+from kinefuse.cli import main
+from kinefuse.errors import InputError
+from kinefuse.io.atomic import WriteError
+from kinefuse.io.sequences import sequence_from_markers, sequence_from_motion_file
+from kinefuse.io.store import SessionStore
+
+
+def _bone_in_limb_frame(seq, limb: str, a: str, b: str) -> np.ndarray:  # type: ignore[no-untyped-def]
+    r = seq.orientation(limb)
+    bone = seq.positions[:, seq.index(b)] - seq.positions[:, seq.index(a)]
+    return np.einsum("tji,tj->ti", r, bone)
+
+
+@pytest.mark.parametrize("clip", ["131_01_scaled_metres.bvh", "02_walk_b.amc"])
+def test_clip_orientations_are_the_source_rotations_in_world_axes(
+    shared_data: Path, clip: str
+) -> None:
+    seq = sequence_from_motion_file(shared_data / "motion" / "cmu" / clip)
+    assert seq.n_joints == 25 and seq.orientations is not None
+    assert {"pelvis", "thigh_left", "shank_right", "upper_arm_left", "forearm_right"} <= set(
+        seq.orientation_limbs
+    )
+    r = seq.orientations
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-9)  # proper rotations
+    # the thigh bone (hip -> knee, world, metres) is fixed in the thigh's source frame: so the
+    # rotations are in the same world axes as the retargeted positions
+    for limb, a, b in (
+        ("thigh_left", "HipLeft", "KneeLeft"),
+        ("shank_right", "KneeRight", "AnkleRight"),
+    ):
+        local = _bone_in_limb_frame(seq, limb, a, b)
+        assert float(np.abs(local - local[0]).max()) < 1e-9  # metres
+
+
+def test_marker_sequences_are_the_maps_joints(shared_data: Path) -> None:
+    seq = sequence_from_markers(shared_data / "markers/c3d/kinematics_tennis_serve.c3d")
+    assert seq.joint_names[0] == "SpineBase" and seq.parents[0] == -1
+    assert "HandTipLeft" not in seq.joint_names and "ThumbLeft" in seq.joint_names
+    assert seq.rate_hz == 50.0 and seq.n_frames == 1092
+    assert "plug-in-gait" in seq.source and seq.orientations is None
+
+
+def test_session_is_fused_read_only(tmp_path: Path, shared_data: Path) -> None:
+    s = tmp_path / "s.sqlite"
+    clip = shared_data / "motion/cmu/02_walk_a.amc"
+    assert main(["simulate", "--clip", str(clip), "--seconds", "1.5",
+                 "--calibration-seconds", "0", "--out", str(s)]) == 0  # fmt: skip
+    before = s.read_bytes()
+    inp = load_input(s, true_calibration=True)
+    assert inp.kind == "session" and inp.fusion is not None
+    assert inp.seq.n_joints == 25 and 40 <= inp.seq.n_frames <= 50  # 30 Hz grid over 1.5 s
+    assert inp.stored_phase_s is None
+    assert s.read_bytes() == before  # nothing written into the session
+    with SessionStore.open(s) as st:
+        assert st.fused_methods() == []
+    with pytest.raises(InputError, match="no calibration"):
+        load_input(s)  # no wand phase, no calibration: says how to get one
+
+
+def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="no such file"):
+        load_input(tmp_path / "none.bvh")
+    f = tmp_path / "x.txt"
+    f.write_text("hi")
+    with pytest.raises(InputError, match="cannot analyse"):
+        load_input(f)
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "mine.txt").write_text("keep")
+    with pytest.raises(WriteError, match="fresh folder"):
+        prepare_out(full)
+    assert (full / "mine.txt").read_text() == "keep"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert prepare_out(empty) == empty
+    assert prepare_out(tmp_path / "new" / "deeper").is_dir()
