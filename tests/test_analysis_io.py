@@ -297,7 +297,7 @@ def test_writing_into_a_read_only_folder_fails_with_the_path_and_reason(
 ) -> None:
     with pytest.raises(
         WriteError,
-        match=r"a\.mot: cannot write: (Permission denied|Operation not permitted|Read-only file system)",
+        match=r"a\.mot: cannot write: (Permission denied|Operation not permitted|Read-only file)",
     ):
         write_angles_mot(readonly_folder / "a.mot", np.arange(3.0), {"x": np.zeros(3)})
     assert list(readonly_folder.iterdir()) == []

@@ -174,9 +174,7 @@ def write_limb_frames(path: Path, t_s: Array, limbs: Sequence[str], transforms: 
     where the limb is missing.
     """
     buf = io.StringIO()
-    buf.write(
-        "time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n"
-    )
+    buf.write("time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n")
     origin = transforms[..., :3, 3]
     axes = np.swapaxes(transforms[..., :3, :3], -1, -2).reshape(*transforms.shape[:2], 9)
     vals = np.concatenate([origin, axes], axis=-1)  # (T, L, 12)
@@ -204,20 +202,30 @@ def _choose_phase(
                 f"--calibration-phase {lo:g}:{hi:g} s lies outside {inp.path} "
                 f"({t0:.2f} to {t1:.2f} s on its time base)"
             )
-        return (lo, hi), "given (--calibration-phase)", (
-            "movement axes learned from the given calibration phase; angles over the whole input"
+        return (
+            (lo, hi),
+            "given (--calibration-phase)",
+            ("movement axes learned from the given calibration phase; angles over the whole input"),
         )
     if inp.stored_phase_s is not None:
-        return inp.stored_phase_s, "the session's range-of-motion phase (rom_phase_server_s)", (
-            "movement axes learned from the session's range-of-motion phase; angles over the "
-            "whole input"
+        return (
+            inp.stored_phase_s,
+            "the session's range-of-motion phase (rom_phase_server_s)",
+            (
+                "movement axes learned from the session's range-of-motion phase; angles over the "
+                "whole input"
+            ),
         )
-    return (t0, t1), "none: the whole input", (
-        "no calibration phase: normalization, default pose and limb frames are computed as "
-        "usual; the movement axes are learned from the input's own motion, so a limb that does "
-        "not move along a direction during the take gets fewer axes (its status says so) and "
-        "its angles read about the directions it did move in. No axis or twist error against "
-        "a truth is computed (there are no true axes without a range-of-motion phase)."
+    return (
+        (t0, t1),
+        "none: the whole input",
+        (
+            "no calibration phase: normalization, default pose and limb frames are computed as "
+            "usual; the movement axes are learned from the input's own motion, so a limb that does "
+            "not move along a direction during the take gets fewer axes (its status says so) and "
+            "its angles read about the directions it did move in. No axis or twist error against "
+            "a truth is computed (there are no true axes without a range-of-motion phase)."
+        ),
     )
 
 

@@ -314,8 +314,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--method",
         default="best",
-        choices=["linear", "geometric", "nonlinear", "paper", "best"],
-        help="fusion method (best)",
+        choices=["linear", "geometric", "nonlinear", "paper", "best", "best-live"],
+        help="fusion method (best; best-live is the causal fusion a live server runs)",
     )
     p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc or .csv)")
     p.add_argument(
@@ -339,8 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--methods",
         type=_methods,
-        default=("linear", "geometric", "nonlinear", "paper", "best"),
-        help="comma-separated methods (all five)",
+        default=("linear", "geometric", "nonlinear", "paper", "best", "best-live"),
+        help="comma-separated methods (all six)",
     )
     p.add_argument("--out", type=Path, help="folder for the paper-style tables and plots")
     _add_partial_arg(p)

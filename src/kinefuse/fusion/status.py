@@ -39,8 +39,18 @@ class FusionStatus(enum.IntEnum):
     #: Fewer than 3 usable sensors: no trilateration; the reference point (the mean of the
     #: sensors' own world-frame measurements) is returned, NaN if there is none.
     TOO_FEW_SENSORS = 5
-    #: No sensor observed the joint: NaN.
-    NO_DATA = 6
+    #: (``best-live``) Only one sensor contributed: its measurement, filtered; no cross-check.
+    SINGLE_SENSOR = 6
+    #: (``best-live``) Every contributing sensor reported the joint INFERRED (guessed by its
+    #: body tracker), none TRACKED.
+    INFERRED_ONLY = 7
+    #: (``best-live``) The fused joint breaks a bone length learned so far by more than the
+    #: tolerance before the projection onto it: the body's shape is in doubt there.
+    BONE_LENGTH = 8
+    #: (``best-live``) No measurement at this frame: the filter's prediction from earlier ones.
+    PREDICTED = 9
+    #: No sensor observed the joint (or not for too long): NaN.
+    NO_DATA = 10
 
     @property
     def description(self) -> str:
@@ -55,6 +65,10 @@ _DESCRIPTIONS: dict[FusionStatus, str] = {
     FusionStatus.NOT_CONVERGED: "iteration cap reached: last (lowest-cost) iterate returned",
     FusionStatus.DEGENERATE: "sensor geometry degenerate: best available estimate returned",
     FusionStatus.TOO_FEW_SENSORS: "fewer than 3 sensors: mean of the sensors' own measurements",
+    FusionStatus.SINGLE_SENSOR: "one sensor only: its measurement, filtered, not cross-checked",
+    FusionStatus.INFERRED_ONLY: "only INFERRED (guessed) measurements, none tracked",
+    FusionStatus.BONE_LENGTH: "breaks a learned bone length: projected back onto it",
+    FusionStatus.PREDICTED: "no measurement this frame: the filter's prediction",
     FusionStatus.NO_DATA: "no sensor observed the joint: NaN",
 }
 
