@@ -213,8 +213,8 @@ class OnlineClock:
     _base: _Line | None  # line through the committed samples (what probes are checked against)
     _line: _Line | None  # the same plus the open burst's best probe (what is reported)
     _burst_t1: float | None  # send time of the open burst's first probe
-    _open_best: _Sample | None
-    _open_suspect: _Sample | None
+    _open_best: _Sample | None  # the open burst's least-delay probe
+    _open_suspect: bool  # ... and whether it is inconsistent with the committed line
     _suspect: _Sample | None  # the last burst of suspects, waiting for a second one
     _delays: deque[tuple[float, float]]  # (t, delay) with increasing delays: the sliding minimum
 
@@ -266,23 +266,24 @@ class OnlineClock:
             why = f"delay {d * 1e3:.3f} ms > {p.delay_factor:g} x recent minimum {dmin * 1e3:.3f}"
             why += f" ms + {p.delay_margin_s * 1e3:g} ms"
             return ProbeResult(ProbeStatus.REJECTED_DELAY, y, d, t, why)
-        base = self._base
+        best = self._open_best
+        if best is not None and d >= best[2]:
+            why = f"its burst has a probe with less delay ({best[2] * 1e3:.3f} ms)"
+            return ProbeResult(ProbeStatus.KEPT, y, d, t, why)
+        # the burst's least-delay probe so far: it alone decides whether the burst is consistent
+        self._open_best, self._open_suspect, base = (t, y, d), False, self._base
         if base is not None:
-            innov = y - base.offset(t)
-            sd = math.sqrt(base.var(t) + base.scale2 * self._var(d))
-            # samples that came with more delay than this probe may be off by up to the difference
-            slack = max(base.d_low - dmin, 0.0)
-            if abs(innov) > max(p.jump_sigma * sd + slack, p.jump_min_s):
+            # the probe's own error is within its bound; the line's, within jump_sigma sd (its
+            # samples came with more delay than this probe may be off by up to the difference)
+            innov, sd = y - base.offset(t), math.sqrt(base.var(t))
+            tol = self._bound(d) + p.jump_sigma * sd + max(base.d_low - dmin, 0.0)
+            if abs(innov) > max(tol, p.jump_min_s):
                 reset = self._confirm_jump((t, y, d), base)
                 if reset is None:
-                    if self._open_suspect is None or d < self._open_suspect[2]:
-                        self._open_suspect = (t, y, d)
-                    why = f"offset {innov * 1e3:+.3f} ms off the prediction ({abs(innov) / sd:.0f}"
-                    return ProbeResult(ProbeStatus.SUSPECT, y, d, t, why + " sd)")
-        if self._open_best is not None and d >= self._open_best[2]:
-            why = f"its burst has a probe with less delay ({self._open_best[2] * 1e3:.3f} ms)"
-            return ProbeResult(ProbeStatus.KEPT, y, d, t, why, reset)
-        self._open_best = (t, y, d)
+                    self._open_suspect, self._line = True, base
+                    why = f"offset {innov * 1e3:+.3f} ms off the prediction (tolerance "
+                    return ProbeResult(ProbeStatus.SUSPECT, y, d, t, why + f"{tol * 1e3:.3f} ms)")
+                self._open_best = (t, y, d)
         self._line = self._solve(self._open_best)
         return ProbeResult(ProbeStatus.BEST, y, d, t, "least delay of its burst so far", reset)
 
@@ -341,7 +342,8 @@ class OnlineClock:
         self._sums = (0.0,) * 6
         self._t_ref = self._y_ref = 0.0
         self._base = self._line = None
-        self._burst_t1 = self._open_best = self._open_suspect = self._suspect = None
+        self._burst_t1 = self._open_best = self._suspect = None
+        self._open_suspect = False
         self._delays = deque()
         self._base_d = 0.0  # estimated base (no-queue) delay of the network (s)
 
@@ -368,6 +370,11 @@ class OnlineClock:
         x = max(d - self._base_d, 0.0)
         return self.params.noise_floor_s**2 + x * x / 3.0
 
+    def _bound(self, d: float) -> float:
+        """Largest offset error of a probe with delay ``d``: half the difference of the one-way
+        delays is at most their mean above the base."""
+        return max(d - self._base_d, 0.0) + self.params.noise_floor_s
+
     def _sys2(self, d_low: float) -> float:
         """A lasting asymmetry of the queues biases every sample alike, up to its bound (one
         direction without queue puts all of it on one side): the least-delay sample's bound is
@@ -381,10 +388,11 @@ class OnlineClock:
     def _close_burst(self) -> None:
         """Commit the open burst's sample, or hold its best suspect for a jump's confirmation."""
         best, sus = self._open_best, self._open_suspect
-        self._open_best = self._open_suspect = None
+        self._open_best, self._open_suspect = None, False
         if best is None:
-            if sus is not None:
-                self._suspect = sus
+            return
+        if sus:
+            self._suspect = best
             return
         self._suspect = None
         s = self._samples
@@ -401,8 +409,8 @@ class OnlineClock:
             return None
         dt = new[0] - prev[0]
         gap = new[1] - (prev[1] + base.b * dt)
-        var = base.scale2 * (self._var(prev[2]) + self._var(new[2])) + base.p_bb * dt * dt
-        if abs(gap) > max(p.jump_sigma * math.sqrt(var), p.jump_min_s):
+        tol = self._bound(prev[2]) + self._bound(new[2]) + p.jump_sigma * math.sqrt(base.p_bb) * dt
+        if abs(gap) > max(tol, p.jump_min_s):
             return None
         reason = f"clock jump of {(new[1] - base.offset(new[0])) * 1e3:+.3f} ms confirmed by a "
         reason += "second burst"
@@ -410,7 +418,7 @@ class OnlineClock:
         self.epoch += 1
         self.last_reset = reason
         self._samples, self._suspect = deque([prev]), None
-        self._open_best = self._open_suspect = None
+        self._open_best, self._open_suspect = None, False
         self._resum()
         self._base = self._line = self._solve(None)
         return reason
@@ -425,9 +433,12 @@ class OnlineClock:
         # base delay: below the least delay by about the spread of the few least delays (m of
         # them: the k-th least lies ~sqrt(k) times as far above the base when the delay density
         # rises linearly from it, as a sum of two queues does); between 0 and the least delay
+        # (until 4 samples: the estimate of before a jump, or 0 after a reset)
         low = heapq.nsmallest(4, (d for _, _, d in s))
-        gap = (low[-1] - low[0]) / (math.sqrt(len(low)) - 1.0) if len(low) > 1 else low[0]
-        self._base_d = max(low[0] - gap, 0.0)
+        if len(low) == 4:
+            self._base_d = max(low[0] - (low[3] - low[0]), 0.0)
+        else:
+            self._base_d = min(self._base_d, low[0])
         s0 = s1 = s2 = y0 = y1 = yy = 0.0
         for t, y, d in s:
             w, dt, dy = 1.0 / self._var(d), t - t_ref, y - y_ref
