@@ -1,0 +1,273 @@
+"""The online clock estimator, probe by probe, on simulated clocks and asymmetric networks.
+
+Probes come from :func:`asymmetric_probes`: the client's clock is a :class:`SensorClock` of the
+simulator (offset, drift) plus an optional step; each one-way delay is a base of 0.4 ms plus an
+exponential queueing delay, with the server-to-client direction the worse one by default (mean
+3 ms against 1 ms), and 5 % of the requests queued 20-50 ms more (congestion). A burst is 6
+probes 20 ms apart, one burst a second; the client's turnaround is 0.1 ms + exponential 0.2 ms.
+The error of a check is the estimated offset at a reply's arrival time minus the true offset then.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from kinefuse.errors import SyncError
+from kinefuse.sensors.clock import ClockParams, SensorClock, clock_probes, draw_clock
+from kinefuse.sync import OnlineClock, OnlineClockParams, ProbeStatus, estimate_clock
+
+Client = Callable[[np.ndarray], np.ndarray]
+WARMUP_S = 5.0
+
+
+def asymmetric_probes(
+    client: Client,
+    t_start_s: float,
+    t_end_s: float,
+    rng: np.random.Generator,
+    *,
+    up_mean_s: float = 3e-3,
+    down_mean_s: float = 1e-3,
+    base_s: float = 0.4e-3,
+    burst: int = 6,
+    spike_prob: float = 0.05,
+) -> np.ndarray:
+    """(N, 4) probes ``t1, t2, t3, t4`` in arrival (``t4``) order; ``client`` maps true -> client
+    time; "up" is server to client."""
+    starts = np.arange(t_start_s, t_end_s, 1.0)
+    t1 = (starts[:, None] + 0.02 * np.arange(burst)[None, :]).reshape(-1)
+    n = t1.size
+    up = base_s + rng.exponential(up_mean_s, n)
+    down = base_s + rng.exponential(down_mean_s, n)
+    spike = rng.random(n) < spike_prob
+    up[spike] += rng.uniform(0.02, 0.05, int(spike.sum()))
+    turn = 1e-4 + rng.exponential(2e-4, n)
+    t2, t3 = client(t1 + up), client(t1 + up + turn)
+    t4 = t1 + up + turn + down
+    p = np.stack([t1, t2, t3, t4], axis=1)
+    return p[np.argsort(t4, kind="stable")]
+
+
+def replay(est: OnlineClock, probes: np.ndarray, client: Client) -> dict[str, np.ndarray]:
+    """Feed ``probes`` one by one; after each, the offset error and its standard error."""
+    t, err, se, status, reset = [], [], [], [], []
+    for q in probes:
+        r = est.add_probe(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+        e = est.estimate(float(q[3]))
+        true = float(client(np.array(q[3]))) - float(q[3])
+        t.append(q[3])
+        err.append(e.offset_s - true)
+        se.append(e.offset_se_s)
+        status.append(r.status)
+        reset.append(r.reset or "")
+    return {
+        "t": np.array(t),
+        "err": np.array(err),
+        "se": np.array(se),
+        "status": np.array(status),
+        "reset": np.array(reset),
+    }
+
+
+def random_clock(rng: np.random.Generator) -> SensorClock:
+    drift = float(rng.choice([-1.0, 1.0]) * rng.uniform(20.0, 80.0))  # tens of ppm
+    return SensorClock(offset_s=float(rng.uniform(0.0, 1000.0)), drift_ppm=drift, phase_s=0.0)
+
+
+NETWORKS = {
+    "down-worse": {},  # server->client queue mean 3 ms, client->server 1 ms
+    "up-worse": {"up_mean_s": 1e-3, "down_mean_s": 3e-3},
+    "noisy-burst4": {"up_mean_s": 5e-3, "down_mean_s": 2e-3, "burst": 4},
+}
+
+
+@pytest.mark.parametrize("network", NETWORKS)
+def test_offset_error_after_warmup(network: str) -> None:
+    errs, drift_errs = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        clock = random_clock(rng)
+        probes = asymmetric_probes(clock.to_sensor, 0.0, 120.0, rng, **NETWORKS[network])
+        est = OnlineClock()
+        out = replay(est, probes, clock.to_sensor)
+        assert not out["reset"].any()  # no false jump
+        errs.append(np.abs(out["err"][out["t"] >= WARMUP_S]))
+        drift_errs.append(est.estimate(120.0).drift_ppm - clock.drift_ppm)
+    err = np.concatenate(errs)
+    assert np.median(err) < 0.5e-3  # 0.5 ms (measured 0.04-0.1 ms)
+    assert err.max() < 2e-3  # 2 ms (measured 0.5-0.8 ms)
+    assert np.abs(drift_errs).max() < 10.0  # ppm, over a 30 s window
+
+
+@pytest.mark.parametrize("network", NETWORKS)
+def test_uncertainty_is_honest(network: str) -> None:
+    z, se = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(100 + seed)
+        clock = random_clock(rng)
+        probes = asymmetric_probes(clock.to_sensor, 0.0, 120.0, rng, **NETWORKS[network])
+        out = replay(OnlineClock(), probes, clock.to_sensor)
+        z.append(out["err"] / out["se"])  # every check, warm-up included
+        se.append(out["se"][out["t"] >= WARMUP_S])
+    z_all = np.concatenate(z)
+    assert np.mean(np.abs(z_all) <= 3.0) >= 0.99
+    # and not honest by being vague: fewer errors within 1 sd than if it were 3 times too large
+    # (a normal error is within 1 sd in 68 % of the checks), and a small standard error
+    assert np.mean(np.abs(z_all) <= 1.0) < 0.97
+    assert np.median(np.concatenate(se)) < 0.5e-3  # 0.5 ms
+
+
+@pytest.mark.parametrize("step_s", [0.080, -0.080, 0.005])
+def test_recovers_from_clock_jump(step_s: float) -> None:
+    rng = np.random.default_rng(7)
+    clock = random_clock(rng)
+    t_jump = 60.3
+
+    def client(t: np.ndarray) -> np.ndarray:
+        return clock.to_sensor(t) + step_s * (np.asarray(t) >= t_jump)
+
+    est = OnlineClock()
+    out = replay(est, asymmetric_probes(client, 0.0, 120.0, rng), client)
+    resets = out["reset"][out["reset"] != ""]
+    assert len(resets) == 1 and "clock jump" in resets[0]
+    step_ms = float(re.search(r"jump of ([+-][0-9.]+) ms", resets[0]).group(1))  # type: ignore[union-attr]
+    assert step_ms == pytest.approx(step_s * 1e3, abs=3.0)  # ms: the reason names the step
+    bad = np.flatnonzero(np.abs(out["err"]) >= 2e-3)
+    recovered_at = out["t"][bad[-1] + 1]
+    assert recovered_at - t_jump < 5.0  # s (measured 1.7 s: two bursts)
+    after = out["t"] >= recovered_at
+    assert np.median(np.abs(out["err"][after])) < 0.5e-3  # 0.5 ms
+    assert est.epoch == 1
+
+
+def test_one_bad_burst_does_not_reset() -> None:
+    rng = np.random.default_rng(3)
+    clock = random_clock(rng)
+    probes = asymmetric_probes(clock.to_sensor, 0.0, 90.0, rng)
+    # the client stamps one whole burst 50 ms late (a stalled process), delays unchanged
+    glitch = (probes[:, 0] >= 40.0) & (probes[:, 0] < 40.5)
+    probes[glitch, 1:3] += 0.050
+    est = OnlineClock()
+    out = replay(est, probes, clock.to_sensor)
+    seen = set(out["status"][glitch])
+    assert ProbeStatus.SUSPECT in seen and seen <= {"suspect", "kept", "rejected-delay"}
+    assert not out["reset"].any() and est.epoch == 0
+    assert np.abs(out["err"][out["t"] >= WARMUP_S]).max() < 2e-3  # 2 ms
+
+
+def test_reconnect_reset_and_recovery() -> None:
+    rng = np.random.default_rng(11)
+    old, new = random_clock(rng), random_clock(rng)
+    t_reconnect = 60.3
+    est = OnlineClock()
+    first = asymmetric_probes(old.to_sensor, 0.0, t_reconnect, rng)
+    replay(est, first, old.to_sensor)
+    est.reset("client k1 reconnected")
+    assert est.epoch == 1 and est.n_bursts == 0
+    with pytest.raises(SyncError, match=r"no clock estimate yet.*k1 reconnected"):
+        est.to_server(1.0)
+    # the new client's clock and a faster network (base 0.2 ms, queues 1 and 0.5 ms)
+    second = asymmetric_probes(
+        new.to_sensor, 61.0, 120.0, rng, base_s=0.2e-3, up_mean_s=1e-3, down_mean_s=0.5e-3
+    )
+    out = replay(est, second, new.to_sensor)
+    bad = np.flatnonzero(np.abs(out["err"]) >= 2e-3)
+    recovered_at = out["t"][bad[-1] + 1] if bad.size else out["t"][0]
+    assert recovered_at - t_reconnect < 5.0  # s (measured 0.7 s: the first reply after it)
+    assert np.median(np.abs(out["err"][out["t"] >= t_reconnect + 5.0])) < 0.5e-3  # 0.5 ms
+    assert np.abs(out["err"][out["t"] >= t_reconnect + 5.0]).max() < 2e-3  # 2 ms
+
+
+def test_unannounced_new_clock_is_taken_as_a_jump() -> None:
+    rng = np.random.default_rng(12)
+    old, new = random_clock(rng), random_clock(rng)
+    est = OnlineClock()
+    replay(est, asymmetric_probes(old.to_sensor, 0.0, 40.0, rng), old.to_sensor)
+    out = replay(est, asymmetric_probes(new.to_sensor, 40.0, 80.0, rng), new.to_sensor)
+    assert est.epoch == 1 and "clock jump" in est.last_reset
+    assert np.abs(out["err"][out["t"] >= 45.0]).max() < 2e-3  # 2 ms
+
+
+def test_online_agrees_with_offline_fit_at_session_end() -> None:
+    # the project's simulator: symmetric exponential jitter, 4-probe bursts
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        params = ClockParams(drift_sigma_ppm=40.0)
+        clock = draw_clock(rng, params)
+        probes = clock_probes(clock, 0.0, 120.0, rng, params)
+        est = OnlineClock(OnlineClockParams(window_s=120.0))
+        for q in probes[np.argsort(probes[:, 3])]:
+            est.add_probe(*map(float, q))
+        off = estimate_clock(probes)
+        t_end = float(probes[:, 3].max())
+        online = est.estimate(t_end)
+        assert online.offset_s == pytest.approx(float(off.to_client(t_end)) - t_end, abs=0.1e-3)
+        assert online.drift_ppm == pytest.approx(off.drift_ppm, abs=1.0)  # ppm
+        t_client = clock.to_sensor(np.linspace(100.0, 120.0, 5))
+        np.testing.assert_allclose(est.to_server(t_client), off.to_server(t_client), atol=0.2e-3)
+
+
+def test_burst_keeps_least_delay_probe() -> None:
+    est = OnlineClock()
+    off = 500.0
+
+    def probe(t1: float, up: float, down: float) -> tuple[float, float, float, float]:
+        return (t1, t1 + up + off, t1 + up + off + 1e-4, t1 + up + 1e-4 + down)
+
+    r1 = est.add_probe(*probe(10.00, 0.004, 0.001))  # offset error +1.5 ms
+    r2 = est.add_probe(*probe(10.02, 0.0005, 0.0007))  # -0.1 ms, least delay
+    r3 = est.add_probe(*probe(10.04, 0.002, 0.001))  # +0.5 ms
+    assert [r1.status, r2.status, r3.status] == ["best", "best", "kept"]
+    assert "less delay" in r3.reason
+    assert est.estimate(10.05).offset_s == pytest.approx(off - 0.0001, abs=1e-9)
+    # a congested reply: 3 x the least delay (0.6 ms) + 1 ms is 2.8 ms
+    r4 = est.add_probe(*probe(10.06, 0.0005, 0.010))
+    assert r4.status == ProbeStatus.REJECTED_DELAY and "recent minimum" in r4.reason
+    # a reply overtaken by a whole burst
+    est.add_probe(*probe(11.00, 0.0006, 0.0006))
+    r5 = est.add_probe(*probe(10.08, 0.0006, 0.0006))
+    assert r5.status == ProbeStatus.REJECTED_STALE
+
+
+def test_conversions_round_trip() -> None:
+    rng = np.random.default_rng(5)
+    clock = SensorClock(offset_s=321.0, drift_ppm=55.0, phase_s=0.0)
+    est = OnlineClock()
+    replay(est, asymmetric_probes(clock.to_sensor, 0.0, 60.0, rng), clock.to_sensor)
+    t_server = np.linspace(50.0, 60.0, 7)
+    np.testing.assert_allclose(est.to_server(est.to_client(t_server)), t_server, atol=1e-9)
+    np.testing.assert_allclose(est.to_server(clock.to_sensor(t_server)), t_server, atol=1e-3)
+    e = est.estimate(58.0)
+    assert e.to_server(float(clock.to_sensor(58.0))) == pytest.approx(58.0, abs=1e-3)
+    assert e.to_client(59.0) == pytest.approx(float(est.to_client(59.0)), abs=1e-12)
+    assert isinstance(est.to_server(400.0), float)
+
+
+@pytest.mark.parametrize(
+    ("times", "match"),
+    [
+        ((0.0, np.nan, 1.0, 1.0), "must be finite"),
+        ((0.0, 1.0, 1.0, np.inf), "must be finite"),
+        ((1.0, 5.0, 5.1, 0.5), r"t4=0.5 is before its send time t1=1.0"),
+        ((1.0, 5.1, 5.0, 1.3), r"t3=5.0 is before its receive time t2=5.1"),
+        ((1.0, 5.0, 5.5, 1.1), "turnaround .* longer than the round trip"),
+    ],
+)
+def test_bad_probes_are_clear_errors(times: tuple[float, ...], match: str) -> None:
+    est = OnlineClock()
+    with pytest.raises(SyncError, match=match):
+        est.add_probe(*times)
+    assert est.n_bursts == 0  # nothing was taken
+
+
+def test_bad_params_are_clear_errors() -> None:
+    with pytest.raises(SyncError, match="window_s must be a positive number"):
+        OnlineClockParams(window_s=-1.0)
+    with pytest.raises(SyncError, match="max_bursts must be >= 2"):
+        OnlineClockParams(max_bursts=1)
+    with pytest.raises(SyncError, match="no clock estimate yet"):
+        OnlineClock().estimate(0.0)
