@@ -287,7 +287,8 @@ def test_crash_keeps_committed_appends(tmp_path: Path) -> None:
         # the second append dies half-way through its transaction
         conn = s._db
         conn.execute("BEGIN IMMEDIATE")
-        conn.execute("INSERT INTO observations VALUES (1, 10, 0.5, NULL, ?, ?)",
+        conn.execute("INSERT INTO observations (sensor_key, seq, t_sensor_s, "
+                     "t_receive_server_s, joints_m, states) VALUES (1, 10, 0.5, NULL, ?, ?)",
                      (j[10].tobytes(), st[10].tobytes()))
         os._exit(3)
         """

@@ -27,7 +27,7 @@ from kinefuse.calibration.wand_robust import detect_wand_sequence
 from kinefuse.errors import CalibrationError
 from kinefuse.io.store import SessionStore
 from kinefuse.sensors.wand import Wand
-from kinefuse.sync import estimate_clock
+from kinefuse.sync import sensor_timebase
 
 Array = NDArray[np.float64]
 
@@ -61,7 +61,10 @@ def gather(store: SessionStore, *, floor_frames: int = 15) -> CalibrationInput:
         if store.depth_frame_count(s.id) == 0:
             empty.append(s.id)
             continue
-        clock = estimate_clock(store.clock_probes(s.id))
+        # depth frames carry device timestamps: the body stream's arrival times (same device
+        # clock) map them to the client's clock, the probes to the server's
+        obs = store.observations(s.id)
+        clock = sensor_timebase(store.clock_probes(s.id), obs.t_sensor_s, obs.t_receive_host_s)
         ts: list[Array] = []
         found_tracks: list[WandTrack] = []
         firsts: list[NDArray[np.uint16]] = []

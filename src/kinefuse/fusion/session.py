@@ -1,8 +1,9 @@
 """The server's side of fusion on a recorded session: clocks, frames, methods.
 
-Everything here uses only what a real server has: the sensors' observations with their own
-timestamps, the clock probes, the sensors' intrinsics and a calibration (sensor poses). The truth
-is never read (``--true-calibration`` hands in true poses explicitly, for evaluation only).
+Everything here uses only what a real server has: the sensors' observations with their device
+timestamps and the client PCs' receive times, the clock probes, the sensors' intrinsics and a
+calibration (sensor poses). The truth is never read (``--true-calibration`` hands in true poses
+explicitly, for evaluation only).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from kinefuse.io.store import Observations, SessionStore
 from kinefuse.occlusion.segments import detect_occlusion
 from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS
-from kinefuse.sync import ClockEstimate, assemble_latest, estimate_clock
+from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest, sensor_timebase
 
 Array = NDArray[np.float64]
 
@@ -36,11 +37,12 @@ class SensorData:
     id: str
     intrinsics: Intrinsics
     sensor2world: Array
-    clock: ClockEstimate
+    clock: ClockEstimate  # the client PC's clock against the server's (from the probes)
     observations: Observations
     t_server_s: Array  # capture times on the server clock
     occluded: NDArray[np.bool_]  # (N, 25) the client's occlusion flags
     n_intersections: NDArray[np.int64]  # (N,)
+    timebase: SensorTimebase | None = None  # device -> host -> server
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,9 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[SensorDat
                 f"sensor {s.id}: no clock probes in the session, so its timestamps cannot be put "
                 "on the server clock; record with clock sync enabled"
             )
-        clock = estimate_clock(probes)
+        # device timestamps -> the client's clock (from each frame's arrival) -> the server's
+        timebase = sensor_timebase(probes, obs.t_sensor_s, obs.t_receive_host_s)
+        clock = timebase.host
         occ = detect_occlusion(obs.joints_m, s.intrinsics) if obs.n_frames else None
         out.append(
             SensorData(
@@ -92,11 +96,12 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[SensorDat
                 sensor2world=np.asarray(poses[s.id], dtype=np.float64),
                 clock=clock,
                 observations=obs,
-                t_server_s=clock.to_server(obs.t_sensor_s),
+                t_server_s=timebase.to_server(obs.t_sensor_s),
                 occluded=occ.occluded if occ is not None else np.zeros((0, N_JOINTS), bool),
                 n_intersections=(
                     occ.n_intersections if occ is not None else np.zeros(0, dtype=np.int64)
                 ),
+                timebase=timebase,
             )
         )
     return out

@@ -28,7 +28,7 @@ import os
 import sqlite3
 import zlib
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 from types import TracebackType
@@ -90,6 +90,7 @@ CREATE TABLE observations (
     t_receive_server_s REAL,
     joints_m           BLOB NOT NULL CHECK (length(joints_m) = {_JOINTS_BYTES}),
     states             BLOB NOT NULL CHECK (length(states) = {_STATES_BYTES}),
+    t_receive_host_s   REAL,
     PRIMARY KEY (sensor_key, seq)
 ) WITHOUT ROWID;
 CREATE TABLE depth_frames (
@@ -206,6 +207,10 @@ class Observations:
         Arrival time on the server's clock, seconds; NaN where unknown.
     sensor_id : str
         The sensor the stream came from.
+    t_receive_host_s : (N,) float
+        When the sensor's client PC received the frame from the device, on the client's own
+        clock (the clock that answers the clock probes), seconds; NaN where unknown (sessions
+        recorded before this column existed: their ``t_sensor_s`` is on the client's clock).
     """
 
     seq: NDArray[np.int64]
@@ -214,6 +219,11 @@ class Observations:
     states: NDArray[np.int8]
     t_receive_server_s: Array
     sensor_id: str = ""
+    t_receive_host_s: Array = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        if self.t_receive_host_s.shape != self.t_sensor_s.shape:  # not given: unknown
+            object.__setattr__(self, "t_receive_host_s", np.full(self.t_sensor_s.shape, np.nan))
 
     @property
     def n_frames(self) -> int:
@@ -404,6 +414,9 @@ class SessionStore:
         self._writable = writable
         self._sensor_keys: dict[str, int] = {}
         self._load_sensor_keys()
+        # sessions written before the host receive time was recorded lack its column
+        cols = {r[1] for r in conn.execute("PRAGMA table_info(observations)").fetchall()}
+        self._has_host_time = "t_receive_host_s" in cols
 
     # -- opening and closing ------------------------------------------------------------------
 
@@ -769,6 +782,7 @@ class SessionStore:
         states: ArrayLike,
         *,
         t_receive_server_s: ArrayLike | None = None,
+        t_receive_host_s: ArrayLike | None = None,
     ) -> None:
         """Append body-tracker frames of one sensor (one transaction).
 
@@ -786,6 +800,9 @@ class SessionStore:
             :class:`~kinefuse.skeleton.TrackingState` values (0, 1, 2).
         t_receive_server_s : (N,) float, optional
             Arrival times on the server's clock, seconds; NaN (or omitted) where unknown.
+        t_receive_host_s : (N,) float, optional
+            Arrival times at the sensor's client PC, on its clock, seconds; NaN (or omitted)
+            where unknown. A store written before this column existed cannot take them.
         """
         what = f"append_observations(sensor {sensor_id!r})"
         key = self._key(sensor_id, what)
@@ -798,13 +815,30 @@ class SessionStore:
             if t_receive_server_s is None
             else _float_array(t_receive_server_s, "t_receive_server_s", (None,), what)
         )
+        th = (
+            np.full(t.shape, np.nan)
+            if t_receive_host_s is None
+            else _float_array(t_receive_host_s, "t_receive_host_s", (None,), what)
+        )
         n = _require_same_length(
-            what, seq=s, t_sensor_s=t, joints_m=j, states=st, t_receive_server_s=tr
+            what,
+            seq=s,
+            t_sensor_s=t,
+            joints_m=j,
+            states=st,
+            t_receive_server_s=tr,
+            t_receive_host_s=th,
         )
         if n == 0:
             return
         _require_finite(t, "t_sensor_s", what)
         _require_no_inf(tr, "t_receive_server_s", what)
+        _require_no_inf(th, "t_receive_host_s", what)
+        if not self._has_host_time and not np.isnan(th).all():
+            raise InputError(
+                f"{what}: {self.path} was written by an older kinefuse without host receive "
+                "times; append to a new session store to record them"
+            )
         _require_no_inf(j, "joints_m", what)
         if not np.isin(st, (0, 1, 2)).all():
             bad = np.unique(st[~np.isin(st, (0, 1, 2))])[:5].tolist()
@@ -823,32 +857,35 @@ class SessionStore:
                 f"{j[f, jj].tolist()}"
             )
         _require_unique(s, what)
-        rows = zip(
+        cols: tuple[list[Any], ...] = (
             np.full(n, key).tolist(),
             s.astype(np.int64).tolist(),
             t.tolist(),
             [None if math.isnan(x) else x for x in tr.tolist()],
             _blobs(j, _F8),
             _blobs(st, _I1),
-            strict=True,
         )
+        if self._has_host_time:
+            cols = (*cols, [None if math.isnan(x) else x for x in th.tolist()])
+        host_col, host_q = (", t_receive_host_s", ", ?") if self._has_host_time else ("", "")
         self._insert_frames(
             "observations",
             key,
             sensor_id,
             s,
             "INSERT INTO observations (sensor_key, seq, t_sensor_s, t_receive_server_s, joints_m,"
-            " states) VALUES (?, ?, ?, ?, ?, ?)",
-            rows,
+            f" states{host_col}) VALUES (?, ?, ?, ?, ?, ?{host_q})",
+            zip(*cols, strict=True),
         )
 
     def observations(self, sensor_id: str) -> Observations:
         """All observations of one sensor, ordered by sequence number."""
         what = f"observations of sensor {sensor_id!r}"
         key = self._key(sensor_id, what)
+        host = ", t_receive_host_s" if self._has_host_time else ", NULL"
         rows = self._db.execute(
-            "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states FROM observations "
-            "WHERE sensor_key = ? ORDER BY seq",
+            "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
+            f"{host} FROM observations WHERE sensor_key = ? ORDER BY seq",
             (key,),
         ).fetchall()
         return Observations(
@@ -858,6 +895,7 @@ class SessionStore:
             joints_m=_unblob([r[3] for r in rows], _F8, (N_JOINTS, 3), what),
             states=_unblob([r[4] for r in rows], _I1, (N_JOINTS,), what),
             t_receive_server_s=_column(rows, 2),
+            t_receive_host_s=_column(rows, 5),
         )
 
     def observation_count(self, sensor_id: str) -> int:
@@ -876,16 +914,19 @@ class SessionStore:
         h = hashlib.sha256()
         for info in self.sensors():
             h.update(info.id.encode() + b"\x00")
+            host = ", t_receive_host_s" if self._has_host_time else ", NULL"
             rows = self._db.execute(
-                "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states FROM observations "
-                "WHERE sensor_key = ? ORDER BY seq",
+                "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
+                f"{host} FROM observations WHERE sensor_key = ? ORDER BY seq",
                 (self._sensor_keys[info.id],),
             )
-            for seq, t, tr, j, st in rows:
+            for seq, t, tr, j, st, th in rows:
                 h.update(np.array([seq], "<i8").tobytes())
                 h.update(np.array([t, np.nan if tr is None else tr], _F8).tobytes())
                 h.update(j)
                 h.update(st)
+                if th is not None:  # rows without a host time hash as before
+                    h.update(np.array([th], _F8).tobytes())
         return h.hexdigest()
 
     # -- depth frames -------------------------------------------------------------------------

@@ -1,12 +1,23 @@
-"""Sensor clocks: offset, drift, frame phase, timestamp jitter, latency and NTP-style probes.
+"""Sensor clocks: the device's and the client PC's, latency, jitter and NTP-style probes.
 
-The lab's true time is the server's clock (the server is the time reference of a session). Each
-sensor's client stamps frames with its own clock::
+The lab's true time is the server's clock (the server is the time reference of a session). A
+real Kinect v2 has two clocks that matter, as here:
 
-    t_sensor = offset_s + (1 + drift_ppm * 1e-6) * t_true + jitter
+- the **device clock** stamps every frame (``RelativeTime``; ``Skeleton_Time`` in the
+  KinectMultiTrack logs)::
 
-and captures at its nominal rate on that clock with a phase of its own: the sensors are not
-synchronized. Every parameter is in :class:`ClockParams` with its unit and source.
+      t_sensor = offset_s + (1 + drift_ppm * 1e-6) * t_true + jitter
+
+  and the device captures at its nominal rate on that clock with a phase of its own: the sensors
+  are not synchronized;
+- the **host clock** of the client PC the device is plugged into answers the clock probes
+  (:func:`clock_probes`) and stamps the moment each frame arrives from the device, after a
+  capture-to-host latency (USB transfer, SDK body tracking) that varies frame to frame and
+  between units.
+
+Both stamps are recorded (``t_sensor_s``, ``t_receive_host_s``), as a real client can; the sync
+maps device time to host time from them (:mod:`kinefuse.sync.device`) and host time to server
+time from the probes. Every parameter is in :class:`ClockParams` with its unit and source.
 """
 
 from __future__ import annotations
@@ -63,7 +74,27 @@ class ClockParams:
             "(roughly 50-90 ms from motion to skeleton)",
         },
     )
-    latency_sigma_s: float = field(default=0.004, metadata={"unit": "s", "source": "assumption"})
+    latency_sigma_s: float = field(
+        default=0.004,
+        metadata={
+            "unit": "s",
+            "source": "assumption: frame-to-frame spread of the capture-to-host latency "
+            "(normal, clipped at latency_min_s)",
+        },
+    )
+    latency_unit_sigma_s: float = field(
+        default=0.003,
+        metadata={
+            "unit": "s",
+            "source": "assumption: spread of the mean latency between units (host PCs, USB "
+            "controllers); a client cannot measure it, so it stays in the sync as a time "
+            "offset between sensors",
+        },
+    )
+    latency_min_s: float = field(
+        default=0.030,
+        metadata={"unit": "s", "source": "assumption: no frame arrives sooner"},
+    )
     network_delay_s: float = field(
         default=0.0005,
         metadata={"unit": "s", "source": "assumption: one-way delay on a wired LAN"},
@@ -148,6 +179,46 @@ def draw_clock(rng: np.random.Generator, params: ClockParams = ClockParams()) ->
 
 
 @dataclass(frozen=True)
+class SensorClocks:
+    """The clocks of one simulated sensor: its device's and its client PC's.
+
+    Attributes
+    ----------
+    device : SensorClock
+        Stamps the frames and sets their capture grid.
+    host : SensorClock
+        The client PC's clock: answers clock probes, stamps frame arrivals (its phase is unused).
+    latency_offset_s : float
+        This unit's mean capture-to-host latency minus ``ClockParams.latency_mean_s``.
+    """
+
+    device: SensorClock
+    host: SensorClock
+    latency_offset_s: float
+
+    def to_dict(self) -> dict[str, float]:
+        """Flat: the device clock's keys as :meth:`SensorClock.to_dict`, the host's prefixed."""
+        return {
+            **self.device.to_dict(),
+            "host_offset_s": self.host.offset_s,
+            "host_drift_ppm": self.host.drift_ppm,
+            "latency_offset_s": self.latency_offset_s,
+        }
+
+
+def draw_sensor_clocks(
+    rng: np.random.Generator, params: ClockParams = ClockParams()
+) -> SensorClocks:
+    """A random device clock, host clock and unit latency under ``params``."""
+    device = draw_clock(rng, params)
+    host = draw_clock(rng, params)
+    unit = (
+        float(rng.normal(0.0, params.latency_unit_sigma_s)) if params.latency_unit_sigma_s else 0.0
+    )
+    return SensorClocks(device=device, host=host, latency_offset_s=unit)
+
+
+@dataclass(frozen=True)
 class CaptureTimes:
     """The frames one sensor captured in a time span.
 
@@ -161,12 +232,15 @@ class CaptureTimes:
         The sensor's timestamp of each capture (its clock, with timestamp jitter).
     t_receive_server_s : (N,) float
         When the server receives the frame's body data (capture + latency + network delay).
+    t_receive_host_s : (N,) float
+        When the client PC receives the frame from the device, on the host clock.
     """
 
     seq: NDArray[np.int64]
     t_true_s: Array
     t_sensor_s: Array
     t_receive_server_s: Array
+    t_receive_host_s: Array
 
 
 def capture_times(
@@ -175,10 +249,16 @@ def capture_times(
     t_end_s: float,
     rng: np.random.Generator,
     params: ClockParams = ClockParams(),
+    *,
+    host: SensorClock | None = None,
+    latency_offset_s: float = 0.0,
 ) -> CaptureTimes:
     """Frames a sensor captures between true times ``t_start_s`` and ``t_end_s``.
 
-    The frame grid is ``phase_s + k / frame_rate_hz`` on the sensor's clock; ``seq`` is ``k``.
+    The frame grid is ``phase_s + k / frame_rate_hz`` on the sensor's (device) clock; ``seq`` is
+    ``k``. ``host`` is the client PC's clock that stamps arrivals (default: the device clock
+    itself, a sensor whose frames are stamped by the clock that answers probes);
+    ``latency_offset_s`` this unit's latency offset (:class:`SensorClocks`).
     """
     if not t_end_s > t_start_s:
         raise ValueError(f"capture span must be positive, got {t_start_s}..{t_end_s} s")
@@ -192,13 +272,16 @@ def capture_times(
     t_sensor_grid = clock.phase_s + k * period
     t_true = clock.to_true(t_sensor_grid)
     t_sensor = t_sensor_grid + rng.normal(0.0, params.timestamp_jitter_s, k.size)
-    latency = np.maximum(rng.normal(params.latency_mean_s, params.latency_sigma_s, k.size), 0.0)
+    mean = params.latency_mean_s + latency_offset_s
+    latency = np.maximum(rng.normal(mean, params.latency_sigma_s, k.size), params.latency_min_s)
     net = params.network_delay_s + rng.exponential(params.network_jitter_s, k.size)
+    h = clock if host is None else host
     return CaptureTimes(
         seq=k - k0 if k.size else k,
         t_true_s=t_true,
         t_sensor_s=t_sensor,
         t_receive_server_s=t_true + latency + net,
+        t_receive_host_s=h.to_sensor(t_true + latency),
     )
 
 

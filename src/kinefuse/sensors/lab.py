@@ -26,7 +26,7 @@ from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
 from kinefuse.sensors.choreography import WandProtocol, holding_poses, make_wand_path
-from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_clock
+from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_sensor_clocks
 from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
 from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.rig import Rig
@@ -190,16 +190,26 @@ def simulate_session(
             rng_clock, rng_intr, rng_track, rng_depth, rng_probe = (
                 np.random.default_rng(s) for s in ss.spawn(5)
             )
-            clock = draw_clock(rng_clock, errs.clock)
+            # the device clock stamps frames; the client PC's clock answers the probes
+            clocks = draw_sensor_clocks(rng_clock, errs.clock)
+            clock = clocks.device
             intr = draw_intrinsics(rng_intr, errs.intrinsics)
             store.add_sensor(spec.id, spec.serial, intr, rate_hz=errs.clock.frame_rate_hz)
-            store.write_truth_sensor(spec.id, spec.sensor2world, clock.to_dict())
-            probes = clock_probes(clock, 0.0, t_end, rng_probe, errs.clock)
+            store.write_truth_sensor(spec.id, spec.sensor2world, clocks.to_dict())
+            probes = clock_probes(clocks.host, 0.0, t_end, rng_probe, errs.clock)
             store.append_clock_probes(spec.id, *probes.T)
 
             if t_cal > 0:
                 say(f"{spec.id}: rendering calibration depth frames")
-                cap = capture_times(clock, 0.0, t_cal, rng_depth, errs.clock)
+                cap = capture_times(
+                    clock,
+                    0.0,
+                    t_cal,
+                    rng_depth,
+                    errs.clock,
+                    host=clocks.host,
+                    latency_offset_s=clocks.latency_offset_s,
+                )
                 step = max(round(errs.clock.frame_rate_hz / config.depth_rate_hz), 1)
                 pick = (cap.seq % step) == 0
                 t_true = cap.t_true_s[pick]
@@ -226,7 +236,15 @@ def simulate_session(
                 store.append_depth_frames(spec.id, cap.seq[pick], cap.t_sensor_s[pick], frames)
 
             say(f"{spec.id}: simulating the body tracker")
-            cap = capture_times(clock, t_cal, t_end, rng_track, errs.clock)
+            cap = capture_times(
+                clock,
+                t_cal,
+                t_end,
+                rng_track,
+                errs.clock,
+                host=clocks.host,
+                latency_offset_s=clocks.latency_offset_s,
+            )
             truth_world = motion.at(cap.t_true_s - t_cal)
             out_ = simulate_tracker(
                 truth_world,
@@ -246,6 +264,7 @@ def simulate_session(
                 out_.joints_sensor,
                 out_.states,
                 t_receive_server_s=cap.t_receive_server_s,
+                t_receive_host_s=cap.t_receive_host_s,
             )
             truth_sensor = apply_transform(invert_transform(spec.sensor2world), truth_world)
             store.append_truth_observations(
