@@ -164,3 +164,23 @@ def test_bad_input_is_refused_clearly() -> None:
         fusion.push(0, float("nan"), np.zeros((25, 3)), TRACKED)
     with pytest.raises(FusionError, match=r"\(S, 4, 4\)"):
         LiveFusion(np.eye(4))
+
+
+def test_fuse_and_evaluate_part_of_a_take(session, tmp_path, capsys) -> None:
+    import json
+
+    out = tmp_path / "part.csv"
+    assert main(["fuse", str(session), "--true-calibration", "--method", "best-live",
+                 "--start", "0.5", "--end", "1.5", "--out", str(out), "--json"]) == 0  # fmt: skip
+    info = json.loads(capsys.readouterr().out)
+    t = np.loadtxt(out, delimiter=",", skiprows=1, usecols=0)
+    assert info["frames"] == t.size == 31 and t[0] == pytest.approx(0.5) and t[-1] <= 1.5
+    assert main(["evaluate", str(session), "--true-calibration", "--methods", "best,best-live",
+                 "--start", "0.5", "--end", "1.5", "--json"]) == 0  # fmt: skip
+    report = json.loads(capsys.readouterr().out)
+    assert report["frames"] == 31
+    by_status = report["best-live"]["by_status"]
+    assert sum(v["fraction"] for v in by_status.values()) == pytest.approx(1.0)
+    assert by_status["OK"]["mae_m"] < 0.15  # the trusted joints are the accurate ones
+    assert main(["fuse", str(session), "--true-calibration", "--start", "50"]) == 2
+    assert "no frames between --start 50" in capsys.readouterr().err

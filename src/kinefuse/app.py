@@ -283,6 +283,8 @@ def run_fuse(
     store_result: bool = False,
     allow_incomplete: bool = False,
     trc_axes: str = "y-up",
+    start_s: float | None = None,
+    end_s: float | None = None,
 ) -> dict[str, object]:
     """Fuse a session with one method and export the result.
 
@@ -290,7 +292,7 @@ def run_fuse(
     (the one case that writes to the session). The export's folder and kind are checked before
     the work starts, so a bad ``out`` fails fast.
     """
-    from kinefuse.fusion.session import frame_grid, load_sensors, run_method
+    from kinefuse.fusion.session import clip_grid, frame_grid, load_sensors, run_method
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
@@ -307,7 +309,7 @@ def run_fuse(
             for s in sensors
             if not s.observations.has_body.any()
         ]
-        grid = frame_grid(sensors)
+        grid = clip_grid(frame_grid(sensors), start_s, end_s)
         res = run_method(sensors, grid, method)
         if store_result:
             store.write_fused(method, res.t_server_s, res.positions, res.status)
@@ -335,6 +337,8 @@ def run_evaluate(
     calibration: Path | None,
     true_calibration: bool,
     allow_incomplete: bool = False,
+    start_s: float | None = None,
+    end_s: float | None = None,
 ) -> dict[str, object]:
     """Compare fusion methods against the truth of a simulated session (opened read-only).
 
@@ -364,7 +368,9 @@ def run_evaluate(
         truth2world = None
         if not true_calibration:
             truth2world, cal_error = calibration_alignment(store, poses)
-        report, results, truth = evaluate(store, sensors, methods, truth2world=truth2world)
+        report, results, truth = evaluate(
+            store, sensors, methods, truth2world=truth2world, start_s=start_s, end_s=end_s
+        )
     report["calibration"] = source
     if truth2world is not None:
         report["calibration_alignment"] = {
@@ -406,6 +412,13 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
         f"(MAE over each method's own joints; 'common' over the {100 * frac:.1f} % of frames x "
         "joints every method solved; bias = mean offset per joint, noise = spread around it)"
     )
+    for m in methods:
+        r = report[m]
+        assert isinstance(r, dict)
+        if m == "best-live":
+            parts = [f"{k.lower()} {100 * v['fraction']:.1f} % ({100 * v['mae_m']:.1f} cm)"
+                     for k, v in r["by_status"].items()]  # fmt: skip
+            lines.append(f"{m} by joint status: " + ", ".join(parts))
     occ = report.get("occlusion")
     if isinstance(occ, dict):
         lines.append(

@@ -144,6 +144,18 @@ def _methods(text: str) -> tuple[str, ...]:
     return names
 
 
+def _add_span_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--start",
+        type=float,
+        metavar="S",
+        help="first frame time, seconds from the session's start",
+    )
+    p.add_argument(
+        "--end", type=float, metavar="S", help="last frame time, seconds from the session's start"
+    )
+
+
 def _add_partial_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--partial",
@@ -164,6 +176,8 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
         store_result=args.store,
         allow_incomplete=args.partial,
         trc_axes=args.trc_axes,
+        start_s=args.start,
+        end_s=args.end,
     )
     for w in info["warnings"]:  # type: ignore[attr-defined]
         print(f"kinefuse: warning: {w}", file=sys.stderr)
@@ -192,6 +206,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         calibration=args.calibration,
         true_calibration=args.true_calibration,
         allow_incomplete=args.partial,
+        start_s=args.start,
+        end_s=args.end,
     )
     if args.json:
         print(json.dumps(report, indent=2))
@@ -329,6 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also store the fused skeleton in the session (otherwise the session is only read)",
     )
+    _add_span_args(p)
     _add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_fuse)
@@ -343,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="comma-separated methods (all six)",
     )
     p.add_argument("--out", type=Path, help="folder for the paper-style tables and plots")
+    _add_span_args(p)
     _add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_evaluate)

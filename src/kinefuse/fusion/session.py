@@ -122,6 +122,23 @@ def frame_grid(sensors: list[SensorData], rate_hz: float = 30.0) -> Array:
     return np.arange(np.ceil(t0 * rate_hz) / rate_hz, t1 + 1e-9, 1.0 / rate_hz)
 
 
+def clip_grid(grid: Array, start_s: float | None, end_s: float | None) -> Array:
+    """The frames of ``grid`` within ``[start_s, end_s]`` (server clock, seconds from the
+    session's start; None: open end). Raises :class:`FusionError` when none is left."""
+    keep = np.ones(grid.shape, dtype=bool)
+    if start_s is not None:
+        keep &= grid >= start_s - 1e-9
+    if end_s is not None:
+        keep &= grid <= end_s + 1e-9
+    if not keep.any():
+        span = f"{grid[0]:.2f} to {grid[-1]:.2f} s" if grid.size else "nothing"
+        raise FusionError(
+            f"no frames between --start {start_s} and --end {end_s}: the session's fused frames "
+            f"run from {span} (server clock, seconds from the session's start)"
+        )
+    return grid[keep]
+
+
 def run_method(
     sensors: list[SensorData],
     grid: Array,

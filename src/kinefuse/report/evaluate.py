@@ -14,7 +14,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.best import BestOptions
-from kinefuse.fusion.session import METHODS, MethodResult, SensorData, frame_grid, run_method
+from kinefuse.fusion.session import (
+    METHODS,
+    MethodResult,
+    SensorData,
+    clip_grid,
+    frame_grid,
+    run_method,
+)
 from kinefuse.fusion.status import status_counts
 from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
@@ -76,9 +83,26 @@ def _summary(res: MethodResult, truth: Array, common: NDArray[np.bool_]) -> dict
         "mae_common_m": c["mae_m"],
         "seconds": res.seconds,
         "status": status_counts(res.status),
+        "by_status": _by_status(res, truth),
         "by_joint": e["by_joint"],
         "bias_noise": bias_noise(res.positions, truth),
     }
+
+
+def _by_status(res: MethodResult, truth: Array) -> dict[str, dict[str, float]]:
+    """MAE and share of the joints per status code: which fused joints can be trusted."""
+    from kinefuse.fusion.status import FusionStatus
+
+    err = np.linalg.norm(res.positions - truth, axis=-1)
+    out = {}
+    for code in np.unique(res.status):
+        sel = res.status == code
+        e = err[sel & np.isfinite(err)]
+        out[FusionStatus(int(code)).name] = {
+            "fraction": float(sel.mean()),
+            "mae_m": float(e.mean()) if e.size else float("nan"),
+        }
+    return out
 
 
 def occlusion_score(store: SessionStore, sensors: list[SensorData]) -> dict[str, float]:
@@ -129,6 +153,8 @@ def evaluate(
     *,
     ablation: bool = True,
     truth2world: Array | None = None,
+    start_s: float | None = None,
+    end_s: float | None = None,
 ) -> tuple[dict[str, Any], dict[str, MethodResult], Array]:
     """Run the methods, score them against the truth; returns (report, results, truth).
 
@@ -136,7 +162,7 @@ def evaluate(
     when they differ by the protocol's arbitrary choices (origin, heading); see
     :func:`calibration_alignment`. The truth returned is in the calibration's world.
     """
-    grid = frame_grid(sensors)
+    grid = clip_grid(frame_grid(sensors), start_s, end_s)
     truth = truth_at(store, grid)
     if truth2world is not None:
         truth = apply_transform(truth2world, truth)
