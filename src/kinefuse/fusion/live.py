@@ -27,6 +27,7 @@ a replay that pushes every observation captured up to ``T + latency_s`` before f
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -35,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import FusionError
-from kinefuse.fusion.best import BestOptions, _facing, _measurement_cov, _robust_combine
+from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
 
@@ -44,6 +45,8 @@ Array = NDArray[np.float64]
 _BONES = bone_index_array()
 _MIRROR = np.asarray(MIRROR_INDEX)
 _TRUNK = [JOINT_INDEX["SpineBase"], JOINT_INDEX["SpineShoulder"]]
+_HIP_L, _HIP_R = JOINT_INDEX["HipLeft"], JOINT_INDEX["HipRight"]
+_SH_L, _SH_R = JOINT_INDEX["ShoulderLeft"], JOINT_INDEX["ShoulderRight"]
 
 
 @dataclass(frozen=True)
@@ -101,9 +104,7 @@ class LiveFrame:
 class _Stream:
     """The latest observations of one sensor, in capture order."""
 
-    def __init__(self, sensor2world: Array, n: int) -> None:
-        self.r = sensor2world[:3, :3].copy()
-        self.t = sensor2world[:3, 3].copy()
+    def __init__(self, n: int) -> None:
         self.obs: deque[tuple[float, Array, NDArray[np.int8], NDArray[np.bool_] | None]] = deque(
             maxlen=n
         )
@@ -124,8 +125,9 @@ class LiveFusion:
         if poses.ndim != 3 or poses.shape[1:] != (4, 4) or not np.isfinite(poses).all():
             raise FusionError(f"sensor2world must be finite (S, 4, 4), got {poses.shape}")
         self.options = options
-        self._streams = [_Stream(p, options.buffer) for p in poses]
+        self._streams = [_Stream(options.buffer) for _ in poses]
         self._sensor_pos = poses[:, :3, 3].copy()
+        self._r = poses[:, :3, :3].copy()
         shape = (N_JOINTS, 3)
         self._x, self._v = np.zeros(shape), np.zeros(shape)
         self._pxx, self._pxv, self._pvv = np.zeros(shape), np.zeros(shape), np.zeros(shape)
@@ -179,41 +181,60 @@ class LiveFusion:
         ``(S, 25, 3, 3)`` and states ``(S, 25)`` (NaN / 0 where a sensor has nothing)."""
         opt = self.options
         n_s = len(self._streams)
-        z = np.full((n_s, N_JOINTS, 3), np.nan)
-        cov = np.full((n_s, N_JOINTS, 3, 3), np.nan)
+        joints = np.full((n_s, N_JOINTS, 3), np.nan)
         states = np.zeros((n_s, N_JOINTS), dtype=np.int8)
+        occ = np.zeros((n_s, N_JOINTS), dtype=bool)
+        age = np.zeros(n_s)
         for i, s in enumerate(self._streams):
             if not s.obs:
                 continue
             times = [o[0] for o in s.obs]
-            k = int(np.searchsorted(times, t, side="right"))  # obs[k-1].t <= t < obs[k].t
+            k = bisect.bisect_right(times, t)  # obs[k-1].t <= t < obs[k].t
             if 0 < k < len(times) and times[k] - times[k - 1] <= opt.best.max_interp_gap_s:
                 (ta, ja, sa, oa), (tb, jb, sb, ob) = s.obs[k - 1], s.obs[k]
                 w = (t - ta) / (tb - ta) if tb > ta else 0.0
-                joints = ja * (1.0 - w) + jb * w
-                st = np.minimum(sa, sb)
-                occ = None if oa is None or ob is None else (oa | ob)
-                age = 0.0
-            elif k > 0 and t - times[k - 1] <= opt.max_hold_s:
-                _, joints, st, occ = s.obs[k - 1]
-                age = t - times[k - 1]
-            elif k == 0 and times[0] - t <= 0.5 / 30:
-                _, joints, st, occ = s.obs[0]  # the first observation, within half a frame
-                age = times[0] - t
+                joints[i] = ja * (1.0 - w) + jb * w
+                states[i] = np.minimum(sa, sb)
+                if oa is not None and ob is not None:
+                    occ[i] = oa | ob
             else:
-                continue
-            c = _measurement_cov(joints[None], st[None], None if occ is None else occ[None],
-                                 s.r, opt.best)[0]  # fmt: skip
-            if age > 0:  # a held observation: the body moved meanwhile (1 m/s a priori)
-                c = c + np.eye(3) * age**2
-            z[i] = joints @ s.r.T + s.t
-            cov[i] = c
-            states[i] = st
+                if k > 0 and t - times[k - 1] <= opt.max_hold_s:
+                    o = s.obs[k - 1]
+                elif k == 0 and times[0] - t <= 0.5 / 30:
+                    o = s.obs[0]  # the first observation, within half a frame
+                else:
+                    continue
+                joints[i], states[i], age[i] = o[1], o[2], abs(t - o[0])
+                if o[3] is not None:
+                    occ[i] = o[3]
+        cov = self._covariance(joints, states, occ)
+        # a held observation: the body moved meanwhile (1 m/s a priori)
+        cov += (age**2)[:, None, None, None] * np.eye(3)
+        z = np.einsum("sab,sjb->sja", self._r, joints) + self._sensor_pos[:, None, :]
         return z, cov, states
+
+    def _covariance(
+        self, joints: Array, states: NDArray[np.int8], occluded: NDArray[np.bool_]
+    ) -> Array:
+        """World covariances ``(S, 25, 3, 3)`` of all sensors' joints at once (the model of
+        :func:`kinefuse.fusion.best._measurement_cov`)."""
+        opt = self.options.best
+        if not opt.covariance:
+            return np.broadcast_to(np.eye(3) * 0.03**2, (*joints.shape[:2], 3, 3)).copy()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ray = np.nan_to_num(joints / np.linalg.norm(joints, axis=-1, keepdims=True))
+        inflate = np.where(states == TrackingState.INFERRED, opt.inferred_inflation, 1.0)
+        inflate = inflate * np.where(occluded, opt.occluded_inflation, 1.0)
+        lat2 = opt.lateral_m**2 * inflate**2
+        ax2 = opt.axial_m**2 * inflate**2
+        outer = ray[..., :, None] * ray[..., None, :]
+        cov_s = lat2[..., None, None] * (np.eye(3) - outer) + ax2[..., None, None] * outer
+        r = self._r
+        return np.einsum("sab,sjbc,sdc->sjad", r, cov_s, r)
 
     def _correct_swaps(self, z: Array, cov: Array, states: NDArray[np.int8]) -> None:
         """Mirror, in place, the ambiguous sensors that contradict the facing consensus."""
-        facing = _facing(z)  # (S, 3)
+        facing = _facing_fast(z)  # (S, 3)
         trunk = z[:, _TRUNK]
         n_ok = np.isfinite(trunk).all(-1).sum(1)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -339,8 +360,7 @@ class LiveFusion:
         opt = self.options
         if opt.best.lr_swap and self.n_sensors > 1:
             self._correct_swaps(z, cov, states)
-        x, cov_x, used = _robust_combine(z[None], cov[None], opt.best)
-        x, cov_x, used = x[0], cov_x[0], used[0]
+        x, cov_x, used = _combine(z, cov, opt.best)
         pos, var, alive = self._filter(t, x, cov_x)
         measured = np.isfinite(x).all(-1)
         present = np.isfinite(z).all(-1)  # (S, 25)
@@ -357,10 +377,56 @@ class LiveFusion:
         status[~alive] = FusionStatus.NO_DATA
         pos = np.where(alive[:, None], pos, np.nan)
         var = np.where(alive, var, np.nan)
-        f = _facing(pos[None])[0]
+        f = _facing_fast(pos)
         if np.isfinite(f).all():
             self._facing = f
         return LiveFrame(t, pos, var, status, np.asarray(used, dtype=np.intp))
+
+
+def _facing_fast(p: Array) -> Array:
+    """:func:`kinefuse.fusion.best._facing` for ``(..., 25, 3)`` without ``np.cross``: the
+    horizontal unit normal to the left-right axis of hips and shoulders (NaN: none)."""
+    lr = (p[..., _HIP_L, :] - p[..., _HIP_R, :]) + (p[..., _SH_L, :] - p[..., _SH_R, :])
+    f = np.stack([lr[..., 1], -lr[..., 0], np.zeros_like(lr[..., 0])], axis=-1)
+    n = np.sqrt(f[..., 0] ** 2 + f[..., 1] ** 2)[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 1e-6, f / n, np.nan)
+
+
+def _combine(z: Array, cov: Array, opt: BestOptions) -> tuple[Array, Array, NDArray[np.intp]]:
+    """One frame of :func:`kinefuse.fusion.best._robust_combine`: ``(S, 25, 3)`` measurements
+    with ``(S, 25, 3, 3)`` covariances -> fused ``(25, 3)``, its covariance and the sensors
+    used; written for small arrays (batched LAPACK inverses, no per-frame batching axis)."""
+    valid = np.asarray(np.isfinite(z).all(-1) & np.isfinite(cov).all((-1, -2)))  # (S, 25)
+    eye = np.eye(3)
+    w_mat = np.linalg.inv(np.where(valid[..., None, None], cov, eye))
+    w_mat[~valid] = 0.0
+    zz = np.where(valid[..., None], z, 0.0)
+    wz = np.einsum("sjab,sjb->sja", w_mat, zz)  # W z per measurement
+    rw = valid.astype(np.float64)
+    has = np.asarray(valid.any(axis=0))
+    n_iter = 4 if opt.robust else 1
+    info = np.zeros((N_JOINTS, 3, 3))
+    x = np.zeros((N_JOINTS, 3))
+    for it in range(n_iter):
+        info = np.einsum("s,sjab->jab", np.ones(len(z)), w_mat * rw[..., None, None])
+        rhs = (wz * rw[..., None]).sum(axis=0)
+        info[~has] = eye
+        x = np.asarray(np.linalg.solve(info, rhs[..., None])[..., 0])
+        if not opt.robust or it == n_iter - 1:
+            break
+        r = zz - x[None]
+        d2 = np.einsum("sja,sjab,sjb->sj", r, w_mat, r)
+        rw = valid * np.minimum(1.0, np.sqrt(opt.gate_chi2 / np.maximum(d2, 1e-12)))
+        far = d2 > 4 * opt.gate_chi2
+        keep_some = (valid & ~far).any(axis=0)
+        rw = np.where(far & keep_some[None], 0.0, rw)
+        has = np.asarray(rw.sum(axis=0) > 0)
+    used = np.asarray((rw > 0.2).sum(axis=0), dtype=np.intp)
+    cov_x = np.asarray(np.linalg.inv(info), dtype=np.float64)
+    x[~has] = np.nan
+    cov_x[~has] = np.nan
+    return x, cov_x, used
 
 
 def replay(
