@@ -256,6 +256,19 @@ def test_atomic_file_keeps_the_old_file_when_the_writer_fails(tmp_path) -> None:
     assert f.read_text() == "mine"
 
 
+def test_outputs_get_the_usual_file_mode(tmp_path) -> None:
+    old = os.umask(0o022)
+    try:
+        with atomic_file(tmp_path / "f.txt", what="x", recognizer=lambda p: True) as tmp:
+            tmp.write_text("x")
+        with atomic_dir(tmp_path / "d", what="x") as tmp:
+            (tmp / "a.txt").write_text("1")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "f.txt").stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
+    assert (tmp_path / "d").stat().st_mode & 0o777 == 0o755  # not mkdtemp's 0700
+
+
 def test_atomic_dir_swaps_only_when_complete(tmp_path) -> None:
     d = tmp_path / "out"
     with atomic_dir(d, what="x") as tmp:

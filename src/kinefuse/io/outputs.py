@@ -95,9 +95,20 @@ def refuse_unless_ours(path: Path, recognizer: Recognizer, what: str) -> None:
         )
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _temp_beside(path: Path, suffix: str = ".partial") -> Path:
+    """A new empty file beside ``path``, with the mode a plain ``open(path, "w")`` would give
+    (``mkstemp`` makes it 0600, which the renamed output would keep)."""
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent or ".")
-    os.close(fd)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+    finally:
+        os.close(fd)
     return Path(name)
 
 
@@ -200,6 +211,7 @@ def atomic_dir(path: str | os.PathLike[str], *, what: str) -> Iterator[Path]:
     parent = target.parent
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
+        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700
     except OSError as e:
         raise OutputError(f"cannot write {what} {target}: {e.strerror or e}") from None
     old: Path | None = None
