@@ -1,11 +1,12 @@
 """Recompute the realism tables of ``docs/realism.md``.
 
-Real vs simulated two-Kinect disagreement (KinectMultiTrack logs, registration-independent
-procedure) and single simulated sensors against the truth::
+Real vs simulated figures for every KinectMultiTrack take (registration-independent procedure)
+and, with ``--single``, single simulated sensors against the truth::
 
-    python benchmarks/realism.py [--seed K] [--repeats N] [--json]
+    python benchmarks/realism.py [--take CSV ...] [--seeds N] [--per-joint] [--single] [--json]
 
-Reads ``../shared/data`` beside the project. Exit status 0 when every realism target is met.
+The same as ``kinefuse realism``. Reads ``../shared/data`` beside the project. Exit status 0
+when every realism target is met.
 """
 
 from __future__ import annotations
