@@ -28,27 +28,33 @@ WARMUP_S = 5.0
 
 def accuracy() -> None:
     print(f"offset error after {WARMUP_S:g} s warm-up, {SEEDS} seeds x {SESSION_S:g} s per network")
-    print(f"{'network':<14}{'p50 ms':>8}{'p99 ms':>8}{'max ms':>8}{'in 3 se':>9}{'se p50 ms':>11}")
+    head = f"{'network':<14}{'p50 ms':>8}{'p99 ms':>8}{'max ms':>8}{'in 3 se':>9}{'se p50 ms':>11}"
+    print(head + f"{'suspects':>10}{'resets':>8}{'offline p50':>13}{'offline max':>13}")
     # beyond the tests: one direction with no queue at all (every error on one side)
     networks = {**NETWORKS, "one-way-only": {"up_mean_s": 3e-3, "down_mean_s": 1e-5}}
     for name, kw in networks.items():
-        err, z, se = [], [], []
+        err, z, se, suspects, resets, off = [], [], [], 0, 0, []
         for seed in range(SEEDS):
             rng = np.random.default_rng(1000 + seed)
             clock = random_clock(rng)
-            out = replay(
-                OnlineClock(),
-                asymmetric_probes(clock.to_sensor, 0.0, SESSION_S, rng, **kw),
-                clock.to_sensor,
-            )
+            probes = asymmetric_probes(clock.to_sensor, 0.0, SESSION_S, rng, **kw)
+            out = replay(OnlineClock(), probes, clock.to_sensor)
             m = out["t"] >= WARMUP_S
+            # the offline fit over the whole session (future probes included), at the same checks
+            fit = estimate_clock(probes)
+            t = out["t"][m]
+            off.append(np.abs(fit.to_client(t) - clock.to_sensor(t)))
             err.append(np.abs(out["err"][m]))
             se.append(out["se"][m])
             z.append(np.abs(out["err"] / out["se"]))
+            suspects += int((out["status"] == "suspect").sum())
+            resets += int((out["reset"] != "").sum())
         e, zz = np.concatenate(err) * 1e3, np.concatenate(z)
         print(
             f"{name:<14}{np.median(e):>8.3f}{np.percentile(e, 99):>8.3f}{e.max():>8.3f}"
             f"{np.mean(zz <= 3):>9.4f}{np.median(np.concatenate(se)) * 1e3:>11.3f}"
+            f"{suspects:>10}{resets:>8}{np.median(np.concatenate(off)) * 1e3:>13.3f}"
+            f"{np.concatenate(off).max() * 1e3:>13.3f}"
         )
 
 
@@ -78,6 +84,23 @@ def recovery() -> None:
         est.reset("reconnect")
         out = replay(est, asymmetric_probes(new.to_sensor, 61.0, 120.0, rng), new.to_sensor)
         reconnects.append(recovery_s(out["t"], out["err"], t_event))
+    for step in (0.0015, 0.002, 0.003, 0.005):
+        detected, worst = 0, 0.0
+        for seed in range(SEEDS):
+            rng = np.random.default_rng(4000 + seed)
+            clock = random_clock(rng)
+
+            def client(t, clock=clock, step=step):  # type: ignore[no-untyped-def]
+                return clock.to_sensor(t) + step * (np.asarray(t) >= t_event)
+
+            est = OnlineClock()
+            out = replay(est, asymmetric_probes(client, 0.0, 120.0, rng), client)
+            detected += est.epoch
+            worst = max(worst, float(np.abs(out["err"][out["t"] >= t_event + 5.0]).max()))
+        print(
+            f"step {step * 1e3:+.1f} ms: detected as a jump in {detected}/{SEEDS} runs, max error "
+            f"from 5 s after it {worst * 1e3:.3f} ms"
+        )
     print(
         f"recovery to < 2 ms for good: +/-80 ms step median {np.median(jumps):.2f} s, max "
         f"{max(jumps):.2f} s ({len(jumps)} runs); reconnect median {np.median(reconnects):.2f} s, "
