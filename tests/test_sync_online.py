@@ -54,7 +54,7 @@ def asymmetric_probes(
 
 def replay(est: OnlineClock, probes: np.ndarray, client: Client) -> dict[str, np.ndarray]:
     """Feed ``probes`` one by one; after each, the offset error and its standard error."""
-    t, err, se, status, reset = [], [], [], [], []
+    t, err, se, drift, status, reset = [], [], [], [], [], []
     for q in probes:
         r = est.add_probe(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
         e = est.estimate(float(q[3]))
@@ -62,12 +62,14 @@ def replay(est: OnlineClock, probes: np.ndarray, client: Client) -> dict[str, np
         t.append(q[3])
         err.append(e.offset_s - true)
         se.append(e.offset_se_s)
+        drift.append(e.drift_ppm)
         status.append(r.status)
         reset.append(r.reset or "")
     return {
         "t": np.array(t),
         "err": np.array(err),
         "se": np.array(se),
+        "drift_ppm": np.array(drift),
         "status": np.array(status),
         "reset": np.array(reset),
     }
@@ -142,6 +144,9 @@ def test_recovers_from_clock_jump(step_s: float) -> None:
     after = out["t"] >= recovered_at
     assert np.median(np.abs(out["err"][after])) < 0.5e-3  # 0.5 ms
     assert est.epoch == 1
+    # a step does not change the rate: the drift is kept through the restart
+    i_reset = int(np.flatnonzero(out["reset"] != "")[0])
+    assert out["drift_ppm"][i_reset] == pytest.approx(clock.drift_ppm, abs=5.0)  # ppm
 
 
 def test_one_bad_burst_does_not_reset() -> None:

@@ -1,39 +1,36 @@
 """Online clock estimation: one client's offset and drift, updated probe by probe (METHODS.md A.2).
 
 A live server keeps one :class:`OnlineClock` per client and feeds it each NTP-style exchange
-``t1, t2, t3, t4`` as the reply arrives (same probe formulas and sign as :mod:`kinefuse.sync.ntp`:
-the offset is client minus server time). Pure: no I/O, no wall clock; time comes with the probes.
+``t1, t2, t3, t4`` as the reply arrives (probe formulas and sign as in :mod:`kinefuse.sync.ntp`:
+offset = client minus server time). Pure: no I/O, no wall clock; time comes with the probes.
 
-What happens to a probe, in order:
+1. **Delay filter**: a probe whose one-way delay exceeds ``delay_factor`` times the least delay of
+   the last ``window_s`` (over all probes, so a lasting new route is accepted after one window)
+   plus ``delay_margin_s`` is rejected.
+2. **Burst minimum**: probes sent within ``burst_window_s`` of a burst's first one form a burst;
+   its least-delay probe is its sample (queueing makes the two directions unequal, so the least
+   queued exchange is the least biased). The open burst's sample enters the fit at once.
+3. **Consistency**: a probe's offset error is half the difference of its one-way delays, so at
+   most its delay above the network's base delay (its *bound*). A burst sample off the line's
+   prediction by more than its bound plus ``jump_sigma`` of the line's standard errors (and more
+   than ``jump_min_s``) is a *suspect* and is held out of the fit.
+4. **Jump**: a suspect that agrees with the previous burst's suspect (within their bounds) is a
+   clock step: the window restarts from the two, keeping the drift (a step does not change the
+   rate). One bad burst never resets. :meth:`OnlineClock.reset` is the reconnect.
 
-1. **Delay filter.** Probes whose one-way delay exceeds ``delay_factor`` times the minimum delay of
-   the last ``window_s`` seconds (all probes, rejected ones included, so a lasting change of route
-   is accepted after one window) plus ``delay_margin_s`` are rejected.
-2. **Consistency.** Against the current line's prediction, a probe whose offset is off by more
-   than ``jump_sigma`` standard deviations (and more than ``jump_min_s``) is a *suspect*.
-3. **Burst minimum.** Probes whose send times lie within ``burst_window_s`` of the burst's first
-   probe form a burst; its least-delay consistent probe is the burst's sample (queueing delay is
-   what makes the two directions unequal, so the least-delayed exchange is the least biased). The
-   open burst's best sample enters the fit at once and is replaced when a better one comes.
-4. **Jump.** A burst with only suspects is held; a second burst of suspects that agrees with the
-   first (same offset after drift) confirms a clock step: the window restarts from the two bursts,
-   keeping the drift (a step does not change the rate). One bad burst never resets.
-
-**Why a sliding weighted line fit, not a Kalman filter.** The clock model within a window is a
-line (offset + drift), and a least-squares line over the last ``window_s`` seconds of burst
-samples is exactly that model: old samples leave the estimate when they leave the window, with no
-process-noise figure to tune (a Kalman filter's process noise sets its memory, and it is unknown
-per client and network); the same line as the offline fit restricted to the window, so the
-offline fit checks it directly; and a 2x2 solve over at most ``max_bursts`` samples is cheap. A
-drift prior (``drift_prior_ppm``) keeps the line defined from the first sample on. Each sample's
-variance comes from its own exchange: the offset error of a probe is half the difference of the
-two one-way delays, bounded by the delay above the network's base, so with ``x`` = delay minus
-the recent minimum the sample's variance is ``noise_floor_s**2 + x**2 / 3`` (a uniform error in
-``[-x, x]``). The fit's residuals scale these variances up when the data scatter more
-(chi-square per degree of freedom, never below 1), so the standard error is honest.
-
-What no NTP-style method can see: a constant asymmetry of the base delays (one direction always
-slower by ``D``) biases the offset by ``D / 2``.
+**A sliding weighted line fit, not a Kalman filter**: within a window the clock is a line
+(offset + drift), and a weighted least-squares line over the last ``window_s`` of burst samples is
+that model with a memory that is exactly the window, where a Kalman filter's memory is set by a
+process noise that is unknown per client and network; it is the offline fit restricted to the
+window, so :func:`~kinefuse.sync.ntp.estimate_clock` checks it; and a 2x2 solve is cheap. A drift
+prior (``drift_prior_ppm``) defines the line from the first sample on. A sample's variance is that
+of an error uniform within its bound, ``noise_floor_s**2 + x**2 / 3``; the base delay is the least
+delay minus the spread of the four least (the k-th least lies about sqrt(k) times as far above
+the base when the delay density rises linearly from it, as a sum of two queues does), 0 until
+four samples. Residuals scale the variances up when the data scatter more (chi-square per degree
+of freedom, never below 1); the least-delay sample's whole bound stays in the standard error
+(a lasting asymmetry of the queues biases every sample alike; averaging does not remove it).
+No NTP-style method sees a constant asymmetry of the base delays: ``D`` biases the offset ``D/2``.
 """
 
 from __future__ import annotations
@@ -57,28 +54,17 @@ Array = NDArray[np.float64]
 class OnlineClockParams:
     """Settings of :class:`OnlineClock` (defaults for a LAN, a burst of 4-8 probes each second).
 
-    Attributes
-    ----------
-    burst_window_s : float
-        Probes sent within this time of a burst's first probe belong to that burst (s).
-    window_s : float
-        Length of the sliding window of burst samples in the fit, and of the delay minimum (s).
-    max_bursts : int
-        At most this many burst samples in the fit (bounds memory and time per burst).
-    delay_factor, delay_margin_s : float
-        A probe is rejected when its delay exceeds ``delay_factor * recent_min + delay_margin_s``.
-    noise_floor_s : float
-        Offset standard deviation of a sample at the minimum delay (s): the recent minimum's own
-        queueing and the client's timestamp resolution.
-    drift_prior_ppm : float
-        Standard deviation of the drift before any data (ppm); quartz clocks are within +/-100.
-    keep_drift_sigma_ppm : float
-        After a clock jump the old drift is kept as prior with at least this uncertainty (ppm).
-    jump_sigma, jump_min_s : float
-        A probe is a suspect when its offset is off the prediction by more than ``jump_sigma``
-        standard deviations and by more than ``jump_min_s`` seconds.
-    jump_confirm_s : float
-        The second suspect burst must come within this time of the first to confirm a jump (s).
+    ``burst_window_s``: probes sent within this of a burst's first one belong to it (s).
+    ``window_s``: length of the sliding window of burst samples, and of the delay minimum (s).
+    ``max_bursts``: at most this many samples in the fit (bounds memory and time).
+    ``delay_factor``, ``delay_margin_s``: a probe is rejected when its delay exceeds
+    ``delay_factor * recent_min + delay_margin_s`` (as in the offline fit).
+    ``noise_floor_s``: offset standard deviation of a probe at the base delay (timestamping, s).
+    ``drift_prior_ppm``: drift standard deviation before any data (quartz: within +/-100 ppm).
+    ``keep_drift_sigma_ppm``: after a jump the drift stays as prior, at least this uncertain.
+    ``jump_sigma``, ``jump_min_s``: a burst sample is a suspect when off the prediction by more
+    than its bound plus ``jump_sigma`` standard errors of the line, and by more than ``jump_min_s``.
+    ``jump_confirm_s``: the second suspect must come within this of the first (s).
     """
 
     burst_window_s: float = 0.25
@@ -108,26 +94,15 @@ class ProbeStatus(StrEnum):
     BEST = "best"  # least delay of its burst so far: the burst's sample in the fit
     KEPT = "kept"  # passed the filters, but its burst has a probe with less delay
     REJECTED_DELAY = "rejected-delay"  # delay far above the recent minimum
-    SUSPECT = "suspect"  # offset inconsistent with the prediction (held as a possible jump)
+    SUSPECT = "suspect"  # its burst's sample so far, off the prediction (a possible jump)
     REJECTED_STALE = "rejected-stale"  # sent in an earlier burst than the open one (reordered)
 
 
 @dataclass(frozen=True)
 class ProbeResult:
-    """The outcome of one probe.
-
-    Attributes
-    ----------
-    status : ProbeStatus
-    offset_s, delay_s : float
-        The probe's offset (client minus server) and one-way delay.
-    t_server_s : float
-        Midpoint ``(t1 + t4) / 2``, the server time the offset refers to.
-    reason : str
-        Why, in words (the numbers the decision was made on).
-    reset : str or None
-        Set when handling this probe restarted the estimate (a confirmed clock jump).
-    """
+    """One probe's outcome: ``status``, its ``offset_s`` (client minus server) and one-way
+    ``delay_s``, ``t_server_s`` = ``(t1 + t4) / 2`` (the time the offset refers to), ``reason`` (in
+    words, with the numbers), and ``reset``: set when this probe restarted the estimate (a jump)."""
 
     status: ProbeStatus
     offset_s: float
@@ -139,22 +114,11 @@ class ProbeResult:
 
 @dataclass(frozen=True)
 class OnlineEstimate:
-    """The clock at one server time: ``t_client = t_server + offset(t_server)``.
+    """The clock at server time ``at_server_s``: ``t_client = t_server + offset(t_server)``.
 
-    Attributes
-    ----------
-    at_server_s : float
-    offset_s : float
-        Offset (client minus server) at ``at_server_s`` (s).
-    drift_ppm : float
-        Rate error: d(offset)/dt in ppm.
-    offset_se_s : float
-        Standard error of ``offset_s`` (s).
-    drift_se_ppm : float
-    n_bursts : int
-        Burst samples in the fit.
-    epoch : int
-        Number of resets so far (explicit or clock jumps).
+    ``offset_s`` (client minus server, s) and its standard error ``offset_se_s`` at that time;
+    ``drift_ppm`` = d(offset)/dt and ``drift_se_ppm``; ``n_bursts`` burst samples in the fit;
+    ``epoch`` = resets so far (explicit or clock jumps).
     """
 
     at_server_s: float
@@ -230,28 +194,22 @@ class OnlineClock:
     def add_probe(self, t1: float, t2: float, t3: float, t4: float) -> ProbeResult:
         """Take one exchange: server send ``t1``, client receive ``t2`` and reply ``t3`` (client
         clock), server receive ``t4`` (s). Raises :class:`SyncError` on impossible times."""
+        bad = None
         if not all(math.isfinite(v) for v in (t1, t2, t3, t4)):
-            raise SyncError(
-                f"clock probe times must be finite, got t1={t1}, t2={t2}, t3={t3}, t4={t4}; "
-                "drop a lost exchange instead of passing NaN"
-            )
-        if t4 < t1:
-            raise SyncError(
-                f"server receive time t4={t4!r} is before its send time t1={t1!r}; pass the "
-                "server's own send and receive times (t1, t4) and the client's (t2, t3)"
-            )
-        if t3 < t2:
-            raise SyncError(
-                f"client reply time t3={t3!r} is before its receive time t2={t2!r}; the client "
-                "must stamp the request when it arrives (t2) and the reply when it leaves (t3)"
-            )
-        y = ((t2 - t1) - (t4 - t3)) / 2
-        d = ((t4 - t1) - (t3 - t2)) / 2
-        if d < -1e-6:
-            raise SyncError(
-                f"client turnaround t3-t2={t3 - t2:.6g} s is longer than the round trip "
-                f"t4-t1={t4 - t1:.6g} s; t2 and t3 must be the client's receive and reply times"
-            )
+            bad = f"clock probe times must be finite, got t1={t1}, t2={t2}, t3={t3}, t4={t4}; "
+            bad += "drop a lost exchange instead of passing NaN"
+        elif t4 < t1:
+            bad = f"server receive time t4={t4!r} is before its send time t1={t1!r}; pass the "
+            bad += "server's own send and receive times (t1, t4) and the client's (t2, t3)"
+        elif t3 < t2:
+            bad = f"client reply time t3={t3!r} is before its receive time t2={t2!r}; the client "
+            bad += "must stamp the request when it arrives (t2) and the reply when it leaves (t3)"
+        elif (t3 - t2) - (t4 - t1) > 2e-6:
+            bad = f"client turnaround t3-t2={t3 - t2:.6g} s is longer than the round trip t4-t1="
+            bad += f"{t4 - t1:.6g} s; t2 and t3 must be the client's receive and reply times"
+        if bad is not None:
+            raise SyncError(bad)
+        y, d = ((t2 - t1) - (t4 - t3)) / 2, ((t4 - t1) - (t3 - t2)) / 2
         d, t = max(d, 0.0), (t1 + t4) / 2
         p = self.params
         if self._burst_t1 is not None and t1 < self._burst_t1 - p.burst_window_s:
@@ -346,6 +304,7 @@ class OnlineClock:
         self._open_suspect = False
         self._delays = deque()
         self._base_d = 0.0  # estimated base (no-queue) delay of the network (s)
+        self._d_low = math.inf  # least delay among the committed samples (s)
 
     def _require(self) -> _Line:
         if self._line is None:
@@ -366,7 +325,7 @@ class OnlineClock:
         return q[0][1]
 
     def _var(self, d: float) -> float:
-        """Variance of an offset measured with delay ``d``: uniform within its excess delay."""
+        """Variance of an offset measured with delay ``d``: uniform within its bound."""
         x = max(d - self._base_d, 0.0)
         return self.params.noise_floor_s**2 + x * x / 3.0
 
@@ -376,9 +335,8 @@ class OnlineClock:
         return max(d - self._base_d, 0.0) + self.params.noise_floor_s
 
     def _sys2(self, d_low: float) -> float:
-        """A lasting asymmetry of the queues biases every sample alike, up to its bound (one
-        direction without queue puts all of it on one side): the least-delay sample's bound is
-        kept as a standard deviation that averaging does not lower."""
+        """The least-delay sample's whole bound, squared: a lasting asymmetry of the queues biases
+        every sample alike (no queue one way puts all of the bound on one side)."""
         return 3.0 * (self._var(d_low) - self.params.noise_floor_s**2)
 
     def _set_drift_prior(self, line: _Line) -> None:
@@ -426,15 +384,10 @@ class OnlineClock:
     def _resum(self) -> None:
         """Weighted sums of the committed samples, about the newest time and the oldest offset."""
         s = self._samples
-        if not s:
-            self._sums = (0.0,) * 6
-            return
         t_ref, y_ref = s[-1][0], s[0][1]
-        # base delay: below the least delay by about the spread of the few least delays (m of
-        # them: the k-th least lies ~sqrt(k) times as far above the base when the delay density
-        # rises linearly from it, as a sum of two queues does); between 0 and the least delay
-        # (until 4 samples: the estimate of before a jump, or 0 after a reset)
+        # base delay (see the module's docstring); until 4 samples, the one of before a jump or 0
         low = heapq.nsmallest(4, (d for _, _, d in s))
+        self._d_low = low[0]
         if len(low) == 4:
             self._base_d = max(low[0] - (low[3] - low[0]), 0.0)
         else:
@@ -453,8 +406,7 @@ class OnlineClock:
     def _solve(self, extra: _Sample | None) -> _Line:
         """Weighted line through the window's samples (+ the open burst's) with a drift prior."""
         s0, s1, s2, y0, y1, yy = self._sums
-        n = len(self._samples)
-        d_low = min((d for _, _, d in self._samples), default=math.inf)
+        n, d_low = len(self._samples), self._d_low
         if extra is not None:
             t, y, d = extra
             if n == 0:
@@ -465,19 +417,18 @@ class OnlineClock:
             n, d_low = n + 1, min(d_low, d)
         pb, pw = self._prior_b, 1.0 / self._prior_var
         scale2 = 1.0
-        for _ in range(2):
+        while True:  # at most twice: with the model's variances, then scaled by the residuals
             k = 1.0 / scale2
             m00, m01, m11 = k * s0, k * s1, k * s2 + pw
             r0, r1 = k * y0, k * y1 + pw * pb
             det = m00 * m11 - m01 * m01
             a, b = (m11 * r0 - m01 * r1) / det, (m00 * r1 - m01 * r0) / det
-            if n <= 2:
+            if scale2 > 1.0 or n <= 2:
                 break
             chi2 = yy - 2 * a * y0 - 2 * b * y1 + a * a * s0 + 2 * a * b * s1 + b * b * s2
-            new = max(1.0, chi2 / (n - 2))
-            if new == scale2:
+            scale2 = max(1.0, chi2 / (n - 2))
+            if scale2 == 1.0:
                 break
-            scale2 = new
         p_aa, p_ab, p_bb = m11 / det, -m01 / det, m00 / det
         sys2 = self._sys2(d_low)
         return _Line(self._t_ref, a + self._y_ref, b, p_aa, p_ab, p_bb, scale2, n, d_low, sys2)
