@@ -151,7 +151,7 @@ def test_calibration_and_fusion_never_read_the_truth(shared_data: Path, tmp_path
         seconds=1.0,
         calibration_s=12.0,
         depth_rate_hz=5.0,
-    )
+    )["out"]
     blind = tmp_path / "blind.sqlite"
     shutil.copyfile(session, blind)
     conn = sqlite3.connect(blind)
