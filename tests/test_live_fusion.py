@@ -184,3 +184,23 @@ def test_fuse_and_evaluate_part_of_a_take(session, tmp_path, capsys) -> None:
     assert by_status["OK"]["mae_m"] < 0.15  # the trusted joints are the accurate ones
     assert main(["fuse", str(session), "--true-calibration", "--start", "50"]) == 2
     assert "no frames between --start 50" in capsys.readouterr().err
+
+
+def test_the_clients_own_occlusion_flags_are_used_when_recorded(session, tmp_path) -> None:
+    from kinefuse.sensors.intrinsics import Intrinsics
+
+    with SessionStore.open(session) as st:
+        o = st.observations("k0")
+        probes = st.clock_probes("k0")
+    out = tmp_path / "flags.sqlite"
+    flags = np.zeros(o.states.shape, dtype=bool)
+    flags[:, J["HandLeft"]] = True  # what this client says, whatever the server would compute
+    with SessionStore.create(out) as st:
+        st.add_sensor("k0", "S0", Intrinsics())
+        st.append_clock_probes("k0", *probes.T)
+        st.append_observations("k0", o.seq, o.t_sensor_s, o.joints_m, o.states,
+                               t_receive_host_s=o.t_receive_host_s, occluded=flags,
+                               n_crossings=np.full(o.n_frames, 3))  # fmt: skip
+        (data,) = load_sensors(st, {"k0": np.eye(4)})
+    np.testing.assert_array_equal(data.occluded, flags)
+    assert (data.n_intersections == 3).all()

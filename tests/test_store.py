@@ -570,3 +570,36 @@ def test_real_kinect_frames_round_trip(tmp_path: Path) -> None:
     # sensor frame has y down: the head is above (smaller y than) the spine base
     both = (obs.states[:, 3] == 2) & (obs.states[:, 0] == 2)
     assert (obs.joints_m[both, 3, 1] < obs.joints_m[both, 0, 1]).all()
+
+
+def test_client_occlusion_flags_and_reading_since_a_sequence(tmp_path, rng) -> None:
+    from kinefuse.skeleton import N_JOINTS
+
+    with SessionStore.create(tmp_path / "s.sqlite") as st:
+        st.add_sensor("k0", "S0", Intrinsics())
+        n = 10
+        joints = rng.normal([0.0, 0.0, 2.5], 0.3, (n, N_JOINTS, 3))
+        states = np.full((n, N_JOINTS), 2, dtype=np.int8)
+        occ = rng.random((n, N_JOINTS)) < 0.3
+        crossings = rng.integers(0, 5, n)
+        st.append_observations("k0", np.arange(n), np.arange(n) / 30, joints, states,
+                               occluded=occ, n_crossings=crossings)  # fmt: skip
+        o = st.observations("k0")
+        np.testing.assert_array_equal(o.occluded, occ)
+        np.testing.assert_array_equal(o.n_crossings, crossings)
+        new = st.observations("k0", since_seq=6)  # a reader following a live recording
+        np.testing.assert_array_equal(new.seq, [7, 8, 9])
+        np.testing.assert_array_equal(new.occluded, occ[7:])
+        # a frame without the client's flags reads as not occluded; none at all reads as None
+        st.append_observations("k0", [10], [10 / 30], joints[:1], states[:1])
+        mixed = st.observations("k0", since_seq=8).occluded
+        assert mixed is not None and not mixed[1].any()
+        np.testing.assert_array_equal(mixed[0], occ[9])
+        st.add_sensor("k1", "S1", Intrinsics())
+        st.append_observations("k1", [0], [0.0], joints[:1], states[:1])
+        assert st.observations("k1").occluded is None
+        with pytest.raises(InputError, match="together"):
+            st.append_observations("k1", [1], [0.1], joints[:1], states[:1], occluded=occ[:1])
+        with pytest.raises(InputError, match="occluded must be bool"):
+            st.append_observations("k1", [1], [0.1], joints[:1], states[:1],
+                                   occluded=occ[:1].astype(int), n_crossings=[0])  # fmt: skip

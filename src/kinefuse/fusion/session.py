@@ -88,7 +88,15 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[SensorDat
         # device timestamps -> the client's clock (from each frame's arrival) -> the server's
         timebase = sensor_timebase(probes, obs.t_sensor_s, obs.t_receive_host_s)
         clock = timebase.host
-        occ = detect_occlusion(obs.joints_m, s.intrinsics) if obs.n_frames else None
+        if obs.occluded is not None and obs.n_crossings is not None:
+            occluded, crossings = obs.occluded, obs.n_crossings  # the client's own flags
+        elif obs.n_frames:
+            # the client sent none (simulated sessions): run its test here, on its data only
+            occ = detect_occlusion(obs.joints_m, s.intrinsics)
+            occluded, crossings = occ.occluded, occ.n_intersections
+        else:
+            occluded = np.zeros((0, N_JOINTS), bool)
+            crossings = np.zeros(0, dtype=np.int64)
         out.append(
             SensorData(
                 id=s.id,
@@ -97,10 +105,8 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[SensorDat
                 clock=clock,
                 observations=obs,
                 t_server_s=timebase.to_server(obs.t_sensor_s),
-                occluded=occ.occluded if occ is not None else np.zeros((0, N_JOINTS), bool),
-                n_intersections=(
-                    occ.n_intersections if occ is not None else np.zeros(0, dtype=np.int64)
-                ),
+                occluded=occluded,
+                n_intersections=crossings,
                 timebase=timebase,
             )
         )

@@ -91,6 +91,8 @@ CREATE TABLE observations (
     joints_m           BLOB NOT NULL CHECK (length(joints_m) = {_JOINTS_BYTES}),
     states             BLOB NOT NULL CHECK (length(states) = {_STATES_BYTES}),
     t_receive_host_s   REAL,
+    occluded           BLOB CHECK (occluded IS NULL OR length(occluded) = {_STATES_BYTES}),
+    n_crossings        INTEGER CHECK (n_crossings IS NULL OR n_crossings >= 0),
     PRIMARY KEY (sensor_key, seq)
 ) WITHOUT ROWID;
 CREATE TABLE depth_frames (
@@ -211,6 +213,11 @@ class Observations:
         When the sensor's client PC received the frame from the device, on the client's own
         clock (the clock that answers the clock probes), seconds; NaN where unknown (sessions
         recorded before this column existed: their ``t_sensor_s`` is on the client's clock).
+    occluded : (N, 25) bool or None
+        The client's occlusion flags (paper A's 2D bone-crossing test, run where the sensor
+        is), or None when the client sent none.
+    n_crossings : (N,) int64 or None
+        The client's count of bone crossings per frame (the paper's tie-breaker), or None.
     """
 
     seq: NDArray[np.int64]
@@ -220,6 +227,8 @@ class Observations:
     t_receive_server_s: Array
     sensor_id: str = ""
     t_receive_host_s: Array = field(default_factory=lambda: np.zeros(0))
+    occluded: NDArray[np.bool_] | None = None
+    n_crossings: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         if self.t_receive_host_s.shape != self.t_sensor_s.shape:  # not given: unknown
@@ -417,6 +426,7 @@ class SessionStore:
         # sessions written before the host receive time was recorded lack its column
         cols = {r[1] for r in conn.execute("PRAGMA table_info(observations)").fetchall()}
         self._has_host_time = "t_receive_host_s" in cols
+        self._has_client_occlusion = "occluded" in cols
 
     # -- opening and closing ------------------------------------------------------------------
 
@@ -783,6 +793,8 @@ class SessionStore:
         *,
         t_receive_server_s: ArrayLike | None = None,
         t_receive_host_s: ArrayLike | None = None,
+        occluded: ArrayLike | None = None,
+        n_crossings: ArrayLike | None = None,
     ) -> None:
         """Append body-tracker frames of one sensor (one transaction).
 
@@ -803,6 +815,10 @@ class SessionStore:
         t_receive_host_s : (N,) float, optional
             Arrival times at the sensor's client PC, on its clock, seconds; NaN (or omitted)
             where unknown. A store written before this column existed cannot take them.
+        occluded : (N, 25) bool, optional
+            The client's occlusion flags; given together with ``n_crossings``.
+        n_crossings : (N,) int, optional
+            The client's number of bone crossings per frame (>= 0).
         """
         what = f"append_observations(sensor {sensor_id!r})"
         key = self._key(sensor_id, what)
@@ -857,6 +873,7 @@ class SessionStore:
                 f"{j[f, jj].tolist()}"
             )
         _require_unique(s, what)
+        occ_rows = self._client_occlusion_rows(occluded, n_crossings, n, what)
         cols: tuple[list[Any], ...] = (
             np.full(n, key).tolist(),
             s.astype(np.int64).tolist(),
@@ -865,29 +882,69 @@ class SessionStore:
             _blobs(j, _F8),
             _blobs(st, _I1),
         )
+        extra_cols, extra_q = "", ""
         if self._has_host_time:
             cols = (*cols, [None if math.isnan(x) else x for x in th.tolist()])
-        host_col, host_q = (", t_receive_host_s", ", ?") if self._has_host_time else ("", "")
+            extra_cols, extra_q = ", t_receive_host_s", ", ?"
+        if self._has_client_occlusion:
+            cols = (*cols, *occ_rows)
+            extra_cols, extra_q = extra_cols + ", occluded, n_crossings", extra_q + ", ?, ?"
         self._insert_frames(
             "observations",
             key,
             sensor_id,
             s,
             "INSERT INTO observations (sensor_key, seq, t_sensor_s, t_receive_server_s, joints_m,"
-            f" states{host_col}) VALUES (?, ?, ?, ?, ?, ?{host_q})",
+            f" states{extra_cols}) VALUES (?, ?, ?, ?, ?, ?{extra_q})",
             zip(*cols, strict=True),
         )
 
-    def observations(self, sensor_id: str) -> Observations:
-        """All observations of one sensor, ordered by sequence number."""
+    def _client_occlusion_rows(
+        self, occluded: ArrayLike | None, n_crossings: ArrayLike | None, n: int, what: str
+    ) -> tuple[list[bytes | None], list[int | None]]:
+        """The ``occluded`` and ``n_crossings`` column values of ``n`` rows (NULL when absent)."""
+        if occluded is None and n_crossings is None:
+            return [None] * n, [None] * n
+        if occluded is None or n_crossings is None:
+            raise InputError(f"{what}: give the client's occluded flags and n_crossings together")
+        if not self._has_client_occlusion:
+            raise InputError(
+                f"{what}: {self.path} was written by an older kinefuse without the clients' "
+                "occlusion flags; append to a new session store to record them"
+            )
+        occ = np.asarray(occluded)
+        if occ.dtype != np.bool_:
+            raise InputError(f"{what}: occluded must be bool, got dtype {occ.dtype}")
+        _check_shape(occ, "occluded", (n, N_JOINTS), what)
+        cr = _int_array(n_crossings, "n_crossings", (n,), what)
+        if (cr < 0).any():
+            raise InputError(f"{what}: n_crossings must be >= 0")
+        blobs: list[bytes | None] = list(_blobs(occ, _U1))
+        return blobs, [int(c) for c in cr.tolist()]
+
+    def observations(self, sensor_id: str, *, since_seq: int | None = None) -> Observations:
+        """Observations of one sensor ordered by sequence number: all of them, or only those
+        after ``since_seq`` (a reader following a live recording asks for what is new)."""
         what = f"observations of sensor {sensor_id!r}"
         key = self._key(sensor_id, what)
         host = ", t_receive_host_s" if self._has_host_time else ", NULL"
+        occ = ", occluded, n_crossings" if self._has_client_occlusion else ", NULL, NULL"
+        after = -(2**63) if since_seq is None else int(since_seq)
         rows = self._db.execute(
             "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
-            f"{host} FROM observations WHERE sensor_key = ? ORDER BY seq",
-            (key,),
+            f"{host}{occ} FROM observations WHERE sensor_key = ? AND seq > ? ORDER BY seq",
+            (key, after),
         ).fetchall()
+        flags = [r[6] for r in rows]
+        have = [f is not None for f in flags]
+        occluded = crossings = None
+        if rows and all(have):
+            occluded = _unblob(flags, _U1, (N_JOINTS,), what).astype(bool)
+            crossings = np.array([r[7] for r in rows], dtype=np.int64)
+        elif any(have):  # some frames without flags: NULL rows count as not occluded
+            blank = bytes(N_JOINTS)
+            occluded = _unblob([f or blank for f in flags], _U1, (N_JOINTS,), what).astype(bool)
+            crossings = np.array([r[7] or 0 for r in rows], dtype=np.int64)
         return Observations(
             sensor_id=sensor_id,
             seq=np.array([r[0] for r in rows], dtype=np.int64),
@@ -896,6 +953,8 @@ class SessionStore:
             states=_unblob([r[4] for r in rows], _I1, (N_JOINTS,), what),
             t_receive_server_s=_column(rows, 2),
             t_receive_host_s=_column(rows, 5),
+            occluded=occluded,
+            n_crossings=crossings,
         )
 
     def observation_count(self, sensor_id: str) -> int:
