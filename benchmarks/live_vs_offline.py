@@ -1,0 +1,61 @@
+"""Causal ``best-live`` against offline ``best`` and the paper's chain (issue 10's acceptance).
+
+Run: ``python benchmarks/live_vs_offline.py [--seed 0]``. Simulates the demo session (bundled
+clip, 4 sensors, estimated calibration from the wand) and the three walking clips of
+``../shared/data`` on two rigs (true calibration), fuses each with ``paper``, ``best`` and
+``best-live`` and prints their MAE against the truth and the ratio best-live / best (target:
+at most 1.15).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+from kinefuse.app import demo_clip_path, run_calibrate, run_evaluate, run_simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")
+RIGS = ("level4", "tiered4")
+METHODS = ("paper", "best", "best-live")
+
+
+def _row(name: str, report: dict) -> tuple[str, float, float, float]:
+    mae = {m: 100 * report[m]["mae_m"] for m in METHODS}
+    ratio = mae["best-live"] / mae["best"]
+    print(f"| {name} | {mae['paper']:.2f} | {mae['best']:.2f} | {mae['best-live']:.2f} | "
+          f"{ratio:.3f} | {'yes' if ratio <= 1.15 else 'NO'} |")  # fmt: skip
+    return name, mae["best"], mae["best-live"], ratio
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "motion" / "cmu")
+    args = ap.parse_args()
+    print("| session | paper cm | best cm | best-live cm | live / best | within 15 % |")
+    print("|---|---|---|---|---|---|")
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        demo = Path(d) / "demo.sqlite"
+        run_simulate(clip=demo_clip_path(), out=demo, seed=args.seed, calibration_s=15.0)
+        run_calibrate(session=demo, method="full", out=None, store_result=True)
+        rep = run_evaluate(session=demo, methods=METHODS, out_dir=None, calibration=None,
+                           true_calibration=False)  # fmt: skip
+        rows.append(_row("demo (CMU 01_01, estimated calibration)", rep))
+        for clip in CLIPS:
+            for rig in RIGS:
+                path = Path(d) / f"{clip}_{rig}.sqlite"
+                run_simulate(clip=args.data / clip, out=path, rig=ROOT / "rigs" / f"{rig}.toml",
+                             seed=args.seed, calibration_s=0.0)  # fmt: skip
+                rep = run_evaluate(session=path, methods=METHODS, out_dir=None,
+                                   calibration=None, true_calibration=True)  # fmt: skip
+                rows.append(_row(f"{clip}, {rig}", rep))
+    worst = max(r[3] for r in rows)
+    verdict = "met" if worst <= 1.15 else "NOT met"
+    print(f"\nworst best-live / best: {worst:.3f} (target <= 1.15: {verdict})")
+
+
+if __name__ == "__main__":
+    main()
