@@ -174,9 +174,7 @@ def write_limb_frames(path: Path, t_s: Array, limbs: Sequence[str], transforms: 
     where the limb is missing.
     """
     buf = io.StringIO()
-    buf.write(
-        "time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n"
-    )
+    buf.write("time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n")
     origin = transforms[..., :3, 3]
     axes = np.swapaxes(transforms[..., :3, :3], -1, -2).reshape(*transforms.shape[:2], 9)
     vals = np.concatenate([origin, axes], axis=-1)  # (T, L, 12)
@@ -204,20 +202,30 @@ def _choose_phase(
                 f"--calibration-phase {lo:g}:{hi:g} s lies outside {inp.path} "
                 f"({t0:.2f} to {t1:.2f} s on its time base)"
             )
-        return (lo, hi), "given (--calibration-phase)", (
-            "movement axes learned from the given calibration phase; angles over the whole input"
+        return (
+            (lo, hi),
+            "given (--calibration-phase)",
+            ("movement axes learned from the given calibration phase; angles over the whole input"),
         )
     if inp.stored_phase_s is not None:
-        return inp.stored_phase_s, "the session's range-of-motion phase (rom_phase_server_s)", (
-            "movement axes learned from the session's range-of-motion phase; angles over the "
-            "whole input"
+        return (
+            inp.stored_phase_s,
+            "the session's range-of-motion phase (rom_phase_server_s)",
+            (
+                "movement axes learned from the session's range-of-motion phase; angles over the "
+                "whole input"
+            ),
         )
-    return (t0, t1), "none: the whole input", (
-        "no calibration phase: normalization, default pose and limb frames are computed as "
-        "usual; the movement axes are learned from the input's own motion, so a limb that does "
-        "not move along a direction during the take gets fewer axes (its status says so) and "
-        "its angles read about the directions it did move in. No axis or twist error against "
-        "a truth is computed (there are no true axes without a range-of-motion phase)."
+    return (
+        (t0, t1),
+        "none: the whole input",
+        (
+            "no calibration phase: normalization, default pose and limb frames are computed as "
+            "usual; the movement axes are learned from the input's own motion, so a limb that does "
+            "not move along a direction during the take gets fewer axes (its status says so) and "
+            "its angles read about the directions it did move in. No axis or twist error against "
+            "a truth is computed (there are no true axes without a range-of-motion phase)."
+        ),
     )
 
 
@@ -247,8 +255,13 @@ def clean_json(value: object) -> object:
     return value
 
 
+def json_text(report: dict[str, Any]) -> str:
+    """The report as strict JSON (NaN written as null)."""
+    return json.dumps(clean_json(report), indent=2)
+
+
 def write_json(path: Path, report: dict[str, Any]) -> Path:
-    return atomic_write_text(path, json.dumps(clean_json(report), indent=2) + "\n")
+    return atomic_write_text(path, json_text(report) + "\n")
 
 
 def run_analyze(
@@ -323,3 +336,75 @@ def format_analyze(report: dict[str, Any]) -> str:
     from kinefuse.report.analysis import format_report
 
     return format_report(report)
+
+
+# ------------------------------------------------------------------ simulate --rom
+
+
+@dataclass(frozen=True, eq=False)
+class RomPhase:
+    """A range-of-motion phase put before a clip (for ``kinefuse simulate --rom``)."""
+
+    motion: Any  # kinefuse.motion.types.Motion: the ROM, the blend, then the clip
+    rom_s: float  # length of the ROM phase itself, seconds (the blend follows it)
+    blend_s: float
+    truth: dict[str, Any]  # JSON-able truth (true axes, rest, twist over time ...)
+
+
+def add_rom_phase(clip: Any, rom_s: float, *, seed: int = 0, blend_s: float = 1.0) -> RomPhase:
+    """A generated range-of-motion phase of ``rom_s`` seconds before ``clip`` (placed).
+
+    The subject's default pose is the clip's default-pose frame
+    (:func:`kinefuse.analysis.find_default_pose`), moved (translation, rotation about z) to
+    where the clip starts and facing its first frame's way, so that the blend into the clip only
+    changes the pose. Randomness comes from ``seed`` (its own stream, not the simulator's).
+    """
+    from kinefuse.analysis import find_default_pose
+    from kinefuse.analysis.rom import make_rom_motion, prepend_rom
+    from kinefuse.geometry.transforms import rot_z
+    from kinefuse.motion import facing_direction
+    from kinefuse.skeleton import JOINT_INDEX
+
+    if not (np.isfinite(rom_s) and rom_s > 0):
+        raise InputError(f"--rom must be a positive number of seconds, got {rom_s!r}")
+    seq = SkeletonSequence.from_motion(clip)
+    k = find_default_pose(seq)
+    pose = clip.positions[k]
+    f_pose, f_0 = facing_direction(pose), facing_direction(clip.positions[0])
+    turn = float(np.arctan2(f_0[1], f_0[0]) - np.arctan2(f_pose[1], f_pose[0]))
+    root = JOINT_INDEX["SpineBase"]
+    pivot = pose[root] * np.array([1.0, 1.0, 0.0])
+    placed = (pose - pivot) @ rot_z(turn).T
+    placed[:, :2] += clip.positions[0, root, :2]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x524F4D]))  # "ROM"
+    rom, truth = make_rom_motion(placed, rom_s, rng)
+    motion = prepend_rom(rom, clip, blend_s=blend_s)
+    t_rom = np.arange(rom.n_frames) / rom.rate_hz
+    info = {
+        "note": "range-of-motion phase of kinefuse simulate --rom: true axes and rest "
+        "directions in the parent limb's normalized frame at the default pose (JCS order, ISB "
+        "signs), true angles and twists (radians) at t_s (seconds from the phase's start)",
+        "default_pose_frame_of_clip": int(k),
+        "axes_parent": {n: v.tolist() for n, v in truth.axes.items()},
+        "axes_world": {n: v.tolist() for n, v in truth.axes_world.items()},
+        "rest_parent": {n: v.tolist() for n, v in truth.rest.items()},
+        "movements": [list(m) for m in truth.movements],
+        "t_s": np.round(t_rom, 6).tolist(),
+        "twist_rad": {n: np.round(v, 6).tolist() for n, v in truth.twist.items()},
+        "angles_rad": {n: np.round(v, 6).tolist() for n, v in truth.angles.items()},
+    }
+    return RomPhase(motion=motion, rom_s=float(rom.duration_s), blend_s=blend_s, truth=info)
+
+
+def record_rom_phase(session: Path, phase: RomPhase, start_s: float) -> None:
+    """Store a simulated session's ROM phase: its interval as ordinary protocol metadata
+    (``rom_phase_server_s``, what a real lab's protocol also knows), its truth in the truth
+    info (``rom_truth``, read only by ``report/``)."""
+    from kinefuse.io.store import SessionStore
+
+    with SessionStore.open(session, writable=True) as store:
+        store.set_meta("rom_phase_server_s", [start_s, start_s + phase.rom_s])
+        store.set_meta("rom_blend_s", phase.blend_s)
+        truth = dict(phase.truth)
+        truth["start_server_s"] = start_s
+        store.write_truth_info("rom_truth", truth)

@@ -64,9 +64,11 @@ def run_simulate(
     depth_rate_hz: float = 10.0,
     force: bool = False,
     progress: Callable[[str], None] | None = None,
+    rom_s: float | None = None,
 ) -> Path:
     """Load a clip and a rig, place the actor, and simulate a session into ``out`` (replacing an
-    existing simulated session only with ``force``)."""
+    existing simulated session only with ``force``). ``rom_s``: a range-of-motion calibration
+    phase of that many seconds before the motion (:func:`kinefuse.analysis_app.add_rom_phase`)."""
     from kinefuse.motion import load_motion
     from kinefuse.sensors.lab import LabConfig, simulate_session
     from kinefuse.sensors.rig import default_rig, load_rig
@@ -81,11 +83,26 @@ def run_simulate(
             "give at most the clip's length or leave --seconds out"
         )
     motion = place_actor(motion, the_rig, seconds)
+    rom = None
+    if rom_s is not None:
+        from kinefuse.analysis_app import add_rom_phase
+
+        rom = add_rom_phase(motion, rom_s, seed=seed)
+        if seconds is not None:
+            seconds = min(
+                seconds + rom.motion.duration_s - motion.duration_s, rom.motion.duration_s
+            )
+        motion = rom.motion
     out.parent.mkdir(parents=True, exist_ok=True)
     config = LabConfig(
         seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
     )
-    return simulate_session(motion, the_rig, out, config, overwrite=force, progress=say)
+    path = simulate_session(motion, the_rig, out, config, overwrite=force, progress=say)
+    if rom is not None:
+        from kinefuse.analysis_app import record_rom_phase
+
+        record_rom_phase(path, rom, calibration_s)
+    return path
 
 
 def run_demo(*, out_dir: Path, seed: int = 0) -> int:
