@@ -261,6 +261,9 @@ def run_evaluate(
         if not true_calibration:
             truth2world, cal_error = calibration_alignment(store, poses)
         report, results, truth = evaluate(store, sensors, methods, truth2world=truth2world)
+        from kinefuse.report.plausibility_eval import plausibility_vs_errors
+
+        report["plausibility"] = plausibility_vs_errors(store, results, truth)
     report["calibration"] = source
     if truth2world is not None:
         report["calibration_alignment"] = {
@@ -299,6 +302,11 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
         lines.append("\nMAE of a below b (95 % interval, block bootstrap over frames):")
         for pair, v in comp.items():
             lines.append(f"  {pair:<22} {_gain_text(v)}")
+    from kinefuse.report.plausibility_eval import format_plausibility
+
+    plaus = format_plausibility(report.get("plausibility"))
+    if plaus:
+        lines.append(plaus)
     abl = report.get("ablation")
     if isinstance(abl, dict):
         lines.append("\nablation of best (MAE without the part, and its gain):")
