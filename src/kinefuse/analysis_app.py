@@ -11,7 +11,8 @@ session, the clip's time from 0), the range-of-motion phase a session stored in 
 whole input; the report's ``calibration_phase.source`` and ``statement`` say which, and what
 that means for the figures.
 
-Output folder (fresh: created, or an existing empty folder; never a folder with files in it):
+Output folder (fresh: created, or an existing empty folder; never a folder with files in it;
+written as a hidden staging folder beside it and renamed into place when everything is done):
 one input writes its files straight into it; several inputs write one subfolder each
 (``01_<stem>``, ``02_<stem>``, ...) plus the consistency figures in ``analysis.json``. Every
 file goes through a temporary file and an atomic rename. Formats in ``docs/analysis.md``.
@@ -21,6 +22,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -145,6 +149,25 @@ def load_input(
     )
 
 
+def check_out(out: Path) -> None:
+    """Refuse an output path that is a file or a folder with files in it; create its parents."""
+    if out.exists():
+        if not out.is_dir():
+            raise WriteError(f"{out} exists and is not a folder; choose a fresh output folder")
+        if any(out.iterdir()):
+            raise WriteError(
+                f"{out} already holds files; kinefuse analyze writes into a fresh folder only "
+                "(it never overwrites files it did not make): choose a new --out"
+            )
+        return
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise WriteError(
+            f"{out.parent}: cannot create the folder: {e.strerror or e}; choose another --out"
+        ) from None
+
+
 def prepare_out(out: Path) -> Path:
     """Create the output folder, or accept an existing empty one; refuse anything else."""
     if out.exists():
@@ -260,10 +283,6 @@ def json_text(report: dict[str, Any]) -> str:
     return json.dumps(clean_json(report), indent=2)
 
 
-def write_json(path: Path, report: dict[str, Any]) -> Path:
-    return atomic_write_text(path, json_text(report) + "\n")
-
-
 def run_analyze(
     inputs: Sequence[Path],
     *,
@@ -276,9 +295,11 @@ def run_analyze(
     plots: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Analyse one or several inputs into a fresh folder ``out``; returns the report."""
-    from kinefuse.report.analysis import analyse_one, consistency_report
+    """Analyse one or several inputs into a fresh folder ``out``; returns the report.
 
+    Everything is written into a hidden staging folder beside ``out`` and renamed onto ``out``
+    at the end, so a failed run leaves nothing behind (and never touches other files).
+    """
     say = progress or (lambda _m: None)
     if not inputs:
         raise InputError("give at least one input file")
@@ -294,11 +315,56 @@ def run_analyze(
                 true_calibration=true_calibration,
             )
         )
-    prepare_out(out)
+    check_out(out)  # fail early (name taken) before any work
     if plots:
         import matplotlib
 
         matplotlib.use("Agg")  # the command draws to files only
+    stage = _staging_folder(out)
+    try:
+        report = _analyse_all(loaded, stage, calibration_phase, plots, true_calibration, say)
+        report["out"] = str(out)
+        text = json_text(report).replace(str(stage), str(out))
+        atomic_write_text(stage / "analysis.json", text + "\n")
+        _publish(stage, out)
+    finally:
+        if stage.exists():
+            shutil.rmtree(stage)
+    return dict(json.loads(text))
+
+
+def _staging_folder(out: Path) -> Path:
+    """A hidden folder beside ``out`` to write into, renamed onto ``out`` when all is done."""
+    try:
+        return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    except OSError as e:
+        raise WriteError(
+            f"{out.parent}: cannot write there: {e.strerror or e}; choose another --out"
+        ) from None
+
+
+def _publish(stage: Path, out: Path) -> None:
+    """Move the finished folder onto ``out`` (an empty folder we may replace, or a new name)."""
+    try:
+        if out.exists():
+            out.rmdir()  # only succeeds when empty: never removes someone's files
+        os.rename(stage, out)
+    except OSError as e:
+        raise WriteError(
+            f"{out}: cannot put the results there: {e.strerror or e}; they were not kept"
+        ) from None
+
+
+def _analyse_all(
+    loaded: list[AnalysisInput],
+    out: Path,
+    calibration_phase: tuple[float, float] | None,
+    plots: bool,
+    true_calibration: bool,
+    say: Callable[[str], None],
+) -> dict[str, Any]:
+    from kinefuse.report.analysis import analyse_one, consistency_report
+
     reports = []
     results = []
     for k, inp in enumerate(loaded):
@@ -322,12 +388,9 @@ def run_analyze(
         results.append(res)
     report: dict[str, Any]
     if len(reports) == 1:
-        report = reports[0]
-    else:
-        report = {"inputs": reports}
-        report.update(consistency_report(results))
-    report["out"] = str(out)
-    write_json(out / "analysis.json", report)
+        return reports[0]
+    report = {"inputs": reports}
+    report.update(consistency_report(results))
     return report
 
 

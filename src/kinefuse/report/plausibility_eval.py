@@ -91,8 +91,8 @@ def plausibility_vs_errors(
             norm = normalize(seq)
             model = learn_axes(seq, norm, phase, method="dj")
             flags = plausibility(joint_angles(seq, norm, model), model).joint_flags()
-        except KinefuseError as e:
-            out[method] = {"error": str(e)}
+        except KinefuseError as exc:
+            out[method] = {"error": str(exc)}
             continue
         err = np.linalg.norm(res.positions - truth, axis=-1)
         rows = t > phase[1]
