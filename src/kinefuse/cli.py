@@ -228,6 +228,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         method=args.method,
         calibration=args.calibration,
         true_calibration=args.true_calibration,
+        plots=not args.no_plots,
         progress=lambda m: print(m, file=sys.stderr),
     )
     print(json_text(report) if args.json else format_analyze(report))
@@ -262,6 +263,7 @@ def _add_analyze_parser(sub: argparse._SubParsersAction) -> None:
     )
     _add_calibration_args(p)
     p.add_argument("--out", type=Path, required=True, help="fresh output folder")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=_cmd_analyze)
 
