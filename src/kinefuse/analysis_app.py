@@ -293,6 +293,7 @@ def run_analyze(
     calibration: Path | None = None,
     true_calibration: bool = False,
     plots: bool = True,
+    plot_dpi: int | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Analyse one or several inputs into a fresh folder ``out``; returns the report.
@@ -322,7 +323,9 @@ def run_analyze(
         matplotlib.use("Agg")  # the command draws to files only
     stage = _staging_folder(out)
     try:
-        report = _analyse_all(loaded, stage, calibration_phase, plots, true_calibration, say)
+        report = _analyse_all(
+            loaded, stage, calibration_phase, plots, true_calibration, say, plot_dpi
+        )
         report["out"] = str(out)
         text = json_text(report).replace(str(stage), str(out))
         atomic_write_text(stage / "analysis.json", text + "\n")
@@ -336,7 +339,11 @@ def run_analyze(
 def _staging_folder(out: Path) -> Path:
     """A hidden folder beside ``out`` to write into, renamed onto ``out`` when all is done."""
     try:
-        return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        mask = os.umask(0o022)
+        os.umask(mask)
+        os.chmod(stage, 0o777 & ~mask)  # mkdtemp makes 0700; the result gets the usual mode
+        return stage
     except OSError as e:
         raise WriteError(
             f"{out.parent}: cannot write there: {e.strerror or e}; choose another --out"
@@ -362,6 +369,7 @@ def _analyse_all(
     plots: bool,
     true_calibration: bool,
     say: Callable[[str], None],
+    plot_dpi: int | None = None,
 ) -> dict[str, Any]:
     from kinefuse.report.analysis import analyse_one, consistency_report
 
@@ -382,6 +390,7 @@ def _analyse_all(
             statement=statement,
             plots=plots,
             true_calibration=true_calibration,
+            plot_dpi=plot_dpi,
         )
         rep["wall_time_s"] = time.perf_counter() - t0
         reports.append(rep)

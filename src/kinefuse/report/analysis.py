@@ -114,6 +114,7 @@ def analyse_one(
     statement: str,
     plots: bool = True,
     true_calibration: bool = False,
+    plot_dpi: int | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Analyse one input into ``folder`` (which exists and is empty); returns (report, result)."""
     seq = inp.seq
@@ -171,7 +172,7 @@ def analyse_one(
         truth = truth_figures(inp, res, phase, true_calibration=true_calibration)
         if truth is not None:
             report.update(truth["report"])
-    written = _write_outputs(folder, inp, res, plots, truth)
+    written = _write_outputs(folder, inp, res, plots, truth, plot_dpi)
     report["written"] = [str(p) for p in written]
     return report, res
 
@@ -194,6 +195,7 @@ def _write_outputs(
     res: dict[str, Any],
     plots: bool,
     truth: dict[str, Any] | None,
+    plot_dpi: int | None = None,
 ) -> list[Path]:
     from kinefuse.analysis_app import write_limb_frames
 
@@ -221,6 +223,7 @@ def _write_outputs(
                 named,
                 title=title,
                 truth_deg=None if truth is None else truth.get("named_true"),
+                dpi=plot_dpi or 80,
             )
         )
         dj = res["models"]["dj"]
@@ -235,6 +238,7 @@ def _write_outputs(
                 status=dj.status,
                 true_axes=None if truth is None else truth.get("true_axes"),
                 title=f"{title}, calibration phase {ph[0]:.1f}-{ph[1]:.1f} s",
+                dpi=plot_dpi or 70,
             )
         )
     return written
