@@ -4,7 +4,7 @@
 
 1. ``kinefuse analyze`` on every file of ``../shared/data/motion`` and ``../shared/data/markers``
    (01_01 learns its axes on its first 8 s); the angle plots are copied to
-   ``IMG/analysis_<file>.png``.
+   ``IMG/analysis_<stem>_<extension>.png``.
 2. A simulated 4-sensor session of CMU 02_walk_a with a 60 s range-of-motion phase
    (``simulate --rom 60``, seed 0), calibrated from its wand phase (``calibrate``), analysed
    (``analyze``): axis errors of DJ / PCA / EM, reconstruction and twist errors, the walk's angle
@@ -57,7 +57,8 @@ def shared_files() -> list[Path]:
 def part_files(work: Path, img: Path) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     for f in shared_files():
-        out = work / "files" / f.stem
+        tag = f"{f.stem}_{f.suffix[1:]}"
+        out = work / "files" / tag
         extra = ["--calibration-phase", "0:8"] if f.stem.startswith("01_01") else []
         try:
             r = run_analyze([f], out=out, calibration_phase=(0.0, 8.0) if extra else None,
@@ -65,7 +66,7 @@ def part_files(work: Path, img: Path) -> list[dict[str, Any]]:
         except KinefuseError as e:
             rows.append({"file": f.name, "error": str(e).splitlines()[0][:300]})
             continue
-        shutil.copyfile(out / "angles.png", img / f"analysis_{f.stem}.png")
+        shutil.copyfile(out / "angles.png", img / f"analysis_{tag}.png")
         rows.append(
             {
                 "file": f.name,
