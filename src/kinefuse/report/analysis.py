@@ -238,7 +238,7 @@ def _write_outputs(
                 status=dj.status,
                 true_axes=None if truth is None else truth.get("true_axes"),
                 title=f"{title}, calibration phase {ph[0]:.1f}-{ph[1]:.1f} s",
-                dpi=plot_dpi or 70,
+                dpi=int(1.3 * plot_dpi) if plot_dpi else 70,
             )
         )
     return written

@@ -32,7 +32,7 @@ from kinefuse.errors import KinefuseError
 ROOT = Path(__file__).resolve().parents[3]
 SHARED = ROOT.parent / "shared" / "data"
 #: Resolution of the plots copied into the docs (small files).
-DOC_DPI = 45
+DOC_DPI = 55
 
 
 def _run(*argv: str) -> None:

@@ -178,7 +178,7 @@ def plot_joint_spheres(
                     ax.plot(*np.stack([np.zeros(3), 1.4 * a]).T, color="k", ls="--", lw=1)
         label = name
         if status is not None and status.get(name, "ok") != "ok":
-            label += f"\n{status[name]}"
+            label += f"\n{status[name].split(':', 1)[0][:40]}"  # the gist; the report has all
         ax.set_title(label, fontsize=7)
         ax.set_xlim(-1.2, 1.2)
         ax.set_ylim(-1.2, 1.2)
