@@ -84,3 +84,28 @@ def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
     empty.mkdir()
     assert prepare_out(empty) == empty
     assert prepare_out(tmp_path / "new" / "deeper").is_dir()
+
+
+def test_rom_phase_is_placed_where_the_clip_starts(shared_data: Path) -> None:
+    from kinefuse.analysis_app import add_rom_phase
+    from kinefuse.motion import facing_direction, load_motion, place
+    from kinefuse.skeleton import JOINT_INDEX
+
+    clip = place(load_motion(shared_data / "motion/cmu/02_walk_b.amc"), (1.0, -0.5), 75.0)
+    rom = add_rom_phase(clip, 60.0, seed=3)
+    m = rom.motion
+    root = JOINT_INDEX["SpineBase"]
+    n_rom = int(rom.rom_s * clip.rate_hz)
+    # the ROM stands where the clip starts and faces its way; the clip follows unchanged
+    np.testing.assert_allclose(m.positions[0, root, :2], clip.positions[0, root, :2], atol=0.01)
+    f0, f1 = facing_direction(m.positions[0]), facing_direction(clip.positions[0])
+    assert float(f0 @ f1) > np.cos(np.radians(5.0))
+    np.testing.assert_allclose(m.positions[-clip.n_frames :], clip.positions, atol=0)
+    assert m.n_frames == n_rom + 1 + round(rom.blend_s * clip.rate_hz) + clip.n_frames
+    # frame-to-frame steps stay human (no jump into the clip): under 5 cm at 120 Hz
+    step = np.linalg.norm(np.diff(m.positions, axis=0), axis=-1).max()
+    assert step < 0.05
+    truth = rom.truth
+    assert set(truth["axes_parent"]) >= {"thigh_left", "upper_arm_right", "shank_left"}
+    assert np.asarray(truth["axes_parent"]["thigh_left"]).shape == (2, 3)
+    assert len(truth["t_s"]) == len(truth["twist_rad"]["thigh_left"])

@@ -301,3 +301,32 @@ def test_writing_into_a_read_only_folder_fails_with_the_path_and_reason(
     ):
         write_angles_mot(readonly_folder / "a.mot", np.arange(3.0), {"x": np.zeros(3)})
     assert list(readonly_folder.iterdir()) == []
+
+
+def test_marker_clusters_give_limb_orientations(shared_data: Path) -> None:
+    from kinefuse.io.sequences import sequence_from_markers
+
+    s = sequence_from_markers(shared_data / STATIC)
+    assert set(s.orientation_limbs) == {"thigh_left", "shank_left", "thigh_right", "shank_right"}
+    r = s.orientation("thigh_right")
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-9)  # proper rotations
+    bone = s.positions[:, s.index("KneeRight")] - s.positions[:, s.index("HipRight")]
+    local = np.einsum("tji,tj->ti", r, bone)
+    assert float(np.nanstd(local, axis=0).max()) < 0.005  # static trial: the thigh is rigid, m
+    import tomllib
+
+    mm = parse_marker_map(
+        tomllib.loads('[joints]\nSpineBase = "S2"\n[clusters]\nthigh_left = ["A", "B", "L.TH1"]\n'),
+        name="t",
+        origin="t.toml",
+    )
+    from kinefuse.io.marker_maps import cluster_orientations
+
+    with pytest.raises(InputError, match="thigh_left: A, B"):
+        cluster_orientations(read_trc(shared_data / STATIC), mm)
+    with pytest.raises(InputError, match="is not a limb"):
+        parse_marker_map(
+            tomllib.loads('[joints]\nSpineBase = "S2"\n[clusters]\nleg = ["A", "B", "C"]\n'),
+            name="t",
+            origin="t.toml",
+        )

@@ -11,7 +11,8 @@ session, the clip's time from 0), the range-of-motion phase a session stored in 
 whole input; the report's ``calibration_phase.source`` and ``statement`` say which, and what
 that means for the figures.
 
-Output folder (fresh: created, or an existing empty folder; never a folder with files in it):
+Output folder (fresh: created, or an existing empty folder; never a folder with files in it;
+written as a hidden staging folder beside it and renamed into place when everything is done):
 one input writes its files straight into it; several inputs write one subfolder each
 (``01_<stem>``, ``02_<stem>``, ...) plus the consistency figures in ``analysis.json``. Every
 file goes through a temporary file and an atomic rename. Formats in ``docs/analysis.md``.
@@ -21,6 +22,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -145,6 +149,25 @@ def load_input(
     )
 
 
+def check_out(out: Path) -> None:
+    """Refuse an output path that is a file or a folder with files in it; create its parents."""
+    if out.exists():
+        if not out.is_dir():
+            raise WriteError(f"{out} exists and is not a folder; choose a fresh output folder")
+        if any(out.iterdir()):
+            raise WriteError(
+                f"{out} already holds files; kinefuse analyze writes into a fresh folder only "
+                "(it never overwrites files it did not make): choose a new --out"
+            )
+        return
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise WriteError(
+            f"{out.parent}: cannot create the folder: {e.strerror or e}; choose another --out"
+        ) from None
+
+
 def prepare_out(out: Path) -> Path:
     """Create the output folder, or accept an existing empty one; refuse anything else."""
     if out.exists():
@@ -255,8 +278,9 @@ def clean_json(value: object) -> object:
     return value
 
 
-def write_json(path: Path, report: dict[str, Any]) -> Path:
-    return atomic_write_text(path, json.dumps(clean_json(report), indent=2) + "\n")
+def json_text(report: dict[str, Any]) -> str:
+    """The report as strict JSON (NaN written as null)."""
+    return json.dumps(clean_json(report), indent=2)
 
 
 def run_analyze(
@@ -269,11 +293,14 @@ def run_analyze(
     calibration: Path | None = None,
     true_calibration: bool = False,
     plots: bool = True,
+    plot_dpi: int | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Analyse one or several inputs into a fresh folder ``out``; returns the report."""
-    from kinefuse.report.analysis import analyse_one, consistency_report
+    """Analyse one or several inputs into a fresh folder ``out``; returns the report.
 
+    Everything is written into a hidden staging folder beside ``out`` and renamed onto ``out``
+    at the end, so a failed run leaves nothing behind (and never touches other files).
+    """
     say = progress or (lambda _m: None)
     if not inputs:
         raise InputError("give at least one input file")
@@ -289,11 +316,63 @@ def run_analyze(
                 true_calibration=true_calibration,
             )
         )
-    prepare_out(out)
+    check_out(out)  # fail early (name taken) before any work
     if plots:
         import matplotlib
 
         matplotlib.use("Agg")  # the command draws to files only
+    stage = _staging_folder(out)
+    try:
+        report = _analyse_all(
+            loaded, stage, calibration_phase, plots, true_calibration, say, plot_dpi
+        )
+        report["out"] = str(out)
+        text = json_text(report).replace(str(stage), str(out))
+        atomic_write_text(stage / "analysis.json", text + "\n")
+        _publish(stage, out)
+    finally:
+        if stage.exists():
+            shutil.rmtree(stage)
+    return dict(json.loads(text))
+
+
+def _staging_folder(out: Path) -> Path:
+    """A hidden folder beside ``out`` to write into, renamed onto ``out`` when all is done."""
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        mask = os.umask(0o022)
+        os.umask(mask)
+        os.chmod(stage, 0o777 & ~mask)  # mkdtemp makes 0700; the result gets the usual mode
+        return stage
+    except OSError as e:
+        raise WriteError(
+            f"{out.parent}: cannot write there: {e.strerror or e}; choose another --out"
+        ) from None
+
+
+def _publish(stage: Path, out: Path) -> None:
+    """Move the finished folder onto ``out`` (an empty folder we may replace, or a new name)."""
+    try:
+        if out.exists():
+            out.rmdir()  # only succeeds when empty: never removes someone's files
+        os.rename(stage, out)
+    except OSError as e:
+        raise WriteError(
+            f"{out}: cannot put the results there: {e.strerror or e}; they were not kept"
+        ) from None
+
+
+def _analyse_all(
+    loaded: list[AnalysisInput],
+    out: Path,
+    calibration_phase: tuple[float, float] | None,
+    plots: bool,
+    true_calibration: bool,
+    say: Callable[[str], None],
+    plot_dpi: int | None = None,
+) -> dict[str, Any]:
+    from kinefuse.report.analysis import analyse_one, consistency_report
+
     reports = []
     results = []
     for k, inp in enumerate(loaded):
@@ -311,18 +390,16 @@ def run_analyze(
             statement=statement,
             plots=plots,
             true_calibration=true_calibration,
+            plot_dpi=plot_dpi,
         )
         rep["wall_time_s"] = time.perf_counter() - t0
         reports.append(rep)
         results.append(res)
     report: dict[str, Any]
     if len(reports) == 1:
-        report = reports[0]
-    else:
-        report = {"inputs": reports}
-        report.update(consistency_report(results))
-    report["out"] = str(out)
-    write_json(out / "analysis.json", report)
+        return reports[0]
+    report = {"inputs": reports}
+    report.update(consistency_report(results))
     return report
 
 
@@ -331,3 +408,75 @@ def format_analyze(report: dict[str, Any]) -> str:
     from kinefuse.report.analysis import format_report
 
     return format_report(report)
+
+
+# ------------------------------------------------------------------ simulate --rom
+
+
+@dataclass(frozen=True, eq=False)
+class RomPhase:
+    """A range-of-motion phase put before a clip (for ``kinefuse simulate --rom``)."""
+
+    motion: Any  # kinefuse.motion.types.Motion: the ROM, the blend, then the clip
+    rom_s: float  # length of the ROM phase itself, seconds (the blend follows it)
+    blend_s: float
+    truth: dict[str, Any]  # JSON-able truth (true axes, rest, twist over time ...)
+
+
+def add_rom_phase(clip: Any, rom_s: float, *, seed: int = 0, blend_s: float = 1.0) -> RomPhase:
+    """A generated range-of-motion phase of ``rom_s`` seconds before ``clip`` (placed).
+
+    The subject's default pose is the clip's default-pose frame
+    (:func:`kinefuse.analysis.find_default_pose`), moved (translation, rotation about z) to
+    where the clip starts and facing its first frame's way, so that the blend into the clip only
+    changes the pose. Randomness comes from ``seed`` (its own stream, not the simulator's).
+    """
+    from kinefuse.analysis import find_default_pose
+    from kinefuse.analysis.rom import make_rom_motion, prepend_rom
+    from kinefuse.geometry.transforms import rot_z
+    from kinefuse.motion import facing_direction
+    from kinefuse.skeleton import JOINT_INDEX
+
+    if not (np.isfinite(rom_s) and rom_s > 0):
+        raise InputError(f"--rom must be a positive number of seconds, got {rom_s!r}")
+    seq = SkeletonSequence.from_motion(clip)
+    k = find_default_pose(seq)
+    pose = clip.positions[k]
+    f_pose, f_0 = facing_direction(pose), facing_direction(clip.positions[0])
+    turn = float(np.arctan2(f_0[1], f_0[0]) - np.arctan2(f_pose[1], f_pose[0]))
+    root = JOINT_INDEX["SpineBase"]
+    pivot = pose[root] * np.array([1.0, 1.0, 0.0])
+    placed = (pose - pivot) @ rot_z(turn).T
+    placed[:, :2] += clip.positions[0, root, :2]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x524F4D]))  # "ROM"
+    rom, truth = make_rom_motion(placed, rom_s, rng)
+    motion = prepend_rom(rom, clip, blend_s=blend_s)
+    t_rom = np.arange(rom.n_frames) / rom.rate_hz
+    info = {
+        "note": "range-of-motion phase of kinefuse simulate --rom: true axes and rest "
+        "directions in the parent limb's normalized frame at the default pose (JCS order, ISB "
+        "signs), true angles and twists (radians) at t_s (seconds from the phase's start)",
+        "default_pose_frame_of_clip": int(k),
+        "axes_parent": {n: v.tolist() for n, v in truth.axes.items()},
+        "axes_world": {n: v.tolist() for n, v in truth.axes_world.items()},
+        "rest_parent": {n: v.tolist() for n, v in truth.rest.items()},
+        "movements": [list(m) for m in truth.movements],
+        "t_s": np.round(t_rom, 6).tolist(),
+        "twist_rad": {n: np.round(v, 6).tolist() for n, v in truth.twist.items()},
+        "angles_rad": {n: np.round(v, 6).tolist() for n, v in truth.angles.items()},
+    }
+    return RomPhase(motion=motion, rom_s=float(rom.duration_s), blend_s=blend_s, truth=info)
+
+
+def record_rom_phase(session: Path, phase: RomPhase, start_s: float) -> None:
+    """Store a simulated session's ROM phase: its interval as ordinary protocol metadata
+    (``rom_phase_server_s``, what a real lab's protocol also knows), its truth in the truth
+    info (``rom_truth``, read only by ``report/``)."""
+    from kinefuse.io.store import SessionStore
+
+    with SessionStore.open(session, writable=True) as store:
+        store.set_meta("rom_phase_server_s", [start_s, start_s + phase.rom_s])
+        store.set_meta("rom_blend_s", phase.blend_s)
+        truth = dict(phase.truth)
+        truth["start_server_s"] = start_s
+        store.write_truth_info("rom_truth", truth)

@@ -126,13 +126,16 @@ def run_simulate(
     room: tuple[float, float, float, float] | None = None,
     force: bool = False,
     progress: Callable[[str], None] | None = None,
+    rom_s: float | None = None,
 ) -> dict[str, Any]:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
     Everything that can be checked is checked before anything is written; the session is built
     in a temporary file beside ``out``, marked complete, and renamed into place only when it is
     whole, so an interrupted or failed run leaves any old ``out`` byte-identical. ``force``
-    replaces an existing simulated session, never another file or a live recording.
+    replaces an existing simulated session, never another file or a live recording. ``rom_s``:
+    a range-of-motion calibration phase of that many seconds before the motion
+    (:func:`kinefuse.analysis_app.add_rom_phase`).
 
     Returns
     -------
@@ -157,6 +160,16 @@ def run_simulate(
             "give at most the clip's length or leave --seconds out"
         )
     motion = place_actor(motion, the_rig, seconds)
+    rom = None
+    if rom_s is not None:
+        from kinefuse.analysis_app import add_rom_phase
+
+        rom = add_rom_phase(motion, rom_s, seed=seed)
+        if seconds is not None:
+            seconds = min(
+                seconds + rom.motion.duration_s - motion.duration_s, rom.motion.duration_s
+            )
+        motion = rom.motion
     config = LabConfig(
         seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
     )
@@ -165,6 +178,10 @@ def run_simulate(
     ) as tmp:
         tmp.unlink()  # the store creates its own file
         simulate_session(motion, the_rig, tmp, config, progress=say)
+        if rom is not None:
+            from kinefuse.analysis_app import record_rom_phase
+
+            record_rom_phase(tmp, rom, calibration_s)
         with SessionStore.open(tmp, writable=True) as store:
             coverage = tracking_coverage(store)
             store.mark_complete()
@@ -371,6 +388,9 @@ def run_evaluate(
         report, results, truth = evaluate(
             store, sensors, methods, truth2world=truth2world, start_s=start_s, end_s=end_s
         )
+        from kinefuse.report.plausibility_eval import plausibility_vs_errors
+
+        report["plausibility"] = plausibility_vs_errors(store, results, truth)
     report["calibration"] = source
     if truth2world is not None:
         report["calibration_alignment"] = {
@@ -431,6 +451,11 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
                      "interval, block bootstrap over frames):")  # fmt: skip
         for pair, v in comp.items():
             lines.append(f"  {pair:<22} {_gain_text(v)}")
+    from kinefuse.report.plausibility_eval import format_plausibility
+
+    plaus = format_plausibility(report.get("plausibility"))
+    if plaus:
+        lines.append(plaus)
     abl = report.get("ablation")
     if isinstance(abl, dict):
         lines.append("\nablation of best (MAE without the part, and what the part gains):")

@@ -82,6 +82,12 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
         help="the room's floor rectangle XMIN,YMIN,XMAX,YMAX in metres (default: the rig's "
         "[room], else -4,-4,4,4; write --room=-5,-5,5,5); every sensor must stand inside it",
     )
+    p.add_argument(
+        "--rom",
+        type=_positive_float,
+        metavar="SECONDS",
+        help="a range-of-motion calibration phase of SECONDS before the motion (docs/analysis.md)",
+    )
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -102,6 +108,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         out=args.out,
         force=args.force,
         progress=lambda m: print(m, file=sys.stderr),
+        rom_s=args.rom,
     )
     for w in r["warnings"]:
         print(f"kinefuse: warning: {w}", file=sys.stderr)
@@ -269,6 +276,69 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(out_dir=args.out, seed=args.seed)
 
 
+def _phase(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected START_S:END_S in seconds (e.g. 0:20), got {text!r}"
+        ) from None
+    if not b > a:
+        raise argparse.ArgumentTypeError(f"the end must be after the start, got {text!r}")
+    return a, b
+
+
+def _cmd_analyze(args: argparse.Namespace) -> int:
+    from kinefuse.analysis_app import format_analyze, json_text, run_analyze
+
+    report = run_analyze(
+        args.inputs,
+        out=args.out,
+        calibration_phase=args.calibration_phase,
+        marker_map=args.map,
+        method=args.method,
+        calibration=args.calibration,
+        true_calibration=args.true_calibration,
+        plots=not args.no_plots,
+        progress=lambda m: print(m, file=sys.stderr),
+    )
+    print(json_text(report) if args.json else format_analyze(report))
+    return 0
+
+
+def _add_analyze_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "analyze", help="normalized limb frames and joint angles (paper B; docs/analysis.md)"
+    )
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        type=Path,
+        help="session (.sqlite), clip (.bvh/.amc), markers (.trc/.c3d)",
+    )
+    p.add_argument(
+        "--calibration-phase",
+        type=_phase,
+        metavar="START_S:END_S",
+        help="the frames to learn the movement axes from (default: a session's stored "
+        "range-of-motion phase, else the whole input)",
+    )
+    p.add_argument(
+        "--map", type=Path, help="marker map (TOML) for .trc/.c3d (default: a shipped one)"
+    )
+    p.add_argument(
+        "--method",
+        default="best",
+        choices=["linear", "geometric", "nonlinear", "paper", "best"],
+        help="fusion method for sessions (best)",
+    )
+    _add_calibration_args(p)
+    p.add_argument("--out", type=Path, required=True, help="fresh output folder")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=_cmd_analyze)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="kinefuse",
@@ -380,6 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("rest", nargs=argparse.REMAINDER, help="files and options of the report")
     p.set_defaults(func=_cmd_realdata)
+
+    _add_analyze_parser(sub)
 
     p = sub.add_parser("inspect", help="summarize a session store")
     p.add_argument("session", type=Path)

@@ -10,7 +10,18 @@ The chain, for a :class:`SkeletonSequence` ``seq`` (Kinect v2 topology, metres, 
     ang = an.joint_angles(seq, norm, model)         # angles about the learned axes + twist
     deg = ang.anatomical()                          # {"knee_flexion_left": (T,) degrees, ...}
     rec = an.reconstruct(ang, model, norm)          # forward kinematics back to positions
-    flags = an.plausibility(ang, model)             # (T, L) implausible-pose flags per limb
+    err = an.reconstruction_error(seq, ang, model)  # {"sphere_mean": m, ...}
+    flags = an.plausibility(ang, model).joint_flags()   # (T, 25) implausible-pose flags
+    cons = an.normalization_consistency([norm_a, norm_b, norm_c])  # {"mean", "median"} degrees
+    rom, truth = an.make_rom_motion(default_pose_25x3, seconds, rng)  # (Motion, RomTruth)
+    motion = an.prepend_rom(rom, clip)              # calibration phase, 1 s blend, the clip
+
+The calibration phase of a clip made by ``prepend_rom`` is ``(0, rom.duration_s)`` in motion
+time (add the session's wand phase for server time). Against a truth (simulated sessions):
+``axis_errors_deg(model, true_axes_in_normalization(truth.axes, true_frames, norm.frames))``,
+``angle_rmse_deg(ang.anatomical(), ang_true.anatomical(), frames)``,
+``twist_errors_deg(ang.twist, ang_true.twist, ang.twist_weight, frames)`` where ``ang_true``
+is the same analysis of the true positions (see ``benchmarks/bench_analysis.py accuracy``).
 
 Modules
 -------
@@ -24,11 +35,17 @@ Modules
     :func:`find_default_pose` (frame index), :func:`normalize` -> :class:`Normalization`
     (``frames (T, L, 3, 3)`` limb->world, ``transforms() (T, L, 4, 4)``, ``twist_weight``,
     per-limb ``status`` and ``observable`` DOF).
+``axes``
+    Speed-histogram filtering and the three axis extractors on the joint sphere.
 ``parameterize``
-    :func:`learn_axes` -> :class:`AxisModel` (per limb: axes in the parent's normalized frame,
-    rest position, status ``"ok"`` / ``"no movement"`` / ``"one axis only"`` ...; methods
-    ``"dj"`` (Direction Joining, default), ``"pca"``, ``"em"``), :func:`joint_angles` ->
-    :class:`Angles`, :func:`reconstruct`, :func:`edit_pose`.
+    :func:`learn_axes` -> :class:`AxisModel` (per limb a :class:`LimbModel`: axes in the
+    parent's normalized frame, rest position, ranges, status ``"ok"`` / ``"no movement: ..."``
+    / ``"one axis only: ..."`` / ``"missing: ..."``; methods ``"dj"`` (Direction Joining,
+    default), ``"pca"``, ``"em"``).
+``kinematics``
+    :func:`joint_angles` -> :class:`Angles` (``angles``, ``twist``, ``off_axis`` per limb;
+    ``anatomical()`` -> ISB-named degrees), :func:`reconstruct`, :func:`reconstruction_error`,
+    :func:`edit_pose`.
 ``anatomy``
     Names and ISB signs of the angles (:data:`ANGLE_NAMES`, :func:`anatomical_angles`).
 ``plausibility``
@@ -44,18 +61,57 @@ message saying what was expected and what to do; per-limb problems that should n
 analysis of the other limbs are reported in ``status`` dictionaries instead.
 """
 
+from kinefuse.analysis.anatomy import ANGLE_NAMES
+from kinefuse.analysis.consistency import (
+    angle_rmse_deg,
+    axis_errors_deg,
+    normalization_consistency,
+    true_axes_in_normalization,
+    twist_errors_deg,
+)
+from kinefuse.analysis.kinematics import (
+    Angles,
+    edit_pose,
+    joint_angles,
+    reconstruct,
+    reconstruction_error,
+)
 from kinefuse.analysis.limbs import LIMB_NAMES, LIMBS, Limb, limb
-from kinefuse.analysis.normalize import Normalization, find_default_pose, normalize
+from kinefuse.analysis.normalize import Normalization, find_default_pose, normalize, propagate
+from kinefuse.analysis.parameterize import METHODS, AxisModel, LimbModel, learn_axes
+from kinefuse.analysis.plausibility import Plausibility, plausibility
+from kinefuse.analysis.rom import RomTruth, make_rom_motion, prepend_rom
 from kinefuse.analysis.sequence import SkeletonSequence, kinect_parents
 
 __all__ = [
+    "ANGLE_NAMES",
     "LIMBS",
     "LIMB_NAMES",
+    "METHODS",
+    "Angles",
+    "AxisModel",
     "Limb",
+    "LimbModel",
     "Normalization",
+    "Plausibility",
+    "RomTruth",
     "SkeletonSequence",
+    "angle_rmse_deg",
+    "axis_errors_deg",
+    "edit_pose",
     "find_default_pose",
+    "joint_angles",
     "kinect_parents",
+    "learn_axes",
     "limb",
+    "make_rom_motion",
+    "normalization_consistency",
     "normalize",
+    "plausibility",
+    "prepend_rom",
+    "propagate",
+    "reconstruct",
+    "reconstruction_error",
+    "true_axes_in_normalization",
+    "twist_errors_deg",
 ]

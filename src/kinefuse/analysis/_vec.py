@@ -120,3 +120,18 @@ def chordal_mean(r: Array) -> Array:
     u, _, vt = np.linalg.svd(s)
     d = np.sign(np.linalg.det(u @ vt))
     return np.asarray(u @ np.diag([1.0, 1.0, d]) @ vt)
+
+
+def tmv(r: Array, v: Array) -> Array:
+    """``R^T v`` for stacks ``r (..., 3, 3)`` and ``v (..., 3)``."""
+    return np.matmul(np.swapaxes(r, -1, -2), v[..., None])[..., 0]
+
+
+def mv(r: Array, v: Array) -> Array:
+    """``R v`` for stacks ``r (..., 3, 3)`` and ``v (..., 3)`` (``v`` may be one vector)."""
+    return np.matmul(r, np.asarray(v)[..., None])[..., 0]
+
+
+def tmm(a: Array, b: Array) -> Array:
+    """``A^T B`` for stacks of 3x3 matrices."""
+    return np.matmul(np.swapaxes(a, -1, -2), b)

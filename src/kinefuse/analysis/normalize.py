@@ -3,7 +3,8 @@
 1. **Default pose**: the frame of lowest cost, the cost summing three heuristics on the joints
    (each divided by its median over the frames so that none dominates by its unit): the mean
    squared distance to their best-fitting plane, the edge ratio (short / long) of the 2D bounding
-   box of the joints projected into that plane, and the mean distance to their centre of gravity.
+   box of the joints projected into that plane, and the mean distance to their centre of gravity;
+   plus a fourth of ours, stillness (see :func:`default_pose_costs`).
 2. **Body planes** from that frame: frontal plane = best-fitting plane (its normal, signed
    forward, is the body ``x``); transverse normal = the global up made orthogonal to ``x`` (body
    ``z``); sagittal normal ``y = z × x`` (to the subject's left).
@@ -16,10 +17,11 @@
    limb rotation where it has one (BVH, ASF/AMC, marker clusters). For position-only skeletons it
    is built from the limb's joints and a neighbour (:attr:`Limb.twist_ref`). The neighbour can
    be nearly parallel to the limb (a straight elbow): the twist then is weighted down smoothly
-   toward the frame carried from the parent by the minimal rotation (weight 0 below 8°, 1 above
-   20° between limb and reference), and the constant transform is taken at the frame nearest to
-   the default pose where the reference is well conditioned. Both choices are ours; the paper's
-   marker bodies always give a full frame.
+   toward the frame carried from the parent by the minimal rotation (weight 0 below 15°, 1 above
+   35° between limb and reference), and the constant transform is the mean over the
+   well-conditioned frames whose limb direction is within 25° of the default pose's (where the
+   carried frame is exact up to noise), else taken at the nearest well-conditioned frame. Both
+   choices are ours; the paper's marker bodies always give a full frame.
 """
 
 from __future__ import annotations
@@ -29,7 +31,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis._vec import dot, frame_from, minimal_rotation, rodrigues, twist_angle, unit
+from kinefuse.analysis._vec import (
+    chordal_mean,
+    dot,
+    frame_from,
+    minimal_rotation,
+    rodrigues,
+    tmm,
+    tmv,
+    twist_angle,
+    unit,
+)
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS, Limb
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
@@ -46,7 +58,12 @@ BODY_JOINTS = (
 )  # fmt: skip
 #: Below this angle between a limb and its twist reference the twist weight is 0, above the
 #: second it is 1 (degrees; a straight elbow or knee leaves the twist unobservable).
-TWIST_WEIGHT_DEG = (8.0, 20.0)
+TWIST_WEIGHT_DEG = (15.0, 35.0)
+#: Frames whose limb direction is within this angle of the default pose's give the constant of
+#: a position-only twist (degrees).
+NEAR_DEFAULT_DEG = 25.0
+#: The frames within this span around the default-pose frame are averaged (seconds).
+DEFAULT_WINDOW_S = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,6 +93,8 @@ class Normalization:
         "twist_frames": fraction of frames with weight 1}``.
     costs : (T,) float
         Default-pose cost per frame (NaN where joints are missing).
+    constants : dict str -> LimbConstants
+        What :func:`propagate` applies to new frames.
     """
 
     default_frame: int
@@ -87,6 +106,7 @@ class Normalization:
     status: dict[str, str] = field(default_factory=dict)
     observable: dict[str, dict[str, object]] = field(default_factory=dict)
     costs: Array = field(default_factory=lambda: np.zeros(0))
+    constants: dict[str, LimbConstants] = field(default_factory=dict)
 
     def transforms(self) -> Array:
         """Limb-to-world transforms ``(T, L, 4, 4)`` (rotation :attr:`frames`, origin midpoint)."""
@@ -102,11 +122,14 @@ class Normalization:
         return self.frames[:, LIMB_INDEX[limb]]
 
 
-def default_pose_costs(positions: Array) -> Array:
-    """The three heuristics' cost per frame ``(T,)`` for body joints ``(T, J, 3)`` (metres).
+def default_pose_costs(positions: Array, rate_hz: float | None = None) -> Array:
+    """The heuristics' cost per frame ``(T,)`` for body joints ``(T, J, 3)`` (metres).
 
-    NaN for frames with a missing body joint. Each heuristic is divided by its median over the
-    valid frames before they are summed.
+    The paper's three, plus (when ``rate_hz`` is given) a fourth of ours: the mean joint speed
+    averaged over half a second, because a default pose is *held*. Without it a momentary pose
+    can beat the held one (a trunk turned by 30° fits a plane better than a slightly staggered
+    stance). NaN for frames with a missing body joint. Each term is divided by its median over
+    the valid frames before they are summed.
     """
     p = np.asarray(positions, dtype=np.float64)
     ok = np.isfinite(p).all(axis=(1, 2))
@@ -124,8 +147,26 @@ def default_pose_costs(positions: Array) -> Array:
     ratio = np.minimum(ea, eb) / np.maximum(np.maximum(ea, eb), 1e-9)
     spread = np.linalg.norm(c, axis=-1).mean(axis=1)
     terms = [plane, ratio, spread]
+    if rate_hz is not None and p.shape[0] > 2:
+        terms.append(_stillness(p, float(rate_hz))[ok])
     cost[ok] = sum(t / max(float(np.median(t)), 1e-12) for t in terms)
     return cost
+
+
+def _stillness(p: Array, rate_hz: float, window_s: float = 0.5) -> Array:
+    """Mean joint speed per frame (m/s), averaged over ``window_s``, NaN-aware."""
+    sp = np.full(p.shape[0], np.nan)
+    sp[1:] = np.linalg.norm(np.diff(p, axis=0), axis=-1).mean(axis=1) * rate_hz
+    sp[0] = sp[1]
+    ok = np.isfinite(sp)
+    half = max(round(window_s * rate_hz / 2), 1)
+    c = np.concatenate([[0.0], np.cumsum(np.where(ok, sp, 0.0))])
+    n = np.concatenate([[0], np.cumsum(ok)])
+    i = np.arange(p.shape[0])
+    lo, hi = np.clip(i - half, 0, p.shape[0]), np.clip(i + half + 1, 0, p.shape[0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (c[hi] - c[lo]) / (n[hi] - n[lo])
+    return np.where(np.isfinite(out), out, np.nanmedian(sp) if ok.any() else 1.0)
 
 
 def find_default_pose(seq: SkeletonSequence, /) -> int:
@@ -141,7 +182,7 @@ def _default(seq: SkeletonSequence) -> tuple[int, Array]:
             f"{seq.source or 'the sequence'} lacks; map them (a marker map, a name map) first"
         )
     idx = [seq.index(n) for n in BODY_JOINTS]
-    costs = default_pose_costs(seq.positions[:, idx])
+    costs = default_pose_costs(seq.positions[:, idx], seq.rate_hz)
     if not np.isfinite(costs).any():
         raise InputError(
             "no frame has all body joints present, so no default pose can be found; "
@@ -217,7 +258,12 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         d = int(default_frame)
     p = seq.kinect_positions()
     t = seq.n_frames
-    body = body_frame(p[d])
+    # the default pose is held: average the frames of half a second around it (ours), so that
+    # one noisy frame does not set the constants of the whole recording
+    half = max(round(DEFAULT_WINDOW_S * seq.rate_hz / 2), 0)
+    win = np.arange(max(d - half, 0), min(d + half + 1, t))
+    win = win[np.isfinite(costs[win])] if np.isfinite(costs[win]).any() else np.array([d])
+    body = body_frame(np.nanmean(p[win], axis=0))
     if not np.isfinite(body).all():
         raise InputError(f"the default-pose frame {d} lacks body joints; choose another frame")
     n = len(LIMBS)
@@ -227,25 +273,39 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
     weight = np.zeros((t, n))
     status: dict[str, str] = {}
     observable: dict[str, dict[str, object]] = {}
+    constants: dict[str, LimbConstants] = {}
     for i, lb in enumerate(LIMBS):
         u = p[:, lb.distal_index] - p[:, lb.proximal_index]
         origins[:, i] = 0.5 * (p[:, lb.distal_index] + p[:, lb.proximal_index])
         present: NDArray[np.bool_] = np.asarray(np.isfinite(u).all(axis=-1))
         if not present[d]:
-            status[lb.name] = f"{lb.proximal} or {lb.distal} missing in the default pose"
+            gone = [
+                j for j in (lb.proximal, lb.distal) if not np.isfinite(p[d, JOINT_INDEX[j]]).all()
+            ]
+            status[lb.name] = f"{' and '.join(gone)} missing in the default pose"
             observable[lb.name] = {"swing_axes": lb.n_axes, "twist": "not observable"}
             continue
-        n0, k, s = limb_frame_from_body(u[d], body)
+        n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body)
         long_axis[i, k] = s
         src = seq.orientation(lb.name)
         if src is not None and np.isfinite(src[d]).all():
             # the paper's propagation: constant original-to-normalized transform
-            c = src[d].T @ n0
-            frames[:, i] = src @ c
-            weight[:, i] = np.isfinite(src).all(axis=(1, 2)).astype(float)
-            tw_kind = "observable"
+            c_src = _mean_rot(tmm(src[win], n0))
+            k_i = LimbConstants("orientation", c_src, np.eye(3), np.zeros(3), long_axis[i])
         else:
-            tw_kind = _position_frames(p, lb, i, d, n0, long_axis[i], frames, weight)
+            src = None
+            k_i = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
+        constants[lb.name] = k_i
+        par = LIMB_PARENTS[i]
+        frames[:, i], weight[:, i] = _limb_frames(
+            lb, k_i, p, frames[:, par] if par >= 0 else None, src
+        )
+        if k_i.kind == "carried":
+            tw_kind = "not observable"
+        elif k_i.kind == "twist" and (weight[:, i] >= 1).mean() <= 0.95:
+            tw_kind = "when bent"
+        else:
+            tw_kind = "observable"
         frac_missing = 1.0 - present.mean()
         twist_frames = float((weight[:, i] >= 1.0).mean())
         observable[lb.name] = {
@@ -269,43 +329,128 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         status=status,
         observable=observable,
         costs=costs,
+        constants=constants,
     )
 
 
-def _position_frames(
-    p: Array, lb: Limb, i: int, d: int, n0: Array, axis_l: Array, frames: Array, weight: Array
-) -> str:
-    """Fill ``frames[:, i]`` for a position-only limb; return the twist observability."""
+@dataclass(frozen=True, eq=False)
+class LimbConstants:
+    """The constant part of one limb's normalization (what propagates to every frame).
+
+    ``kind``: ``"orientation"`` (the source's rotation times ``c``), ``"root"`` (the frame of
+    the joints and the reference times ``c``), ``"carried"`` (the parent's frame, the minimal
+    swing from the default direction ``d0`` (parent frame), then ``l0``), or ``"twist"``
+    (carried, then turned about ``axis`` toward the reference's frame times ``c``).
+    """
+
+    kind: str
+    c: Array
+    l0: Array
+    d0: Array
+    axis: Array
+
+
+def _limb_frames(
+    lb: Limb, k: LimbConstants, p: Array, fp: Array | None, src: Array | None
+) -> tuple[Array, Array]:
+    """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``."""
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
+    if k.kind == "orientation":
+        assert src is not None
+        return src @ k.c, np.isfinite(src).all(axis=(1, 2)).astype(float)
+    if k.kind == "root":
+        r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
+        o = frame_from(u, r)
+        return o @ k.c, np.isfinite(o).all(axis=(1, 2)).astype(float)
+    assert fp is not None
+    d_loc = unit(tmv(fp, u))
+    carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
+    if k.kind == "carried":
+        return carried, np.zeros(u.shape[0])
+    r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
+    w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
+    g = frame_from(u, r) @ k.c  # the reference's frame, equal to carried where c was taken
+    ax = np.broadcast_to(k.axis, u.shape)
+    psi = twist_angle(tmm(carried, g), ax)
+    psi = np.where(np.isfinite(psi), psi, 0.0)
+    return carried @ rodrigues(ax, w * psi), w
+
+
+def propagate(
+    norm: Normalization, positions: Array, /, orientations: dict[str, Array] | None = None
+) -> tuple[Array, Array]:
+    """Normalized frames ``(T, L, 3, 3)`` and twist weights ``(T, L)`` of new frames.
+
+    Applies the constants a :func:`normalize` found to other positions ``(T, 25, 3)`` (metres,
+    the same subject and world), e.g. frames arriving live after a calibration phase.
+    ``orientations`` maps limb names to ``(T, 3, 3)`` source rotations for limbs normalized
+    from the source's rotations.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 3 or p.shape[1:] != (len(JOINT_INDEX), 3):
+        raise InputError(f"positions must be (T, 25, 3) Kinect joints, got {p.shape}")
+    t = p.shape[0]
+    frames = np.full((t, len(LIMBS), 3, 3), np.nan)
+    weight = np.zeros((t, len(LIMBS)))
+    for i, lb in enumerate(LIMBS):
+        k = norm.constants.get(lb.name)
+        if k is None:
+            continue
+        par = LIMB_PARENTS[i]
+        src = None if orientations is None else orientations.get(lb.name)
+        if k.kind == "orientation" and src is None:
+            raise InputError(f"limb {lb.name} was normalized from source rotations; pass them")
+        frames[:, i], weight[:, i] = _limb_frames(
+            lb, k, p, frames[:, par] if par >= 0 else None, src
+        )
+    return frames, weight
+
+
+def _mean_rot(r: Array) -> Array:
+    """Chordal mean of the finite rotations ``(N, 3, 3)``; NaN if there is none."""
+    r = r[np.isfinite(r).all(axis=(1, 2))]
+    return chordal_mean(r) if r.shape[0] else np.full((3, 3), np.nan)
+
+
+def _position_constants(
+    p: Array,
+    lb: Limb,
+    i: int,
+    d: int,
+    win: NDArray[np.intp],
+    n0: Array,
+    axis_l: Array,
+    frames: Array,
+) -> LimbConstants:
+    """The constants of a position-only limb (parents' ``frames`` already filled)."""
+    eye = np.eye(3)
     par = LIMB_PARENTS[i]
+    u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if par < 0:  # the root: its frame from its joints and the hip line, always conditioned
         r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
         o = frame_from(u, r)
-        frames[:, i] = o @ (o[d].T @ n0)
-        weight[:, i] = np.isfinite(o).all(axis=(1, 2)).astype(float)
-        return "observable"
+        c_root = _mean_rot(tmm(o[win], n0))
+        return LimbConstants("root", c_root, eye, np.zeros(3), axis_l)
     fp = frames[:, par]
-    # carried frame: parent frame x minimal swing from the default direction x local rest frame
-    d_loc = unit(np.einsum("tji,tj->ti", fp, u))
-    l0 = fp[d].T @ n0
-    carried = fp @ minimal_rotation(np.broadcast_to(d_loc[d], d_loc.shape), d_loc) @ l0
+    d_loc = unit(tmv(fp, u))
+    l0 = _mean_rot(tmm(fp[win], n0))
+    d0 = unit(np.nanmean(d_loc[win], axis=0))
+    carried_k = LimbConstants("carried", eye, l0, d0, axis_l)
     if not lb.twist_observable:
-        frames[:, i] = carried
-        return "not observable"
+        return carried_k
+    carried, _ = _limb_frames(lb, carried_k, p, fp, None)
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
-    sin_t = np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1)
-    w = _weight(sin_t)
-    o = frame_from(u, r)
+    w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
     good = (w >= 1.0) & np.isfinite(carried).all(axis=(1, 2))
     if not good.any():
-        frames[:, i] = carried
-        return "not observable"
-    frames_idx = np.flatnonzero(good)
-    c_frame = int(frames_idx[np.argmin(np.abs(frames_idx - d))])
-    c = o[c_frame].T @ carried[c_frame]
-    g = o @ c  # twist-observing frame, equal to carried at c_frame
-    psi = twist_angle(np.einsum("tji,tjk->tik", carried, g), np.broadcast_to(axis_l, u.shape))
-    psi = np.where(np.isfinite(psi), psi, 0.0)
-    frames[:, i] = carried @ rodrigues(np.broadcast_to(axis_l, u.shape), w * psi)
-    weight[:, i] = w
-    return "observable" if (w >= 1.0).mean() > 0.95 else "when bent"
+        return carried_k
+    # the constant from every well-conditioned frame near the default direction (where the
+    # carried frame is exact up to noise), averaged; else from the nearest conditioned frame
+    swing = np.arccos(np.clip(d_loc @ d0, -1.0, 1.0))
+    near = good & (swing < np.radians(NEAR_DEFAULT_DEG))
+    idx = np.flatnonzero(near if near.sum() >= 5 else good)
+    if near.sum() < 5:
+        idx = idx[[int(np.argmin(np.abs(idx - d)))]]
+    o = frame_from(u[idx], r[idx])
+    c = chordal_mean(tmm(o, carried[idx]))
+    return LimbConstants("twist", c, l0, d0, axis_l)

@@ -222,10 +222,21 @@ class SkeletonSequence:
         return name in self.joint_names
 
     def kinect_positions(self) -> Array:
-        """Positions on all 25 Kinect joints ``(T, 25, 3)``, metres, NaN for absent joints."""
-        out = np.full((self.n_frames, N_JOINTS, 3), np.nan)
-        idx = [JOINT_INDEX[n] for n in self.joint_names]
-        out[:, idx] = self.positions
+        """Positions on all 25 Kinect joints ``(T, 25, 3)``, metres, NaN for absent joints.
+
+        Computed once and returned read-only (copy it to modify).
+        """
+        cached = self.__dict__.get("_kinect")
+        if cached is not None:
+            return cached
+        if self.joint_names == JOINTS:
+            out = self.positions.view()
+        else:
+            out = np.full((self.n_frames, N_JOINTS, 3), np.nan)
+            idx = [JOINT_INDEX[n] for n in self.joint_names]
+            out[:, idx] = self.positions
+        out.flags.writeable = False
+        self.__dict__["_kinect"] = out
         return out
 
     def orientation(self, limb: str) -> Array | None:

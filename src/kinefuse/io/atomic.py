@@ -24,6 +24,13 @@ class WriteError(KinefuseError):
     """An output file could not be written (permissions, full disk, name taken)."""
 
 
+def _umask() -> int:
+    """The process's file-creation mask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _fail(path: Path, e: OSError, what: str = "cannot write") -> WriteError:
     why = e.strerror or str(e)
     return WriteError(f"{path}: {what}: {why}; choose another output folder or fix its rights")
@@ -56,6 +63,7 @@ def temp_path(path: str | Path, *, overwrite: bool = False) -> Iterator[Path]:
         raise _fail(p, e) from None
     os.close(fd)
     tmp = Path(tmp_name)
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a finished file gets the usual mode
     try:
         yield tmp
         if overwrite:

@@ -21,6 +21,9 @@ A marker map is a TOML file::
     AnkleLeft = "LANK"                                 # one marker
     SpineMid = { blend = { STRN = 0.5, T10 = 0.5 } }   # weights adding up to 1
 
+    [clusters]                       # optional: rigid marker clusters -> limb orientations
+    thigh_left = ["LTH1", "LTH2", "LTH3"]
+
 Rules: a marker name; ``{ mean = [...] }`` (midpoint of several markers); ``{ blend = {...} }``
 (weighted sum, weights add up to 1); ``{ hip_joint_centre = "left" | "right" }`` (a regression
 from the ``[pelvis]`` markers); or a list of these as alternatives (the first whose markers
@@ -43,6 +46,12 @@ ASIS midpoint to the PSIS midpoint or sacrum; side s = +1 right, -1 left):
 * ``bell1990``: Bell, Pedersen & Brand (1990), "A comparison of the accuracy of several hip
   center location prediction methods", J. Biomech. 23:617-621:
   ``x = -0.19 PW``, ``y = -0.30 PW``, ``z = s 0.36 PW``.
+
+A ``[clusters]`` entry gives a limb (:data:`kinefuse.analysis.limbs.LIMB_NAMES`) an orientation
+per frame from three markers fixed to it (a rigid cluster): ``e1`` from the first to the second
+marker, ``e3`` normal to the plane of the three, ``e2 = e3 x e1``; the normalization turns it
+into the limb's normalized frame by its constant offset at the default pose (B.1.4), so the
+cluster's placement on the limb does not matter. It makes the twist of that limb observable.
 
 The shipped maps (package data ``kinefuse/data/markermaps/``) are listed by
 :func:`shipped_marker_maps`; ``docs/analysis.md`` explains how to write one.
@@ -73,6 +82,7 @@ __all__ = [
     "MarkerMap",
     "PelvisSpec",
     "apply_marker_map",
+    "cluster_orientations",
     "hip_joint_centres",
     "load_marker_map",
     "parse_marker_map",
@@ -124,6 +134,7 @@ class MarkerMap:
     up: str | None = None
     description: str = ""
     origin: str = "built-in"
+    clusters: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 def _rule_error(where: str, joint: str, message: str) -> InputError:
@@ -182,12 +193,30 @@ def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> Mark
     InputError
         Unknown keys or joints, malformed rules, a hip joint centre without ``[pelvis]``.
     """
-    unknown = sorted(set(data) - {"name", "description", "up", "pelvis", "joints"})
+    unknown = sorted(set(data) - {"name", "description", "up", "pelvis", "joints", "clusters"})
     if unknown:
         raise InputError(
             f"{origin}: unknown keys {unknown}; a marker map has name, description, up, "
-            "[pelvis] and [joints]"
+            "[pelvis], [joints] and [clusters]"
         )
+    clusters: dict[str, tuple[str, ...]] = {}
+    from kinefuse.analysis.limbs import LIMB_NAMES
+
+    for limb_name, names in dict(data.get("clusters", {})).items():
+        if limb_name not in LIMB_NAMES:
+            raise InputError(
+                f"{origin}: [clusters] {limb_name!r} is not a limb; the limbs are: "
+                f"{', '.join(LIMB_NAMES)}"
+            )
+        if (
+            not isinstance(names, list)
+            or len(names) != 3
+            or not all(isinstance(n, str) and n for n in names)
+        ):
+            raise InputError(
+                f"{origin}: [clusters] {limb_name} must list three marker names, got {names!r}"
+            )
+        clusters[limb_name] = tuple(names)
     joints_t = data.get("joints")
     if not isinstance(joints_t, Mapping) or not joints_t:
         raise InputError(
@@ -261,6 +290,7 @@ def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> Mark
         up=up,
         description=str(desc),
         origin=origin,
+        clusters=clusters,
     )
 
 
@@ -465,3 +495,43 @@ def apply_marker_map(
             w = np.array([wt for _, wt in rule.markers], dtype=np.float64)
             out[:, k] = np.einsum("tkc,k->tc", p[:, idx], w)
     return out, names, tuple(notes)
+
+
+def cluster_orientations(
+    markers: MarkerData, mmap: MarkerMap
+) -> tuple[tuple[str, ...], Array | None]:
+    """Limb orientations from the map's rigid marker clusters (see the module docstring).
+
+    Returns
+    -------
+    limbs : tuple of str
+    orientations : (T, L, 3, 3) float or None
+        Cluster-to-world rotations, NaN where a marker is missing; None without clusters.
+
+    Raises
+    ------
+    InputError
+        A cluster names markers the file lacks.
+    """
+    if not mmap.clusters:
+        return (), None
+    finder = _Finder(markers.names)
+    lack = {k: [n for n in v if finder(n) is None] for k, v in mmap.clusters.items()}
+    lack = {k: v for k, v in lack.items() if v}
+    if lack:
+        raise InputError(
+            f"{markers.path}: the marker map {mmap.name!r} ({mmap.origin}) names cluster markers "
+            "the file does not have: "
+            + "; ".join(f"{k}: {', '.join(v)}" for k, v in lack.items())
+            + f". The file's markers: {', '.join(markers.names)}."
+        )
+    p = markers.positions
+    out = []
+    for names in mmap.clusters.values():
+        a, b, c = (p[:, int(finder(n) or 0)] for n in names)
+        e1 = b - a
+        e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
+        e3 = np.cross(e1, c - a)
+        e3 = e3 / np.linalg.norm(e3, axis=-1, keepdims=True)
+        out.append(np.stack([e1, np.cross(e3, e1), e3], axis=-1))
+    return tuple(mmap.clusters), np.stack(out, axis=1)

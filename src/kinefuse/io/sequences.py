@@ -10,7 +10,8 @@
   position-based frame of the normalization). The clip is not placed in a lab (the analysis
   does not depend on where the subject stands).
 * :func:`sequence_from_markers`: a TRC or C3D marker file through a marker map
-  (:mod:`kinefuse.io.marker_maps`): the map's joints only, position-only.
+  (:mod:`kinefuse.io.marker_maps`): the map's joints only, with the orientations of the limbs
+  the map gives a rigid marker cluster.
 
 Fused sessions are built by :func:`kinefuse.analysis_app.sequence_from_session` (it runs the
 fusion workflow).
@@ -29,6 +30,7 @@ from kinefuse.errors import InputError
 from kinefuse.io.marker_maps import (
     MarkerMap,
     apply_marker_map,
+    cluster_orientations,
     load_marker_map,
     select_marker_map,
 )
@@ -159,11 +161,16 @@ def sequence_from_markers(
     if mmap.up is not None:
         markers = read_markers(path, up=mmap.up)
     pos, names, notes = apply_marker_map(markers, mmap)
+    limbs, ori = cluster_orientations(markers, mmap)
+    if limbs:
+        notes = (*notes, f"cluster orientations for {', '.join(limbs)}")
     return SkeletonSequence.from_kinect(
         pos,
         t_s=markers.t_s,
         rate_hz=markers.rate_hz,
         joint_names=names,
+        orientations=ori,
+        orientation_limbs=limbs,
         source="; ".join(
             [
                 f"{markers.path} [{markers.fmt}]",

@@ -19,28 +19,33 @@ Array = NDArray[np.float64]
 
 __all__ = ["angle_groups", "plot_angle_curves", "plot_joint_spheres"]
 
-#: Panels of the angle plot: title -> substrings of the angle names it shows (in order).
+#: Rows of the angle plot: title -> substrings of the angle names it shows (in order).
 _GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("trunk", ("trunk",)),
+    ("trunk / head", ("trunk", "head")),
+    ("shoulder", ("shoulder",)),
+    ("elbow / forearm", ("elbow", "forearm")),
     ("hip", ("hip",)),
     ("knee", ("knee",)),
     ("ankle", ("ankle",)),
-    ("shoulder", ("shoulder",)),
-    ("elbow / forearm", ("elbow", "forearm")),
 )
 
 
 def angle_groups(names: Sequence[str]) -> list[tuple[str, list[str]]]:
-    """Angle names grouped into the plot's panels (names matching no group go to "other")."""
+    """Angle names in the plot's panels: one row per joint, left side then right side (midline
+    angles in the left column); names matching no joint go to "other"."""
     left = list(names)
     out = []
     for title, keys in _GROUPS:
-        got = [n for n in left if any(k in n for k in keys)]
-        if got:
-            out.append((title, got))
-            left = [n for n in left if n not in got]
+        got = [n for n in left if any(n.startswith(k) for k in keys)]
+        if not got:
+            continue
+        left = [n for n in left if n not in got]
+        lhs = [n for n in got if not n.endswith("_right")]
+        rhs = [n for n in got if n.endswith("_right")]
+        out.append((f"{title}" + (" left" if rhs else ""), lhs))
+        out.append((f"{title} right", rhs))
     if left:
-        out.append(("other", left))
+        out += [("other", left), ("", [])]
     return out
 
 
@@ -82,7 +87,7 @@ def plot_angle_curves(
 
     groups = angle_groups(list(angles_deg))
     n = max(len(groups), 1)
-    cols = 2 if n > 1 else 1
+    cols = 2
     rows = int(np.ceil(n / cols))
     fig, axes = plt.subplots(
         rows, cols, figsize=(6.5 * cols, 2.3 * rows), sharex=True, squeeze=False
@@ -90,6 +95,9 @@ def plot_angle_curves(
     t = np.asarray(t_s, dtype=np.float64)
     for k, (name, members) in enumerate(groups):
         ax = axes[k // cols][k % cols]
+        if not members:
+            ax.axis("off")
+            continue
         for i, a in enumerate(members):
             colour = f"C{i % 10}"
             ax.plot(t, angles_deg[a], color=colour, lw=1.0, label=a)
@@ -98,7 +106,7 @@ def plot_angle_curves(
         ax.set_title(name, fontsize=9)
         ax.set_ylabel("deg", fontsize=8)
         ax.tick_params(labelsize=7)
-        ax.legend(fontsize=6, loc="upper right", ncol=2)
+        ax.legend(fontsize=6, loc="upper left", ncol=3)
         ax.grid(alpha=0.3)
     for k in range(len(groups), rows * cols):
         axes[k // cols][k % cols].axis("off")
@@ -170,7 +178,7 @@ def plot_joint_spheres(
                     ax.plot(*np.stack([np.zeros(3), 1.4 * a]).T, color="k", ls="--", lw=1)
         label = name
         if status is not None and status.get(name, "ok") != "ok":
-            label += f"\n{status[name]}"
+            label += f"\n{status[name].split(':', 1)[0][:40]}"  # the gist; the report has all
         ax.set_title(label, fontsize=7)
         ax.set_xlim(-1.2, 1.2)
         ax.set_ylim(-1.2, 1.2)

@@ -1,0 +1,314 @@
+"""Analysis (paper B): speed against a per-frame implementation, and accuracy through the lab.
+
+    python benchmarks/bench_analysis.py speed [--frames 24000]
+    python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
+
+``speed``: a full body (13 limbs) normalized and parameterized (angles and twist) for 24,000
+frames on one core, against a straightforward per-frame implementation of the same math
+(one frame at a time, the way the paper's 1.17 ms/frame loop runs), measured in the same run on
+the first frames and extrapolated per frame; both must give the same angles.
+
+``accuracy``: the whole chain. A range-of-motion calibration phase is generated on the default
+pose of a real clip (CMU 131_01, start-walk-stop), put before that clip, watched by 4 simulated
+Kinect v2 sensors (``kinefuse.sensors.lab``), the sensors are calibrated from the wand
+(``full``), the skeleton is fused (``best``) and analysed. Measured: the axis error of Direction
+Joining, PCA and EM side by side (against the generator's true axes), the reconstruction error
+from the parameters, the twist error and the joint angles of the walk against the same analysis
+of the true motion, and the normalization consistency over ``--takes`` takes with different rigs
+and headings. Simulated sessions go to a temporary folder.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")  # one core, as the target says
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from kinefuse import analysis as an  # noqa: E402
+from kinefuse.analysis.consistency import (  # noqa: E402
+    angle_rmse_deg,
+    axis_errors_deg,
+    normalization_consistency,
+    true_axes_in_normalization,
+    twist_errors_deg,
+)
+from kinefuse.analysis.kinematics import joint_angles, reconstruction_error  # noqa: E402
+from kinefuse.analysis.parameterize import learn_axes  # noqa: E402
+from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
+from kinefuse.motion.types import Motion  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIP = ROOT.parent / "shared" / "data" / "motion" / "cmu" / "131_01_scaled_metres.bvh"
+
+
+# ----------------------------------------------------------------------------- accuracy
+def _kabsch_rot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ca, cb = a - a.mean(0), b - b.mean(0)
+    u, _, vt = np.linalg.svd(cb.T @ ca)
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1, 1, d]) @ vt
+
+
+def simulate_take(rig, combined, out: Path, seed: int, cal_s: float):  # type: ignore[no-untyped-def]
+    """Simulate, calibrate (full), fuse (best); return fused and true sequences, placement."""
+    from kinefuse.app import place_actor, resolve_poses, run_calibrate
+    from kinefuse.fusion.session import frame_grid, load_sensors, run_method
+    from kinefuse.io.store import SessionStore
+    from kinefuse.report.evaluate import calibration_alignment
+    from kinefuse.sensors.lab import LabConfig, simulate_session
+
+    placed = place_actor(combined, rig)
+    rot = _kabsch_rot(combined.positions[0], placed.positions[0])
+    simulate_session(placed, rig, out, LabConfig(seed=seed, calibration_s=cal_s), overwrite=True)
+    run_calibrate(session=out, method="full", out=None)
+    with SessionStore.open(out) as store:
+        poses, _ = resolve_poses(store, None, False)
+        sensors = load_sensors(store, poses)
+        res = run_method(sensors, frame_grid(sensors), "best")
+        t_true, joints, _ = store.truth().motion()
+        truth2world, _ = calibration_alignment(store, poses)
+    # the truth in the calibration's world (the calibration sets its own origin and heading)
+    joints = joints @ truth2world[:3, :3].T + truth2world[:3, 3]
+    fused = an.SkeletonSequence.from_kinect(res.positions, t_s=res.t_server_s, source="fused")
+    truth = an.SkeletonSequence.from_kinect(joints, t_s=t_true, source="truth")
+    return fused, truth, truth2world[:3, :3] @ rot
+
+
+def world_axis_errors(model, norm, true_world, frame):  # type: ignore[no-untyped-def]
+    """Learned axes taken into the world by the fused parent frame at ``frame`` (the rest pose
+    at the start of the calibration phase) against the true axes there, degrees."""
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+
+    vals = []
+    for name, a in true_world.items():
+        lm = model.limbs.get(name)
+        if lm is None or lm.axes.shape[0] != a.shape[0]:
+            continue
+        w = (norm.frames[frame, LIMB_PARENTS[LIMB_INDEX[name]]] @ lm.axes.T).T
+        vals += np.degrees(np.arccos(np.clip(np.abs((w * a).sum(-1)), 0, 1))).tolist()
+    v = np.array(vals)
+    return {"median": float(np.median(v)), "mean": float(v.mean())} if v.size else {}
+
+
+def _resample(seq: an.SkeletonSequence, t_s: np.ndarray) -> an.SkeletonSequence:
+    flat = seq.positions.reshape(seq.n_frames, -1)
+    out = np.stack([np.interp(t_s, seq.t_s, flat[:, k], np.nan, np.nan) for k in range(75)], -1)
+    return an.SkeletonSequence.from_kinect(out.reshape(-1, 25, 3), t_s=t_s, source=seq.source)
+
+
+def accuracy(args: argparse.Namespace) -> dict[str, object]:
+    from kinefuse.motion import load_motion
+    from kinefuse.sensors.rig import default_rig, load_rig
+
+    clip = load_motion(CLIP)
+    clip_seq = an.SkeletonSequence.from_motion(clip)
+    d = an.find_default_pose(clip_seq)
+    rng = np.random.default_rng(args.seed)
+    rom, truth = make_rom_motion(clip.positions[d], args.rom_s, rng, rate_hz=60.0)
+    combined = prepend_rom(rom, clip, blend_s=1.0)
+    walk = (rom.duration_s + 1.0, combined.duration_s)  # motion time
+    # hold the last pose 2 s so that the end of the session (where the fused skeleton of the
+    # last second goes astray) is not part of the walk
+    hold = np.repeat(combined.positions[-1:], int(2.0 * combined.rate_hz), axis=0)
+    combined = Motion(np.concatenate([combined.positions, hold]), combined.rate_hz,
+                      source=combined.source + " + 2 s hold")  # fmt: skip
+    cal_s = 15.0
+    phase = (cal_s, cal_s + rom.duration_s)
+    walk = (cal_s + walk[0], cal_s + walk[1])
+    rigs = [
+        ("default4", replace(default_rig(4), actor_heading_deg=0.0)),
+        ("tiered4", replace(load_rig(ROOT / "rigs" / "tiered4.toml"), actor_heading_deg=120.0)),
+        ("tilted4", replace(load_rig(ROOT / "rigs" / "tilted4.toml"), actor_heading_deg=-75.0)),
+    ][: args.takes]
+    report: dict[str, object] = {
+        "clip": CLIP.name,
+        "rom_s": rom.duration_s,
+        "default_pose_frame_of_clip": d,
+    }
+    norms = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (rig_name, rig) in enumerate(rigs):
+            t0 = time.perf_counter()
+            fused, true_seq, rot = simulate_take(
+                rig, combined, Path(tmp) / f"take{k}.sqlite", args.seed + k, cal_s
+            )
+            sim_s = time.perf_counter() - t0
+            true_seq = _resample(true_seq, fused.t_s)
+            norm_f = an.normalize(fused)
+            norm_t = an.normalize(true_seq)
+            norms.append(norm_f)
+            rom_frames = np.flatnonzero((fused.t_s >= phase[0]) & (fused.t_s <= phase[1]))
+            walk_frames = np.flatnonzero((fused.t_s >= walk[0]) & (fused.t_s <= walk[1]))
+            # the generator's true limb frames at the fused frames of the ROM, in this world
+            gi = np.clip(np.round((fused.t_s[rom_frames] - cal_s) * truth.rate_hz), 0, None)
+            g = np.einsum("ij,tljk->tlik", rot, truth.frames[gi.astype(int)])
+            true_axes = true_axes_in_normalization(truth.axes, g, norm_f.frames[rom_frames])
+            true_world = {k: (rot @ v.T).T for k, v in truth.axes_world.items()}
+            take: dict[str, object] = {"rig": rig_name, "heading_deg": rig.actor_heading_deg,
+                                       "simulate_fuse_s": sim_s}  # fmt: skip
+            models = {}
+            for method in ("dj", "pca", "em"):
+                models[method] = learn_axes(fused, norm_f, phase, method=method)
+                take[f"axis_error_deg_{method}"] = axis_errors_deg(models[method], true_axes)
+                take[f"axis_error_world_deg_{method}"] = world_axis_errors(
+                    models[method], norm_f, true_world, rom_frames[0]
+                )
+            model = models["dj"]
+            ang_f = joint_angles(fused, norm_f, model)
+            model_t = learn_axes(true_seq, norm_t, phase, method="dj")
+            ang_t = joint_angles(true_seq, norm_t, model_t)
+            rec_full = reconstruction_error(fused, ang_f, model)
+            rec_min = reconstruction_error(fused, ang_f, model, off_axis=False)
+            take["reconstruction_error_m"] = {"full": rec_full, "minimal": rec_min}
+            take["twist_error_deg"] = twist_errors_deg(
+                ang_f.twist, ang_t.twist, ang_f.twist_weight, frames=rom_frames
+            )
+            an_f, an_t = ang_f.anatomical(), ang_t.anatomical()
+            take["angle_rmse_deg_walk"] = angle_rmse_deg(an_f, an_t, frames=walk_frames)
+            take["angle_rmse_deg_rom"] = angle_rmse_deg(an_f, an_t, frames=rom_frames)
+            take["status"] = {k2: v for k2, v in model.status.items() if v != "ok"}
+            report[f"take{k}"] = take
+            print(_take_text(k, take), flush=True)
+    if len(norms) >= 2:
+        cons = normalization_consistency(norms)
+        report["normalization_consistency_deg"] = cons
+        print(f"normalization consistency over {len(norms)} takes: median "
+              f"{cons['median']:.2f}°, mean {cons['mean']:.2f}°")  # fmt: skip
+    return report
+
+
+def _take_text(k: int, t: dict) -> str:  # type: ignore[type-arg]
+    lines = [f"== take {k}: rig {t['rig']}, heading {t['heading_deg']:g}° "
+             f"(simulate+calibrate+fuse {t['simulate_fuse_s']:.0f} s)"]  # fmt: skip
+    for m in ("dj", "pca", "em"):
+        e = t[f"axis_error_deg_{m}"]
+        w = t[f"axis_error_world_deg_{m}"]
+        lines.append(
+            f"  axis error {m:>3}: median {e['median']:.2f}°, mean {e['mean']:.2f}° "
+            f"(in the world at rest: median {w.get('median', np.nan):.2f}°, "
+            f"mean {w.get('mean', np.nan):.2f}°)"
+        )
+    r = t["reconstruction_error_m"]
+    lines.append(
+        f"  reconstruction: full mean {1e3 * r['full']['sphere_mean']:.3f} mm, minimal (learned"
+        f" axes only) mean {1e3 * r['minimal']['sphere_mean']:.2f} mm"
+    )
+    tw = t["twist_error_deg"]
+    lines.append(f"  twist error (ROM): median {tw['median']:.2f}°, mean {tw['mean']:.2f}°")
+    w = t["angle_rmse_deg_walk"]
+    lines.append("  walk RMSE: " + ", ".join(f"{k2} {v:.1f}°" for k2, v in sorted(w.items())))
+    if t["status"]:
+        lines.append(f"  status: {t['status']}")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- speed
+def _speed_sequence(n_frames: int, seed: int) -> tuple[an.SkeletonSequence, float]:
+    """A full body: a ROM phase on the real clip's default pose, then the clip's walk and the
+    ROM again, repeated to ``n_frames`` at 30 Hz, with 4 mm of noise per joint."""
+    from kinefuse.motion import load_motion
+
+    clip = load_motion(CLIP)
+    d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
+    rng = np.random.default_rng(seed)
+    rom, _ = make_rom_motion(clip.positions[d], 120.0, rng, rate_hz=30.0)
+    body = prepend_rom(rom, clip, blend_s=1.0)
+    t = np.arange(int(body.duration_s * 30.0)) / 30.0
+    one = body.at(t)
+    reps = -(-n_frames // one.shape[0])
+    p = np.concatenate([one] * reps)[:n_frames]
+    p = p + rng.normal(scale=0.004, size=p.shape)
+    return an.SkeletonSequence.from_kinect(p, rate_hz=30.0), rom.duration_s
+
+
+def speed(args: argparse.Namespace) -> dict[str, object]:
+    from kinefuse.analysis.normalize import propagate
+
+    seq, rom_s = _speed_sequence(args.frames, 0)
+    t0 = time.perf_counter()
+    norm = an.normalize(seq)
+    t1 = time.perf_counter()
+    model = learn_axes(seq, norm, (0.0, rom_s))
+    t2 = time.perf_counter()
+    ang = joint_angles(seq, norm, model)
+    t3 = time.perf_counter()
+    _frames, _weight = propagate(norm, seq.kinect_positions())
+    t4 = time.perf_counter()
+    vec = {"normalize_s": t1 - t0, "learn_axes_s": t2 - t1, "angles_twist_s": t3 - t2,
+           "total_s": t3 - t0, "per_frame_reorientation_ms": 1e3 * (t4 - t3) / seq.n_frames,
+           "per_frame_angles_ms": 1e3 * (t3 - t2) / seq.n_frames}  # fmt: skip
+    # the straightforward way: one frame at a time (the same math, no batching)
+    n_b = min(args.baseline_frames, seq.n_frames)
+    worst = 0.0
+    tb = time.perf_counter()
+    for f in range(n_b):
+        fr, w = propagate(norm, seq.kinect_positions()[f : f + 1])
+        one = seq.take([f])
+        n1 = replace(norm, frames=fr, twist_weight=w)
+        a1 = joint_angles(one, n1, model)
+        for k, v in a1.angles.items():
+            dv = np.abs(v[0] - ang.angles[k][f])
+            if np.isfinite(dv).all():
+                worst = max(worst, float(dv.max()))
+    per_frame_s = (time.perf_counter() - tb) / n_b
+    base_total = per_frame_s * seq.n_frames + (t1 - t0) + (t2 - t1)
+    out = {
+        "frames": seq.n_frames,
+        "limbs": len(an.LIMBS),
+        "vectorized": vec,
+        "per_frame_baseline": {
+            "measured_frames": n_b,
+            "ms_per_frame": 1e3 * per_frame_s,
+            "total_s_extrapolated": base_total,
+        },
+        "speedup_angles": per_frame_s * seq.n_frames / (t3 - t2 + t4 - t3),
+        "speedup_total": base_total / (t3 - t0),
+        "max_angle_difference_rad": worst,
+    }
+    print(f"{seq.n_frames} frames, {len(an.LIMBS)} limbs, one core")
+    print(
+        f"  vectorized: normalize {vec['normalize_s']:.3f} s, learn axes {vec['learn_axes_s']:.3f}"
+        f" s, angles+twist {vec['angles_twist_s']:.3f} s: total {vec['total_s']:.3f} s"
+    )
+    print(
+        f"  per-frame baseline: {1e3 * per_frame_s:.3f} ms/frame (measured on {n_b} frames), "
+        f"{base_total:.1f} s for all frames"
+    )
+    print(f"  speed-up {out['speedup_total']:.0f}x in total, "
+          f"{out['speedup_angles']:.0f}x on the per-frame part; "
+          f"largest angle difference {worst:.2e} rad")  # fmt: skip
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    sub = ap.add_subparsers(dest="mode", required=True)
+    sp = sub.add_parser("speed")
+    sp.add_argument("--frames", type=int, default=24000)
+    sp.add_argument("--baseline-frames", type=int, default=1000)
+    ac = sub.add_parser("accuracy")
+    ac.add_argument("--rom-s", type=float, default=120.0)
+    ac.add_argument("--seed", type=int, default=0)
+    ac.add_argument("--takes", type=int, default=3)
+    for p in (sp, ac):
+        p.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    report = speed(args) if args.mode == "speed" else accuracy(args)
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,290 @@
+"""One input of ``kinefuse analyze`` through paper B, its files, and (sessions) its truth figures.
+
+This module is in ``report/`` because it reads the truth of simulated sessions (the true motion,
+the range-of-motion phase's true axes) to measure the analysis; nothing in the analysis itself
+sees them: the fused skeleton is analysed first, and the truth is read afterwards to score it.
+
+Figures (all in the report JSON; definitions in ``docs/analysis.md``):
+
+* ``reconstruction_error_m``: the paper's measure, each limb's end on its joint sphere from the
+  angles about the learned axes (without the off-axis angle) vs measured
+  (:func:`kinefuse.analysis.kinematics.reconstruction_error`), mean and median.
+* ``timing_ms_per_frame``: wall time of normalization + angles + twist per frame (the axis
+  learning on the calibration phase is reported apart).
+* with truth: ``axis_error_deg`` (learned vs true axes of the range-of-motion phase, per method),
+  ``twist_error_deg`` (twist of the analysed input vs the same twist from the true motion),
+  ``angle_rmse_deg`` (each named angle of the input vs the same angle computed by the same chain
+  on the true motion, over the frames after the calibration phase when there are any).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.analysis.kinematics import joint_angles, reconstruction_error
+from kinefuse.analysis.limbs import LIMB_NAMES, limb
+from kinefuse.analysis.normalize import normalize
+from kinefuse.analysis.parameterize import learn_axes
+from kinefuse.analysis.sequence import SkeletonSequence
+from kinefuse.io.angles import write_angles_csv, write_angles_mot
+
+if TYPE_CHECKING:
+    from kinefuse.analysis_app import AnalysisInput
+
+Array = NDArray[np.float64]
+
+AXIS_METHODS = ("dj", "pca", "em")
+
+#: The limb an anatomical angle belongs to, by the name's first word.
+_ANGLE_LIMB = {
+    "trunk": "trunk",
+    "head": "head",
+    "shoulder": "upper_arm",
+    "elbow": "forearm",
+    "forearm": "forearm",
+    "hip": "thigh",
+    "knee": "shank",
+    "ankle": "foot",
+}
+
+
+def angle_joint(name: str) -> str:
+    """The Kinect joint an anatomical angle is at (the proximal joint of its limb)."""
+    head = name.split("_", 1)[0]
+    kind = _ANGLE_LIMB.get(head)
+    side = name.rsplit("_", 1)[-1]
+    if kind is None:
+        return name.split("_axis", 1)[0] if "_axis" in name else "unknown"
+    lname = f"{kind}_{side}" if side in ("left", "right") else kind
+    try:
+        return limb(lname).proximal
+    except KeyError:
+        return "unknown"
+
+
+def _wrap_deg(d: Array) -> Array:
+    return (d + 180.0) % 360.0 - 180.0
+
+
+def _stats(values: Array) -> dict[str, float]:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"median": float("nan"), "mean": float("nan"), "n": 0}
+    return {"median": float(np.median(v)), "mean": float(v.mean()), "n": int(v.size)}
+
+
+def _axis_angle_deg(a: Array, b: Array) -> float:
+    """Angle between two axes as lines (sign-free), degrees."""
+    c = abs(float(np.dot(a, b)) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12))
+    return float(np.degrees(np.arccos(min(c, 1.0))))
+
+
+def analyse_sequence(seq: SkeletonSequence, phase: tuple[float, float]) -> dict[str, Any]:
+    """The chain on one sequence: normalization, axes by every method, angles (DJ), timing."""
+    t0 = time.perf_counter()
+    norm = normalize(seq)
+    t1 = time.perf_counter()
+    models = {m: learn_axes(seq, norm, phase, method=m) for m in AXIS_METHODS}
+    t2 = time.perf_counter()
+    angles = joint_angles(seq, norm, models["dj"])
+    named = angles.anatomical()
+    t3 = time.perf_counter()
+    return {
+        "seq": seq,
+        "norm": norm,
+        "models": models,
+        "angles": angles,
+        "named": named,
+        "seconds": {"normalize": t1 - t0, "learn_axes": t2 - t1, "angles": t3 - t2},
+    }
+
+
+def analyse_one(
+    inp: AnalysisInput,
+    folder: Path,
+    *,
+    phase: tuple[float, float],
+    phase_source: str,
+    statement: str,
+    plots: bool = True,
+    true_calibration: bool = False,
+    plot_dpi: int | None = None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Analyse one input into ``folder`` (which exists and is empty); returns (report, result)."""
+    seq = inp.seq
+    res = analyse_sequence(seq, phase)
+    norm, models, angles, named = res["norm"], res["models"], res["angles"], res["named"]
+    dj = models["dj"]
+    n = seq.n_frames
+    sec = res["seconds"]
+    rec = reconstruction_error(seq, angles, dj, off_axis=False)
+    rec_full = reconstruction_error(seq, angles, dj, off_axis=True)
+    report: dict[str, Any] = {
+        "input": str(inp.path),
+        "kind": inp.kind,
+        "source": seq.source,
+        "frames": n,
+        "rate_hz": seq.rate_hz,
+        "joints": list(seq.joint_names),
+        "calibration_phase": {"start_s": phase[0], "end_s": phase[1], "source": phase_source},
+        "statement": statement,
+        "default_pose_frame": int(norm.default_frame),
+        "default_pose_time_s": float(seq.t_s[norm.default_frame]),
+        "normalization_status": dict(norm.status),
+        "observable": norm.observable,
+        "axes": {k: v.axes for k, v in dj.limbs.items() if v.usable},
+        "axis_names": {k: list(v.axis_names) for k, v in dj.limbs.items() if v.usable},
+        "limb_status": dj.status,
+        "methods": {
+            m: {
+                "axes": {k: v.axes for k, v in mod.limbs.items() if v.usable},
+                "status": mod.status,
+            }
+            for m, mod in models.items()
+        },
+        "reconstruction_error_m": {"mean": rec["sphere_mean"], "median": rec["sphere_median"]},
+        "reconstruction_error_note": "each limb's end on its joint sphere from the angles about "
+        "the learned axes alone (the paper's minimal parameters) vs measured; with the off-axis "
+        "angle added the reconstruction is exact up to rounding (reconstruction_error_full_m)",
+        "reconstruction_error_full_m": {
+            "mean": rec_full["sphere_mean"],
+            "median": rec_full["sphere_median"],
+        },
+        "timing_ms_per_frame": 1e3 * (sec["normalize"] + sec["angles"]) / n,
+        "timing_ms": {k: 1e3 * v for k, v in sec.items()},
+        "angle_names": sorted(named),
+    }
+    if inp.fusion is not None:
+        report["fusion"] = inp.fusion
+    from kinefuse.analysis.plausibility import plausibility
+
+    report["plausibility"] = _flag_summary(plausibility(angles, dj), seq.t_s, phase)
+    truth = None
+    if inp.kind == "session":
+        from kinefuse.report.analysis_truth import truth_figures
+
+        truth = truth_figures(inp, res, phase, true_calibration=true_calibration)
+        if truth is not None:
+            report.update(truth["report"])
+    written = _write_outputs(folder, inp, res, plots, truth, plot_dpi)
+    report["written"] = [str(p) for p in written]
+    return report, res
+
+
+def _flag_summary(flags: Any, t_s: Array, phase: tuple[float, float]) -> dict[str, Any]:
+    f = np.asarray(flags.flags, dtype=bool)
+    after = t_s > phase[1]
+    sel = after if after.any() else np.ones_like(after)
+    names = list(LIMB_NAMES[: f.shape[1]])
+    return {
+        "frames_flagged_fraction": float(f[sel].any(axis=1).mean()) if f.size else 0.0,
+        "by_limb_fraction": {nm: float(f[sel, i].mean()) for i, nm in enumerate(names)},
+        "over": "frames after the calibration phase" if after.any() else "all frames",
+    }
+
+
+def _write_outputs(
+    folder: Path,
+    inp: AnalysisInput,
+    res: dict[str, Any],
+    plots: bool,
+    truth: dict[str, Any] | None,
+    plot_dpi: int | None = None,
+) -> list[Path]:
+    from kinefuse.analysis_app import write_limb_frames
+
+    seq, norm, named = res["seq"], res["norm"], res["named"]
+    t = seq.t_s
+    names = sorted(named)
+    written = [
+        write_angles_csv(
+            folder / "angles.csv",
+            t,
+            {k: named[k] for k in names},
+            {k: angle_joint(k) for k in names},
+        ),
+        write_angles_mot(folder / "angles.mot", t, {k: named[k] for k in names}),
+        write_limb_frames(folder / "limb_frames.csv", t, LIMB_NAMES, norm.transforms()),
+    ]
+    if plots:
+        from kinefuse.report.analysis_plots import plot_angle_curves, plot_joint_spheres
+
+        title = f"{inp.path.name} ({inp.kind})"
+        written.append(
+            plot_angle_curves(
+                folder / "angles.png",
+                t,
+                named,
+                title=title,
+                truth_deg=None if truth is None else truth.get("named_true"),
+                dpi=plot_dpi or 80,
+            )
+        )
+        dj = res["models"]["dj"]
+        ph = dj.phase_s
+        inside = (t >= ph[0]) & (t <= ph[1])
+        samples = {k: res["angles"].direction[k][inside] for k in dj.limbs}
+        written.append(
+            plot_joint_spheres(
+                folder / "axes_on_spheres.png",
+                samples,
+                {k: v.axes for k, v in dj.limbs.items()},
+                status=dj.status,
+                true_axes=None if truth is None else truth.get("true_axes"),
+                title=f"{title}, calibration phase {ph[0]:.1f}-{ph[1]:.1f} s",
+                dpi=int(1.3 * plot_dpi) if plot_dpi else 70,
+            )
+        )
+    return written
+
+
+def consistency_report(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """``normalization_consistency_deg`` across several inputs of one subject."""
+    from kinefuse.analysis.consistency import normalization_consistency
+
+    c = normalization_consistency([r["norm"] for r in results])
+    return {"normalization_consistency_deg": c}
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """A short text summary (one block per input)."""
+    items = report.get("inputs", [report])
+    lines: list[str] = []
+    for r in items:
+        lines.append(f"{r['input']} ({r['kind']}, {r['frames']} frames)")
+        ph = r["calibration_phase"]
+        lines.append(f"  calibration phase {ph['start_s']:.2f}-{ph['end_s']:.2f} s: {ph['source']}")
+        lines.append(f"  default pose: frame {r['default_pose_frame']}")
+        rec = r["reconstruction_error_m"]
+        lines.append(
+            f"  reconstruction error: mean {1e3 * rec['mean']:.2f} mm, median "
+            f"{1e3 * rec['median']:.2f} mm; {r['timing_ms_per_frame']:.3f} ms per frame"
+        )
+        bad = {k: v for k, v in r["limb_status"].items() if v != "ok"}
+        if bad:
+            lines.append("  limbs not ok: " + "; ".join(f"{k}: {v}" for k, v in bad.items()))
+        if "axis_error_by_method_deg" in r:
+            for m, e in r["axis_error_by_method_deg"].items():
+                lines.append(
+                    f"  axis error {m:>3}: median {e['median']:.2f} deg, mean {e['mean']:.2f} deg"
+                )
+        if "twist_error_deg" in r:
+            tw = r["twist_error_deg"]
+            lines.append(f"  twist error: median {tw['median']:.2f} deg, mean {tw['mean']:.2f} deg")
+            rm = r["angle_rmse_deg"]
+            for k in sorted(rm):
+                if "knee_flexion" in k or "hip_flexion" in k:
+                    lines.append(f"  RMSE {k}: {rm[k]:.2f} deg")
+    if "normalization_consistency_deg" in report:
+        c = report["normalization_consistency_deg"]
+        lines.append(
+            f"normalization consistency: median {c['median']:.2f} deg, mean {c['mean']:.2f} deg"
+        )
+    lines.append(f"wrote {report.get('out')}")
+    return "\n".join(lines)

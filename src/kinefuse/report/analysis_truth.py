@@ -1,0 +1,108 @@
+"""Scoring the analysis of a simulated session against its truth (reads the truth tables).
+
+The same chain (normalization, axes from the same calibration phase, angles) runs on the true
+motion sampled at the fused frame times; the fused input's figures are compared with it:
+
+* ``angle_rmse_deg``: RMSE of each named angle, fused vs true-motion chain, over the frames after
+  the calibration phase (all frames when the phase covers the input).
+* ``twist_error_deg``: absolute twist difference (wrapped to +-180 deg), fused vs true-motion
+  chain, over every limb and frame where both are observable, during the calibration phase.
+* ``axis_error_deg`` (Direction Joining) and ``axis_error_by_method_deg`` (dj, pca, em side by
+  side): the angle between each learned axis and the true axis of
+  the range-of-motion generator (stored by ``kinefuse simulate --rom`` in the truth info
+  ``rom_truth``), both in the parent limb's normalized frame; the true axes are expressed in the
+  true-motion chain's frames, the learned ones in the fused chain's. Without ``rom_truth`` (a
+  session without a range-of-motion phase) no axis error is reported.
+
+Angles do not depend on where the calibration put the world's origin and heading, so no
+alignment of the truth into the calibration's world is needed.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.analysis.sequence import SkeletonSequence
+
+if TYPE_CHECKING:
+    from kinefuse.analysis_app import AnalysisInput
+
+Array = NDArray[np.float64]
+
+
+def true_sequence(inp: AnalysisInput) -> tuple[SkeletonSequence, object | None] | None:
+    """The true motion at the input's frame times, and the stored ROM truth (or None)."""
+    from kinefuse.io.store import SessionStore
+    from kinefuse.report.evaluate import truth_at
+
+    with SessionStore.open(inp.path) as store:
+        if not store.has_truth():
+            return None
+        truth = store.truth()
+        p = truth_at(store, inp.seq.t_s)
+        rom = truth.info("rom_truth")
+    seq = SkeletonSequence.from_kinect(
+        p, t_s=inp.seq.t_s, rate_hz=inp.seq.rate_hz, source=f"{inp.path} [truth]"
+    )
+    return seq, rom
+
+
+def truth_figures(
+    inp: AnalysisInput,
+    res: dict[str, Any],
+    phase: tuple[float, float],
+    *,
+    true_calibration: bool = False,
+) -> dict[str, Any] | None:
+    """Figures of one analysed session against its truth (None for a live recording)."""
+    from kinefuse.analysis.consistency import angle_rmse_deg, axis_errors_deg, twist_errors_deg
+    from kinefuse.report.analysis import analyse_sequence
+
+    got = true_sequence(inp)
+    if got is None:
+        return None
+    tseq, rom = got
+    tres = analyse_sequence(tseq, phase)
+    named, tnamed = res["named"], tres["named"]
+    t = inp.seq.t_s
+    after = t > phase[1]
+    sel: Any = np.flatnonzero(after if after.any() else np.ones_like(after))
+    report: dict[str, Any] = {
+        "angle_rmse_deg": angle_rmse_deg(named, tnamed, sel),
+        "angle_rmse_over": "frames after the calibration phase" if after.any() else "all frames",
+        "truth_chain": {
+            "default_pose_frame": int(tres["norm"].default_frame),
+            "limb_status": tres["models"]["dj"].status,
+        },
+    }
+    inside: Any = np.flatnonzero((t >= phase[0]) & (t <= phase[1]))
+    ang = res["angles"]
+    true_axes = None
+    if isinstance(rom, dict) and isinstance(rom.get("axes_parent"), dict):
+        true_axes = {
+            k: np.asarray(v, dtype=np.float64).reshape(-1, 3) for k, v in rom["axes_parent"].items()
+        }
+        by_method = {m: axis_errors_deg(model, true_axes) for m, model in res["models"].items()}
+        report["axis_error_deg"] = by_method["dj"]
+        report["axis_error_by_method_deg"] = by_method
+        # the generator's true twist, at the fused frame times inside the ROM phase
+        t_rom = np.asarray(rom["t_s"], dtype=np.float64) + float(rom["start_server_s"])
+        true_twist = {
+            k: np.interp(t, t_rom, np.asarray(v, dtype=np.float64), left=np.nan, right=np.nan)
+            for k, v in rom["twist_rad"].items()
+        }
+        report["twist_error_deg"] = twist_errors_deg(
+            ang.twist, true_twist, ang.twist_weight, inside
+        )
+        report["twist_error_against"] = "the generator's true twist, during the ROM phase"
+    else:
+        report["twist_error_deg"] = twist_errors_deg(
+            ang.twist, tres["angles"].twist, ang.twist_weight, inside
+        )
+        report["twist_error_against"] = (
+            "the twist the same chain computes from the true motion (no ROM truth)"
+        )
+    return {"report": report, "named_true": tnamed, "true_axes": true_axes}

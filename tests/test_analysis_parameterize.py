@@ -1,0 +1,161 @@
+"""Parameterization against synthetic truth: a range-of-motion phase on a real subject's pose.
+
+Make truth (the ROM generator), measure (positions, optionally with noise), solve (normalize,
+learn axes, angles), compare.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kinefuse import analysis as an
+from kinefuse.analysis.consistency import axis_errors_deg, true_axes_in_normalization
+from kinefuse.analysis.kinematics import edit_pose, joint_angles, reconstruct, reconstruction_error
+from kinefuse.analysis.parameterize import learn_axes, swing_angles
+from kinefuse.analysis.rom import make_rom_motion
+from kinefuse.errors import InputError
+from kinefuse.motion import load_motion
+
+
+@pytest.fixture(scope="module")
+def rom(shared_data):  # type: ignore[no-untyped-def]
+    clip = load_motion(shared_data / "motion" / "cmu" / "131_01_scaled_metres.bvh")
+    d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
+    motion, truth = make_rom_motion(clip.positions[d], None, np.random.default_rng(7), rate_hz=30.0)
+    seq = an.SkeletonSequence.from_motion(motion)
+    norm = an.normalize(seq)
+    return seq, norm, truth
+
+
+def _true_axes(norm, truth):  # type: ignore[no-untyped-def]
+    return true_axes_in_normalization(truth.axes, truth.frames, norm.frames)
+
+
+def test_dj_recovers_the_true_axes_noise_free(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, truth = rom
+    model = learn_axes(seq, norm, method="dj")
+    err = axis_errors_deg(model, _true_axes(norm, truth))
+    assert not err["skipped"], err["skipped"]
+    assert err["median"] < 0.5 and max(max(v) for v in err["by_limb"].values()) < 1.5  # degrees
+
+
+def test_angles_and_twist_match_the_truth(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, truth = rom
+    model = learn_axes(seq, norm)
+    ang = joint_angles(seq, norm, model)
+    for limb, true in truth.angles.items():
+        if true.shape[1]:
+            rmse = np.degrees(np.sqrt(np.nanmean((ang.angles[limb] - true) ** 2)))
+            assert rmse < 1.0, (limb, rmse)  # degrees
+    for limb in ("upper_arm_left", "forearm_right", "thigh_left", "shank_right", "trunk"):
+        d = np.degrees(ang.twist[limb] - truth.twist[limb])
+        assert np.sqrt(np.nanmean(d**2)) < 1.0, limb  # degrees
+
+
+def test_parameters_reconstruct_the_positions(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, _ = rom
+    model = learn_axes(seq, norm)
+    ang = joint_angles(seq, norm, model)
+    err = reconstruction_error(seq, ang, model)
+    assert err["sphere_mean"] < 1e-6  # metres: the angles give back the limb ends exactly
+    pos = reconstruct(ang, model, norm, measured_lengths=True)
+    chain = np.linalg.norm(pos - seq.kinect_positions(), axis=-1)
+    assert np.nanmean(chain) < 2e-3  # metres (offsets are medians; the sway moves them)
+
+
+def test_two_axis_angles_round_trip(rom, rng) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, _ = rom
+    lm = learn_axes(seq, norm).limbs["thigh_left"]
+    t = rng.uniform(-np.radians(60), np.radians(60), size=(500, 2))
+    from kinefuse.analysis.kinematics import _swing_matrices
+
+    u = np.einsum("tij,j->ti", _swing_matrices(lm, t, None, None), lm.rest)
+    back, off = swing_angles(lm, u)
+    np.testing.assert_allclose(back, t, atol=1e-9)  # radians
+    np.testing.assert_allclose(off, 0.0, atol=1e-9)
+
+
+def test_dj_beats_pca_and_em_with_noise(rom, rng) -> None:  # type: ignore[no-untyped-def]
+    seq, _, truth = rom
+    noisy = an.SkeletonSequence.from_kinect(
+        seq.positions + rng.normal(scale=0.004, size=seq.positions.shape), t_s=seq.t_s
+    )  # 4 mm per joint and axis
+    norm = an.normalize(noisy)
+    med = {}
+    for m in ("dj", "pca", "em"):
+        med[m] = axis_errors_deg(learn_axes(noisy, norm, method=m), _true_axes(norm, truth))
+    assert med["dj"]["median"] < 3.0, med["dj"]
+    assert med["dj"]["median"] < med["pca"]["median"]
+    assert med["dj"]["median"] < med["em"]["median"]
+
+
+def test_limb_without_movement_gets_a_status(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, _, _ = rom
+    p = seq.positions.copy()
+    k, a = seq.index("KneeLeft"), seq.index("AnkleLeft")
+    p[:, a] = p[:, k] + (p[0, a] - p[0, k])  # the shank keeps its world direction: frozen knee
+    frozen = an.SkeletonSequence.from_kinect(p, t_s=seq.t_s)
+    norm = an.normalize(frozen)
+    p2 = p.copy()
+    model = learn_axes(frozen, norm, phase=(0.0, 12.0))  # the trunk phase: the legs stand still
+    assert model.limbs["shank_left"].status.startswith("no movement")
+    assert not model.limbs["shank_left"].usable
+    ang = joint_angles(frozen, norm, model)  # never a crash: the limb is left out
+    assert "shank_left" not in ang.angles
+    del p2
+
+
+def test_one_axis_limb_asked_for_two(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, _ = rom
+    model = learn_axes(seq, norm, n_axes={"shank_left": 2})
+    lm = model.limbs["shank_left"]
+    assert lm.status.startswith("one axis only"), lm.status
+    assert lm.axes.shape == (1, 3)
+
+
+def test_missing_joints(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, _, _ = rom
+    p = seq.positions.copy()
+    p[:, seq.index("HandTipLeft")] = np.nan  # not needed by any limb
+    p[:, seq.index("FootRight")] = np.nan  # the right foot is gone for good
+    p[100:200, seq.index("KneeLeft")] = np.nan
+    gappy = an.SkeletonSequence.from_kinect(p, t_s=seq.t_s)
+    norm = an.normalize(gappy)
+    assert norm.status["foot_right"] == "FootRight missing in the default pose"
+    assert "missing in 100 of" in norm.status["thigh_left"]
+    model = learn_axes(gappy, norm)
+    assert model.limbs["foot_right"].status.startswith("missing")
+    ang = joint_angles(gappy, norm, model)
+    assert np.isnan(ang.angles["thigh_left"][100:200]).all()
+    assert np.isfinite(ang.angles["thigh_left"][300:400]).all()
+
+
+def test_bad_arguments_have_clear_messages(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, _ = rom
+    with pytest.raises(InputError, match="unknown axis method 'ica'"):
+        learn_axes(seq, norm, method="ica")
+    with pytest.raises(InputError, match="holds 0 frames"):
+        learn_axes(seq, norm, phase=(1000.0, 1001.0))
+    with pytest.raises(InputError, match="n_axes must map"):
+        learn_axes(seq, norm, n_axes={"shank_left": 3})
+
+
+def test_edit_pose_bends_only_the_edited_chain(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, norm, _ = rom
+    model = learn_axes(seq, norm)
+    ang = joint_angles(seq, norm, model)
+    f = norm.default_frame
+    base = reconstruct(ang, model, norm)[f]
+    edited = edit_pose(ang, model, norm, f, {"knee_flexion_left": 40.0})
+    j = {n: seq.index(n) for n in ("KneeLeft", "AnkleLeft", "AnkleRight", "WristLeft")}
+    np.testing.assert_allclose(edited[j["KneeLeft"]], base[j["KneeLeft"]], atol=1e-9)
+    np.testing.assert_allclose(edited[j["AnkleRight"]], base[j["AnkleRight"]], atol=1e-9)
+    a, b = base[j["AnkleLeft"]] - base[j["KneeLeft"]], edited[j["AnkleLeft"]] - base[j["KneeLeft"]]
+    turn = np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b)))
+    assert turn == pytest.approx(40.0, abs=0.5)
+    # flexion moves the ankle backward (the ISB sign)
+    back = -norm.body2world[:, 0]
+    assert (b - a) @ back > 0
+    with pytest.raises(InputError, match="cannot edit knee_bend"):
+        edit_pose(ang, model, norm, f, {"knee_bend": 10.0})
