@@ -101,6 +101,7 @@ def test_real_figures_of_the_three_takes(takes: dict[str, Path]) -> None:
         assert 0.0002 < v["still_jitter_m_per_frame"] < 0.0007, k  # 0.2-0.7 mm a frame
         assert 0.04 < v["bone_length_cv"] < 0.09, k
         assert v["lr_disagreement_still_fraction"] == 0.0, k  # standing: never mirrored
+        assert 0.03 < v["still_p95_m"] < 0.2, k  # 3-20 cm: real inferred joints stay on the body
     assert 0.1 < f["90"]["lr_disagreement_fraction"] < 0.2  # walking the square at 90 deg
 
 
@@ -128,6 +129,7 @@ def test_take_passes(walk: Motion) -> None:
 def test_failures_name_what_is_missed() -> None:
     real = dict.fromkeys(FIGURE_KEYS, 0.01) | {
         "lr_disagreement_still_fraction": 0.0,
+        "still_p95_m": 0.1,
         "still_fraction": 0.3,
     }
     sim = dict(real) | {"median_m": 0.02, "bone_length_cv": 0.001}
@@ -162,6 +164,8 @@ def test_simulated_takes_match_the_real_ones(compared: dict[str, TakeResult], na
     for k, f in FACTORS.items():  # still jitter within 2x, bone-length CV within 1.5x
         assert 1.0 / f <= res.simulated[k] / res.real[k] <= f, (k, res.simulated, res.real)
     assert res.simulated["lr_disagreement_still_fraction"] < STILL_LR_MAX  # under 1 %
+    # no stale guesses far from the body while standing (issue 9: 40-54 cm before, real 5-15 cm)
+    assert res.simulated["still_p95_m"] < 1.5 * res.real["still_p95_m"]
     assert res.failures() == []
 
 

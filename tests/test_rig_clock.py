@@ -109,3 +109,27 @@ def test_ntp_probes_recover_the_offset(rng) -> None:
     # delays are asymmetric: the estimate errs by at most half the round trip
     assert np.all(np.abs(offset - true) <= ((t4 - t1) - (t3 - t2)) / 2 + 1e-9)
     assert np.median(np.abs(offset - true)) < 1e-3  # 1 ms
+
+
+def test_host_stamps_arrivals_on_its_own_clock(rng) -> None:
+    from kinefuse.sensors.clock import draw_sensor_clocks
+
+    params = ClockParams(frame_drop_prob=0.0)
+    clocks = draw_sensor_clocks(rng, params)
+    assert clocks.device != clocks.host
+    cap = capture_times(
+        clocks.device, 0.0, 20.0, rng, params,
+        host=clocks.host, latency_offset_s=0.01,
+    )  # fmt: skip
+    latency = clocks.host.to_true(cap.t_receive_host_s) - cap.t_true_s
+    assert latency.min() >= params.latency_min_s - 1e-9
+    assert np.mean(latency) == pytest.approx(params.latency_mean_s + 0.01, abs=0.001)  # 1 ms
+    # the server's receive time is the same arrival plus the network
+    assert np.all(cap.t_receive_server_s - cap.t_true_s >= latency)
+    flat = clocks.to_dict()
+    assert {"offset_s", "drift_ppm", "phase_s", "host_offset_s", "host_drift_ppm"} <= set(flat)
+    # without a host clock the device clock stamps the arrivals (a client that stamps frames
+    # with the probed clock)
+    own = capture_times(clocks.device, 0.0, 2.0, rng, params)
+    lat_own = clocks.device.to_true(own.t_receive_host_s) - own.t_true_s
+    assert lat_own.min() >= params.latency_min_s - 1e-9

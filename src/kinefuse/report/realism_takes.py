@@ -11,8 +11,9 @@ function (:func:`pair_figures`) for both:
     the same distances pooled over the spine and shoulders, and over wrists, hands, ankles, feet;
 ``lr_disagreement_fraction``
     share of pairs that fit better with one stream's left and right swapped;
-``lr_disagreement_still_fraction``
-    the same over pairs in which the person stands still (see below);
+``lr_disagreement_still_fraction``, ``still_p95_m``
+    the same, and the 95th percentile of the distances, over pairs in which the person stands
+    still (see below): where a stale inferred joint would show;
 ``still_jitter_m_per_frame``
     while the person stands still, the median frame-to-frame step of the spine joints
     (SpineBase, SpineMid, SpineShoulder, Neck), over distinct frames of both streams;
@@ -81,7 +82,7 @@ FIGURE_KEYS = (
     "bone_length_cv",
 )
 #: Figures reported beside them (not part of the acceptance schema).
-EXTRA_KEYS = ("lr_disagreement_still_fraction", "still_fraction")
+EXTRA_KEYS = ("lr_disagreement_still_fraction", "still_p95_m", "still_fraction")
 #: A pelvis slower than this over +/-5 frames is standing still, m/s.
 STILL_BELOW_M_S = 0.03
 _HALF_WINDOW = 5
@@ -222,6 +223,8 @@ def pair_figures(pair: StreamPair) -> dict[str, float]:
         ]
     )
     steps = steps[np.isfinite(steps)]
+    still_dist = dist[sa[pair.idx_a]]
+    still_dist = still_dist[np.isfinite(still_dist)]
     still_pairs = sa[pair.idx_a] & d.frame_ok
     mirrored_still = float(d.mirrored[still_pairs].mean()) if still_pairs.any() else float("nan")
     cv = [_bone_cv(pair.joints_a, fa), _bone_cv(pair.joints_b, fb)]
@@ -235,6 +238,7 @@ def pair_figures(pair: StreamPair) -> dict[str, float]:
         "still_jitter_m_per_frame": float(np.median(steps)) if steps.size else float("nan"),
         "bone_length_cv": float(np.mean(cv)) if cv else float("nan"),
         "lr_disagreement_still_fraction": mirrored_still,
+        "still_p95_m": float(np.percentile(still_dist, 95)) if still_dist.size else float("nan"),
         "still_fraction": float(sa[fa].mean()) if fa.any() else float("nan"),
         "per_joint_median_m": d.per_joint_median_m,  # type: ignore[dict-item]
     }
@@ -399,6 +403,7 @@ _UNITS = {
     "extremity_median_m": ("wrists, hands, ankles, feet median", 100, "cm"),
     "lr_disagreement_fraction": ("left/right disagree", 100, "%"),
     "lr_disagreement_still_fraction": ("left/right disagree, standing", 100, "%"),
+    "still_p95_m": ("p95 while standing", 100, "cm"),
     "still_jitter_m_per_frame": ("still spine jitter per frame", 1000, "mm"),
     "bone_length_cv": ("limb bone-length CV", 1, ""),
     "still_fraction": ("still frames", 100, "%"),

@@ -7,32 +7,41 @@ worst (Wang et al. 2015; Otte et al. 2016; Xu & McGorry 2015). This module turns
 positions into what such a tracker reports, with these components (every number lives in
 :class:`TrackerParams`, with its unit and source; ``docs/error_model_tracker.md`` explains them):
 
-(a) **Systematic bias**, in two parts.
+(a) **Systematic bias**.
     *Subject-level* (:class:`SubjectBias`, drawn once per session by :func:`draw_subject_bias`,
     common to every sensor): the tracker's joint definitions differ from the mocap's (hip centres
     higher and wider, ankles higher ...). It is expressed in a body frame (right, forward, up), so
-    it moves with the body. *View-dependent*: the tracker sees the body surface and pushes its
-    estimate a fixed distance behind it (Shotton et al. 2011), so a joint deep inside a thick body
-    part ends up pulled toward the sensor along the viewing ray, a thin part pushed away; the
-    depth below the surface is ray-cast against the capsule body. A slowly varying per-sensor
-    *pose-dependent* offset adds what two co-located real sensors still disagree on.
-(b) **Temporally correlated jitter**: Ornstein-Uhlenbeck noise per joint and axis, larger along
-    the depth axis, growing with the joint's speed and with distance.
+    it moves with the body. *View-dependent*: an offset that is a smooth function of the view
+    angle, nothing from the front or back and the most from the side (where the trunk, head and
+    hips are hardest to place); and the surface pull: the tracker sees the body surface and pushes
+    its estimate a fixed distance behind it (Shotton et al. 2011), so a joint deep inside a thick
+    body part ends up pulled toward the sensor along the viewing ray, a thin part pushed away; the
+    depth below the surface is ray-cast against the capsule body. A per-sensor *pose-dependent*
+    offset, which changes as the pose changes and holds while the person holds still, adds what
+    two co-located real sensors still disagree on.
+(b) **Smoothed, correlated jitter** (the SDK filters its output): per joint and axis, white noise
+    through two low-pass stages, larger along the depth axis, growing with the joint's speed and
+    with distance, and a small high-frequency part on top. Limb joints on the far side of the body
+    from the sensor get an extra slow error (self-occlusion by the trunk).
 (c) **States**: joints hidden by the body from the sensor (rays cast from the optical centre to
     the joint and around it against the capsules, ignoring the capsules the joint lies inside)
-    are ``INFERRED``, with a much larger, biased error (pulled toward the last pose seen, held in
-    the body frame, else the mirrored twin as last seen, else a standing pose); joints outside
-    the depth camera's view or range are ``INFERRED`` too, at the guess alone (the SDK documents
-    that joints it cannot see are inferred from the rest of the body).
+    are ``INFERRED``, with a larger error (pulled, by at most a set distance, toward the last pose
+    seen, moved with the body, else the mirrored twin as last seen, else a standing pose); joints
+    outside the depth camera's view or range are ``INFERRED`` too, at the guess alone (the SDK
+    documents that joints it cannot see are inferred from the rest of the body). Seen from the
+    side, the trunk, head and hips are ``INFERRED`` in runs. Every reported bone is pulled toward
+    the body's own length (fully for a guessed joint), so the skeleton stays plausible.
 (d) **Left/right swaps**: a tracker assumes the person faces it; the probability that it labels
-    the body mirrored rises with the facing angle and persists over runs of frames.
+    the body mirrored is zero up to a side view, rises with the facing angle beyond it and
+    persists over runs of frames.
 (e) **Dropouts**: occasional runs of frames where the body is lost (all joints ``NOT_TRACKED``).
 
-The inferred-joint errors and the swap decisions are smooth random functions of time and of the
-viewing direction in the body frame (:class:`SessionLatent`), drawn once per session with the
-subject bias: sensors that look from nearby directions make the same mistakes, as two real
-co-located Kinects do. Everything is vectorized over frames and joints; the AR(1) recursions run
-in :func:`scipy.signal.lfilter`.
+The inferred-joint errors, the side-view offsets and the swap decisions are smooth random
+functions of time and of the viewing direction in the body frame (:class:`SessionLatent`), drawn
+once per session with the subject bias: sensors that look from nearby directions make the same
+mistakes, as two real co-located Kinects do. Everything is vectorized over frames and joints; the
+filters run in :func:`scipy.signal.lfilter`. ``docs/realism.md`` says which parameter was fitted
+to which real take.
 """
 
 from __future__ import annotations

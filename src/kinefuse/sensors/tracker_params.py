@@ -3,6 +3,10 @@
 Every number of the model lives in :class:`TrackerParams` with its unit, kind and source;
 ``docs/error_model_tracker.md`` explains them and ``docs/realism.md`` says what was fitted to
 which real take.
+
+Longer than the project's ~600-line guide on purpose: it is one declarative table (one
+dataclass, every field with its unit, kind and source text, and its validation); splitting it
+would scatter the table that ``docs/error_model.md`` is generated from.
 """
 
 from __future__ import annotations

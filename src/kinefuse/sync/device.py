@@ -13,8 +13,10 @@ probes (:mod:`kinefuse.sync.ntp`). So, per sensor:
 2. **host -> server**: the probes' clock estimate.
 
 Sessions recorded without host receive times (older stores, or a client that stamps frames
-with the probed clock itself) map ``t_device`` through the probes alone. Pure: arrays in, a
-small frozen dataclass out.
+with the probed clock itself) map ``t_device`` through the probes alone. Depth frames carry the
+same device timestamps but no arrival times: calibration maps them with the estimate from the
+body frames of the same device (a session with depth frames only falls back to the probes).
+Pure: arrays in, a small frozen dataclass out.
 """
 
 from __future__ import annotations
