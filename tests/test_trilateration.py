@@ -356,10 +356,13 @@ def test_geometric_keeps_the_triple_the_other_sensors_agree_with():
 
 
 def test_status_helpers():
-    s = np.array([0, 1, 1, 5, 6], dtype=np.int8)
+    s = np.array([0, 1, 1, 5, FusionStatus.NO_DATA], dtype=np.int8)
     assert is_solved(s).tolist() == [True, True, True, False, False]
     counts = status_counts(s)
     assert counts["PLANAR"] == 2 and counts["NO_DATA"] == 1 and counts["DEGENERATE"] == 0
+    # ordered by severity: np.maximum of two codes keeps the worse one
+    assert list(FusionStatus) == sorted(FusionStatus)
+    assert FusionStatus.NO_DATA == max(FusionStatus)
     assert set(counts) == {c.name for c in FusionStatus}
     assert "mirror" in FusionStatus.PLANAR.description
     assert all(c.description for c in FusionStatus)

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from kinefuse.io.store import SessionStore
 from kinefuse.skeleton import TrackingState
-from kinefuse.sync import estimate_clock
+from kinefuse.sync import sensor_timebase
 
 Array = NDArray[np.float64]
 
@@ -56,7 +56,9 @@ def tracking_coverage(store: SessionStore) -> dict[str, Any]:
         probes = store.clock_probes(info.id)
         body = obs.has_body
         if len(probes) and obs.n_frames:
-            t = estimate_clock(probes).to_server(obs.t_sensor_s)
+            # device stamps -> the client's clock (from the host receive times) -> server
+            tb = sensor_timebase(probes, obs.t_sensor_s, obs.t_receive_host_s)
+            t = tb.to_server(obs.t_sensor_s)
         else:
             t = obs.t_sensor_s
         times[info.id] = t[body]
