@@ -156,3 +156,13 @@ def test_single_sensor_and_bad_options(rng) -> None:
         fuse_best([], grid)
     with pytest.raises(ValueError, match="temporal must be"):
         BestOptions(temporal="kalman")
+    with pytest.raises(ValueError, match="25 positive numbers"):
+        BestOptions(lateral_m=(0.01,) * 3)
+
+
+def test_options_compare_and_hash() -> None:
+    assert BestOptions() == BestOptions() and hash(BestOptions()) == hash(BestOptions())
+    assert BestOptions(robust=False) != BestOptions()
+    assert len({BestOptions(), BestOptions(), BestOptions(bones=False)}) == 2
+    custom = BestOptions(lateral_m=np.full(25, 0.02))  # arrays are accepted, stored as tuples
+    assert custom.lateral_m == (0.02,) * 25 and hash(custom) != hash(BestOptions())

@@ -362,7 +362,7 @@ def test_status_helpers():
     assert counts["PLANAR"] == 2 and counts["NO_DATA"] == 1 and counts["DEGENERATE"] == 0
     # ordered by severity: np.maximum of two codes keeps the worse one
     assert list(FusionStatus) == sorted(FusionStatus)
-    assert FusionStatus.NO_DATA == max(FusionStatus)
+    assert max(FusionStatus) == FusionStatus.NO_DATA
     assert set(counts) == {c.name for c in FusionStatus}
     assert "mirror" in FusionStatus.PLANAR.description
     assert all(c.description for c in FusionStatus)

@@ -308,13 +308,11 @@ def plot_calibration_errors(
 ) -> Path:
     """Write a PNG with error vs wand distance, vs angle from the optical axis, and (optionally)
     vs number of sightings, like the paper's figures. Returns the path written."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # drawn off-screen; no global backend is changed
 
     n_panels = 3 if curve is not None else 2
-    fig, axes = plt.subplots(1, n_panels, figsize=(5 * n_panels, 4), constrained_layout=True)
+    fig = Figure(figsize=(5 * n_panels, 4), constrained_layout=True)
+    axes = fig.subplots(1, n_panels)
     for ax, x, edges, label in (
         (axes[0], errors.distance_m, distance_edges_m, "wand distance from the sensor (m)"),
         (axes[1], errors.angle_deg, angle_edges_deg, "wand angle from the optical axis (deg)"),
@@ -365,5 +363,5 @@ def plot_calibration_errors(
     fig.suptitle(title)
     out = Path(path)
     fig.savefig(out, dpi=100)
-    plt.close(fig)
+
     return out

@@ -29,7 +29,7 @@ Each part can be switched off (:class:`BestOptions`) so that its gain can be mea
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -105,15 +105,22 @@ class BestOptions:
     gate_chi2: float = 11.34  # chi-square, 3 dof, 99 %
     max_interp_gap_s: float = 0.1
     max_predict_s: float = 0.5
-    lateral_m: Array = field(default_factory=lambda: _LATERAL_M.copy())
-    axial_m: Array = field(default_factory=lambda: _AXIAL_M.copy())
-    accel_psd: Array = field(default_factory=lambda: _ACCEL_PSD.copy())
+    #: per joint (25 values): lateral and axial measurement noise (m), process noise (m^2/s^3);
+    #: tuples, so that options compare and hash (they key caches and the ablation table)
+    lateral_m: tuple[float, ...] = tuple(_LATERAL_M.tolist())
+    axial_m: tuple[float, ...] = tuple(_AXIAL_M.tolist())
+    accel_psd: tuple[float, ...] = tuple(_ACCEL_PSD.tolist())
 
     def __post_init__(self) -> None:
         if self.temporal not in (None, "smoother", "filter"):
             raise ValueError(
                 f"temporal must be None, 'smoother' or 'filter', got {self.temporal!r}"
             )
+        for name in ("lateral_m", "axial_m", "accel_psd"):
+            v = tuple(float(x) for x in np.asarray(getattr(self, name), dtype=float).ravel())
+            if len(v) != N_JOINTS or not all(x > 0 for x in v):
+                raise ValueError(f"{name} must be {N_JOINTS} positive numbers, one per joint")
+            object.__setattr__(self, name, v)
 
 
 @dataclass(frozen=True)
@@ -262,8 +269,8 @@ def _measurement_cov(
     inflate = np.where(states == TrackingState.INFERRED, opt.inferred_inflation, inflate)
     if occluded is not None:
         inflate = inflate * np.where(occluded, opt.occluded_inflation, 1.0)
-    lat2 = (opt.lateral_m**2)[None, :] * inflate**2
-    ax2 = (opt.axial_m**2)[None, :] * inflate**2
+    lat2 = (np.asarray(opt.lateral_m) ** 2)[None, :] * inflate**2
+    ax2 = (np.asarray(opt.axial_m) ** 2)[None, :] * inflate**2
     outer = ray[..., :, None] * ray[..., None, :]
     cov_s = lat2[..., None, None] * (np.eye(3) - outer) + ax2[..., None, None] * outer
     return np.einsum("ij,ntjk,lk->ntil", r_s2w, cov_s, r_s2w)
@@ -565,7 +572,7 @@ def fuse_best(
             t_grid,
             fused,
             fcov,
-            opt.accel_psd,
+            np.asarray(opt.accel_psd),
             smooth=opt.temporal == "smoother",
             max_predict_s=opt.max_predict_s,
         )

@@ -225,8 +225,8 @@ class LiveFusion:
             ray = np.nan_to_num(joints / np.linalg.norm(joints, axis=-1, keepdims=True))
         inflate = np.where(states == TrackingState.INFERRED, opt.inferred_inflation, 1.0)
         inflate = inflate * np.where(occluded, opt.occluded_inflation, 1.0)
-        lat2 = opt.lateral_m**2 * inflate**2
-        ax2 = opt.axial_m**2 * inflate**2
+        lat2 = np.asarray(opt.lateral_m) ** 2 * inflate**2
+        ax2 = np.asarray(opt.axial_m) ** 2 * inflate**2
         outer = ray[..., :, None] * ray[..., None, :]
         cov_s = lat2[..., None, None] * (np.eye(3) - outer) + ax2[..., None, None] * outer
         r = self._r
@@ -267,7 +267,7 @@ class LiveFusion:
         opt = self.options.best
         d = 0.0 if self._t is None else max(t - self._t, 0.0)
         self._t = t if self._t is None else max(t, self._t)
-        q = opt.accel_psd[:, None]
+        q = np.asarray(opt.accel_psd)[:, None]
         x_ = self._x + d * self._v
         pxx = self._pxx + 2 * d * self._pxv + d * d * self._pvv + q * d**3 / 3
         pxv = self._pxv + d * self._pvv + q * d**2 / 2

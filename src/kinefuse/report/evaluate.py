@@ -289,13 +289,11 @@ def plot_trajectories(
     joints: tuple[str, ...] = ("SpineBase", "WristRight", "AnkleLeft"),
 ) -> None:
     """Trajectories of a few joints, x/y/z over time, every method against the truth (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # drawn off-screen; no global backend is changed
 
     t = next(iter(results.values())).t_server_s
-    fig, axes = plt.subplots(len(joints), 3, figsize=(14, 3 * len(joints)), sharex=True)
+    fig = Figure(figsize=(14, 3 * len(joints)))
+    axes = fig.subplots(len(joints), 3, sharex=True)
     for r, name in enumerate(joints):
         j = JOINT_INDEX[name]
         for c, axis in enumerate("xyz"):
@@ -309,7 +307,6 @@ def plot_trajectories(
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def write_tables(
