@@ -481,8 +481,12 @@ def run_calibrate(
     store_result: bool = False,
     accept: bool = False,
     allow_incomplete: bool = False,
+    detector: str | None = None,
 ) -> dict[str, Any]:
     """Calibrate a session's sensors and grade the result from its own residuals.
+
+    ``detector`` (``paper`` or ``robust``) finds the wand in the depth frames; by default each
+    method uses its own: the paper's registration the paper's detector, ``full`` ours.
 
     The session is opened read-only unless ``store_result`` asks to store the calibration in it.
     A calibration graded ``failed`` is written nowhere unless ``accept``. The error figures
@@ -506,7 +510,8 @@ def run_calibrate(
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
         infos = {s.id: s for s in store.sensors()}
-        cal_in = gather(store)
+        det = detector or ("paper" if method == "paper" else "robust")
+        cal_in = gather(store, detector=det)
         reg = calibrate(cal_in, method)
         grade = grade_calibration(reg, cal_in.floors)
         cal = calibration_from_registration(
@@ -522,6 +527,7 @@ def run_calibrate(
             write_calibration(out, text)
         result: dict[str, Any] = {
             "method": method,
+            "detector": det,
             "world": reg.world,
             "rms_m": reg.rms_m,
             **grade.to_dict(),
@@ -566,7 +572,10 @@ def run_calibrate(
 
 
 def format_calibrate(r: dict[str, Any]) -> str:
-    lines = [f"calibration ({r['method']}): {r['world']}", f"grade: {r['grade']}"]
+    lines = [
+        f"calibration ({r['method']}, wand detector {r['detector']}): {r['world']}",
+        f"grade: {r['grade']}",
+    ]
     lines += [f"  {why}" for why in r["reasons"]]
     if r["grade"] == "failed":
         lines.append(

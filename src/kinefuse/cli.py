@@ -236,6 +236,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         store_result=args.store,
         accept=args.accept,
         allow_incomplete=args.partial,
+        detector=args.detector,
     )
     if args.json:
         print(json.dumps(r, indent=2))
@@ -373,6 +374,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", type=Path)
     p.add_argument(
         "--method", choices=["paper", "full"], default="full", help="registration (full)"
+    )
+    p.add_argument(
+        "--detector",
+        choices=["paper", "robust"],
+        help="wand detector (default: the method's own: paper for paper, robust for full)",
     )
     p.add_argument("--out", type=Path, help="write the calibration file (TOML)")
     p.add_argument(

@@ -23,6 +23,7 @@ from kinefuse.calibration.register import (
     register_full,
     register_paper,
 )
+from kinefuse.calibration.wand_paper import detect_wand_paper_sequence
 from kinefuse.calibration.wand_robust import detect_wand_sequence
 from kinefuse.errors import CalibrationError
 from kinefuse.io.store import SessionStore
@@ -46,8 +47,20 @@ class CalibrationInput:
     frame_period_s: float  # median interval between a sensor's calibration depth frames
 
 
-def gather(store: SessionStore, *, floor_frames: int = 15) -> CalibrationInput:
-    """Detect the wand in every sensor's calibration frames and fit each sensor's floor."""
+#: The wand detectors: the paper's nearest-object binarization and our sphere fit.
+DETECTORS = ("paper", "robust")
+
+
+def gather(
+    store: SessionStore, *, floor_frames: int = 15, detector: str = "robust"
+) -> CalibrationInput:
+    """Detect the wand in every sensor's calibration frames and fit each sensor's floor.
+
+    ``detector``: ``"paper"`` (METHODS.md A.3, steps 1-4: iterated binarization of the nearest
+    object) or ``"robust"`` (a known-radius sphere fit, :mod:`kinefuse.calibration.wand_robust`).
+    """
+    if detector not in DETECTORS:
+        raise CalibrationError(f"unknown wand detector {detector!r}; choose paper or robust")
     meta = store.meta()
     phase = meta.get("calibration_phase_server_s")
     wand_meta = meta.get("wand")
@@ -71,7 +84,8 @@ def gather(store: SessionStore, *, floor_frames: int = 15) -> CalibrationInput:
         n_first = 0
         for _seq, t_sensor, frames in store.iter_depth_frames(s.id):
             ts.append(t_sensor)
-            found_tracks.append(detect_wand_sequence(frames, s.intrinsics, wand, name=s.id))
+            detect = detect_wand_paper_sequence if detector == "paper" else detect_wand_sequence
+            found_tracks.append(detect(frames, s.intrinsics, wand, name=s.id))
             if n_first < floor_frames:
                 firsts.append(frames[: floor_frames - n_first])
                 n_first += len(firsts[-1])
