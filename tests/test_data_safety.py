@@ -93,7 +93,7 @@ def test_force_replaces_a_simulated_session(tmp_path, clip, capsys) -> None:
     assert run(capsys, *sim_args(clip, s, "--seed", "2", "--force"))[0] == 0
     assert digest(s) != first
     with SessionStore.open(s) as st:
-        assert st.complete and st.meta()["seed"] == 2
+        assert st.complete and st.truth().info("seed") == 2
 
 
 def _start_simulate(out: Path, clip: Path, *extra: str) -> subprocess.Popen[bytes]:

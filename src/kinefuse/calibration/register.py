@@ -249,8 +249,8 @@ def paper_positions_from_sightings(
     if (origin_window_s is None) != (moved_window_s is None):
         raise InputError("give both origin_window_s and moved_window_s, or neither")
     if origin_window_s is None or moved_window_s is None:
-        origin_window_s, moved_window_s = _protocol_windows(
-            sightings, still_tol_m, min_still_s, min_move_m
+        origin_window_s, moved_window_s = find_hold_windows(
+            sightings, tol_m=still_tol_m, min_s=min_still_s, min_move_m=min_move_m
         )
     origin: dict[str, Array] = {}
     moved: dict[str, Array] = {}
@@ -271,10 +271,17 @@ def paper_positions_from_sightings(
     return origin, moved
 
 
-def _protocol_windows(
-    sightings: Mapping[str, Sightings], tol_m: float, min_s: float, min_move_m: float
+def find_hold_windows(
+    sightings: Mapping[str, Sightings],
+    *,
+    tol_m: float = 0.03,
+    min_s: float = 0.3,
+    min_move_m: float = 0.2,
 ) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Consensus server-time windows of the two still positions (see the caller)."""
+    """Server-time windows of the protocol's two still wand positions, found blind in the
+    sightings: in each track the first still phase and the next one at least ``min_move_m``
+    away, the windows being the median over the sensors (see
+    :func:`paper_positions_from_sightings`). Nothing of the operator's own timing is used."""
     votes = []
     for s in sightings.values():
         t, p = s.t_server_s, s.centre_sensor_m

@@ -19,6 +19,7 @@ from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
 from kinefuse.calibration.register import (
     Registration,
     Sightings,
+    find_hold_windows,
     paper_positions_from_sightings,
     register_full,
     register_paper,
@@ -136,15 +137,9 @@ def gather(
 
 
 def _protocol_windows(cal: CalibrationInput) -> tuple[tuple[float, float], tuple[float, float]]:
-    t0 = cal.phase_server_s[0]
-    o = cal.protocol.get("origin_hold_s")
-    a = cal.protocol.get("axis_hold_s")
-    if not (isinstance(o, list) and isinstance(a, list)):
-        raise CalibrationError(
-            "the session does not say when the wand was held at the origin and at the axis mark "
-            "(wand_protocol metadata); the paper's method needs both holds"
-        )
-    return (t0 + o[0], t0 + o[1]), (t0 + a[0], t0 + a[1])
+    """The two still holds of the protocol, found in the sightings themselves (not in the
+    simulator's choreography: a real operator's timing is not known to the second)."""
+    return find_hold_windows(cal.sightings)
 
 
 def scale_from_axis(cal: CalibrationInput, reg: Registration) -> float:

@@ -34,6 +34,7 @@ from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multi
 from kinefuse.motion.types import Motion
 from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
 from kinefuse.sensors.intrinsics import Intrinsics
+from kinefuse.sensors.lab import subject_height
 from kinefuse.sensors.tracker import (
     SubjectBias,
     TrackerParams,
@@ -449,13 +450,6 @@ def walking_passes(
     return out
 
 
-def _subject_height(motion: Motion) -> float:
-    p = motion.positions
-    head = p[:, JOINT_INDEX["Head"], 2]
-    feet = np.minimum(p[:, JOINT_INDEX["FootLeft"], 2], p[:, JOINT_INDEX["FootRight"], 2])
-    return float(np.clip(np.median(head - feet) + 0.10, 0.6, 2.4))
-
-
 @dataclass(frozen=True, eq=False)
 class SimulatedPair:
     """Two simulated sensors' streams of several walking passes, pooled."""
@@ -487,7 +481,7 @@ def simulate_pair(
         raise InputError("no walking passes to simulate")
     clock_params = ClockParams(latency_sigma_s=rcv.latency_sigma_s)
     subj = draw_subject_bias(rng, tp) if subject is None else subject
-    radii = capsule_radii(_subject_height(passes[0]))
+    radii = capsule_radii(subject_height(passes[0]))
     s2w = layout.sensor2world()
     intr = Intrinsics()
     ja, jb, ia_all, ib_all, ta_all, tb_all, ga, gb, mis = [], [], [], [], [], [], [], [], []

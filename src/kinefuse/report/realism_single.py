@@ -17,8 +17,9 @@ from numpy.typing import NDArray
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.motion.types import Motion
-from kinefuse.report.realism import _CORE, _EXTREMITIES, _subject_height
+from kinefuse.report.realism import _CORE, _EXTREMITIES
 from kinefuse.sensors.intrinsics import Intrinsics
+from kinefuse.sensors.lab import subject_height
 from kinefuse.sensors.tracker import TrackerParams, draw_subject_bias, simulate_tracker
 from kinefuse.skeleton import (
     JOINT_INDEX,
@@ -98,7 +99,7 @@ def single_sensor_realism(
     if not passes:
         raise InputError("no motion to simulate")
     subj = draw_subject_bias(rng, tp)
-    radii = capsule_radii(_subject_height(passes[0]))
+    radii = capsule_radii(subject_height(passes[0]))
     intr = Intrinsics()
     errs, states, outside, swapped = [], [], 0, []
     t0 = 0.0

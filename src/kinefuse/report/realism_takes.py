@@ -56,7 +56,6 @@ from kinefuse.report.realism import (
     FACING_FRONT,
     PairLayout,
     _front_and_side,
-    _subject_height,
     default_walk_path,
     disagreement,
     load_walk,
@@ -66,6 +65,7 @@ from kinefuse.report.realism import (
     walking_passes,
 )
 from kinefuse.report.realism_single import format_single, single_sensor_realism
+from kinefuse.sensors.lab import subject_height
 from kinefuse.sensors.tracker_params import TrackerParams
 from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, bone_index_array, standing_pose
 
@@ -308,7 +308,7 @@ def take_passes(walk: Motion, still_fraction: float, moving_speed_m_s: float) ->
     stand_s = total if standing else still_fraction / (1.0 - still_fraction) * total
     rate = walks[0].rate_hz
     n = max(round(stand_s * rate), 4)
-    pose = standing_pose(_subject_height(walk))  # feet apart, arms down, facing +x
+    pose = standing_pose(subject_height(walk))  # feet apart, arms down, facing +x
     stand = Motion(
         np.repeat(pose[None], n, axis=0),
         rate,

@@ -49,8 +49,6 @@ class WandProtocol:
             "move_s": self.move_s,
             "volume_radius_m": self.volume_radius_m,
             "height_range_m": list(self.height_range_m),
-            "origin_hold_s": [0.0, self.hold_s],
-            "axis_hold_s": [self.hold_s + self.move_s, 2 * self.hold_s + self.move_s],
         }
 
 

@@ -164,15 +164,16 @@ def simulate_session(
     store = SessionStore.create(out, overwrite=overwrite)
     try:
         store.set_meta("generator", f"kinefuse {__version__} simulate")
-        store.set_meta("seed", int(config.seed))
         store.set_meta("clip", motion.source)
-        store.set_meta("rig", rig.description)
-        store.set_meta("subject_height_m", height)
+        # what only the simulator knows goes with the truth, where only evaluation reads it
+        store.write_truth_info("seed", int(config.seed))
+        store.write_truth_info("rig", rig.description)
+        store.write_truth_info("subject_height_m", height)
         store.set_meta("calibration_phase_server_s", [0.0, t_cal])
         store.set_meta("motion_phase_server_s", [t_cal, t_end])
         store.set_meta("wand", asdict(config.wand))
         store.set_meta("wand_protocol", config.protocol.to_dict())
-        store.set_meta("error_model", _to_plain(asdict(errs)))
+        store.write_truth_info("error_model", _to_plain(asdict(errs)))
 
         t_truth = np.arange(0.0, motion_s + 1e-9, 1.0 / motion.rate_hz)
         store.write_truth_motion(t_cal + t_truth, motion.at(t_truth), motion.synthesized)
