@@ -28,12 +28,12 @@ from kinefuse.calibration import WandDetection, detect_wand, detect_wand_paper, 
 from kinefuse.calibration.evaluate import pose_errors
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.geometry.transforms import invert_transform
 from kinefuse.sensors.choreography import holding_poses, make_wand_path
 from kinefuse.sensors.depth import Scene, render_depth
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.rig import default_rig
-from kinefuse.sensors.wand import Wand
 from kinefuse.skeleton import JOINTS
 
 if hasattr(os, "sched_setaffinity"):

@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.geometry.raycast import ray_capsules, ray_plane
 from kinefuse.geometry.transforms import look_at
 from kinefuse.sensors import depth
@@ -28,7 +29,6 @@ from kinefuse.sensors.depth import (
     render_depth_m,
     render_geometry,
 )
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 FRAMES = 30

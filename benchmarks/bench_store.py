@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.io.store import SessionStore
 from kinefuse.report.inspect import inspect_session
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS
 
 SENSORS = 4

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.fusion import (
     sensor_centres,
     solve_linear,
@@ -32,7 +33,6 @@ from kinefuse.fusion import (
 )
 from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.occlusion import detect_occlusion_sensors
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS
 
 RATE_HZ = 30.0

@@ -25,12 +25,12 @@ from kinefuse.calibration.wand_paper import (
     detect_wand_paper_sequence,
     standardize_depth_cm,
 )
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.sensors.choreography import holding_poses
 from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
-from kinefuse.sensors.intrinsics import Intrinsics
-from kinefuse.sensors.wand import Wand
 from kinefuse.skeleton import JOINTS
 
 INTR = Intrinsics()

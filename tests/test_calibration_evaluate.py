@@ -23,9 +23,9 @@ from kinefuse.calibration.synthetic import (
     true_wand_in_sensor,
     wand_waving,
 )
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import make_transform, rot_x, rot_z
-from kinefuse.sensors.intrinsics import Intrinsics
 
 INTR = Intrinsics()
 

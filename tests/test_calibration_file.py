@@ -21,8 +21,8 @@ from kinefuse.calibration import (
 )
 from kinefuse.calibration.register import Registration
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
 
 INTR = Intrinsics()
 

@@ -20,10 +20,10 @@ from kinefuse.calibration import (
 )
 from kinefuse.calibration.evaluate import pose_errors
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError, InputError
 from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.sensors.depth import Scene, render_depth
-from kinefuse.sensors.intrinsics import Intrinsics
 
 INTR = Intrinsics()
 

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules, ray_plane
 from kinefuse.geometry.transforms import apply_transform, look_at, make_transform
@@ -24,8 +26,6 @@ from kinefuse.sensors.depth import (
     render_geometry,
     systematic_offset_m,
 )
-from kinefuse.sensors.intrinsics import Intrinsics
-from kinefuse.sensors.wand import Wand
 from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

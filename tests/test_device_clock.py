@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from kinefuse.app import run_simulate
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, SyncError
 from kinefuse.io.store import SessionStore
 from kinefuse.sensors.clock import (
@@ -19,7 +20,6 @@ from kinefuse.sensors.clock import (
     clock_probes,
     draw_sensor_clocks,
 )
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sync import (
     DeviceClockEstimate,
     estimate_clock,

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, StoreError
 from kinefuse.io.store import SessionStore
 from kinefuse.report.inspect import format_inspect, inspect_session
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -187,7 +187,7 @@ def test_fuse_and_evaluate_part_of_a_take(session, tmp_path, capsys) -> None:
 
 
 def test_the_clients_own_occlusion_flags_are_used_when_recorded(session, tmp_path) -> None:
-    from kinefuse.sensors.intrinsics import Intrinsics
+    from kinefuse.camera.intrinsics import Intrinsics
 
     with SessionStore.open(session) as st:
         o = st.observations("k0")

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules
 from kinefuse.geometry.transforms import rot_y
@@ -21,7 +22,6 @@ from kinefuse.occlusion import (
     segments_intersect,
     select_sensors,
 )
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import (
     BONES,
     JOINT_INDEX,
@@ -238,7 +238,7 @@ def test_detect_occlusion_sensors_stacks_sensors():
 def test_detect_occlusion_validates_input():
     with pytest.raises(InputError, match=r"joints_sensor must have shape \(T, 25, 3\)"):
         detect_occlusion(np.zeros((4, 24, 3)), Intrinsics())
-    with pytest.raises(InputError, match=r"intrinsics must be a kinefuse\.sensors\.intrinsics"):
+    with pytest.raises(InputError, match=r"intrinsics must be a kinefuse\.camera\.intrinsics"):
         detect_occlusion(np.zeros((1, 25, 3)), "kinect")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="near_m must be a positive distance"):
         detect_occlusion(np.zeros((1, 25, 3)), Intrinsics(), near_m=-1.0)

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, StoreError
 from kinefuse.io.store import SCHEMA_VERSION, Observations, SensorInfo, SessionStore
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -277,7 +277,7 @@ def test_crash_keeps_committed_appends(tmp_path: Path) -> None:
         f"""
         import os, numpy as np
         from kinefuse.io.store import SessionStore
-        from kinefuse.sensors.intrinsics import Intrinsics
+        from kinefuse.camera.intrinsics import Intrinsics
         s = SessionStore.create({str(path)!r})
         s.add_sensor("k0", "A", Intrinsics())
         st = np.full((20, 25), 2, np.int8)

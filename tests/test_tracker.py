@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules, ray_capsules_batched
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.tracker import (
     JOINT_GROUPS,
     SessionLatent,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.fusion import (
     METHODS,
@@ -24,7 +25,6 @@ from kinefuse.fusion import (
     trilaterate,
 )
 from kinefuse.geometry.transforms import invert_transform, look_at, make_transform
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 SPREAD = (0.5, 2.0, 1.0, 2.4)  # sensor heights, metres: well out of one plane

@@ -47,8 +47,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.calibration.register import Registration
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
 
 Array = NDArray[np.float64]
 

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
 
 Array = NDArray[np.float64]
 
@@ -117,7 +117,7 @@ def check_depth_frame(
     """
     if not isinstance(intrinsics, Intrinsics):
         raise InputError(
-            f"{name}: intrinsics must be a kinefuse.sensors.intrinsics.Intrinsics, "
+            f"{name}: intrinsics must be a kinefuse.camera.intrinsics.Intrinsics, "
             f"got {type(intrinsics).__name__}"
         )
     a = np.asarray(depth_mm)

@@ -20,8 +20,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.calibration.common import check_depth_frame
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError
-from kinefuse.sensors.intrinsics import Intrinsics
 
 Array = NDArray[np.float64]
 

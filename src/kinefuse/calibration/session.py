@@ -26,9 +26,9 @@ from kinefuse.calibration.register import (
 )
 from kinefuse.calibration.wand_paper import detect_wand_paper_sequence
 from kinefuse.calibration.wand_robust import detect_wand_sequence
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import CalibrationError
 from kinefuse.io.store import SessionStore
-from kinefuse.sensors.wand import Wand
 from kinefuse.sync import sensor_timebase
 
 Array = NDArray[np.float64]

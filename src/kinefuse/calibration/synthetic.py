@@ -19,9 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.calibration.register import Sightings
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.sensors.intrinsics import Intrinsics
-from kinefuse.sensors.wand import Wand
 
 Array = NDArray[np.float64]
 

@@ -29,9 +29,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.calibration.common import WandDetection, WandTrack, check_depth_frame, check_frames
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
-from kinefuse.sensors.wand import Wand
 
 Array = NDArray[np.float64]
 

@@ -40,9 +40,9 @@ from kinefuse.calibration.common import (
     check_depth_frame,
     check_frames,
 )
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
-from kinefuse.sensors.wand import Wand
 
 Array = NDArray[np.float64]
 

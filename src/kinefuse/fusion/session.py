@@ -13,13 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import FusionError
 from kinefuse.fusion.best import BestOptions, SensorStream, fuse_best
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
 from kinefuse.io.store import Observations, SessionStore
 from kinefuse.occlusion.segments import detect_occlusion
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest, sensor_timebase
 

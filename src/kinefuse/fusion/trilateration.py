@@ -58,6 +58,7 @@ from typing import Literal, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.occlusion.segments import (
@@ -66,7 +67,6 @@ from kinefuse.occlusion.segments import (
     detect_occlusion_sensors,
 )
 from kinefuse.occlusion.select import select_sensors
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]

@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, StoreError
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 __all__ = [

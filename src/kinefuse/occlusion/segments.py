@@ -40,8 +40,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.skeleton import N_JOINTS, bone_index_array, capsule_radii
 from kinefuse.skeleton.kinect_v2 import REFERENCE_HEIGHT_M
 
@@ -312,7 +312,7 @@ def detect_occlusion(
 def _check_intrinsics(intrinsics: object) -> None:
     if not isinstance(intrinsics, Intrinsics):
         raise InputError(
-            f"intrinsics must be a kinefuse.sensors.intrinsics.Intrinsics, got "
+            f"intrinsics must be a kinefuse.camera.intrinsics.Intrinsics, got "
             f"{type(intrinsics).__name__}"
         )
 

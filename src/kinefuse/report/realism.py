@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, kabsch, look_at
 from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.lab import subject_height
 from kinefuse.sensors.tracker import (
     SubjectBias,

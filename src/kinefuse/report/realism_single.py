@@ -14,11 +14,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.motion.types import Motion
 from kinefuse.report.realism import _CORE, _EXTREMITIES
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.lab import subject_height
 from kinefuse.sensors.tracker import TrackerParams, draw_subject_bias, simulate_tracker
 from kinefuse.skeleton import (

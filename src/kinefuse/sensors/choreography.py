@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.camera.wand import Wand
 from kinefuse.geometry.raycast import ray_capsules
 from kinefuse.geometry.transforms import rot_z
-from kinefuse.sensors.wand import Wand
 from kinefuse.skeleton import JOINT_INDEX, bone_index_array, capsule_radii
 
 Array = NDArray[np.float64]

@@ -39,9 +39,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
-from kinefuse.sensors.wand import Wand
 from kinefuse.skeleton import N_JOINTS, bone_index_array, capsule_radii
 from kinefuse.skeleton.kinect_v2 import REFERENCE_HEIGHT_M
 

@@ -21,6 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse import __version__
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
@@ -28,10 +30,8 @@ from kinefuse.motion.types import Motion
 from kinefuse.sensors.choreography import WandProtocol, holding_poses, make_wand_path
 from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_sensor_clocks
 from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.rig import Rig
 from kinefuse.sensors.tracker import TrackerParams, draw_subject_bias, simulate_tracker
-from kinefuse.sensors.wand import Wand
 from kinefuse.skeleton import JOINT_INDEX, capsule_radii
 
 Array = NDArray[np.float64]

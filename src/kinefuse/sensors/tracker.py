@@ -52,8 +52,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.intrinsics import Intrinsics
 from kinefuse.sensors.tracker_body import (
     _body_axes,
     _check_rigid,
