@@ -101,3 +101,24 @@ def test_look_at_points_the_optical_axis_and_keeps_x_level() -> None:
         look_at([1, 1, 1], [1, 1, 1])
     with pytest.raises(ValueError, match="straight up or down"):
         look_at([0, 0, 1], [0, 0, 0])
+
+
+def test_check_rigid_finds_what_is_not_rigid() -> None:
+    from kinefuse.errors import InputError
+    from kinefuse.geometry.transforms import check_rigid, make_transform, rot_z
+
+    good = make_transform(rot_z(0.3), [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(check_rigid(good), good)
+    scaled = good.copy()
+    scaled[:3, :3] *= 1.01  # a 1 % scale error
+    mirrored = good.copy()
+    mirrored[:3, 0] *= -1  # a reflection: orthonormal, det -1
+    skewed_row = good.copy()
+    skewed_row[3, 0] = 0.1
+    for bad in (scaled, mirrored, skewed_row):
+        with pytest.raises(InputError, match="pose is not a rigid transform"):
+            check_rigid(bad, "pose")
+    with pytest.raises(InputError, match=r"poses \(index 1\) is not finite"):
+        check_rigid(np.stack([good, np.full((4, 4), np.nan)]), "poses")
+    with pytest.raises(InputError, match=r"shape \(\.\.\., 4, 4\)"):
+        check_rigid(np.eye(3))

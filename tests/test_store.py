@@ -504,7 +504,7 @@ def test_bad_truth(store: SessionStore) -> None:
         store.write_truth_motion([0.0, 1.0, 2.0], j, np.zeros(25, bool))
     bad = np.eye(4)
     bad[0, 0] = 2.0
-    with pytest.raises(InputError, match="sensor2world must be a rigid transform"):
+    with pytest.raises(InputError, match="sensor2world is not a rigid transform"):
         store.write_truth_sensor("k0", bad, {})
     with pytest.raises(InputError, match="clock must be a dict of str to finite numbers"):
         store.write_truth_sensor("k0", np.eye(4), {"offset_s": float("nan")})

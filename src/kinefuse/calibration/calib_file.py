@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from kinefuse.calibration.register import Registration
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
+from kinefuse.geometry.transforms import check_rigid
 
 Array = NDArray[np.float64]
 
@@ -234,17 +235,7 @@ def _check_pose(m: Any, where: str) -> Array:
         raise InputError(f"{where}: sensor2world must be a 4x4 array of numbers") from None
     if a.shape != (4, 4) or not np.all(np.isfinite(a)):
         raise InputError(f"{where}: sensor2world must be a finite 4x4 array, got shape {a.shape}")
-    r = a[:3, :3]
-    if (
-        not np.allclose(r.T @ r, np.eye(3), atol=1e-5)
-        or np.linalg.det(r) < 0
-        or not np.allclose(a[3], [0, 0, 0, 1])
-    ):
-        raise InputError(
-            f"{where}: sensor2world is not a rigid transform (rotation not orthonormal with "
-            "det +1, or last row not [0, 0, 0, 1])"
-        )
-    return a
+    return check_rigid(a, f"{where}: sensor2world")
 
 
 def loads_calibration(text: str, *, source: str = "<string>") -> CalibrationFile:

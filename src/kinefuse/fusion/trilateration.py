@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.fusion.status import FusionStatus
+from kinefuse.geometry.transforms import check_rigid
 from kinefuse.occlusion.segments import (
     DEFAULT_NEAR_M,
     OcclusionRule,
@@ -210,17 +211,7 @@ def _check_poses(sensor2world: ArrayLike, n_sensors: int | None = None) -> Array
             f"sensor2world has {t.shape[0]} poses but the observations have {n_sensors} sensors; "
             f"pass one pose per sensor, in the order of the sensor axis"
         )
-    if not np.isfinite(t).all():
-        raise InputError("sensor2world must be finite; calibrate every sensor before fusing")
-    r = t[:, :3, :3]
-    err = np.abs(np.einsum("sji,sjk->sik", r, r) - np.eye(3)).max(axis=(1, 2))
-    if (err > 1e-6).any() or (np.linalg.det(r) < 0).any():
-        bad = np.flatnonzero((err > 1e-6) | (np.linalg.det(r) < 0)).tolist()
-        raise InputError(
-            f"sensor2world of sensors {bad} is not a rigid transform (rotation part not a proper "
-            f"orthonormal matrix); orthonormalize the calibration before fusing"
-        )
-    return t
+    return check_rigid(t, "sensor2world")
 
 
 def _available(ranges: Array, mask: ArrayLike | None, states: ArrayLike | None) -> BoolArray:

@@ -24,11 +24,57 @@ def check_points(p: ArrayLike, name: str = "points") -> Array:
     return a
 
 
+#: How far from orthonormal (max abs entry of ``R^T R - I``) a rotation block may be.
+RIGID_ATOL = 1e-6
+
+
 def check_transform(t: ArrayLike, name: str = "transform") -> Array:
-    """Coerce to a float64 array of shape ``(..., 4, 4)`` with a rigid bottom row."""
+    """Coerce to a float64 array of shape ``(..., 4, 4)`` (the shape only; see
+    :func:`check_rigid` for the rigidity check)."""
     a = np.asarray(t, dtype=np.float64)
     if a.ndim < 2 or a.shape[-2:] != (4, 4):
         raise ValueError(f"{name} must have shape (..., 4, 4), got {a.shape}")
+    return a
+
+
+def check_rigid(t: ArrayLike, name: str = "transform", *, atol: float = RIGID_ATOL) -> Array:
+    """Coerce to ``(..., 4, 4)`` float64 and check that every transform is rigid and finite.
+
+    Rigid: the rotation block is orthonormal within ``atol`` with determinant +1 (no
+    reflection), and the bottom row is ``[0, 0, 0, 1]``.
+
+    Raises
+    ------
+    InputError
+        Naming ``name``, which transforms (by index) fail and how to build a proper one.
+    """
+    from kinefuse.errors import InputError
+
+    try:
+        a = np.asarray(t, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a numeric (..., 4, 4) array") from None
+    if a.ndim < 2 or a.shape[-2:] != (4, 4):
+        raise InputError(f"{name} must have shape (..., 4, 4), got {a.shape}")
+    flat = a.reshape(-1, 4, 4)
+    finite = np.asarray(np.isfinite(flat).all(axis=(1, 2)))
+    r = np.where(finite[:, None, None], flat[:, :3, :3], np.eye(3))
+    ortho = np.abs(np.einsum("nji,njk->nik", r, r) - np.eye(3)).max(axis=(1, 2)) <= atol
+    proper = np.linalg.det(r) > 0
+    bottom = np.abs(flat[:, 3] - (0.0, 0.0, 0.0, 1.0)).max(axis=1) <= 1e-9
+    ok = finite & ortho & proper & bottom
+    if not finite.all():
+        bad = np.flatnonzero(~finite)[:5].tolist()
+        where = "" if a.ndim == 2 else f" (index {', '.join(map(str, bad))})"
+        raise InputError(f"{name}{where} is not finite (NaN or inf): calibrate every sensor first")
+    if not ok.all():
+        bad = np.flatnonzero(~ok)[:5].tolist()
+        where = "" if a.ndim == 2 else f" (index {', '.join(map(str, bad))})"
+        raise InputError(
+            f"{name}{where} is not a rigid transform: its rotation block must be orthonormal "
+            "with det +1 and its last row [0, 0, 0, 1]; build it with "
+            "kinefuse.geometry.transforms.make_transform or look_at, or calibrate again"
+        )
     return a
 
 

@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, StoreError
+from kinefuse.geometry.transforms import check_rigid
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 __all__ = [
@@ -1309,19 +1310,8 @@ class SessionStore:
         """
         what = f"write_truth_sensor(sensor {sensor_id!r})"
         key = self._key(sensor_id, what)
-        m = _float_array(sensor2world, "sensor2world", (4, 4), what)
-        if not np.isfinite(m).all():
-            raise InputError(f"{what}: sensor2world must be finite")
-        r = m[:3, :3]
-        if not (
-            np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9)
-            and np.allclose(r @ r.T, np.eye(3), atol=1e-6)
-            and np.linalg.det(r) > 0
-        ):
-            raise InputError(
-                f"{what}: sensor2world must be a rigid transform (rotation block orthonormal "
-                f"with det +1, last row [0, 0, 0, 1])"
-            )
+        m = check_rigid(_float_array(sensor2world, "sensor2world", (4, 4), what),
+                        f"{what}: sensor2world")  # fmt: skip
         if not isinstance(clock, dict) or not all(
             isinstance(k, str) and isinstance(v, int | float) and math.isfinite(v)
             for k, v in clock.items()

@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
+from kinefuse.geometry.transforms import check_rigid
 from kinefuse.skeleton import N_JOINTS, bone_index_array, capsule_radii
 from kinefuse.skeleton.kinect_v2 import REFERENCE_HEIGHT_M
 
@@ -586,18 +587,8 @@ def _check_inputs(
         raise InputError("sensor2world must be a (4, 4) numeric array") from None
     if t.shape != (4, 4):
         raise InputError(f"sensor2world must be one (4, 4) transform, got shape {t.shape}")
-    if not np.isfinite(t).all():
-        raise InputError("sensor2world must be finite (no NaN/inf)")
+    t = check_rigid(t, "sensor2world")
     rot = np.ascontiguousarray(t[:3, :3])
-    if (
-        np.abs(rot.T @ rot - np.eye(3)).max() > 1e-6
-        or abs(np.linalg.det(rot) - 1.0) > 1e-6
-        or np.abs(t[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-12
-    ):
-        raise InputError(
-            "sensor2world must be a rigid transform (orthonormal rotation with det +1, bottom "
-            "row 0 0 0 1); build it with kinefuse.geometry.transforms.look_at or make_transform"
-        )
     o = np.ascontiguousarray(t[:3, 3])
     if scene.walls:
         lo, hi = scene.room_min_xy_m, scene.room_max_xy_m
