@@ -386,7 +386,7 @@ def test_session_inputs_are_validated():
         trilaterate(obs, bad)
     nan = s2w.copy()
     nan[0, 0, 3] = np.nan
-    with pytest.raises(InputError, match="sensor2world .*is not finite"):
+    with pytest.raises(InputError, match=r"sensor2world .*is not finite"):
         trilaterate(obs, nan)
     with pytest.raises(InputError, match=r"mask must be a bool array of shape \(2, 4, 25\)"):
         trilaterate(obs, s2w, mask=np.ones((2, 4), bool))
