@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.calibration.common import check_depth_frame
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError
+from kinefuse.geometry.transforms import fit_plane
 
 Array = NDArray[np.float64]
 
@@ -74,10 +75,7 @@ def _points(
 
 
 def _plane_svd(p: Array, w: Array) -> tuple[Array, float]:
-    c = (w[:, None] * p).sum(0) / w.sum()
-    q = (p - c) * np.sqrt(w)[:, None]
-    _, _, vt = np.linalg.svd(q, full_matrices=False)
-    n = vt[-1]
+    c, n = fit_plane(p, w)
     return n, float(-n @ c)
 
 

@@ -197,3 +197,18 @@ def kabsch(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None) -> 
     d = np.sign(np.linalg.det(vt.T @ u.T))
     r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
     return make_transform(r, cb - r @ ca)
+
+
+def fit_plane(points: ArrayLike, weights: ArrayLike | None = None) -> tuple[Array, Array]:
+    """Least-squares plane through ``points (N, 3)``: ``(centroid (3,), unit normal (3,))``.
+
+    ``weights (N,)`` (optional) weigh each point's squared distance. The normal's sign is
+    arbitrary; orient it where the caller knows which side is which.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 3:
+        raise ValueError(f"fit_plane needs (N >= 3, 3) points, got {p.shape}")
+    w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=np.float64)
+    c = (w[:, None] * p).sum(0) / w.sum()
+    _, _, vt = np.linalg.svd((p - c) * np.sqrt(w)[:, None], full_matrices=False)
+    return c, vt[-1]

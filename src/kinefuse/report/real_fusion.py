@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, SyncError
 from kinefuse.fusion.best import BestOptions, SensorStream, correct_swaps, fuse_best
-from kinefuse.geometry.transforms import kabsch, make_transform
+from kinefuse.geometry.transforms import fit_plane, kabsch, make_transform
 from kinefuse.io.kinect_multitrack import (
     MultitrackRecording,
     MultitrackStream,
@@ -438,8 +438,7 @@ def fit_foot_plane(
         normal = np.zeros(3)
         centre = pts.mean(axis=0)
         for _ in range(4):
-            centre = pts.mean(axis=0)
-            normal = np.linalg.svd(pts - centre, full_matrices=False)[2][2]
+            centre, normal = fit_plane(pts)
             dist = np.abs((pts - centre) @ normal)
             pts = pts[dist <= 3.0 * np.median(dist) + 1e-4]
         head = np.nanmean(p[:, JOINT_INDEX["Head"]], axis=0)
