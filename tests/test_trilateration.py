@@ -404,7 +404,8 @@ def test_geometric_keeps_the_triple_the_other_sensors_agree_with():
 
 
 def test_status_helpers():
-    s = np.array([0, 1, 1, 5, 6], dtype=np.int8)
+    c = FusionStatus
+    s = np.array([c.OK, c.PLANAR, c.PLANAR, c.TOO_FEW_SENSORS, c.NO_DATA], dtype=np.int8)
     assert is_solved(s).tolist() == [True, True, True, False, False]
     counts = status_counts(s)
     assert counts["PLANAR"] == 2 and counts["NO_DATA"] == 1 and counts["DEGENERATE"] == 0
