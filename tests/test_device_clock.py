@@ -129,30 +129,37 @@ def test_an_old_store_reads_and_appends_without_host_times(tmp_path: Path) -> No
 # the truth firewall: calibration and fusion read observations, depth and probes only
 
 
-def _calibrate_and_fuse(path: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    from kinefuse.calibration.session import calibrate, gather
-    from kinefuse.fusion.session import frame_grid, load_sensors, run_method
-
-    with SessionStore.open(path) as store:
-        reg = calibrate(gather(store), "full")
-        poses = dict(zip(reg.sensor_ids, reg.sensor2world, strict=True))
-        sensors = load_sensors(store, poses)
-        grid = frame_grid(sensors)
-        fused = {m: run_method(sensors, grid, m).positions for m in ("paper", "best")}
-    return poses, fused
+#: What ``kinefuse calibrate --json`` adds when the session has truth (evaluation code, after
+#: the calibration is made): the errors against the true poses.
+TRUTH_ERROR_KEYS = {
+    "alignment",
+    "mean_position_error_m",
+    "mean_rotation_error_deg",
+    "unaligned_mean_position_error_m",
+    "unaligned_mean_rotation_error_deg",
+}
 
 
-@pytest.mark.slow
-def test_calibration_and_fusion_never_read_the_truth(shared_data: Path, tmp_path: Path) -> None:
-    session = run_simulate(
-        clip=shared_data / "motion" / "cmu" / "02_walk_a.amc",
-        out=tmp_path / "s.sqlite",
-        rig=ROOT / "rigs" / "level4.toml",
-        seconds=1.0,
-        calibration_s=12.0,
-        depth_rate_hz=5.0,
-    )["out"]
-    blind = tmp_path / "blind.sqlite"
+class TruthRead(RuntimeError):
+    """Raised when anything opens the ground truth while it is forbidden."""
+
+
+def _forbid_truth(mp: pytest.MonkeyPatch) -> None:
+    """Every way into the truth raises: the store's accessor and every method of ``Truth``."""
+    from kinefuse.io.store import Truth
+
+    def refuse(*_args: object, **_kwargs: object) -> None:
+        raise TruthRead("calibration or fusion asked for the ground truth")
+
+    mp.setattr(SessionStore, "truth", refuse)
+    names = [n for n, v in vars(Truth).items() if callable(v) and not n.startswith("__")]
+    assert {"motion", "sensor", "observations", "wand", "info"} <= set(names)
+    for name in [*names, "__init__"]:
+        mp.setattr(Truth, name, refuse)
+
+
+def _blind_copy(session: Path, blind: Path) -> Path:
+    """A copy of ``session`` with every ``truth_*`` table emptied."""
     shutil.copyfile(session, blind)
     conn = sqlite3.connect(blind)
     tables = [r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
@@ -164,11 +171,170 @@ def test_calibration_and_fusion_never_read_the_truth(shared_data: Path, tmp_path
     conn.close()
     with SessionStore.open(blind) as s:
         assert not s.has_truth()  # nothing left to peek at
-    poses, fused = _calibrate_and_fuse(session)
-    poses_b, fused_b = _calibrate_and_fuse(blind)
-    assert poses.keys() == poses_b.keys()
-    for k in poses:
-        np.testing.assert_array_equal(poses[k], poses_b[k])
-    for m in fused:
-        assert np.isfinite(fused[m]).any()
-        np.testing.assert_array_equal(fused[m], fused_b[m])
+    return blind
+
+
+@pytest.fixture(scope="module")
+def sim_and_blind(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A simulated session (1 s of walking after a 10 s wand phase at 5 Hz) and its blind copy."""
+    folder = tmp_path_factory.mktemp("firewall")
+    session = run_simulate(
+        clip=shared_data / "motion" / "cmu" / "02_walk_a.amc",
+        out=folder / "s.sqlite",
+        rig=ROOT / "rigs" / "level4.toml",
+        seconds=1.0,
+        calibration_s=10.0,
+        depth_rate_hz=5.0,
+    )["out"]
+    with SessionStore.open(session) as s:
+        assert s.has_truth()
+    return Path(session), _blind_copy(Path(session), folder / "blind.sqlite")
+
+
+def _calibrate_and_fuse(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """Both calibrations, and every fusion method on the ``full`` one, through the library."""
+    from kinefuse.calibration.session import calibrate, gather
+    from kinefuse.fusion.session import METHODS, frame_grid, load_sensors, run_method
+
+    out: dict[str, dict[str, np.ndarray]] = {}
+    with SessionStore.open(path) as store:
+        cal = gather(store)
+        regs = {m: calibrate(cal, m) for m in ("paper", "full")}
+        for m, reg in regs.items():
+            out[f"calibrate {m}"] = dict(zip(reg.sensor_ids, reg.sensor2world, strict=True))
+        sensors = load_sensors(store, out["calibrate full"])
+        grid = frame_grid(sensors)
+        for m in METHODS:
+            res = run_method(sensors, grid, m)
+            out[f"fuse {m}"] = {"t": res.t_server_s, "positions": res.positions,
+                                "status": res.status}  # fmt: skip
+    return out
+
+
+@pytest.mark.slow
+def test_calibration_and_fusion_never_read_the_truth(
+    sim_and_blind: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 10: with every truth table emptied and the truth accessor raising, both
+    calibrations and every fusion method give bit-identical results."""
+    from kinefuse.fusion.session import METHODS
+
+    session, blind = sim_and_blind
+    seen = _calibrate_and_fuse(session)
+    with monkeypatch.context() as mp:
+        _forbid_truth(mp)
+        with SessionStore.open(session) as s, pytest.raises(TruthRead):
+            s.truth()  # the guard is on
+        blind_seen = _calibrate_and_fuse(blind)
+    assert (
+        set(seen)
+        == set(blind_seen)
+        == {"calibrate paper", "calibrate full"} | {f"fuse {m}" for m in METHODS}
+    )
+    for key, arrays in seen.items():
+        assert arrays.keys() == blind_seen[key].keys(), key
+        for name, a in arrays.items():
+            np.testing.assert_array_equal(a, blind_seen[key][name], err_msg=f"{key}: {name}")
+        if key.startswith("fuse"):
+            assert np.isfinite(arrays["positions"]).any(axis=-1).mean() > 0.5, key
+
+
+def _cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> dict:
+    import json
+
+    from kinefuse.cli import main as cli_main
+
+    rc = cli_main([*args, "--json"])
+    out, err = capsys.readouterr()
+    assert rc == 0, (args, err)
+    return dict(json.loads(out))
+
+
+@pytest.mark.slow
+def test_the_commands_give_the_same_files_without_the_truth(
+    sim_and_blind: tuple[Path, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``kinefuse calibrate --out`` and ``kinefuse fuse --out x.csv`` (every method) write
+    byte-identical files from the session and from its blind copy with the truth forbidden;
+    the printed figures differ only by the errors against the truth, which need it."""
+    from kinefuse.fusion.session import METHODS
+
+    session, blind = sim_and_blind
+
+    def run(path: Path, tag: str) -> dict[str, tuple[dict, bytes]]:
+        got: dict[str, tuple[dict, bytes]] = {}
+        for cal_method in ("paper", "full"):
+            toml = tmp_path / f"{tag}-{cal_method}.toml"
+            # the paper's registration on our detector (on its own detector it fails on these
+            # scenes, docs/calibration.md), kept whatever its grade (--accept): the default
+            # rig's sensors are not level, so the paper's method grades failed here
+            r = _cli(["calibrate", str(path), "--method", cal_method, "--detector", "robust",
+                      "--accept", "--out", str(toml)], capsys)  # fmt: skip
+            # the file says when it was written (its one line of wall clock); the rest is the
+            # calibration
+            text = toml.read_text().splitlines()
+            assert sum(ln.startswith("created = ") for ln in text) == 1
+            kept = "\n".join(ln for ln in text if not ln.startswith("created = "))
+            got[f"calibrate {cal_method}"] = (r, kept.encode())
+        for m in METHODS:
+            csv = tmp_path / f"{tag}-{m}.csv"
+            cal = tmp_path / f"{tag}-full.toml"
+            r = _cli(["fuse", str(path), "--calibration", str(cal), "--method", m,
+                      "--out", str(csv)], capsys)  # fmt: skip
+            got[f"fuse {m}"] = (r, csv.read_bytes())
+        return got
+
+    seen = run(session, "truth")
+    with monkeypatch.context() as mp:
+        _forbid_truth(mp)
+        blind_seen = run(blind, "blind")
+    assert seen.keys() == blind_seen.keys()
+    for key, (r, data) in seen.items():
+        rb, data_b = blind_seen[key]
+        assert data == data_b, f"{key}: the written files differ"
+        assert len(data) > 100, key
+        # what is printed: the same, but for the file paths, the run time, and (calibrate,
+        # session with truth only) the errors against the truth
+        drop = {"out", "seconds", "calibration"}
+        if key.startswith("calibrate"):
+            assert set(r) - set(rb) == TRUTH_ERROR_KEYS, key
+            drop |= TRUTH_ERROR_KEYS
+            pairs = zip(r["sensors"], rb["sensors"], strict=True)
+            r = dict(r, sensors=[{k: v for k, v in s.items() if k in sb} for s, sb in pairs])
+        assert {k: v for k, v in r.items() if k not in drop} == {
+            k: v for k, v in rb.items() if k not in drop
+        }, key
+
+
+#: Metadata a simulated session still keeps outside the truth tables that only the simulator
+#: can know (issue 10 item 5 moves it into them): the wand-hold times of its choreography, the
+#: subject's true height, the error model, the seed, the rig file, the clip's placement.
+_TRUTH_IN_META = ("subject_height_m", "error_model", "seed", "rig", "clip")
+
+
+@pytest.mark.slow
+def test_calibration_needs_no_simulator_metadata(
+    sim_and_blind: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import json
+
+    session, blind = sim_and_blind
+    bare = tmp_path / "bare.sqlite"
+    shutil.copyfile(blind, bare)
+    conn = sqlite3.connect(bare)
+    conn.executemany("DELETE FROM meta WHERE key = ?", [(k,) for k in _TRUTH_IN_META])
+    (text,) = conn.execute("SELECT value FROM meta WHERE key = 'wand_protocol'").fetchone()
+    protocol = {k: v for k, v in json.loads(text).items() if not k.endswith("hold_s")}
+    conn.execute("UPDATE meta SET value = ? WHERE key = 'wand_protocol'", (json.dumps(protocol),))
+    conn.commit()
+    conn.close()
+    seen = _calibrate_and_fuse(session)
+    with monkeypatch.context() as mp:
+        _forbid_truth(mp)
+        bare_seen = _calibrate_and_fuse(bare)
+    for key, arrays in seen.items():
+        for name, a in arrays.items():
+            np.testing.assert_array_equal(a, bare_seen[key][name], err_msg=f"{key}: {name}")

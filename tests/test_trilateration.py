@@ -184,18 +184,66 @@ def test_paper_chain_beats_nonlinear_when_hidden_joints_are_wrong():
     assert (paper.n_sensors[~some_clear] == 1).all()
 
 
+def _paper_selection(occluded: np.ndarray, n_int: np.ndarray) -> np.ndarray:
+    """The paper's rule, written out joint by joint: every sensor that sees the joint clear; if
+    none does, the one sensor with the fewest bone crossings (lowest index on a tie)."""
+    n_frames, n_sensors, n_joints = occluded.shape
+    sel = np.zeros_like(occluded)
+    for f in range(n_frames):
+        for k in range(n_joints):
+            clear = [s for s in range(n_sensors) if not occluded[f, s, k]]
+            if clear:
+                sel[f, clear, k] = True
+            else:
+                sel[f, min(range(n_sensors), key=lambda s: (n_int[f, s], s)), k] = True
+    return sel
+
+
 def test_paper_detects_occlusion_with_intrinsics():
+    """With intrinsics, paper A's chain = occlusion detection in each sensor's image, the
+    paper's selection, then trilateration on the selected ranges only; checked against that
+    selection written out here and scipy's least squares on the selected spheres."""
+    from scipy.optimize import least_squares
+
+    from kinefuse.occlusion import detect_occlusion_sensors
+
     rng = np.random.default_rng(17)
     s2w = rig(SPREAD)
     truth = random_truth(rng, 5)
-    obs = observe(truth, s2w)
-    res = fuse_paper(obs, s2w, Intrinsics())
-    via_name = trilaterate(obs, s2w, "paper", intrinsics=[Intrinsics()] * 4)
-    np.testing.assert_array_equal(res.status, via_name.status)
-    assert res.positions.shape == (5, N_JOINTS, 3) and np.isfinite(res.positions).all()
-    assert not res.used.all()  # random points cross a lot: some observations were dropped
-    solved = is_solved(res.status)
-    np.testing.assert_allclose(res.positions[solved], truth[solved], atol=1e-6)  # 1 micrometre
+    # 2 cm noise: every choice of sensors gives a different point, so the positions tell
+    # which sensors were used
+    obs = observe(truth, s2w) + rng.normal(0.0, 0.02, (5, 4, N_JOINTS, 3))
+    res = fuse_paper(obs, s2w, Intrinsics(), c_threshold=1e-16)
+    det = detect_occlusion_sensors(obs, Intrinsics())
+    assert det.occluded.any() and not det.occluded.all()  # random points cross a lot
+    sel = _paper_selection(det.occluded, det.n_intersections)
+    np.testing.assert_array_equal(res.used, sel)
+    np.testing.assert_array_equal(res.n_sensors, sel.sum(axis=1))
+    centres = sensor_centres(s2w)
+    ranges = sensor_ranges(obs)  # (T, S, 25)
+    world = to_world(obs, s2w)
+    checked = 0
+    for f in range(5):
+        for k in range(N_JOINTS):
+            use = sel[f, :, k]
+            if use.sum() < 3:  # too few: the mean of the chosen sensors' own points
+                assert res.status[f, k] == FusionStatus.TOO_FEW_SENSORS
+                np.testing.assert_allclose(
+                    res.positions[f, k], world[f, use, k].mean(axis=0), atol=1e-12
+                )
+                continue
+            if not is_solved(res.status[f, k]):  # OK, or PLANAR: the side from the reference
+                continue
+            c, r = centres[use], ranges[f, use, k]
+            fit = least_squares(lambda q, c=c, r=r: np.linalg.norm(q - c, axis=1) - r,
+                                truth[f, k], xtol=1e-15, ftol=1e-15, gtol=1e-15)  # fmt: skip
+            np.testing.assert_allclose(res.positions[f, k], fit.x, atol=1e-6)  # 1 micrometre
+            checked += 1
+    assert checked > 60
+    # the same observations with every sensor in use land elsewhere: the selection mattered
+    plain = fuse_nonlinear(obs, s2w, c_threshold=1e-16)
+    moved = np.linalg.norm(plain.positions - res.positions, axis=-1)
+    assert (moved[(sel.sum(axis=1) >= 3) & ~sel.all(axis=1)] > 1e-4).all()  # 0.1 mm
 
 
 # ------------------------------------------------------------------ degenerate and missing
@@ -356,7 +404,8 @@ def test_geometric_keeps_the_triple_the_other_sensors_agree_with():
 
 
 def test_status_helpers():
-    s = np.array([0, 1, 1, 5, FusionStatus.NO_DATA], dtype=np.int8)
+    c = FusionStatus
+    s = np.array([c.OK, c.PLANAR, c.PLANAR, c.TOO_FEW_SENSORS, c.NO_DATA], dtype=np.int8)
     assert is_solved(s).tolist() == [True, True, True, False, False]
     counts = status_counts(s)
     assert counts["PLANAR"] == 2 and counts["NO_DATA"] == 1 and counts["DEGENERATE"] == 0

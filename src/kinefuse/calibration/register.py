@@ -222,7 +222,7 @@ def paper_positions_from_sightings(
     still_tol_m: float = 0.03,
     min_still_s: float = 0.3,
     min_move_m: float = 0.2,
-    min_sightings: int = 3,
+    min_sightings: int = 2,
 ) -> tuple[dict[str, Array], dict[str, Array]]:
     """The two still wand positions of the paper's protocol, in each sensor's frame.
 
@@ -248,6 +248,7 @@ def paper_positions_from_sightings(
     """
     if (origin_window_s is None) != (moved_window_s is None):
         raise InputError("give both origin_window_s and moved_window_s, or neither")
+    blind = origin_window_s is None or moved_window_s is None
     if origin_window_s is None or moved_window_s is None:
         origin_window_s, moved_window_s = find_hold_windows(
             sightings, tol_m=still_tol_m, min_s=min_still_s, min_move_m=min_move_m
@@ -256,9 +257,18 @@ def paper_positions_from_sightings(
     moved: dict[str, Array] = {}
     for sid, s in sightings.items():
         t, p = s.t_server_s, s.centre_sensor_m
+        phases = _still_phases(t, p, still_tol_m, min_still_s) if blind else []
         pair = []
         for (t0, t1), what in ((origin_window_s, "origin"), (moved_window_s, "moved")):
             sel = (t >= t0) & (t <= t1)
+            if blind:
+                # the sensor's own still phase that overlaps the consensus window (its
+                # sightings fall at other instants than the median sensor's); none: it did not
+                # see the wand held there, whatever it saw passing through the window
+                own = [ph for ph in phases if t[ph[0]] <= t1 and t[ph[-1]] >= t0]
+                sel = np.zeros(len(t), dtype=bool)
+                if own:
+                    sel[max(own, key=len)] = True
             if sel.sum() < min_sightings:
                 raise CalibrationError(
                     f"sensor {sid} saw the wand {int(sel.sum())} times while it was held at the "
@@ -300,9 +310,9 @@ def find_hold_windows(
             "move it along the y axis and hold it still again (or give the protocol's times)"
         )
     w = np.median(np.array(votes), axis=0)
-    # trim the ends: the wand settles into / leaves a still position there
-    trim0, trim1 = 0.1 * (w[1] - w[0]), 0.1 * (w[3] - w[2])
-    return (w[0] + trim0, w[1] - trim0), (w[2] + trim1, w[3] - trim1)
+    # the still phases are made of sightings within tol_m of their mean already: no trimming,
+    # which would drop a hold's first and last sightings (at 5 Hz, a 0.6 s hold has three)
+    return (w[0], w[1]), (w[2], w[3])
 
 
 def _still_phases(t: Array, p: Array, tol_m: float, min_s: float) -> list[NDArray[np.intp]]:
