@@ -46,6 +46,11 @@ class Limb:
         Whether the twist is observable from positions alone.
     side : str
         ``"left"``, ``"right"`` or ``""`` (midline).
+    body_axis : int
+        The body axis (0 x forward, 1 y left, 2 z up) the limb's long axis replaces in its
+        normalized frame. The paper takes the axis closest to the limb in the default pose; for
+        the foot (forward and down, near 45°) that choice flips between recordings, so every
+        limb names its axis: z for the trunk and limbs, x for the foot.
     """
 
     name: str
@@ -55,6 +60,7 @@ class Limb:
     n_axes: int
     twist_ref: tuple[str, ...]
     side: str = ""
+    body_axis: int = 2
 
     @property
     def twist_observable(self) -> bool:
@@ -100,7 +106,7 @@ def _sided(side: str) -> tuple[Limb, ...]:
             (f"Ankle{s}", f"Foot{s}"),
             side,
         ),
-        Limb(f"foot_{side}", f"Ankle{s}", f"Foot{s}", f"shank_{side}", 1, (), side),
+        Limb(f"foot_{side}", f"Ankle{s}", f"Foot{s}", f"shank_{side}", 1, (), side, 0),
     )
 
 

@@ -138,11 +138,11 @@ def default_pose_costs(positions: Array, rate_hz: float | None = None) -> Array:
         return cost
     q = p[ok]
     c = q - q.mean(axis=1, keepdims=True)
-    _, s, vt = np.linalg.svd(c, full_matrices=False)
     n = q.shape[1]
-    plane = s[:, 2] ** 2 / n  # mean squared distance to the best-fitting plane
-    a = np.einsum("tjk,tk->tj", c, vt[:, 0])
-    b = np.einsum("tjk,tk->tj", c, vt[:, 1])
+    lam, vec = np.linalg.eigh(np.matmul(np.swapaxes(c, 1, 2), c) / n)  # ascending
+    plane = np.maximum(lam[:, 0], 0.0)  # mean squared distance to the best-fitting plane
+    a = np.matmul(c, vec[:, :, 2:3])[..., 0]
+    b = np.matmul(c, vec[:, :, 1:2])[..., 0]
     ea, eb = np.ptp(a, axis=1), np.ptp(b, axis=1)
     ratio = np.minimum(ea, eb) / np.maximum(np.maximum(ea, eb), 1e-9)
     spread = np.linalg.norm(c, axis=-1).mean(axis=1)
@@ -211,14 +211,16 @@ def body_frame(joints: Array, /, up: Array | None = None) -> Array:
     return np.stack([x, y, z], axis=-1)
 
 
-def limb_frame_from_body(u: Array, body: Array) -> tuple[Array, int, float]:
+def limb_frame_from_body(u: Array, body: Array, k: int | None = None) -> tuple[Array, int, float]:
     """The paper's limb frame ``(3, 3)`` for main orientation ``u`` and body frame ``body``.
 
-    Returns the frame, the index ``k`` of the body axis replaced by the limb axis and its sign
-    (the limb direction is ``sign * frame[:, k]``).
+    ``k`` is the body axis the limb axis replaces (default: the one closest to ``u``, the
+    paper's choice). Returns the frame, ``k`` and the sign (the limb direction is
+    ``sign * frame[:, k]``).
     """
     u = unit(u)
-    k = int(np.argmax(np.abs(body.T @ u)))
+    if k is None:
+        k = int(np.argmax(np.abs(body.T @ u)))
     a, b = (k + 1) % 3, (k + 2) % 3
     ea = unit(body[:, a] - dot(body[:, a], u) * u)
     eb = body[:, b] - dot(body[:, b], u) * u
@@ -285,7 +287,7 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
             status[lb.name] = f"{' and '.join(gone)} missing in the default pose"
             observable[lb.name] = {"swing_axes": lb.n_axes, "twist": "not observable"}
             continue
-        n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body)
+        n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body, lb.body_axis)
         long_axis[i, k] = s
         src = seq.orientation(lb.name)
         if src is not None and np.isfinite(src[d]).all():
@@ -430,11 +432,14 @@ def _position_constants(
         r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
         o = frame_from(u, r)
         c_root = _mean_rot(tmm(o[win], n0))
+        # the mean keeps the long axis on the limb: c maps it onto o's first column exactly
+        c_root = minimal_rotation(c_root @ axis_l, eye[0]) @ c_root
         return LimbConstants("root", c_root, eye, np.zeros(3), axis_l)
     fp = frames[:, par]
     d_loc = unit(tmv(fp, u))
     l0 = _mean_rot(tmm(fp[win], n0))
     d0 = unit(np.nanmean(d_loc[win], axis=0))
+    l0 = minimal_rotation(l0 @ axis_l, d0) @ l0  # the long axis onto the default direction
     carried_k = LimbConstants("carried", eye, l0, d0, axis_l)
     if not lb.twist_observable:
         return carried_k

@@ -172,7 +172,7 @@ def make_rom_motion(
     n0 = np.zeros((n_l, 3, 3))
     for i, lb in enumerate(LIMBS):
         u = pose[lb.distal_index] - pose[lb.proximal_index]
-        n0[i] = limb_frame_from_body(u, body)[0]
+        n0[i] = limb_frame_from_body(u, body, lb.body_axis)[0]
     # pelvis frame at rest = its normalized frame (the root carries the body frame)
     rest_vec = np.zeros((n_l, 3))
     offset = np.zeros((n_l, 3))
