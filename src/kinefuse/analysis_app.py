@@ -57,6 +57,7 @@ class AnalysisInput:
     seq: SkeletonSequence
     stored_phase_s: tuple[float, float] | None = None  # a session's ROM phase (metadata)
     fusion: dict[str, Any] | None = None  # method, calibration, frames (sessions)
+    sensor_poses: dict[str, Array] | None = None  # sensor2world used by the fusion (sessions)
 
 
 def _kind(path: Path) -> str:
@@ -117,6 +118,7 @@ def sequence_from_session(
         seq=seq,
         stored_phase_s=stored,
         fusion={"method": method, "calibration": source, "frames": int(grid.size)},
+        sensor_poses={k: np.asarray(v, dtype=np.float64) for k, v in poses.items()},
     )
 
 
