@@ -319,10 +319,6 @@ def run_analyze(
             )
         )
     check_out(out)  # fail early (name taken) before any work
-    if plots:
-        import matplotlib
-
-        matplotlib.use("Agg")  # the command draws to files only
     stage = _staging_folder(out)
     try:
         report = _analyse_all(
