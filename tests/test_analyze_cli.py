@@ -49,7 +49,18 @@ def load_mot_in_opensim(path: Path, monkeypatch: pytest.MonkeyPatch) -> int:
     return int(table.getNumRows())
 
 
-@pytest.mark.parametrize("rel", MOTION + MARKERS)
+#: The Rajagopal files have no head markers; the analysis core's normalization still needs Neck
+#: and Head (its BODY_JOINTS) for the default pose: strict, so the marks go red once it copes.
+NO_HEAD = pytest.mark.xfail(
+    strict=True,
+    reason="kinefuse.analysis.normalize needs Neck and Head; these marker files have no head",
+)
+
+
+@pytest.mark.parametrize(
+    "rel",
+    MOTION + [pytest.param(m, marks=NO_HEAD) if "Rajagopal" in m else m for m in MARKERS],
+)
 def test_analyze_every_shared_file(
     rel: str,
     shared_data: Path,
