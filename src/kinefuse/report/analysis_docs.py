@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,14 @@ ROOT = Path(__file__).resolve().parents[3]
 SHARED = ROOT.parent / "shared" / "data"
 #: Resolution of the plots copied into the docs (small files).
 DOC_DPI = 55
+
+
+def small_png(src: Path, dst: Path, colors: int = 48) -> None:
+    """Copy a plot into the docs as a small palette PNG (the curves survive 48 colours)."""
+    from PIL import Image
+
+    with Image.open(src) as im:
+        im.convert("RGB").quantize(colors=colors).save(dst, optimize=True)
 
 
 def _run(*argv: str) -> None:
@@ -67,7 +74,7 @@ def part_files(work: Path, img: Path) -> list[dict[str, Any]]:
         except KinefuseError as e:
             rows.append({"file": f.name, "error": str(e).splitlines()[0][:300]})
             continue
-        shutil.copyfile(out / "angles.png", img / f"analysis_{tag}.png")
+        small_png(out / "angles.png", img / f"analysis_{tag}.png")
         rows.append(
             {
                 "file": f.name,
@@ -101,8 +108,8 @@ def part_rom(work: Path, img: Path, rom_s: float, true_calibration: bool) -> dic
     s = _session(work, "rom_walk_a", "02_walk_a.amc", rom_s, 0, None, true_calibration)
     out = work / "rom_walk_a"
     r = run_analyze([s], out=out, true_calibration=true_calibration, plot_dpi=DOC_DPI)
-    shutil.copyfile(out / "angles.png", img / "analysis_rom_session_angles.png")
-    shutil.copyfile(out / "axes_on_spheres.png", img / "analysis_rom_session_spheres.png")
+    small_png(out / "angles.png", img / "analysis_rom_session_angles.png")
+    small_png(out / "axes_on_spheres.png", img / "analysis_rom_session_spheres.png")
     keep = ("axis_error_by_method_deg", "reconstruction_error_m", "twist_error_deg",
             "angle_rmse_deg", "timing_ms_per_frame", "limb_status", "fusion")  # fmt: skip
     return {k: r.get(k) for k in keep}
