@@ -111,7 +111,8 @@ def part_rom(work: Path, img: Path, rom_s: float, true_calibration: bool) -> dic
     small_png(out / "angles.png", img / "analysis_rom_session_angles.png")
     small_png(out / "axes_on_spheres.png", img / "analysis_rom_session_spheres.png")
     keep = ("axis_error_by_method_deg", "reconstruction_error_m", "twist_error_deg",
-            "angle_rmse_deg", "timing_ms_per_frame", "limb_status", "fusion")  # fmt: skip
+            "angle_rmse_deg", "timing_ms_per_frame", "limb_status", "fusion",
+            "segment_angle_rmse_deg", "axis_error_parent_frame_deg")  # fmt: skip
     return {k: r.get(k) for k in keep}
 
 
@@ -142,6 +143,7 @@ def part_consistency(work: Path, rom_s: float, true_calibration: bool) -> dict[s
                 for m, e in x.get("axis_error_by_method_deg", {}).items()
             },
             "twist_error_deg": x.get("twist_error_deg"),
+            "segment_angle_rmse_deg": x.get("segment_angle_rmse_deg", {}),
         }
         for x, (_, _, clip) in zip(r["inputs"], plan, strict=True)
     ]
@@ -218,16 +220,18 @@ def markdown(fig: dict[str, Any]) -> str:
             "(paper: 3.62 / 6.82 deg).",
             "",
             "| take | clip | knee flexion L / R RMSE (deg) | hip flexion L / R RMSE (deg) | "
-            "DJ axis error median (deg) |",
-            "|---|---|---|---|---|",
+            "knee angle from positions L / R RMSE (deg) | DJ axis error median (deg) |",
+            "|---|---|---|---|---|---|",
         ]
         for x in tk["takes"]:
             a = x["angle_rmse_deg"]
+            s = x.get("segment_angle_rmse_deg", {})
             dj = x["axis_error_by_method_deg"].get("dj", {})
             out.append(
                 f"| {x['input']} | {x['clip']} | {_f(a.get('knee_flexion_left'))} / "
                 f"{_f(a.get('knee_flexion_right'))} | {_f(a.get('hip_flexion_left'))} / "
-                f"{_f(a.get('hip_flexion_right'))} | {_f(dj.get('median'))} |"
+                f"{_f(a.get('hip_flexion_right'))} | {_f(s.get('knee_left'))} / "
+                f"{_f(s.get('knee_right'))} | {_f(dj.get('median'))} |"
             )
         out.append("")
     return "\n".join(out)

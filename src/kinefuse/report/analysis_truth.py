@@ -5,6 +5,9 @@ motion sampled at the fused frame times; the fused input's figures are compared 
 
 * ``angle_rmse_deg``: RMSE of each named angle, fused vs true-motion chain, over the frames after
   the calibration phase (all frames when the phase covers the input).
+* ``segment_angle_rmse_deg``: the included angle at the knees and elbows straight from the
+  joint positions (no axes, no rest), fused vs true: how far the positions alone already are
+  from the truth, a floor under ``angle_rmse_deg`` of flexion angles.
 * ``twist_error_deg``: absolute twist difference (wrapped to +-180 deg), fused vs true-motion
   chain, over every limb and frame where both are observable, during the calibration phase.
 * ``axis_error_deg`` (Direction Joining) and ``axis_error_by_method_deg`` (dj, pca, em side by
@@ -72,6 +75,7 @@ def truth_figures(
     sel: Any = np.flatnonzero(after if after.any() else np.ones_like(after))
     report: dict[str, Any] = {
         "angle_rmse_deg": angle_rmse_deg(named, tnamed, sel),
+        "segment_angle_rmse_deg": _segment_angle_rmse(inp.seq, tseq, sel),
         "angle_rmse_over": "frames after the calibration phase" if after.any() else "all frames",
         "truth_chain": {
             "default_pose_frame": int(tres["norm"].default_frame),
@@ -175,3 +179,33 @@ def _true_world(
         k: (rot @ np.asarray(v, dtype=np.float64).reshape(-1, 3).T).T
         for k, v in rom["axes_world"].items()
     }
+
+
+def _segment_angle_rmse(
+    seq: SkeletonSequence, tseq: SkeletonSequence, frames: Any
+) -> dict[str, float]:
+    """RMSE (degrees) of the included knee and elbow angles from positions, fused vs truth."""
+    from kinefuse.skeleton import JOINT_INDEX as J
+
+    def included(p: Array, a: str, b: str, c: str) -> Array:
+        u = p[:, J[a]] - p[:, J[b]]
+        v = p[:, J[c]] - p[:, J[b]]
+        cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
+        return 180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+    p, q = seq.kinect_positions(), tseq.kinect_positions()
+    out = {}
+    for side in ("Left", "Right"):
+        for name, (a, b, c) in (
+            ("knee", ("Hip", "Knee", "Ankle")),
+            ("elbow", ("Shoulder", "Elbow", "Wrist")),
+        ):
+            d = included(p, a + side, b + side, c + side) - included(
+                q, a + side, b + side, c + side
+            )
+            d = d[frames]
+            d = d[np.isfinite(d)]
+            out[f"{name}_{side.lower()}"] = (
+                float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+            )
+    return out
