@@ -290,17 +290,18 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body, lb.body_axis)
         long_axis[i, k] = s
         src = seq.orientation(lb.name)
+        carried = None
         if src is not None and np.isfinite(src[d]).all():
             # the paper's propagation: constant original-to-normalized transform
             c_src = _mean_rot(tmm(src[win], n0))
             k_i = LimbConstants("orientation", c_src, np.eye(3), np.zeros(3), long_axis[i])
         else:
             src = None
-            k_i = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
+            k_i, carried = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
         constants[lb.name] = k_i
         par = LIMB_PARENTS[i]
         frames[:, i], weight[:, i] = _limb_frames(
-            lb, k_i, p, frames[:, par] if par >= 0 else None, src
+            lb, k_i, p, frames[:, par] if par >= 0 else None, src, carried
         )
         if k_i.kind == "carried":
             tw_kind = "not observable"
@@ -353,9 +354,15 @@ class LimbConstants:
 
 
 def _limb_frames(
-    lb: Limb, k: LimbConstants, p: Array, fp: Array | None, src: Array | None
+    lb: Limb,
+    k: LimbConstants,
+    p: Array,
+    fp: Array | None,
+    src: Array | None,
+    carried: Array | None = None,
 ) -> tuple[Array, Array]:
-    """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``."""
+    """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``
+    (``carried``: the carried frames when already computed with the same constants)."""
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if k.kind == "orientation":
         assert src is not None
@@ -365,8 +372,9 @@ def _limb_frames(
         o = frame_from(u, r)
         return o @ k.c, np.isfinite(o).all(axis=(1, 2)).astype(float)
     assert fp is not None
-    d_loc = unit(tmv(fp, u))
-    carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
+    if carried is None:
+        d_loc = unit(tmv(fp, u))
+        carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
     if k.kind == "carried":
         return carried, np.zeros(u.shape[0])
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
@@ -423,8 +431,9 @@ def _position_constants(
     n0: Array,
     axis_l: Array,
     frames: Array,
-) -> LimbConstants:
-    """The constants of a position-only limb (parents' ``frames`` already filled)."""
+) -> tuple[LimbConstants, Array | None]:
+    """The constants of a position-only limb (parents' ``frames`` already filled), and its
+    carried frames ``(T, 3, 3)`` when they were computed on the way."""
     eye = np.eye(3)
     par = LIMB_PARENTS[i]
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
@@ -434,7 +443,7 @@ def _position_constants(
         c_root = _mean_rot(tmm(o[win], n0))
         # the mean keeps the long axis on the limb: c maps it onto o's first column exactly
         c_root = minimal_rotation(c_root @ axis_l, eye[0]) @ c_root
-        return LimbConstants("root", c_root, eye, np.zeros(3), axis_l)
+        return LimbConstants("root", c_root, eye, np.zeros(3), axis_l), None
     fp = frames[:, par]
     d_loc = unit(tmv(fp, u))
     l0 = _mean_rot(tmm(fp[win], n0))
@@ -442,13 +451,13 @@ def _position_constants(
     l0 = minimal_rotation(l0 @ axis_l, d0) @ l0  # the long axis onto the default direction
     carried_k = LimbConstants("carried", eye, l0, d0, axis_l)
     if not lb.twist_observable:
-        return carried_k
+        return carried_k, None
     carried, _ = _limb_frames(lb, carried_k, p, fp, None)
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
     w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
     good = (w >= 1.0) & np.isfinite(carried).all(axis=(1, 2))
     if not good.any():
-        return carried_k
+        return carried_k, carried
     # the constant from every well-conditioned frame near the default direction (where the
     # carried frame is exact up to noise), averaged; else from the nearest conditioned frame
     swing = np.arccos(np.clip(d_loc @ d0, -1.0, 1.0))
@@ -458,4 +467,4 @@ def _position_constants(
         idx = idx[[int(np.argmin(np.abs(idx - d)))]]
     o = frame_from(u[idx], r[idx])
     c = chordal_mean(tmm(o, carried[idx]))
-    return LimbConstants("twist", c, l0, d0, axis_l)
+    return LimbConstants("twist", c, l0, d0, axis_l), carried
