@@ -175,7 +175,8 @@ def markdown(fig: dict[str, Any]) -> str:
         ]
         for r in fig["files"]:
             if "error" in r:
-                out.append(f"| {r['file']} | fails: {r['error'][:120]} | | | | |")
+                why = r["error"].split(", which", 1)[0].replace(str(SHARED), "../shared/data")
+                out.append(f"| {r['file']} | fails: {why[:120]} | | | | |")
                 continue
             out.append(
                 f"| {r['file']} | {r['frames']} | {r['default_pose_frame']} | "
