@@ -56,6 +56,12 @@ BODY_JOINTS = (
     "WristLeft", "ShoulderRight", "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft",
     "HipRight", "KneeRight", "AnkleRight",
 )  # fmt: skip
+#: Body joints without which there is no default pose or body frame; the others (head, neck,
+#: elbows, wrists) are used when the source has them (marker sets often have no head).
+REQUIRED_JOINTS = (
+    "SpineBase", "SpineMid", "SpineShoulder", "ShoulderLeft", "ShoulderRight", "HipLeft",
+    "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight",
+)  # fmt: skip
 #: Below this angle between a limb and its twist reference the twist weight is 0, above the
 #: second it is 1 (degrees; a straight elbow or knee leaves the twist unobservable).
 TWIST_WEIGHT_DEG = (15.0, 35.0)
@@ -174,19 +180,25 @@ def find_default_pose(seq: SkeletonSequence, /) -> int:
     return int(_default(seq)[0])
 
 
-def _default(seq: SkeletonSequence) -> tuple[int, Array]:
-    missing = [n for n in BODY_JOINTS if not seq.has(n)]
+def _body_joints(seq: SkeletonSequence) -> tuple[str, ...]:
+    """The :data:`BODY_JOINTS` the sequence has; a clear error if a required one is absent."""
+    missing = [n for n in REQUIRED_JOINTS if not seq.has(n)]
     if missing:
         raise InputError(
             f"normalization needs the body joints {', '.join(missing)}, which "
             f"{seq.source or 'the sequence'} lacks; map them (a marker map, a name map) first"
         )
-    idx = [seq.index(n) for n in BODY_JOINTS]
+    return tuple(n for n in BODY_JOINTS if seq.has(n) and seq.mask[:, seq.index(n)].any())
+
+
+def _default(seq: SkeletonSequence) -> tuple[int, Array]:
+    names = _body_joints(seq)
+    idx = [seq.index(n) for n in names]
     costs = default_pose_costs(seq.positions[:, idx], seq.rate_hz)
     if not np.isfinite(costs).any():
         raise InputError(
             "no frame has all body joints present, so no default pose can be found; "
-            f"needed in one frame: {', '.join(BODY_JOINTS)}"
+            f"needed in one frame: {', '.join(names)}"
         )
     return int(np.nanargmin(costs)), costs
 
@@ -194,10 +206,11 @@ def _default(seq: SkeletonSequence) -> tuple[int, Array]:
 def body_frame(joints: Array, /, up: Array | None = None) -> Array:
     """Body frame ``(3, 3)`` (columns x forward, y left, z up) from the body joints ``(25, 3)``.
 
-    ``joints`` is on the full Kinect topology (NaN allowed outside :data:`BODY_JOINTS`).
+    ``joints`` is on the full Kinect topology; the finite :data:`BODY_JOINTS` are used.
     """
     up_v = np.array([0.0, 0.0, 1.0]) if up is None else unit(np.asarray(up, float))
     q = joints[[JOINT_INDEX[n] for n in BODY_JOINTS]]
+    q = q[np.isfinite(q).all(axis=-1)]  # the body joints the source has
     _, _, vt = np.linalg.svd(q - q.mean(axis=0))
     x = vt[2]
     j = JOINT_INDEX
@@ -243,7 +256,8 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
     Parameters
     ----------
     seq : SkeletonSequence
-        The sequence; must contain the :data:`BODY_JOINTS`.
+        The sequence; must contain the :data:`REQUIRED_JOINTS` (and uses the other
+        :data:`BODY_JOINTS` it has).
     default_frame : int, optional
         Use this frame as the default pose instead of searching for it.
 
