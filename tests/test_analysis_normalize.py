@@ -83,7 +83,9 @@ def test_frames_are_rotations_and_follow_the_limbs(rom) -> None:  # type: ignore
         f @ np.swapaxes(f, 1, 2), np.broadcast_to(np.eye(3), f.shape), atol=1e-9
     )
     p = seq.kinect_positions()
-    for i, lb in enumerate(an.LIMBS):
+    body_rel = np.einsum("ji,jk->ik", norm.body2world, norm.frames[norm.default_frame, 0])
+    np.testing.assert_allclose(body_rel, np.eye(3), atol=0.02)  # the root carries the body frame
+    for i, lb in enumerate(an.LIMBS[1:], start=1):
         u = p[:, lb.distal_index] - p[:, lb.proximal_index]
         u /= np.linalg.norm(u, axis=-1, keepdims=True)
         along = np.einsum("tij,j->ti", norm.frames[:, i], norm.long_axis[i])

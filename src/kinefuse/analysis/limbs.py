@@ -111,13 +111,17 @@ def _sided(side: str) -> tuple[Limb, ...]:
 
 
 #: The root limb: origin SpineBase, long axis SpineBase -> SpineMid, twist from the hip line.
+#: The trunk spans SpineBase -> SpineShoulder and the head SpineShoulder -> Head (not the Kinect
+#: bones SpineMid -> SpineShoulder and Neck -> Head): the longer baselines halve the effect of
+#: the depth sensor's biased spine joints on the frames (SpineMid and Neck are 20 and 7 cm from
+#: their neighbours and several cm off in fused data).
 PELVIS: Final = Limb("pelvis", "SpineBase", "SpineMid", None, 0, ("HipRight", "HipLeft"))
 
 #: All limbs, parents before children. The pelvis first (root, body frame), then 12 limbs.
 LIMBS: Final[tuple[Limb, ...]] = (
     PELVIS,
-    Limb("trunk", "SpineMid", "SpineShoulder", "pelvis", 2, ("ShoulderRight", "ShoulderLeft")),
-    Limb("head", "Neck", "Head", "trunk", 2, ()),
+    Limb("trunk", "SpineBase", "SpineShoulder", "pelvis", 2, ("ShoulderRight", "ShoulderLeft")),
+    Limb("head", "SpineShoulder", "Head", "trunk", 2, ()),
     *_sided("left"),
     *_sided("right"),
 )

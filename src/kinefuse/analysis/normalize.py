@@ -89,7 +89,8 @@ class Normalization:
         Limb midpoints, metres (where the normalized frames are placed).
     long_axis : (L, 3) float
         The limb's long axis (proximal -> distal) in its own normalized frame (a signed body
-        axis: ``-z`` for a hanging thigh).
+        axis: ``-z`` for a hanging thigh). The root (pelvis) carries the body frame itself, as
+        in the paper, so its ``z`` is the body's up rather than SpineBase -> SpineMid.
     twist_weight : (T, L) float
         How observable the twist is in each frame, 0 to 1 (1 for sources with orientations).
     status : dict str -> str
@@ -302,6 +303,8 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
             observable[lb.name] = {"swing_axes": lb.n_axes, "twist": "not observable"}
             continue
         n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body, lb.body_axis)
+        if LIMB_PARENTS[i] < 0:
+            n0 = body  # the paper: the body coordinate system is the torso's (the root's)
         long_axis[i, k] = s
         src = seq.orientation(lb.name)
         carried = None
@@ -454,9 +457,7 @@ def _position_constants(
     if par < 0:  # the root: its frame from its joints and the hip line, always conditioned
         r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
         o = frame_from(u, r)
-        c_root = _mean_rot(tmm(o[win], n0))
-        # the mean keeps the long axis on the limb: c maps it onto o's first column exactly
-        c_root = minimal_rotation(c_root @ axis_l, eye[0]) @ c_root
+        c_root = _mean_rot(tmm(o[win], n0))  # n0 is the body frame (see normalize)
         return LimbConstants("root", c_root, eye, np.zeros(3), axis_l), None
     fp = frames[:, par]
     d_loc = unit(tmv(fp, u))
