@@ -123,6 +123,17 @@ def test_up_rotation_is_proper_and_sends_the_up_axis_to_z() -> None:
         up_rotation("w")
 
 
+def test_truncated_and_garbage_c3d_fail_clearly(shared_data: Path, tmp_path: Path) -> None:
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes((shared_data / TENNIS).read_bytes()[:20000])
+    with pytest.raises(MotionFormatError, match="truncated: its header declares 1092 frames"):
+        read_c3d(cut)
+    junk = tmp_path / "junk.c3d"
+    junk.write_bytes(bytes(range(256)) * 20)
+    with pytest.raises(MotionFormatError, match=r"junk\.c3d: ezc3d cannot read it"):
+        read_c3d(junk)
+
+
 def test_unknown_marker_extension() -> None:
     with pytest.raises(InputError, match=r"\.trc, \.c3d"):
         read_markers("x.csv")
