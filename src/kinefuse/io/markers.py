@@ -286,6 +286,12 @@ def parse_trc(text: str, *, path: str = "<string>", up: str | None = None) -> Ma
         raise MotionFormatError("the file has no data rows after the header", path=path)
     data = np.array(rows, dtype=np.float64)
     notes: list[str] = []
+    n_declared = header.get("numframes")
+    if n_declared is not None and n_declared.isdigit() and int(n_declared) != data.shape[0]:
+        notes.append(
+            f"header says {n_declared} frames, the file holds {data.shape[0]} rows; the rows "
+            "were used (a truncated file?)"
+        )
     declared = header.get("nummarkers")
     if declared is not None and declared.isdigit() and int(declared) != m:
         notes.append(f"header says {declared} markers, line 4 names {m}; the names were used")
