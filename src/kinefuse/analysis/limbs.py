@@ -1,8 +1,9 @@
 """The limbs analysis parameterizes, as data: joints, parent limb, axes and what is observable.
 
 A limb is named by the Kinect v2 bone it follows (``"upper_arm_left"`` = ShoulderLeft ->
-ElbowLeft). The root limb is the pelvis (SpineBase, its frame from the hips and SpineMid); it gets
-the body coordinate system. Every other limb rotates about its ``proximal`` joint (the centre of
+ElbowLeft); the trunk and the head span two Kinect bones each (see :data:`PELVIS`). The root
+limb is the pelvis (SpineBase, its frame from the hips and SpineMid); it gets the body
+coordinate system. Every other limb rotates about its ``proximal`` joint (the centre of
 its joint sphere) relative to its ``parent`` limb's normalized frame.
 
 For position-only skeletons (fused sessions) a limb's orientation about its own long axis (its
