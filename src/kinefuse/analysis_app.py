@@ -306,16 +306,21 @@ def run_analyze(
     say = progress or (lambda _m: None)
     if not inputs:
         raise InputError("give at least one input file")
+    kinds = [_kind(Path(p)) for p in inputs]
+    if marker_map is not None and "markers" not in kinds:
+        raise InputError("--map is for marker files (.trc, .c3d); none of the inputs is one")
+    if (calibration is not None or true_calibration) and "session" not in kinds:
+        raise InputError("--calibration/--true-calibration are for sessions (.sqlite)")
     loaded = []
-    for p in inputs:
+    for p, kind in zip(inputs, kinds, strict=True):
         say(f"loading {p}")
         loaded.append(
             load_input(
                 Path(p),
-                marker_map=marker_map,
+                marker_map=marker_map if kind == "markers" else None,
                 method=method,
-                calibration=calibration,
-                true_calibration=true_calibration,
+                calibration=calibration if kind == "session" else None,
+                true_calibration=true_calibration and kind == "session",
             )
         )
     check_out(out)  # fail early (name taken) before any work
