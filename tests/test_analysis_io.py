@@ -86,6 +86,13 @@ def test_gaps_empty_nan_and_all_zero_become_nan_a_single_zero_stays() -> None:
     np.testing.assert_allclose(m.positions[0, 0], [0.001, 0.002, 0.003])  # mm -> m, z up kept
 
 
+def test_a_trc_shorter_than_its_header_says_is_read_and_noted(shared_data: Path) -> None:
+    lines = (shared_data / WALK).read_text().splitlines()[:20]
+    m = parse_trc("\n".join(lines), up="+y")
+    assert m.n_frames == 14
+    assert "header says 238 frames, the file holds 14 rows" in m.notes[0]
+
+
 def test_units_inferred_from_the_body_when_the_field_is_garbage(rng: np.random.Generator) -> None:
     # two markers 1.6 m apart vertically (in cm), a few cm apart sideways
     rows = [f"{k + 1}\t{k / 100:.2f}\t10\t0\t5\t12\t160\t4" for k in range(5)]
@@ -121,6 +128,17 @@ def test_up_rotation_is_proper_and_sends_the_up_axis_to_z() -> None:
         np.testing.assert_allclose(r @ v, [0.0, 0.0, 1.0], atol=1e-15)
     with pytest.raises(InputError, match="up must be one of"):
         up_rotation("w")
+
+
+def test_truncated_and_garbage_c3d_fail_clearly(shared_data: Path, tmp_path: Path) -> None:
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes((shared_data / TENNIS).read_bytes()[:20000])
+    with pytest.raises(MotionFormatError, match="truncated: its header declares 1092 frames"):
+        read_c3d(cut)
+    junk = tmp_path / "junk.c3d"
+    junk.write_bytes(bytes(range(256)) * 20)
+    with pytest.raises(MotionFormatError, match=r"junk\.c3d: ezc3d cannot read it"):
+        read_c3d(junk)
 
 
 def test_unknown_marker_extension() -> None:

@@ -82,12 +82,14 @@ def test_dj_beats_pca_and_em_with_noise(rom, rng) -> None:  # type: ignore[no-un
         seq.positions + rng.normal(scale=0.004, size=seq.positions.shape), t_s=seq.t_s
     )  # 4 mm per joint and axis
     norm = an.normalize(noisy)
-    med = {}
+    two = {}
     for m in ("dj", "pca", "em"):
-        med[m] = axis_errors_deg(learn_axes(noisy, norm, method=m), _true_axes(norm, truth))
-    assert med["dj"]["median"] < 3.0, med["dj"]
-    assert med["dj"]["median"] < med["pca"]["median"]
-    assert med["dj"]["median"] < med["em"]["median"]
+        err = axis_errors_deg(learn_axes(noisy, norm, method=m), _true_axes(norm, truth))
+        # one-axis limbs get the same regression from all three: compare the two-axis limbs
+        two[m] = np.median([x for v in err["by_limb"].values() if len(v) == 2 for x in v])
+    assert two["dj"] < 3.0, two  # degrees
+    assert two["dj"] < two["pca"]
+    assert two["dj"] < two["em"]
 
 
 def test_limb_without_movement_gets_a_status(rom) -> None:  # type: ignore[no-untyped-def]

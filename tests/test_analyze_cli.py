@@ -49,6 +49,10 @@ def load_mot_in_opensim(path: Path, monkeypatch: pytest.MonkeyPatch) -> int:
     return int(table.getNumRows())
 
 
+#: A static trial: nothing moves, so no axes are learned and every limb says so.
+STATIC = "markers/opensim/Pipelines_Rajagopal_ExpData_static_walk_1.trc"
+
+
 @pytest.mark.parametrize("rel", MOTION + MARKERS)
 def test_analyze_every_shared_file(
     rel: str,
@@ -79,6 +83,10 @@ def test_analyze_every_shared_file(
     assert load_mot_in_opensim(out / "angles.mot", monkeypatch) == t.size
     for a in report["axes"].values():
         np.testing.assert_allclose(np.linalg.norm(a, axis=1), 1.0, atol=1e-9)  # unit axes
+    if rel == STATIC:  # standing still: explicit per-limb status instead of angles
+        assert report["limb_status"]["shank_left"].startswith("no movement")
+        assert not [k for k in ang if k.startswith("knee_flexion")]
+        return
     # plausible curves: every knee flexion stays within the human range and moves
     knees = [v for k, v in ang.items() if k.startswith("knee_flexion")]
     assert knees

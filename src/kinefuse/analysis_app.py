@@ -57,6 +57,7 @@ class AnalysisInput:
     seq: SkeletonSequence
     stored_phase_s: tuple[float, float] | None = None  # a session's ROM phase (metadata)
     fusion: dict[str, Any] | None = None  # method, calibration, frames (sessions)
+    sensor_poses: dict[str, Array] | None = None  # sensor2world used by the fusion (sessions)
 
 
 def _kind(path: Path) -> str:
@@ -117,6 +118,7 @@ def sequence_from_session(
         seq=seq,
         stored_phase_s=stored,
         fusion={"method": method, "calibration": source, "frames": int(grid.size)},
+        sensor_poses={k: np.asarray(v, dtype=np.float64) for k, v in poses.items()},
     )
 
 
@@ -304,23 +306,24 @@ def run_analyze(
     say = progress or (lambda _m: None)
     if not inputs:
         raise InputError("give at least one input file")
+    kinds = [_kind(Path(p)) for p in inputs]
+    if marker_map is not None and "markers" not in kinds:
+        raise InputError("--map is for marker files (.trc, .c3d); none of the inputs is one")
+    if (calibration is not None or true_calibration) and "session" not in kinds:
+        raise InputError("--calibration/--true-calibration are for sessions (.sqlite)")
     loaded = []
-    for p in inputs:
+    for p, kind in zip(inputs, kinds, strict=True):
         say(f"loading {p}")
         loaded.append(
             load_input(
                 Path(p),
-                marker_map=marker_map,
+                marker_map=marker_map if kind == "markers" else None,
                 method=method,
-                calibration=calibration,
-                true_calibration=true_calibration,
+                calibration=calibration if kind == "session" else None,
+                true_calibration=true_calibration and kind == "session",
             )
         )
     check_out(out)  # fail early (name taken) before any work
-    if plots:
-        import matplotlib
-
-        matplotlib.use("Agg")  # the command draws to files only
     stage = _staging_folder(out)
     try:
         report = _analyse_all(

@@ -292,6 +292,10 @@ def _phase(text: str) -> tuple[float, float]:
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from kinefuse.analysis_app import format_analyze, json_text, run_analyze
 
+    if not args.no_plots:
+        import matplotlib
+
+        matplotlib.use("Agg")  # the command draws to files only
     report = run_analyze(
         args.inputs,
         out=args.out,

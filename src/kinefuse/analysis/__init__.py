@@ -29,8 +29,9 @@ Modules
     :class:`SkeletonSequence` (the shared input type) and :func:`kinect_parents`.
 ``limbs``
     :data:`LIMBS`, :data:`LIMB_NAMES`: the pelvis (root) and 12 limbs named after the Kinect bone
-    they follow (``"upper_arm_left"`` = ShoulderLeft -> ElbowLeft), with parent limb, number of
-    movement axes and the neighbour that gives their twist for position-only skeletons.
+    they follow (``"upper_arm_left"`` = ShoulderLeft -> ElbowLeft; the trunk spans SpineBase ->
+    SpineShoulder and the head SpineShoulder -> Head), with parent limb, number of movement
+    axes and the neighbour that gives their twist for position-only skeletons.
 ``normalize``
     :func:`find_default_pose` (frame index), :func:`normalize` -> :class:`Normalization`
     (``frames (T, L, 3, 3)`` limb->world, ``transforms() (T, L, 4, 4)``, ``twist_weight``,

@@ -11,7 +11,7 @@ Array = NDArray[np.float64]
 def unit(v: ArrayLike) -> Array:
     """``v / |v|`` along the last axis; NaN where ``|v|`` is zero or not finite."""
     a = np.asarray(v, dtype=np.float64)
-    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    n = np.sqrt(np.einsum("...i,...i->...", a, a))[..., None]
     with np.errstate(invalid="ignore", divide="ignore"):
         out = a / n
     out[~(n[..., 0] > 1e-12)] = np.nan

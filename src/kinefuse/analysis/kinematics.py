@@ -142,7 +142,7 @@ def reconstruct(
     The root (SpineBase position, pelvis frame) is taken as given; every limb's frame is its
     parent's frame times ``S Q_rest R(twist)``; its distal joint lies ``length`` along the long
     axis. Joints of limbs the model could not learn, and joints that are no limb's end (hand,
-    hand tip, thumb), are NaN.
+    hand tip, thumb, SpineMid, Neck), are NaN.
 
     Parameters
     ----------
@@ -157,14 +157,10 @@ def reconstruct(
     frames = np.full((t, len(LIMBS), 3, 3), np.nan)
     frames[:, 0] = angles.root_frame
     pos[:, JOINT_INDEX["SpineBase"]] = angles.root_position
-    pel = model.limbs.get("trunk")
     for i, lb in enumerate(LIMBS):
         par = LIMB_PARENTS[i]
         if par < 0:
-            # the root's distal joint (SpineMid) sits at the trunk's offset in the pelvis frame
-            if pel is not None:
-                pos[:, lb.distal_index] = angles.root_position + angles.root_frame @ pel.offset_m
-            continue
+            continue  # the root is given
         lm = model.limbs.get(lb.name)
         if lm is None or not lm.usable:
             continue

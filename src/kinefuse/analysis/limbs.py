@@ -1,8 +1,9 @@
 """The limbs analysis parameterizes, as data: joints, parent limb, axes and what is observable.
 
 A limb is named by the Kinect v2 bone it follows (``"upper_arm_left"`` = ShoulderLeft ->
-ElbowLeft). The root limb is the pelvis (SpineBase, its frame from the hips and SpineMid); it gets
-the body coordinate system. Every other limb rotates about its ``proximal`` joint (the centre of
+ElbowLeft); the trunk and the head span two Kinect bones each (see :data:`PELVIS`). The root
+limb is the pelvis (SpineBase, its frame from the hips and SpineMid); it gets the body
+coordinate system. Every other limb rotates about its ``proximal`` joint (the centre of
 its joint sphere) relative to its ``parent`` limb's normalized frame.
 
 For position-only skeletons (fused sessions) a limb's orientation about its own long axis (its
@@ -46,6 +47,11 @@ class Limb:
         Whether the twist is observable from positions alone.
     side : str
         ``"left"``, ``"right"`` or ``""`` (midline).
+    body_axis : int
+        The body axis (0 x forward, 1 y left, 2 z up) the limb's long axis replaces in its
+        normalized frame. The paper takes the axis closest to the limb in the default pose; for
+        the foot (forward and down, near 45°) that choice flips between recordings, so every
+        limb names its axis: z for the trunk and limbs, x for the foot.
     """
 
     name: str
@@ -55,6 +61,7 @@ class Limb:
     n_axes: int
     twist_ref: tuple[str, ...]
     side: str = ""
+    body_axis: int = 2
 
     @property
     def twist_observable(self) -> bool:
@@ -100,18 +107,22 @@ def _sided(side: str) -> tuple[Limb, ...]:
             (f"Ankle{s}", f"Foot{s}"),
             side,
         ),
-        Limb(f"foot_{side}", f"Ankle{s}", f"Foot{s}", f"shank_{side}", 1, (), side),
+        Limb(f"foot_{side}", f"Ankle{s}", f"Foot{s}", f"shank_{side}", 1, (), side, 0),
     )
 
 
 #: The root limb: origin SpineBase, long axis SpineBase -> SpineMid, twist from the hip line.
+#: The trunk spans SpineBase -> SpineShoulder and the head SpineShoulder -> Head (not the Kinect
+#: bones SpineMid -> SpineShoulder and Neck -> Head): the longer baselines halve the effect of
+#: the depth sensor's biased spine joints on the frames (SpineMid and Neck are 20 and 7 cm from
+#: their neighbours and several cm off in fused data).
 PELVIS: Final = Limb("pelvis", "SpineBase", "SpineMid", None, 0, ("HipRight", "HipLeft"))
 
 #: All limbs, parents before children. The pelvis first (root, body frame), then 12 limbs.
 LIMBS: Final[tuple[Limb, ...]] = (
     PELVIS,
-    Limb("trunk", "SpineMid", "SpineShoulder", "pelvis", 2, ("ShoulderRight", "ShoulderLeft")),
-    Limb("head", "Neck", "Head", "trunk", 2, ()),
+    Limb("trunk", "SpineBase", "SpineShoulder", "pelvis", 2, ("ShoulderRight", "ShoulderLeft")),
+    Limb("head", "SpineShoulder", "Head", "trunk", 2, ()),
     *_sided("left"),
     *_sided("right"),
 )

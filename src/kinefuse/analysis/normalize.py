@@ -56,6 +56,12 @@ BODY_JOINTS = (
     "WristLeft", "ShoulderRight", "ElbowRight", "WristRight", "HipLeft", "KneeLeft", "AnkleLeft",
     "HipRight", "KneeRight", "AnkleRight",
 )  # fmt: skip
+#: Body joints without which there is no default pose or body frame; the others (head, neck,
+#: elbows, wrists) are used when the source has them (marker sets often have no head).
+REQUIRED_JOINTS = (
+    "SpineBase", "SpineMid", "SpineShoulder", "ShoulderLeft", "ShoulderRight", "HipLeft",
+    "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight",
+)  # fmt: skip
 #: Below this angle between a limb and its twist reference the twist weight is 0, above the
 #: second it is 1 (degrees; a straight elbow or knee leaves the twist unobservable).
 TWIST_WEIGHT_DEG = (15.0, 35.0)
@@ -83,7 +89,8 @@ class Normalization:
         Limb midpoints, metres (where the normalized frames are placed).
     long_axis : (L, 3) float
         The limb's long axis (proximal -> distal) in its own normalized frame (a signed body
-        axis: ``-z`` for a hanging thigh).
+        axis: ``-z`` for a hanging thigh). The root (pelvis) carries the body frame itself, as
+        in the paper, so its ``z`` is the body's up rather than SpineBase -> SpineMid.
     twist_weight : (T, L) float
         How observable the twist is in each frame, 0 to 1 (1 for sources with orientations).
     status : dict str -> str
@@ -138,11 +145,11 @@ def default_pose_costs(positions: Array, rate_hz: float | None = None) -> Array:
         return cost
     q = p[ok]
     c = q - q.mean(axis=1, keepdims=True)
-    _, s, vt = np.linalg.svd(c, full_matrices=False)
     n = q.shape[1]
-    plane = s[:, 2] ** 2 / n  # mean squared distance to the best-fitting plane
-    a = np.einsum("tjk,tk->tj", c, vt[:, 0])
-    b = np.einsum("tjk,tk->tj", c, vt[:, 1])
+    lam, vec = np.linalg.eigh(np.matmul(np.swapaxes(c, 1, 2), c) / n)  # ascending
+    plane = np.maximum(lam[:, 0], 0.0)  # mean squared distance to the best-fitting plane
+    a = np.matmul(c, vec[:, :, 2:3])[..., 0]
+    b = np.matmul(c, vec[:, :, 1:2])[..., 0]
     ea, eb = np.ptp(a, axis=1), np.ptp(b, axis=1)
     ratio = np.minimum(ea, eb) / np.maximum(np.maximum(ea, eb), 1e-9)
     spread = np.linalg.norm(c, axis=-1).mean(axis=1)
@@ -174,19 +181,25 @@ def find_default_pose(seq: SkeletonSequence, /) -> int:
     return int(_default(seq)[0])
 
 
-def _default(seq: SkeletonSequence) -> tuple[int, Array]:
-    missing = [n for n in BODY_JOINTS if not seq.has(n)]
+def _body_joints(seq: SkeletonSequence) -> tuple[str, ...]:
+    """The :data:`BODY_JOINTS` the sequence has; a clear error if a required one is absent."""
+    missing = [n for n in REQUIRED_JOINTS if not seq.has(n)]
     if missing:
         raise InputError(
             f"normalization needs the body joints {', '.join(missing)}, which "
             f"{seq.source or 'the sequence'} lacks; map them (a marker map, a name map) first"
         )
-    idx = [seq.index(n) for n in BODY_JOINTS]
+    return tuple(n for n in BODY_JOINTS if seq.has(n) and seq.mask[:, seq.index(n)].any())
+
+
+def _default(seq: SkeletonSequence) -> tuple[int, Array]:
+    names = _body_joints(seq)
+    idx = [seq.index(n) for n in names]
     costs = default_pose_costs(seq.positions[:, idx], seq.rate_hz)
     if not np.isfinite(costs).any():
         raise InputError(
             "no frame has all body joints present, so no default pose can be found; "
-            f"needed in one frame: {', '.join(BODY_JOINTS)}"
+            f"needed in one frame: {', '.join(names)}"
         )
     return int(np.nanargmin(costs)), costs
 
@@ -194,10 +207,11 @@ def _default(seq: SkeletonSequence) -> tuple[int, Array]:
 def body_frame(joints: Array, /, up: Array | None = None) -> Array:
     """Body frame ``(3, 3)`` (columns x forward, y left, z up) from the body joints ``(25, 3)``.
 
-    ``joints`` is on the full Kinect topology (NaN allowed outside :data:`BODY_JOINTS`).
+    ``joints`` is on the full Kinect topology; the finite :data:`BODY_JOINTS` are used.
     """
     up_v = np.array([0.0, 0.0, 1.0]) if up is None else unit(np.asarray(up, float))
     q = joints[[JOINT_INDEX[n] for n in BODY_JOINTS]]
+    q = q[np.isfinite(q).all(axis=-1)]  # the body joints the source has
     _, _, vt = np.linalg.svd(q - q.mean(axis=0))
     x = vt[2]
     j = JOINT_INDEX
@@ -211,14 +225,16 @@ def body_frame(joints: Array, /, up: Array | None = None) -> Array:
     return np.stack([x, y, z], axis=-1)
 
 
-def limb_frame_from_body(u: Array, body: Array) -> tuple[Array, int, float]:
+def limb_frame_from_body(u: Array, body: Array, k: int | None = None) -> tuple[Array, int, float]:
     """The paper's limb frame ``(3, 3)`` for main orientation ``u`` and body frame ``body``.
 
-    Returns the frame, the index ``k`` of the body axis replaced by the limb axis and its sign
-    (the limb direction is ``sign * frame[:, k]``).
+    ``k`` is the body axis the limb axis replaces (default: the one closest to ``u``, the
+    paper's choice). Returns the frame, ``k`` and the sign (the limb direction is
+    ``sign * frame[:, k]``).
     """
     u = unit(u)
-    k = int(np.argmax(np.abs(body.T @ u)))
+    if k is None:
+        k = int(np.argmax(np.abs(body.T @ u)))
     a, b = (k + 1) % 3, (k + 2) % 3
     ea = unit(body[:, a] - dot(body[:, a], u) * u)
     eb = body[:, b] - dot(body[:, b], u) * u
@@ -241,7 +257,8 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
     Parameters
     ----------
     seq : SkeletonSequence
-        The sequence; must contain the :data:`BODY_JOINTS`.
+        The sequence; must contain the :data:`REQUIRED_JOINTS` (and uses the other
+        :data:`BODY_JOINTS` it has).
     default_frame : int, optional
         Use this frame as the default pose instead of searching for it.
 
@@ -285,20 +302,23 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
             status[lb.name] = f"{' and '.join(gone)} missing in the default pose"
             observable[lb.name] = {"swing_axes": lb.n_axes, "twist": "not observable"}
             continue
-        n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body)
+        n0, k, s = limb_frame_from_body(np.nanmean(u[win], axis=0), body, lb.body_axis)
+        if LIMB_PARENTS[i] < 0:
+            n0 = body  # the paper: the body coordinate system is the torso's (the root's)
         long_axis[i, k] = s
         src = seq.orientation(lb.name)
+        carried = None
         if src is not None and np.isfinite(src[d]).all():
             # the paper's propagation: constant original-to-normalized transform
             c_src = _mean_rot(tmm(src[win], n0))
             k_i = LimbConstants("orientation", c_src, np.eye(3), np.zeros(3), long_axis[i])
         else:
             src = None
-            k_i = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
+            k_i, carried = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
         constants[lb.name] = k_i
         par = LIMB_PARENTS[i]
         frames[:, i], weight[:, i] = _limb_frames(
-            lb, k_i, p, frames[:, par] if par >= 0 else None, src
+            lb, k_i, p, frames[:, par] if par >= 0 else None, src, carried
         )
         if k_i.kind == "carried":
             tw_kind = "not observable"
@@ -351,9 +371,15 @@ class LimbConstants:
 
 
 def _limb_frames(
-    lb: Limb, k: LimbConstants, p: Array, fp: Array | None, src: Array | None
+    lb: Limb,
+    k: LimbConstants,
+    p: Array,
+    fp: Array | None,
+    src: Array | None,
+    carried: Array | None = None,
 ) -> tuple[Array, Array]:
-    """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``."""
+    """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``
+    (``carried``: the carried frames when already computed with the same constants)."""
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if k.kind == "orientation":
         assert src is not None
@@ -363,8 +389,9 @@ def _limb_frames(
         o = frame_from(u, r)
         return o @ k.c, np.isfinite(o).all(axis=(1, 2)).astype(float)
     assert fp is not None
-    d_loc = unit(tmv(fp, u))
-    carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
+    if carried is None:
+        d_loc = unit(tmv(fp, u))
+        carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
     if k.kind == "carried":
         return carried, np.zeros(u.shape[0])
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
@@ -421,29 +448,31 @@ def _position_constants(
     n0: Array,
     axis_l: Array,
     frames: Array,
-) -> LimbConstants:
-    """The constants of a position-only limb (parents' ``frames`` already filled)."""
+) -> tuple[LimbConstants, Array | None]:
+    """The constants of a position-only limb (parents' ``frames`` already filled), and its
+    carried frames ``(T, 3, 3)`` when they were computed on the way."""
     eye = np.eye(3)
     par = LIMB_PARENTS[i]
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if par < 0:  # the root: its frame from its joints and the hip line, always conditioned
         r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
         o = frame_from(u, r)
-        c_root = _mean_rot(tmm(o[win], n0))
-        return LimbConstants("root", c_root, eye, np.zeros(3), axis_l)
+        c_root = _mean_rot(tmm(o[win], n0))  # n0 is the body frame (see normalize)
+        return LimbConstants("root", c_root, eye, np.zeros(3), axis_l), None
     fp = frames[:, par]
     d_loc = unit(tmv(fp, u))
     l0 = _mean_rot(tmm(fp[win], n0))
     d0 = unit(np.nanmean(d_loc[win], axis=0))
+    l0 = minimal_rotation(l0 @ axis_l, d0) @ l0  # the long axis onto the default direction
     carried_k = LimbConstants("carried", eye, l0, d0, axis_l)
     if not lb.twist_observable:
-        return carried_k
+        return carried_k, None
     carried, _ = _limb_frames(lb, carried_k, p, fp, None)
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
     w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
     good = (w >= 1.0) & np.isfinite(carried).all(axis=(1, 2))
     if not good.any():
-        return carried_k
+        return carried_k, carried
     # the constant from every well-conditioned frame near the default direction (where the
     # carried frame is exact up to noise), averaged; else from the nearest conditioned frame
     swing = np.arccos(np.clip(d_loc @ d0, -1.0, 1.0))
@@ -453,4 +482,4 @@ def _position_constants(
         idx = idx[[int(np.argmin(np.abs(idx - d)))]]
     o = frame_from(u[idx], r[idx])
     c = chordal_mean(tmm(o, carried[idx]))
-    return LimbConstants("twist", c, l0, d0, axis_l)
+    return LimbConstants("twist", c, l0, d0, axis_l), carried

@@ -85,7 +85,7 @@ class LimbModel:
         (median), metres; used by the forward kinematics when the proximal joint is not the
         parent's distal joint.
     ranges_rad : (k, 2) float
-        1st and 99th percentile of each angle in the calibration phase.
+        Smallest and largest angle of the (smoothed) calibration phase.
     off_axis_sd_rad : float
         Robust spread (1.4826 MAD) of the angle off the learned axes in the calibration phase.
     n_movement : int
@@ -318,7 +318,7 @@ def _learn_limb(
         **base,  # type: ignore[arg-type]
     )
     ang_v, off_v = swing_angles(model, u)
-    ranges = np.nanpercentile(ang_v, [1, 99], axis=0).T if np.isfinite(ang_v).any() else None
+    ranges = np.nanpercentile(ang_v, [0, 100], axis=0).T if np.isfinite(ang_v).any() else None
     med_off = np.nanmedian(off_v) if np.isfinite(off_v).any() else 0.0
     sd = 1.4826 * float(np.nanmedian(np.abs(off_v - med_off))) if np.isfinite(off_v).any() else 0.0
     return LimbModel(
@@ -387,18 +387,24 @@ def _intermediate(a0: Array, a1: Array, r: Array, u: Array) -> tuple[Array, Arra
     return unit(x), off
 
 
-def _smooth_sides(g: Array, sign: Array, near: float = np.sin(np.radians(10.0))) -> Array:
-    """Switch candidates where the trajectory crosses the axes' plane (``g`` has a V-shaped
-    minimum near 0): keep the side that continues the signed distance linearly."""
-    cand = np.flatnonzero((g < near) & np.isfinite(g))
-    cand = cand[(cand >= 2)]
-    if cand.size == 0:
+def _smooth_sides(g: Array, sign: Array, near: float = np.sin(np.radians(3.0))) -> Array:
+    """Switch candidates where the trajectory crosses the axes' plane.
+
+    ``g`` is the candidates' distance from that plane (0 where they coincide or where no
+    candidate reaches, clamped). A trajectory that comes within ``near`` of the plane is taken
+    to cross it (the smooth continuation; the reflection would turn back with a kink): each run
+    of frames below ``near`` switches the side once, at its closest frame.
+    """
+    low = (g < near) & np.isfinite(g)
+    if not low.any():
         return sign
     s = sign.copy()
-    for t in cand:
-        pred = 2.0 * s[t - 1] * g[t - 1] - s[t - 2] * g[t - 2]
-        if abs(-s[t] * g[t] - pred) < abs(s[t] * g[t] - pred):
-            s[t:] = -s[t:]
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(np.int8), [0]])))
+    for a, b in zip(edges[::2], edges[1::2], strict=True):  # run [a, b)
+        if a == 0:
+            continue  # starting on the plane: nothing to continue from
+        flip_at = a + int(np.argmin(g[a:b])) + 1
+        s[flip_at:] = -s[flip_at:]
     return s
 
 

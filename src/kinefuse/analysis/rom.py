@@ -172,7 +172,7 @@ def make_rom_motion(
     n0 = np.zeros((n_l, 3, 3))
     for i, lb in enumerate(LIMBS):
         u = pose[lb.distal_index] - pose[lb.proximal_index]
-        n0[i] = limb_frame_from_body(u, body)[0]
+        n0[i] = body if i == 0 else limb_frame_from_body(u, body, lb.body_axis)[0]
     # pelvis frame at rest = its normalized frame (the root carries the body frame)
     rest_vec = np.zeros((n_l, 3))
     offset = np.zeros((n_l, 3))
@@ -204,12 +204,14 @@ def make_rom_motion(
                 a = unit(a - (a @ p_long) * p_long)
             tilted.append(a)
         axes[lb.name] = np.array(tilted)
-    # extra rigid joints: hand, hand tip, thumb in the forearm frame (relative to the wrist)
+    # joints at no limb's end, rigid in a limb: (limb, anchor joint, offset in the limb frame)
+    attach = [("SpineMid", "pelvis", "SpineBase"), ("Neck", "head", "SpineShoulder")]
+    attach += [(f"{j}{side}", f"forearm_{side.lower()}", f"Wrist{side}")
+               for side in ("Left", "Right") for j in ("Hand", "HandTip", "Thumb")]  # fmt: skip
     rigid = {}
-    for side in ("Left", "Right"):
-        fi = LIMB_INDEX[f"forearm_{side.lower()}"]
-        for j in (f"Hand{side}", f"HandTip{side}", f"Thumb{side}"):
-            rigid[j] = (fi, n0[fi].T @ (pose[JOINT_INDEX[j]] - pose[JOINT_INDEX[f"Wrist{side}"]]))
+    for j, limb_name, anchor in attach:
+        fi = LIMB_INDEX[limb_name]
+        rigid[j] = (fi, anchor, n0[fi].T @ (pose[JOINT_INDEX[j]] - pose[JOINT_INDEX[anchor]]))
 
     # ---- schedule of angle targets per limb dof
     dt = 1.0 / rate_hz
@@ -309,10 +311,8 @@ def make_rom_motion(
             "tij,tjk,k->ti", fp, m, rest_vec[i]
         )
         done[lb.distal_index] = True
-    # the pelvis' own distal joint (SpineMid) is the trunk's proximal: placed above
-    for j, (fi, off) in rigid.items():
-        side = "Left" if j.endswith("Left") else "Right"
-        pos[:, JOINT_INDEX[j]] = pos[:, JOINT_INDEX[f"Wrist{side}"]] + frames[:, fi] @ off
+    for j, (fi, anchor, off) in rigid.items():
+        pos[:, JOINT_INDEX[j]] = pos[:, JOINT_INDEX[anchor]] + frames[:, fi] @ off
     axes_world = {kk: (n0[LIMB_PARENTS[LIMB_INDEX[kk]]] @ v.T).T for kk, v in axes.items()}
     truth = RomTruth(
         axes=axes,

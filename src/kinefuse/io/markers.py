@@ -286,6 +286,12 @@ def parse_trc(text: str, *, path: str = "<string>", up: str | None = None) -> Ma
         raise MotionFormatError("the file has no data rows after the header", path=path)
     data = np.array(rows, dtype=np.float64)
     notes: list[str] = []
+    n_declared = header.get("numframes")
+    if n_declared is not None and n_declared.isdigit() and int(n_declared) != data.shape[0]:
+        notes.append(
+            f"header says {n_declared} frames, the file holds {data.shape[0]} rows; the rows "
+            "were used (a truncated file?)"
+        )
     declared = header.get("nummarkers")
     if declared is not None and declared.isdigit() and int(declared) != m:
         notes.append(f"header says {declared} markers, line 4 names {m}; the names were used")
@@ -351,6 +357,7 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
     except (RuntimeError, OSError, ValueError) as e:
         raise MotionFormatError(f"ezc3d cannot read it as C3D: {e}", path=str(p)) from None
     params = c3d["parameters"]["POINT"]
+    declared = _c3d_header_frames(p)
 
     def value(key: str) -> list[object]:
         v = params.get(key, {}).get("value", [])
@@ -364,6 +371,12 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M, T)
     if pts.ndim != 3 or pts.shape[1] == 0 or pts.shape[2] == 0:
         raise MotionFormatError("the file holds no 3D points (POINT section empty)", path=str(p))
+    if declared is not None and pts.shape[2] < declared:
+        raise MotionFormatError(
+            f"the file is truncated: its header declares {declared} frames, the data holds "
+            f"{pts.shape[2]}; copy the file again",
+            path=str(p),
+        )
     m = pts.shape[1]
     labels = labels[:m] + [f"point{i + 1}" for i in range(len(labels), m)]
     rate_v = value("RATE")
@@ -394,6 +407,21 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
         fmt="c3d",
         notes=tuple(notes + more),
     )
+
+
+def _c3d_header_frames(path: Path) -> int | None:
+    """Frames the C3D header declares (words 4-5, first and last frame; Intel byte order), or
+    None when the header cannot say (other byte orders, more than 65535 frames)."""
+    import struct
+
+    with path.open("rb") as f:
+        head = f.read(12)
+    if len(head) < 12 or head[1] != 0x50:  # byte 2 of every C3D file is 0x50
+        return None
+    first, last = struct.unpack("<hh", head[6:10])
+    if not 1 <= first <= last:
+        return None
+    return last - first + 1
 
 
 def read_markers(path: str | Path, *, up: str | None = None) -> MarkerData:

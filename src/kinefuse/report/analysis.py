@@ -252,6 +252,13 @@ def consistency_report(results: list[dict[str, Any]]) -> dict[str, Any]:
     return {"normalization_consistency_deg": c}
 
 
+def _num(v: object, scale: float = 1.0, fmt: str = ".2f") -> str:
+    """A number for the text report; "n/a" for a missing (None/NaN) one."""
+    if isinstance(v, int | float) and np.isfinite(v):
+        return format(scale * v, fmt)
+    return "n/a"
+
+
 def format_report(report: dict[str, Any]) -> str:
     """A short text summary (one block per input)."""
     items = report.get("inputs", [report])
@@ -259,32 +266,36 @@ def format_report(report: dict[str, Any]) -> str:
     for r in items:
         lines.append(f"{r['input']} ({r['kind']}, {r['frames']} frames)")
         ph = r["calibration_phase"]
-        lines.append(f"  calibration phase {ph['start_s']:.2f}-{ph['end_s']:.2f} s: {ph['source']}")
+        lines.append(
+            f"  calibration phase {_num(ph['start_s'])}-{_num(ph['end_s'])} s: {ph['source']}"
+        )
         lines.append(f"  default pose: frame {r['default_pose_frame']}")
         rec = r["reconstruction_error_m"]
         lines.append(
-            f"  reconstruction error: mean {1e3 * rec['mean']:.2f} mm, median "
-            f"{1e3 * rec['median']:.2f} mm; {r['timing_ms_per_frame']:.3f} ms per frame"
+            f"  reconstruction error: mean {_num(rec['mean'], 1e3)} mm, median "
+            f"{_num(rec['median'], 1e3)} mm; "
+            f"{_num(r['timing_ms_per_frame'], 1, '.3f')} ms per frame"
         )
         bad = {k: v for k, v in r["limb_status"].items() if v != "ok"}
         if bad:
             lines.append("  limbs not ok: " + "; ".join(f"{k}: {v}" for k, v in bad.items()))
-        if "axis_error_by_method_deg" in r:
-            for m, e in r["axis_error_by_method_deg"].items():
-                lines.append(
-                    f"  axis error {m:>3}: median {e['median']:.2f} deg, mean {e['mean']:.2f} deg"
-                )
+        for m, e in r.get("axis_error_by_method_deg", {}).items():
+            lines.append(
+                f"  axis error {m:>3}: median {_num(e['median'])} deg, mean {_num(e['mean'])} deg"
+            )
         if "twist_error_deg" in r:
             tw = r["twist_error_deg"]
-            lines.append(f"  twist error: median {tw['median']:.2f} deg, mean {tw['mean']:.2f} deg")
-            rm = r["angle_rmse_deg"]
-            for k in sorted(rm):
-                if "knee_flexion" in k or "hip_flexion" in k:
-                    lines.append(f"  RMSE {k}: {rm[k]:.2f} deg")
+            lines.append(
+                f"  twist error: median {_num(tw['median'])} deg, mean {_num(tw['mean'])} deg"
+            )
+        rm = r.get("angle_rmse_deg", {})
+        for k in sorted(rm):
+            if "knee_flexion" in k or "hip_flexion" in k:
+                lines.append(f"  RMSE {k}: {_num(rm[k])} deg")
     if "normalization_consistency_deg" in report:
         c = report["normalization_consistency_deg"]
         lines.append(
-            f"normalization consistency: median {c['median']:.2f} deg, mean {c['mean']:.2f} deg"
+            f"normalization consistency: median {_num(c['median'])} deg, mean {_num(c['mean'])} deg"
         )
     lines.append(f"wrote {report.get('out')}")
     return "\n".join(lines)

@@ -13,14 +13,14 @@
    (``rigs/level4``, ``tilted4``, ``tiered4``) facing 0, 120 and 240 degrees, each with a ROM
    phase, calibrated and analysed together: ``normalization_consistency_deg``.
 
-Prints the figures as Markdown and writes them to ``WORK/figures.json``. Takes a few minutes.
+Prints the figures as Markdown (``WORK/figures.md``, pasted into docs/analysis.md) and writes
+them to ``WORK/figures.json``. Takes a few minutes.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +33,14 @@ ROOT = Path(__file__).resolve().parents[3]
 SHARED = ROOT.parent / "shared" / "data"
 #: Resolution of the plots copied into the docs (small files).
 DOC_DPI = 55
+
+
+def small_png(src: Path, dst: Path, colors: int = 48) -> None:
+    """Copy a plot into the docs as a small palette PNG (the curves survive 48 colours)."""
+    from PIL import Image
+
+    with Image.open(src) as im:
+        im.convert("RGB").quantize(colors=colors).save(dst, optimize=True)
 
 
 def _run(*argv: str) -> None:
@@ -66,10 +74,11 @@ def part_files(work: Path, img: Path) -> list[dict[str, Any]]:
         except KinefuseError as e:
             rows.append({"file": f.name, "error": str(e).splitlines()[0][:300]})
             continue
-        shutil.copyfile(out / "angles.png", img / f"analysis_{tag}.png")
+        small_png(out / "angles.png", img / f"analysis_{tag}.png")
         rows.append(
             {
                 "file": f.name,
+                "plot": f"img/analysis_{tag}.png",
                 "frames": r["frames"],
                 "default_pose_frame": r["default_pose_frame"],
                 "reconstruction_error_mm": 1e3 * r["reconstruction_error_m"]["mean"],
@@ -99,10 +108,11 @@ def part_rom(work: Path, img: Path, rom_s: float, true_calibration: bool) -> dic
     s = _session(work, "rom_walk_a", "02_walk_a.amc", rom_s, 0, None, true_calibration)
     out = work / "rom_walk_a"
     r = run_analyze([s], out=out, true_calibration=true_calibration, plot_dpi=DOC_DPI)
-    shutil.copyfile(out / "angles.png", img / "analysis_rom_session_angles.png")
-    shutil.copyfile(out / "axes_on_spheres.png", img / "analysis_rom_session_spheres.png")
+    small_png(out / "angles.png", img / "analysis_rom_session_angles.png")
+    small_png(out / "axes_on_spheres.png", img / "analysis_rom_session_spheres.png")
     keep = ("axis_error_by_method_deg", "reconstruction_error_m", "twist_error_deg",
-            "angle_rmse_deg", "timing_ms_per_frame", "limb_status", "fusion")  # fmt: skip
+            "angle_rmse_deg", "timing_ms_per_frame", "limb_status", "fusion",
+            "segment_angle_rmse_deg", "axis_error_parent_frame_deg")  # fmt: skip
     return {k: r.get(k) for k in keep}
 
 
@@ -122,7 +132,129 @@ def part_consistency(work: Path, rom_s: float, true_calibration: bool) -> dict[s
         )
     extra = ["--true-calibration"] if true_calibration else []
     r = _analyze(takes, work / "consistency", *extra)
-    return {"normalization_consistency_deg": r["normalization_consistency_deg"]}
+    walk = ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_flexion_right")
+    per_take = [
+        {
+            "input": Path(x["input"]).name,
+            "clip": clip,
+            "angle_rmse_deg": x.get("angle_rmse_deg", {}),
+            "axis_error_by_method_deg": {
+                m: {"median": e["median"], "mean": e["mean"]}
+                for m, e in x.get("axis_error_by_method_deg", {}).items()
+            },
+            "twist_error_deg": x.get("twist_error_deg"),
+            "segment_angle_rmse_deg": x.get("segment_angle_rmse_deg", {}),
+        }
+        for x, (_, _, clip) in zip(r["inputs"], plan, strict=True)
+    ]
+    mean_rmse = {
+        k: sum(tk["angle_rmse_deg"].get(k, float("nan")) for tk in per_take) / len(per_take)
+        for k in walk
+    }
+    return {
+        "normalization_consistency_deg": r["normalization_consistency_deg"],
+        "normalization_consistency_true_motion_deg": true_motion_consistency(takes),
+        "takes": per_take,
+        "walk_angle_rmse_deg_mean_over_takes": mean_rmse,
+    }
+
+
+def _f(v: object, fmt: str = ".2f") -> str:
+    return "n/a" if not isinstance(v, int | float) else format(v, fmt)
+
+
+def markdown(fig: dict[str, Any]) -> str:
+    """The figures as the Markdown section of docs/analysis.md."""
+    out: list[str] = []
+    if "files" in fig:
+        out += [
+            "### Every shared motion and marker file (no calibration phase: axes from the take)",
+            "",
+            "| file | frames | default pose frame | reconstruction error (mm) | ms per frame | "
+            "limbs with fewer axes |",
+            "|---|---|---|---|---|---|",
+        ]
+        for r in fig["files"]:
+            if "error" in r:
+                why = r["error"].split(", which", 1)[0].replace(str(SHARED), "../shared/data")
+                out.append(f"| {r['file']} | fails: {why[:120]} | | | | |")
+                continue
+            out.append(
+                f"| {r['file']} | {r['frames']} | {r['default_pose_frame']} | "
+                f"{_f(r['reconstruction_error_mm'])} | {_f(r['timing_ms_per_frame'], '.3f')} | "
+                f"{', '.join(r['limbs_not_ok']) or 'none'} |"
+            )
+        out.append("")
+        out += [f"![{r['file']}]({r['plot']})" for r in fig["files"] if "plot" in r]
+        out.append("")
+    rs = fig.get("rom_session")
+    if rs:
+        out += [
+            "### The generated calibration phase fused from 4 simulated sensors",
+            "",
+            f"Fusion: {rs['fusion']['method']} with {rs['fusion']['calibration']}.",
+            "",
+            "| axis method | axis error median (deg) | mean (deg) |",
+            "|---|---|---|",
+        ]
+        for m, e in rs["axis_error_by_method_deg"].items():
+            out.append(f"| {m} | {_f(e['median'])} | {_f(e['mean'])} |")
+        rec, tw = rs["reconstruction_error_m"], rs["twist_error_deg"]
+        out += [
+            "",
+            f"Reconstruction error from the parameters: mean {_f(1e3 * rec['mean'])} mm, median "
+            f"{_f(1e3 * rec['median'])} mm (paper: 1.3 mm). Twist error: median "
+            f"{_f(tw['median'])} deg, mean {_f(tw['mean'])} deg (paper: 15.45 / 18.7 deg). "
+            f"Normalization + angles + twist: {_f(rs['timing_ms_per_frame'], '.3f')} ms per frame.",
+            "",
+            "![ROM session angles](img/analysis_rom_session_angles.png)",
+            "",
+            "![ROM session axes on the joint spheres](img/analysis_rom_session_spheres.png)",
+            "",
+        ]
+    tk = fig.get("takes")
+    if tk:
+        c = tk["normalization_consistency_deg"]
+        out += [
+            "### Three takes, three rigs, three headings",
+            "",
+            f"Normalization consistency: median {_f(c['median'])} deg, mean {_f(c['mean'])} deg "
+            "(paper: 3.62 / 6.82 deg); on the true motion of the same takes: median "
+            f"{_f(tk.get('normalization_consistency_true_motion_deg', {}).get('median'))} deg, "
+            f"mean {_f(tk.get('normalization_consistency_true_motion_deg', {}).get('mean'))} deg.",
+            "",
+            "| take | clip | knee flexion L / R RMSE (deg) | hip flexion L / R RMSE (deg) | "
+            "knee angle from positions L / R RMSE (deg) | DJ axis error median (deg) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for x in tk["takes"]:
+            a = x["angle_rmse_deg"]
+            s = x.get("segment_angle_rmse_deg", {})
+            dj = x["axis_error_by_method_deg"].get("dj", {})
+            out.append(
+                f"| {x['input']} | {x['clip']} | {_f(a.get('knee_flexion_left'))} / "
+                f"{_f(a.get('knee_flexion_right'))} | {_f(a.get('hip_flexion_left'))} / "
+                f"{_f(a.get('hip_flexion_right'))} | {_f(s.get('knee_left'))} / "
+                f"{_f(s.get('knee_right'))} | {_f(dj.get('median'))} |"
+            )
+        out.append("")
+    return "\n".join(out)
+
+
+def true_motion_consistency(takes: Sequence[Path]) -> dict[str, Any]:
+    """The same consistency on the true motion of the takes (what the sensors cost)."""
+    from kinefuse.analysis.consistency import normalization_consistency
+    from kinefuse.analysis.normalize import normalize
+    from kinefuse.analysis_app import load_input
+    from kinefuse.report.analysis_truth import true_sequence
+
+    norms = []
+    for s in takes:
+        got = true_sequence(load_input(s))
+        if got is not None:
+            norms.append(normalize(got[0]))
+    c = normalization_consistency(norms)
+    return {"median": c["median"], "mean": c["mean"]}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -148,7 +280,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "takes" not in skip:
         figures["takes"] = part_consistency(a.work, a.rom_seconds, a.true_calibration)
     (a.work / "figures.json").write_text(json.dumps(figures, indent=2) + "\n")
-    print(json.dumps(figures, indent=2))
+    md = markdown(figures)
+    (a.work / "figures.md").write_text(md + "\n")
+    print(md)
     return 0
 
 

@@ -5,6 +5,9 @@ motion sampled at the fused frame times; the fused input's figures are compared 
 
 * ``angle_rmse_deg``: RMSE of each named angle, fused vs true-motion chain, over the frames after
   the calibration phase (all frames when the phase covers the input).
+* ``segment_angle_rmse_deg``: the included angle at the knees and elbows straight from the
+  joint positions (no axes, no rest), fused vs true: how far the positions alone already are
+  from the truth, a floor under ``angle_rmse_deg`` of flexion angles.
 * ``twist_error_deg``: absolute twist difference (wrapped to +-180 deg), fused vs true-motion
   chain, over every limb and frame where both are observable, during the calibration phase.
 * ``axis_error_deg`` (Direction Joining) and ``axis_error_by_method_deg`` (dj, pca, em side by
@@ -72,6 +75,7 @@ def truth_figures(
     sel: Any = np.flatnonzero(after if after.any() else np.ones_like(after))
     report: dict[str, Any] = {
         "angle_rmse_deg": angle_rmse_deg(named, tnamed, sel),
+        "segment_angle_rmse_deg": _segment_angle_rmse(inp.seq, tseq, sel),
         "angle_rmse_over": "frames after the calibration phase" if after.any() else "all frames",
         "truth_chain": {
             "default_pose_frame": int(tres["norm"].default_frame),
@@ -86,8 +90,14 @@ def truth_figures(
             k: np.asarray(v, dtype=np.float64).reshape(-1, 3) for k, v in rom["axes_parent"].items()
         }
         by_method = {m: axis_errors_deg(model, true_axes) for m, model in res["models"].items()}
-        report["axis_error_deg"] = by_method["dj"]
-        report["axis_error_by_method_deg"] = by_method
+        report["axis_error_parent_frame_deg"] = {
+            m: {"median": v["median"], "mean": v["mean"]} for m, v in by_method.items()
+        }
+        world = _axes_in_world(inp, res, rom, phase, true_calibration)
+        by_world = {m: axis_errors_deg(_as_model(world[m]), _true_world(rom, inp, true_calibration))
+                    for m in world}  # fmt: skip
+        report["axis_error_deg"] = by_world["dj"]
+        report["axis_error_by_method_deg"] = by_world
         # the generator's true twist, at the fused frame times inside the ROM phase
         t_rom = np.asarray(rom["t_s"], dtype=np.float64) + float(rom["start_server_s"])
         true_twist = {
@@ -106,3 +116,96 @@ def truth_figures(
             "the twist the same chain computes from the true motion (no ROM truth)"
         )
     return {"report": report, "named_true": tnamed, "true_axes": true_axes}
+
+
+class _WorldModel:
+    """An AxisModel look-alike holding world-frame axes (for ``axis_errors_deg``)."""
+
+    def __init__(self, axes: dict[str, Array]) -> None:
+        from types import SimpleNamespace
+
+        self.limbs = {k: SimpleNamespace(axes=v, status="ok") for k, v in axes.items()}
+
+
+def _as_model(axes: dict[str, Array]) -> Any:
+    return _WorldModel(axes)
+
+
+def _axes_in_world(
+    inp: AnalysisInput,
+    res: dict[str, Any],
+    rom: dict[str, Any],
+    phase: tuple[float, float],
+    true_calibration: bool,
+) -> dict[str, dict[str, Array]]:
+    """Per method, the learned axes carried into the world by the fused parent frame at the
+    start of the phase (mean over its first 0.3 s)."""
+    from kinefuse.analysis._vec import chordal_mean
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+
+    t = inp.seq.t_s
+    start = float(rom["start_server_s"])
+    win = np.flatnonzero((t >= start) & (t <= start + 0.3))
+    frames = res["norm"].frames
+    out: dict[str, dict[str, Array]] = {}
+    for m, model in res["models"].items():
+        axes = {}
+        for name, lm in model.limbs.items():
+            if not lm.usable:
+                continue
+            par = LIMB_PARENTS[LIMB_INDEX[name]]
+            r = frames[win, par]
+            r = r[np.isfinite(r).all(axis=(1, 2))]
+            if len(r) == 0:
+                continue
+            axes[name] = (chordal_mean(r) @ lm.axes.T).T
+        out[m] = axes
+    return out
+
+
+def _true_world(
+    rom: dict[str, Any], inp: AnalysisInput, true_calibration: bool
+) -> dict[str, Array]:
+    """The generator's world axes, rotated into the calibration's world."""
+    rot = np.eye(3)
+    if not true_calibration and inp.sensor_poses is not None:
+        from kinefuse.io.store import SessionStore
+        from kinefuse.report.evaluate import calibration_alignment
+
+        with SessionStore.open(inp.path) as store:
+            truth2world, _ = calibration_alignment(store, inp.sensor_poses)
+        rot = truth2world[:3, :3]
+    return {
+        k: (rot @ np.asarray(v, dtype=np.float64).reshape(-1, 3).T).T
+        for k, v in rom["axes_world"].items()
+    }
+
+
+def _segment_angle_rmse(
+    seq: SkeletonSequence, tseq: SkeletonSequence, frames: Any
+) -> dict[str, float]:
+    """RMSE (degrees) of the included knee and elbow angles from positions, fused vs truth."""
+    from kinefuse.skeleton import JOINT_INDEX as J
+
+    def included(p: Array, a: str, b: str, c: str) -> Array:
+        u = p[:, J[a]] - p[:, J[b]]
+        v = p[:, J[c]] - p[:, J[b]]
+        cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
+        return 180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+    p, q = seq.kinect_positions(), tseq.kinect_positions()
+    out = {}
+    for side in ("Left", "Right"):
+        for name, (a, b, c) in (
+            ("knee", ("Hip", "Knee", "Ankle")),
+            ("elbow", ("Shoulder", "Elbow", "Wrist")),
+        ):
+            d = included(p, a + side, b + side, c + side) - included(
+                q, a + side, b + side, c + side
+            )
+            d = d[frames]
+            d = d[np.isfinite(d)]
+            out[f"{name}_{side.lower()}"] = (
+                float(np.sqrt(np.mean(d**2))) if d.size else float("nan")
+            )
+    return out

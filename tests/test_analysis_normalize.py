@@ -1,0 +1,126 @@
+"""Normalization (B.1): default pose, body planes, recording independence, propagation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kinefuse import analysis as an
+from kinefuse.analysis._vec import rodrigues
+from kinefuse.analysis.normalize import body_frame, propagate
+from kinefuse.analysis.rom import make_rom_motion
+from kinefuse.errors import InputError
+from kinefuse.motion import load_motion
+from kinefuse.skeleton import standing_pose
+
+
+@pytest.fixture(scope="module")
+def rom(shared_data):  # type: ignore[no-untyped-def]
+    clip = load_motion(shared_data / "motion" / "cmu" / "131_01_scaled_metres.bvh")
+    d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
+    motion, truth = make_rom_motion(clip.positions[d], None, np.random.default_rng(3), rate_hz=30.0)
+    return an.SkeletonSequence.from_motion(motion), truth
+
+
+def _moved(seq: an.SkeletonSequence, yaw_deg: float, shift: tuple[float, float]):  # type: ignore[no-untyped-def]
+    r = rodrigues(np.array([0.0, 0.0, 1.0]), np.radians(yaw_deg))
+    p = seq.positions @ r.T + np.array([*shift, 0.0])
+    return an.SkeletonSequence.from_kinect(p, t_s=seq.t_s)
+
+
+def test_body_frame_of_the_standing_pose() -> None:
+    b = body_frame(standing_pose())  # faces +x, z up
+    np.testing.assert_allclose(b[:, 0], [1, 0, 0], atol=0.05)  # forward
+    np.testing.assert_allclose(b[:, 1], [0, 1, 0], atol=0.05)  # left
+    np.testing.assert_allclose(b[:, 2], [0, 0, 1], atol=0.05)  # up
+
+
+def test_default_pose_is_a_held_default_pose(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, truth = rom
+    d = an.find_default_pose(seq)
+    dev = np.linalg.norm(seq.positions[d] - truth.default_pose, axis=-1)
+    assert dev.max() < 0.08  # metres: the sway along the chains, no movement under way
+    assert np.median(dev) < 0.015  # metres
+
+
+def test_default_pose_ignores_a_turned_trunk(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, truth = rom
+    d = an.find_default_pose(seq)
+    trunk_twist = [
+        (a, b) for limb, dof, a, b in truth.movements if (limb, dof) == ("trunk", "twist")
+    ]
+    t = seq.t_s[d]
+    assert not any(a <= t <= b for a, b in trunk_twist)
+
+
+def test_limb_frames_do_not_depend_on_where_the_person_stood(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, _ = rom
+    a = an.normalize(seq)
+    b = an.normalize(_moved(seq, 137.0, (2.0, -1.5)))
+    cons = an.normalization_consistency([a, b])
+    assert cons["max"] < 1e-4  # degrees: the same body gives the same frames
+    assert a.default_frame == b.default_frame
+
+
+def test_consistency_grows_with_noise(rom, rng) -> None:  # type: ignore[no-untyped-def]
+    seq, _ = rom
+    takes = []
+    for k in range(3):
+        moved = _moved(seq, 60.0 * k, (0.5 * k, 0.0))
+        noisy = moved.positions + rng.normal(scale=0.004, size=moved.positions.shape)
+        takes.append(an.normalize(an.SkeletonSequence.from_kinect(noisy, t_s=seq.t_s)))
+    cons = an.normalization_consistency(takes)
+    assert 0.05 < cons["median"] < 5.0  # degrees with 4 mm of joint noise
+    assert cons["pairs"] == 3
+
+
+def test_frames_are_rotations_and_follow_the_limbs(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, _ = rom
+    norm = an.normalize(seq)
+    f = norm.frames.reshape(-1, 3, 3)
+    f = f[np.isfinite(f).all(axis=(1, 2))]
+    np.testing.assert_allclose(
+        f @ np.swapaxes(f, 1, 2), np.broadcast_to(np.eye(3), f.shape), atol=1e-9
+    )
+    p = seq.kinect_positions()
+    body_rel = np.einsum("ji,jk->ik", norm.body2world, norm.frames[norm.default_frame, 0])
+    np.testing.assert_allclose(body_rel, np.eye(3), atol=0.02)  # the root carries the body frame
+    for i, lb in enumerate(an.LIMBS[1:], start=1):
+        u = p[:, lb.distal_index] - p[:, lb.proximal_index]
+        u /= np.linalg.norm(u, axis=-1, keepdims=True)
+        along = np.einsum("tij,j->ti", norm.frames[:, i], norm.long_axis[i])
+        np.testing.assert_allclose(along, u, atol=1e-9, err_msg=lb.name)
+
+
+def test_propagate_gives_the_same_frames_for_new_data(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, _ = rom
+    norm = an.normalize(seq)
+    frames, weight = propagate(norm, seq.kinect_positions()[500:600])
+    np.testing.assert_allclose(frames, norm.frames[500:600], atol=1e-12)
+    np.testing.assert_allclose(weight, norm.twist_weight[500:600])
+
+
+def test_observable_dof_are_stated(rom) -> None:  # type: ignore[no-untyped-def]
+    seq, _ = rom
+    norm = an.normalize(seq)
+    assert norm.observable["head"]["twist"] == "not observable"
+    assert norm.observable["forearm_left"]["twist"] in ("observable", "when bent")
+    assert norm.observable["thigh_left"]["swing_axes"] == 2
+    assert norm.status["foot_left"] == "twist not observable from positions"
+
+
+def test_missing_body_joint_is_a_clear_error() -> None:
+    p = np.repeat(standing_pose()[None], 5, axis=0)
+    names = [
+        n for n in an.SkeletonSequence.from_kinect(p, rate_hz=30).joint_names if n != "KneeLeft"
+    ]
+    keep = [
+        i
+        for i, n in enumerate(an.SkeletonSequence.from_kinect(p, rate_hz=30).joint_names)
+        if n != "KneeLeft"
+    ]
+    seq = an.SkeletonSequence.from_kinect(p[:, keep], rate_hz=30.0, joint_names=names)
+    with pytest.raises(InputError, match="needs the body joints KneeLeft"):
+        an.normalize(seq)
+    with pytest.raises(InputError, match="default_frame must be a frame index"):
+        an.normalize(an.SkeletonSequence.from_kinect(p, rate_hz=30.0), default_frame=9)

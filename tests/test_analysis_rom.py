@@ -1,0 +1,68 @@
+"""The range-of-motion generator: its truth is self-consistent, its schedule as documented."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kinefuse import analysis as an
+from kinefuse.analysis.rom import MOVEMENTS, make_rom_motion, prepend_rom
+from kinefuse.errors import InputError
+from kinefuse.motion import load_motion
+
+
+@pytest.fixture(scope="module")
+def clip(shared_data):  # type: ignore[no-untyped-def]
+    return load_motion(shared_data / "motion" / "cmu" / "131_01_scaled_metres.bvh")
+
+
+def test_rom_keeps_the_subject_and_its_schedule(clip) -> None:  # type: ignore[no-untyped-def]
+    d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
+    pose = clip.positions[d]
+    motion, truth = make_rom_motion(pose, 90.0, np.random.default_rng(1), rate_hz=30.0)
+    assert motion.duration_s == pytest.approx(90.0, abs=0.1)
+    assert [(m[0], m[1]) for m in truth.movements] == [
+        (lb, str(dof)) for lb, dof, _, _ in MOVEMENTS
+    ]
+    starts = [m[2] for m in truth.movements]
+    assert starts == sorted(starts)
+    # bone lengths are the subject's throughout (rigid limbs)
+    for lb in an.LIMBS:
+        ln = np.linalg.norm(
+            motion.positions[:, lb.distal_index] - motion.positions[:, lb.proximal_index], axis=-1
+        )
+        ref = np.linalg.norm(pose[lb.distal_index] - pose[lb.proximal_index])
+        np.testing.assert_allclose(ln, ref, atol=1e-9, err_msg=lb.name)
+    # true axes are unit, orthogonal to the rest direction, within the tilt of the templates
+    for name, a in truth.axes.items():
+        np.testing.assert_allclose(np.linalg.norm(a, axis=-1), 1.0, atol=1e-12)
+        np.testing.assert_allclose(a @ truth.rest[name], 0.0, atol=1e-9)
+
+
+def test_speeds_are_realistic(clip) -> None:  # type: ignore[no-untyped-def]
+    _motion, truth = make_rom_motion(
+        clip.positions[0], None, np.random.default_rng(2), rate_hz=60.0
+    )
+    for limb, ang in truth.angles.items():
+        if ang.shape[1]:
+            peak = np.degrees(np.abs(np.diff(ang, axis=0)).max()) * 60.0
+            assert 20.0 < peak < 200.0, limb  # degrees per second
+
+
+def test_prepend_blends_into_the_clip(clip) -> None:  # type: ignore[no-untyped-def]
+    rom, _ = make_rom_motion(clip.positions[0], None, np.random.default_rng(3))
+    both = prepend_rom(rom, clip, blend_s=1.0)
+    n_rom = int(np.floor(rom.duration_s * clip.rate_hz)) + 1
+    n_blend = int(clip.rate_hz)
+    assert both.n_frames == n_rom + n_blend + clip.n_frames
+    np.testing.assert_allclose(both.positions[-clip.n_frames :], clip.positions)
+    seams = both.positions[n_rom - 5 : n_rom + n_blend + 5]
+    step = np.linalg.norm(np.diff(seams, axis=0), axis=-1).max()
+    assert step < 0.03  # metres per frame at 120 Hz (3.6 m/s): no jump at the seams
+
+
+def test_bad_input(clip) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(InputError, match="default_pose must be the 25 Kinect joints"):
+        make_rom_motion(np.zeros((24, 3)))
+    with pytest.raises(InputError, match="would move limbs at"):
+        make_rom_motion(clip.positions[0], 5.0)
