@@ -10,28 +10,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.calibration.body import (
+    FloorFit,
+    fit_foot_plane,
+    refine_registration,
+    world_from_floor,
+)
+from kinefuse.cli import realdata_main as main
 from kinefuse.errors import InputError, SyncError
 from kinefuse.fusion.best import SensorStream
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.io.kinect_multitrack import MultitrackStream, read_kinect_multitrack
-from kinefuse.report.real_fusion import (
-    FloorFit,
-    consistency,
-    fit_clock_lower_envelope,
-    fit_foot_plane,
-    format_report,
-    fuse_multitrack,
-    interpolate,
+from kinefuse.io.kinect_multitrack import (
+    MultitrackStream,
     kmt_rotation,
-    main,
+    read_kinect_multitrack,
     reference_sensor,
-    refine_registration,
-    residual_lag_s,
     sensor_poses,
     unique_frames,
-    world_from_floor,
 )
+from kinefuse.realdata_app import format_report, fuse_multitrack
+from kinefuse.report.consistency import consistency
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, TrackingState, standing_pose
+from kinefuse.sync.assembly import interpolate
+from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MT_DIR = SHARED / "kinect" / "kinect_multitrack"
