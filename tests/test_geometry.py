@@ -13,6 +13,7 @@ from kinefuse.geometry.transforms import (
     look_at,
     make_transform,
     rotation_angle_deg,
+    rotation_vector_deg,
 )
 
 
@@ -122,3 +123,22 @@ def test_check_rigid_finds_what_is_not_rigid() -> None:
         check_rigid(np.stack([good, np.full((4, 4), np.nan)]), "poses")
     with pytest.raises(InputError, match=r"shape \(\.\.\., 4, 4\)"):
         check_rigid(np.eye(3))
+
+
+def test_rotation_vector_deg_round_trips_through_scipy(rng) -> None:
+    from scipy.spatial.transform import Rotation
+
+    for _ in range(50):
+        r = random_rotation(rng)
+        rv = rotation_vector_deg(r)
+        np.testing.assert_allclose(rv, Rotation.from_matrix(r).as_rotvec(degrees=True), atol=1e-9)
+        assert np.linalg.norm(rv) == pytest.approx(rotation_angle_deg(np.eye(3), r), abs=1e-9)
+    assert (rotation_vector_deg(np.eye(3)) == 0).all()
+    # 180 degrees about an axis: the axis comes from the symmetric part (either sign is right)
+    axis = np.array([1.0, 2.0, -2.0]) / 3.0
+    half_turn = 2.0 * np.outer(axis, axis) - np.eye(3)
+    rv = rotation_vector_deg(half_turn)
+    assert np.linalg.norm(rv) == pytest.approx(180.0, abs=1e-9)
+    assert abs(rv @ axis) == pytest.approx(180.0, abs=1e-6)
+    with pytest.raises(ValueError, match=r"one \(3, 3\) rotation"):
+        rotation_vector_deg(np.eye(4))

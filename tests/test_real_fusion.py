@@ -10,27 +10,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.calibration.body import (
+    FloorFit,
+    fit_foot_plane,
+    refine_registration,
+    world_from_floor,
+)
+from kinefuse.cli import realdata_main as main
 from kinefuse.errors import InputError, SyncError
 from kinefuse.fusion.best import SensorStream
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.io.kinect_multitrack import MultitrackStream, read_kinect_multitrack
-from kinefuse.report.real_fusion import (
-    FloorFit,
-    consistency,
-    fit_clock_lower_envelope,
-    fit_foot_plane,
-    format_report,
-    fuse_multitrack,
-    interpolate,
+from kinefuse.io.kinect_multitrack import (
+    MultitrackStream,
     kmt_rotation,
-    main,
+    read_kinect_multitrack,
     reference_sensor,
-    refine_registration,
-    residual_lag_s,
     sensor_poses,
     unique_frames,
-    world_from_floor,
 )
+from kinefuse.realdata_app import format_report, fuse_multitrack
+from kinefuse.report.consistency import consistency
 from kinefuse.skeleton import (
     JOINT_INDEX,
     JOINTS,
@@ -39,6 +38,8 @@ from kinefuse.skeleton import (
     bone_index_array,
     standing_pose,
 )
+from kinefuse.sync.assembly import interpolate
+from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MT_DIR = SHARED / "kinect" / "kinect_multitrack"
@@ -57,7 +58,7 @@ def real_runs() -> dict[str, tuple[dict, list]]:
     """Both real files fused once (about 2 s each), with what each scenario's fusion was given
     and gave: ``(report, [(streams, grid, consistency result), ...])``. The recorder passes every
     call through to the real :func:`consistency` unchanged."""
-    import kinefuse.report.real_fusion as rf
+    import kinefuse.realdata_app as rf
 
     out: dict[str, tuple[dict, list]] = {}
     real_consistency = rf.consistency

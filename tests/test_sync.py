@@ -8,6 +8,7 @@ import pytest
 from kinefuse.errors import SyncError
 from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_clock
 from kinefuse.sync import assemble_latest, estimate_clock, probe_offsets
+from kinefuse.sync.assembly import interp_neighbours, interpolate, latest_in_window
 
 
 def test_probe_formulas_match_the_paper() -> None:
@@ -66,3 +67,32 @@ def test_assembly_takes_latest_within_window(rng) -> None:
     # a frame time before any capture gets nothing
     b = assemble_latest([-1.0], [c.t_true_s for c in caps], joints, states)
     assert (b.index == -1).all() and np.isnan(b.joints).all()
+
+
+def test_latest_in_window_returns_rows_of_the_unsorted_stream() -> None:
+    t = np.array([0.30, 0.10, 0.20, 0.20, 0.50])  # any order, with a tie
+    rows, age, ok = latest_in_window(t, [0.05, 0.10, 0.25, 0.33, 0.45, 0.55], window_s=0.1)
+    # 0.05: nothing yet; 0.10: row 1 (age 0); 0.25: the later of the tied rows (3);
+    # 0.33: row 0; 0.45: row 0 is 0.15 s old, outside the window; 0.55: row 4
+    np.testing.assert_array_equal(rows, [-1, 1, 3, 0, -1, 4])
+    np.testing.assert_array_equal(ok, rows >= 0)
+    np.testing.assert_allclose(age[ok], [0.0, 0.05, 0.03, 0.05], atol=1e-12)
+    assert np.isnan(age[~ok]).all()
+    none_rows, none_age, none_ok = latest_in_window([], [0.0, 1.0], window_s=0.1)
+    assert (none_rows == -1).all() and np.isnan(none_age).all() and not none_ok.any()
+
+
+def test_interpolation_stops_at_gaps_and_takes_the_ends_within_half_a_frame() -> None:
+    t = np.array([0.2, 0.0, 0.1, 0.6])  # unsorted; a 0.4 s gap between 0.2 and 0.6
+    v = 10.0 * t
+    q = np.array([-0.01, -0.03, 0.05, 0.15, 0.4, 0.61, 0.63])
+    i0, i1, w, ok = interp_neighbours(t, q, max_gap_s=0.1)
+    np.testing.assert_array_equal(ok, [True, False, True, True, False, True, False])
+    est = v[i0] * (1 - w) + v[i1] * w
+    np.testing.assert_allclose(est[ok], [0.0, 0.5, 1.5, 6.0], atol=1e-12)
+    p = interpolate(t, np.stack([v, -v], axis=1), q, max_gap_s=0.1)
+    assert p.shape == (q.size, 2)
+    np.testing.assert_allclose(p[ok, 0], est[ok], atol=1e-12)
+    assert np.isnan(p[~ok]).all()
+    # a longer gap limit bridges the gap
+    np.testing.assert_allclose(interpolate(t, v, [0.4], max_gap_s=0.5), [4.0], atol=1e-12)

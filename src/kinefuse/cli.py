@@ -266,9 +266,22 @@ def _cmd_realism(args: argparse.Namespace) -> int:
 
 
 def _cmd_realdata(args: argparse.Namespace) -> int:
-    from kinefuse.report.real_fusion import main as realdata_main
+    from kinefuse.realdata_app import format_report, fuse_multitrack
 
-    return int(realdata_main(args.rest) or 0)
+    results = [
+        fuse_multitrack(
+            p,
+            registration=args.registration,
+            other_offaxis_deg=args.other_offaxis_deg,
+            motion_latency=not args.no_motion_latency,
+        )
+        for p in args.paths
+    ]
+    if args.json:
+        print(json.dumps(results if len(results) > 1 else results[0], indent=1))
+    else:
+        print("\n\n".join(format_report(r) for r in results))
+    return 0
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -456,9 +469,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "realdata",
         help="fuse the real two-Kinect recordings and report their consistency (docs/real_data.md)",
-        add_help=False,
+        description="Fuse real two-Kinect KinectMultiTrack logs and report their consistency.",
     )
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="files and options of the report")
+    p.add_argument("paths", nargs="+", help="KinectMultiTrack CSV logs")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--registration", choices=("refined", "logged"), default="refined")
+    p.add_argument("--other-offaxis-deg", type=float, default=0.0)
+    p.add_argument(
+        "--no-motion-latency",
+        action="store_true",
+        help="align by the clock fit alone (no relative latency from the motion)",
+    )
     p.set_defaults(func=_cmd_realdata)
 
     _add_analyze_parser(sub)
@@ -489,10 +510,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     if argv[:1] == ["realism"]:
-        # these reports have their own option parsers: hand them everything after the name
+        # this report has its own option parser: hand it everything after the name
         args = argparse.Namespace(func=_cmd_realism, rest=argv[1:])
-    elif argv[:1] == ["realdata"]:
-        args = argparse.Namespace(func=_cmd_realdata, rest=argv[1:])
     else:
         args = parser.parse_args(argv)
     _exit_cleanly_on_sigterm()
@@ -515,6 +534,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+
+
+def realdata_main(argv: Sequence[str]) -> int:
+    """``kinefuse realdata ARGV...``: the realdata command with its own arguments only."""
+    return main(["realdata", *argv])
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
+from kinefuse.sync.assembly import interp_neighbours, latest_in_window
 
 Array = NDArray[np.float64]
 
@@ -279,24 +280,14 @@ def _measurement_cov(
 def _interp_stream(
     t_grid: Array, t_obs: Array, p: Array, cov: Array, max_gap_s: float
 ) -> tuple[Array, Array]:
-    """Linear interpolation of one stream ``(N, 25, 3)`` to ``t_grid``; NaN across big gaps."""
-    order = np.argsort(t_obs, kind="stable")
-    t, p, cov = t_obs[order], p[order], cov[order]
-    k = np.searchsorted(t, t_grid, side="right")
-    i0 = np.clip(k - 1, 0, len(t) - 1)
-    i1 = np.clip(k, 0, len(t) - 1)
-    dt = t[i1] - t[i0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(dt > 0, (t_grid - t[i0]) / dt, 0.0)
-    inside = (k > 0) & (k < len(t)) & (dt <= max_gap_s)
-    # at the very ends, accept the nearest sample within half a frame
-    near_end = ((k == 0) & (t[0] - t_grid <= 1 / 60)) | ((k == len(t)) & (t_grid - t[-1] <= 1 / 60))
-    w = np.where(near_end, np.where(k == 0, 0.0, 1.0), w)
-    ok = inside | near_end
+    """Linear interpolation of one stream ``(N, 25, 3)`` to ``t_grid``; NaN across big gaps.
+
+    A joint missing at either neighbour is missing (unless the weight is 0/1 on the good one);
+    its covariance is the larger of the two neighbours'.
+    """
+    i0, i1, w, ok = interp_neighbours(t_obs, t_grid, max_gap_s=max_gap_s)
     wv = w[:, None, None]
-    out = p[i0] * (1 - wv) + p[i1] * wv
-    # a joint missing at either neighbour is missing (unless the weight is 0/1 on the good one)
-    out = np.where(ok[:, None, None], out, np.nan)
+    out = np.where(ok[:, None, None], p[i0] * (1 - wv) + p[i1] * wv, np.nan)
     c = np.maximum(cov[i0], cov[i1]) if cov.size else cov
     c = np.where(np.isfinite(out)[..., None], c, np.nan)
     return out, c
@@ -305,11 +296,9 @@ def _interp_stream(
 def _latest_stream(
     t_grid: Array, t_obs: Array, p: Array, cov: Array, window_s: float
 ) -> tuple[Array, Array]:
-    order = np.argsort(t_obs, kind="stable")
-    t, p, cov = t_obs[order], p[order], cov[order]
-    k = np.searchsorted(t, t_grid, side="right") - 1
-    ok = (k >= 0) & (t_grid - t[np.maximum(k, 0)] < window_s)
-    kk = np.maximum(k, 0)
+    """The latest observation of one stream in ``(T - window_s, T]`` at each grid time."""
+    rows, _, ok = latest_in_window(t_obs, t_grid, window_s=window_s)
+    kk = np.maximum(rows, 0)
     out = np.where(ok[:, None, None], p[kk], np.nan)
     c = np.where(ok[:, None, None, None], cov[kk], np.nan)
     return out, c

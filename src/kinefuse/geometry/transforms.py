@@ -164,6 +164,27 @@ def rotation_angle_deg(r_a: ArrayLike, r_b: ArrayLike) -> NDArray[np.float64]:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def rotation_vector_deg(r: ArrayLike) -> Array:
+    """Rotation vector ``(3,)`` of one rotation ``(3, 3)``, degrees (axis times angle).
+
+    The angle is :func:`rotation_angle_deg` from the identity; at 180 degrees the axis comes from
+    the symmetric part of ``r``.
+    """
+    m = np.asarray(r, dtype=np.float64)
+    if m.shape != (3, 3):
+        raise ValueError(f"rotation_vector_deg takes one (3, 3) rotation, got {m.shape}")
+    angle_deg = float(rotation_angle_deg(np.eye(3), m))
+    if angle_deg < np.degrees(1e-12):
+        return np.zeros(3)
+    axis = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+    n = float(np.linalg.norm(axis))
+    if n < 1e-12:  # 180 degrees: axis from the symmetric part
+        w, v = np.linalg.eigh((m + m.T) / 2.0)
+        axis = v[:, int(np.argmax(w))]
+        n = 1.0
+    return np.asarray(angle_deg * axis / n)
+
+
 def kabsch(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None) -> Array:
     """Rigid transform ``src2dst`` minimizing the (weighted) squared distances (Kabsch/Umeyama,
     no scale). Rows with NaN in either set are ignored.

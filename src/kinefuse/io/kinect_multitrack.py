@@ -24,11 +24,18 @@ spaces, in any order; extra columns are ignored):
 
 The reader converts joints to kinefuse's sensor axes (x right, y down, z forward: ``(-x, -y, z)``,
 a rotation by 180 degrees about z) and the joint order to :data:`kinefuse.skeleton.JOINTS`.
+
+What the rows mean, beyond their values: a row repeats a sensor's latest skeleton whenever another
+sensor triggered the log line, and rows are logged out of capture order (:func:`unique_frames`
+keeps each frame's first receipt, in capture order); which sensor's frame the joints were mapped
+into (:func:`reference_sensor`); and KinectMultiTrack's mapping itself (:func:`kmt_rotation`),
+from which each sensor's pose is reconstructed (:func:`sensor_poses`).
 """
 
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,9 +43,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.skeleton import JOINTS, N_JOINTS
+from kinefuse.geometry.transforms import make_transform
+from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS
 
 Array = NDArray[np.float64]
+
+#: ``Kinect_Config`` codes of the shipped files: the sensor layout.
+LAYOUT_NAMES = {0: "parallel", 1: "45 deg"}
+#: Nominal angle between the two optical axes of each KinectMultiTrack layout, degrees.
+LAYOUT_NOMINAL_DEG = {0: 0.0, 1: 45.0}
+#: ``Scenario_Id`` codes: the task.
+SCENARIO_NAMES = {1: "stand", 2: "steps", 3: "walk"}
 
 _META_COLUMNS = (
     "Kinect_Config",
@@ -271,3 +286,189 @@ def _is_float(text: str) -> bool:
 def _first(values: Array) -> float:
     finite = values[np.isfinite(values)]
     return float(finite[0]) if finite.size else float("nan")
+
+
+# --------------------------------------------------------------------------------------------
+# what a log's rows mean: distinct frames, the reference sensor, KinectMultiTrack's mapping
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SensorFrames:
+    """One sensor's distinct frames, sorted by capture time.
+
+    Attributes
+    ----------
+    sensor_id : str
+    t_sensor_s, t_receive_s : (N,) float
+        Sensor clock, and first receive time (seconds since the file's first row).
+    joints : (N, 25, 3) float
+        As logged (reference sensor's frame, kinefuse axes), metres.
+    scenario : (N,) int
+    n_rows, n_duplicates, n_out_of_order : int
+        Rows in the file, rows that repeated an already-logged frame, and frames logged after a
+        frame captured later.
+    """
+
+    sensor_id: str
+    t_sensor_s: Array
+    t_receive_s: Array
+    joints: Array
+    scenario: NDArray[np.int64]
+    n_rows: int
+    n_duplicates: int
+    n_out_of_order: int
+
+
+def unique_frames(stream: MultitrackStream) -> SensorFrames:
+    """Reduce a logged stream to its distinct frames (first receipt of each), in capture order."""
+    ticks = np.round(stream.t_sensor_s * 1e7).astype(np.int64)
+    order = np.lexsort((stream.t_receive_s, ticks))
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = np.diff(ticks[order]) != 0
+    keep = order[first]
+    # out of order: a first appearance logged after the first appearance of a later frame
+    row_first = np.sort(keep)
+    later = np.maximum.accumulate(ticks[row_first])
+    ooo = int((ticks[row_first][1:] < later[:-1]).sum())
+    return SensorFrames(
+        sensor_id=stream.sensor_id,
+        t_sensor_s=stream.t_sensor_s[keep],
+        t_receive_s=stream.t_receive_s[keep],
+        joints=stream.joints_m[keep],
+        scenario=stream.scenario[keep],
+        n_rows=stream.n_frames,
+        n_duplicates=int(stream.n_frames - keep.size),
+        n_out_of_order=ooo,
+    )
+
+
+def _facing_yaw_kinect(p_sensor: Array) -> Array:
+    """KinectMultiTrack's body yaw ``(N,)`` from the shoulders, in Kinect camera axes, radians.
+
+    ``atan2(SR.Z - SL.Z, SR.X - SL.X)`` with Kinect ``X = -x`` of kinefuse axes.
+    """
+    d = p_sensor[:, JOINT_INDEX["ShoulderRight"]] - p_sensor[:, JOINT_INDEX["ShoulderLeft"]]
+    return np.arctan2(d[:, 2], -d[:, 0])
+
+
+def kmt_rotation(delta_rad: float) -> Array:
+    """KinectMultiTrack's sensor-to-reference rotation for a yaw difference, kinefuse axes.
+
+    KinectMultiTrack maps a sensor's point ``p_i`` into the reference's frame as
+    ``c_ref + M (p_i - c_i)`` with ``M`` a rotation about the vertical camera axis by the
+    difference of the body's initial yaws ``delta = a_i - a_ref`` (``X' = X cos + Z sin``,
+    ``Z' = Z cos - X sin`` in Kinect axes). In kinefuse axes (``x = -X``)::
+
+        M = [[cos d, 0, -sin d], [0, 1, 0], [sin d, 0, cos d]]
+
+    Returns
+    -------
+    (3, 3) float
+    """
+    c, s = math.cos(delta_rad), math.sin(delta_rad)
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
+def sensor_poses(
+    *,
+    c_ref: Array,
+    delta_rad: float,
+    other_init_dist_m: float,
+    ref2world: Array,
+    correction: Array,
+    other_offaxis_deg: float = 0.0,
+    height_difference_m: float = 0.0,
+) -> tuple[Array, Array]:
+    """The other sensor's pose: ``other2ref`` (4, 4) and its mapping offset ``o_kmt`` (3,).
+
+    KinectMultiTrack's mapping is ``p_ref = c_ref + M (p_i - c_i)`` (:func:`kmt_rotation`), so
+    the other sensor's optical centre (``p_i = 0``) sits at ``o = c_ref - M c_i`` in the mapped
+    frame, and ``other2ref = correction @ [M | o]``. ``c_i``, the body's initial centre in the
+    other sensor's own frame, is only partly logged: its depth is ``Skeleton_Init_Dist``; its
+    lateral coordinate is ``depth * tan(other_offaxis_deg)`` (an assumption: the sensor was aimed
+    at the person, default 0); its vertical coordinate is solved so that the sensor's height
+    above the floor equals the reference's plus ``height_difference_m`` (the logged heights).
+
+    Parameters
+    ----------
+    c_ref : (3,) float
+        The body's initial centre in the reference's frame, metres.
+    delta_rad : float
+        ``a_other - a_ref``, the difference of the logged initial yaws, radians.
+    other_init_dist_m : float
+    ref2world : (4, 4) float
+    correction : (4, 4) float
+        The rigid re-registration (identity: KinectMultiTrack's mapping as logged).
+
+    Returns
+    -------
+    other2ref : (4, 4) float
+    o_kmt : (3,) float
+        The other sensor's centre in KinectMultiTrack's mapped frame (before ``correction``).
+    """
+    m = kmt_rotation(delta_rad)
+    z_i = other_init_dist_m
+    x_i = z_i * math.tan(math.radians(other_offaxis_deg))
+
+    def centre_world(y_i: float) -> Array:
+        o = c_ref - m @ np.array([x_i, y_i, z_i])
+        o_ref = correction[:3, :3] @ o + correction[:3, 3]
+        return np.asarray(ref2world[:3, :3] @ o_ref + ref2world[:3, 3])
+
+    target = float(ref2world[2, 3]) + height_difference_m
+    h0, h1 = centre_world(0.0)[2], centre_world(1.0)[2]
+    # the sensor's vertical axis is never horizontal in practice; if it were, keep c_ref's height
+    y_i = (target - h0) / (h1 - h0) if abs(h1 - h0) > 1e-6 else float(c_ref[1])
+    o_kmt = c_ref - m @ np.array([x_i, y_i, z_i])
+    return correction @ make_transform(m, o_kmt), o_kmt
+
+
+def _skeleton_ids(path: Path) -> dict[str, set[int]]:
+    """``Kinect_Id -> {Skeleton_Id}`` from the log (empty if the column is absent)."""
+    out: dict[str, set[int]] = {}
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
+        header = [c.strip() for c in next(reader)]
+        if "Skeleton_Id" not in header or "Kinect_Id" not in header:
+            return out
+        ik, isk = header.index("Kinect_Id"), header.index("Skeleton_Id")
+        for row in reader:
+            if len(row) > max(ik, isk):
+                try:
+                    out.setdefault(row[ik].strip(), set()).add(int(float(row[isk])))
+                except ValueError:
+                    continue
+    return out
+
+
+def reference_sensor(path: str | Path, rec: MultitrackRecording) -> tuple[str, str]:
+    """The sensor whose frame KinectMultiTrack mapped everything into, and how it was found.
+
+    KinectMultiTrack's logger maps every skeleton into the frame of the person's *local*
+    skeleton (a sensor at ``127.0.0.1``) or else of the first one (``Skeleton_Id`` 0). Without a
+    usable ``Skeleton_Id`` column, the reference is the sensor whose logged initial yaw matches
+    the yaw of the logged (mapped) bodies at the start of the file, which is the reference's.
+
+    Returns
+    -------
+    sensor_id : str
+    how : str
+        ``"local"``, ``"skeleton_id"`` or ``"yaw"``.
+    """
+    ids = [s.sensor_id for s in rec.streams]
+    if "127.0.0.1" in ids:
+        return "127.0.0.1", "local"
+    sk = _skeleton_ids(Path(path))
+    zero = [k for k in ids if sk.get(k) == {0}]
+    if len(zero) == 1:
+        return zero[0], "skeleton_id"
+    first = rec.streams[0]
+    yaw = float(np.median(_facing_yaw_kinect(first.joints_m[: min(30, first.n_frames)])))
+    errs = [abs(math.remainder(yaw - s.init_angle_rad, 2 * math.pi)) for s in rec.streams]
+    if not all(math.isfinite(e) for e in errs):
+        raise InputError(
+            f"{path}: cannot tell the reference sensor: no usable Skeleton_Id column and no "
+            "Skeleton_Init_Angle; the log lacks the columns KinectMultiTrack writes"
+        )
+    return ids[int(np.argmin(errs))], "yaw"

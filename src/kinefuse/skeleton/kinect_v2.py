@@ -87,6 +87,20 @@ BONES: Final[tuple[tuple[str, str], ...]] = tuple(
 )
 
 #: Capsule radius of the bone ending at each child joint, metres, for a 1.75 m adult (assumption).
+#: The trunk: the joints every Kinect tracks best and that left/right swaps of the limbs leave
+#: alone (used to register sensors from the body and to measure time lags from its motion).
+TRUNK_JOINTS: Final[tuple[str, ...]] = (
+    "SpineBase",
+    "SpineMid",
+    "SpineShoulder",
+    "Neck",
+    "Head",
+    "ShoulderLeft",
+    "ShoulderRight",
+    "HipLeft",
+    "HipRight",
+)
+
 CAPSULE_RADII_M: Final[dict[str, float]] = {
     "SpineMid": 0.14,  # lower trunk
     "SpineShoulder": 0.15,  # upper trunk (chest)
