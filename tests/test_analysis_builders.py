@@ -9,8 +9,7 @@ import pytest
 
 from kinefuse.analysis_app import load_input, prepare_out
 from kinefuse.cli import main
-from kinefuse.errors import InputError
-from kinefuse.io.atomic import WriteError
+from kinefuse.errors import InputError, OutputError
 from kinefuse.io.sequences import sequence_from_markers, sequence_from_motion_file
 from kinefuse.io.store import SessionStore
 
@@ -77,7 +76,7 @@ def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
     full = tmp_path / "full"
     full.mkdir()
     (full / "mine.txt").write_text("keep")
-    with pytest.raises(WriteError, match="fresh folder"):
+    with pytest.raises(OutputError, match="fresh folder"):
         prepare_out(full)
     assert (full / "mine.txt").read_text() == "keep"
     empty = tmp_path / "empty"

@@ -168,7 +168,7 @@ def test_bad_inputs_fail_clearly(
     full.mkdir()
     (full / "notes.txt").write_text("mine")
     code, _, err = run(capsys, "analyze", walk, "--out", str(full))
-    assert code == 2 and "fresh folder" in err
+    assert code == 2 and "holds files kinefuse did not write" in err
     assert [p.name for p in full.iterdir()] == ["notes.txt"]
     code, _, err = run(capsys, "analyze", str(tmp_path / "none.bvh"), "--out", str(tmp_path / "c"))
     assert code == 2 and "no such file" in err
@@ -181,6 +181,6 @@ def test_read_only_output_folder_fails_clearly(
     clip = str(shared_data / "motion/cmu/02_walk_a.amc")
     code, _, err = run(capsys, "analyze", clip, "--out", str(readonly_folder / "out"))
     assert code == 2 and "Traceback" not in err
-    reasons = ("Permission denied", "not permitted", "Read-only file system")
+    reasons = ("Permission denied", "not permitted", "Read-only file system", "not writable")
     assert str(readonly_folder) in err and any(r in err for r in reasons)
     assert list(readonly_folder.iterdir()) == []

@@ -22,9 +22,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import shutil
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -35,8 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.analysis.sequence import SkeletonSequence
-from kinefuse.errors import InputError
-from kinefuse.io.atomic import WriteError, atomic_write_text
+from kinefuse.errors import InputError, OutputError
+from kinefuse.io.outputs import atomic_dir, atomic_write_text, check_output_folder
 
 Array = NDArray[np.float64]
 
@@ -151,32 +148,13 @@ def load_input(
     )
 
 
-def check_out(out: Path) -> None:
-    """Refuse an output path that is a file or a folder with files in it; create its parents."""
-    if out.exists():
-        if not out.is_dir():
-            raise WriteError(f"{out} exists and is not a folder; choose a fresh output folder")
-        if any(out.iterdir()):
-            raise WriteError(
-                f"{out} already holds files; kinefuse analyze writes into a fresh folder only "
-                "(it never overwrites files it did not make): choose a new --out"
-            )
-        return
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise WriteError(
-            f"{out.parent}: cannot create the folder: {e.strerror or e}; choose another --out"
-        ) from None
-
-
 def prepare_out(out: Path) -> Path:
     """Create the output folder, or accept an existing empty one; refuse anything else."""
     if out.exists():
         if not out.is_dir():
-            raise WriteError(f"{out} exists and is not a folder; choose a fresh output folder")
+            raise OutputError(f"{out} exists and is not a folder; choose a fresh output folder")
         if any(out.iterdir()):
-            raise WriteError(
+            raise OutputError(
                 f"{out} already holds files; kinefuse analyze writes into a fresh folder only "
                 "(it never overwrites files it did not make): choose a new --out"
             )
@@ -184,7 +162,7 @@ def prepare_out(out: Path) -> Path:
     try:
         out.mkdir(parents=True)
     except OSError as e:
-        raise WriteError(
+        raise OutputError(
             f"{out}: cannot create the output folder: {e.strerror or e}; choose another --out"
         ) from None
     return out
@@ -209,7 +187,8 @@ def write_limb_frames(path: Path, t_s: Array, limbs: Sequence[str], transforms: 
             row = vals[k, i]
             cells = ",".join("" if not np.isfinite(v) else f"{v:.6f}" for v in row)
             buf.write(f"{tk},{name},{cells}\n")
-    return atomic_write_text(path, buf.getvalue())
+    return atomic_write_text(path, buf.getvalue(), what="limb frames file",
+                             recognizer=lambda _p: False)  # fmt: skip
 
 
 def _choose_phase(
@@ -323,46 +302,18 @@ def run_analyze(
                 true_calibration=true_calibration and kind == "session",
             )
         )
-    check_out(out)  # fail early (name taken) before any work
-    stage = _staging_folder(out)
-    try:
+    check_output_folder(out, "analysis folder")  # fail early, before any work
+    # built in a fresh folder beside --out and swapped in when complete: a failed run leaves
+    # nothing, and only an empty folder or an earlier kinefuse output is ever replaced
+    with atomic_dir(out, what="analysis folder") as stage:
         report = _analyse_all(
             loaded, stage, calibration_phase, plots, true_calibration, say, plot_dpi
         )
         report["out"] = str(out)
         text = json_text(report).replace(str(stage), str(out))
-        atomic_write_text(stage / "analysis.json", text + "\n")
-        _publish(stage, out)
-    finally:
-        if stage.exists():
-            shutil.rmtree(stage)
+        atomic_write_text(stage / "analysis.json", text + "\n", what="analysis report",
+                          recognizer=lambda _p: False)  # fmt: skip
     return dict(json.loads(text))
-
-
-def _staging_folder(out: Path) -> Path:
-    """A hidden folder beside ``out`` to write into, renamed onto ``out`` when all is done."""
-    try:
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-        mask = os.umask(0o022)
-        os.umask(mask)
-        os.chmod(stage, 0o777 & ~mask)  # mkdtemp makes 0700; the result gets the usual mode
-        return stage
-    except OSError as e:
-        raise WriteError(
-            f"{out.parent}: cannot write there: {e.strerror or e}; choose another --out"
-        ) from None
-
-
-def _publish(stage: Path, out: Path) -> None:
-    """Move the finished folder onto ``out`` (an empty folder we may replace, or a new name)."""
-    try:
-        if out.exists():
-            out.rmdir()  # only succeeds when empty: never removes someone's files
-        os.rename(stage, out)
-    except OSError as e:
-        raise WriteError(
-            f"{out}: cannot put the results there: {e.strerror or e}; they were not kept"
-        ) from None
 
 
 def _analyse_all(

@@ -17,7 +17,7 @@ in time order and angles in the order given; an empty ``degrees`` cell is a miss
 tab-separated, one row per frame; missing values are written ``NaN`` (OpenSim reads it as NaN).
 Column names must be OpenSim-safe (letters, digits, ``_``, ``-``, ``.``): no blanks or tabs.
 
-Both writers go through a temporary file and an atomic rename (:mod:`kinefuse.io.atomic`) and
+Both writers go through a temporary file and an atomic rename (:mod:`kinefuse.io.outputs`) and
 refuse to replace an existing file unless ``overwrite=True``.
 """
 
@@ -32,7 +32,17 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.atomic import atomic_write_text
+from kinefuse.io.outputs import atomic_write_text
+
+#: what each writer's file is, for messages
+_WHAT = {".csv": "angles file", ".mot": "OpenSim motion file"}
+
+
+def _write(path: str | Path, text: str, overwrite: bool) -> Path:
+    """Atomic write; an existing file is replaced only with ``overwrite`` (the caller made it)."""
+    what = _WHAT.get(Path(path).suffix.lower(), "angles file")
+    return atomic_write_text(path, text, what=what, recognizer=lambda _p: overwrite)
+
 
 Array = NDArray[np.float64]
 
@@ -99,7 +109,7 @@ def write_angles_csv(
             for i, n in enumerate(names):
                 v = vals[k, i]
                 buf.write(f"{tk},{joints[n]},{n},{'' if not np.isfinite(v) else f'{v:.4f}'}\n")
-    return atomic_write_text(path, buf.getvalue(), overwrite=overwrite)
+    return _write(path, buf.getvalue(), overwrite)
 
 
 def write_angles_mot(
@@ -146,7 +156,7 @@ def write_angles_mot(
         buf.write(
             "\t".join(["NaN" if not np.isfinite(v) else f"{v:.6f}" for v in row.tolist()]) + "\n"
         )
-    return atomic_write_text(path, buf.getvalue(), overwrite=overwrite)
+    return _write(path, buf.getvalue(), overwrite)
 
 
 def read_angles_mot(path: str | Path) -> tuple[Array, dict[str, Array], dict[str, str]]:

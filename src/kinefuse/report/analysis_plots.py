@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.io.atomic import temp_path
+from kinefuse.io.outputs import atomic_file
 
 Array = NDArray[np.float64]
 
@@ -52,7 +52,7 @@ def angle_groups(names: Sequence[str]) -> list[tuple[str, list[str]]]:
 def _save(fig: object, path: Path, *, dpi: int) -> Path:
     import matplotlib.pyplot as plt
 
-    with temp_path(path) as tmp:
+    with atomic_file(path, what="plot", recognizer=lambda _p: False, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")  # type: ignore[attr-defined]
     plt.close(fig)  # type: ignore[arg-type]
     return path
