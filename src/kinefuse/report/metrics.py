@@ -42,8 +42,9 @@ def position_errors(estimate: ArrayLike, truth: ArrayLike) -> dict[str, Any]:
             "by_joint": {n: nan for n in JOINTS},
         }
     v = e[ok]
-    with np.errstate(invalid="ignore"):
-        by_joint = np.nanmean(np.where(ok, e, np.nan), axis=0)
+    n = ok.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        by_joint = np.where(ok, e, 0.0).sum(axis=0) / n  # NaN for a joint never estimated
     return {
         "mae_m": float(v.mean()),
         "rmse_m": float(np.sqrt(np.mean(v**2))),
