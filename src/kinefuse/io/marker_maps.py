@@ -302,15 +302,10 @@ def load_marker_map(path: str | Path) -> MarkerMap:
     InputError
         Unreadable file, TOML syntax error, unknown keys, joints or rules.
     """
+    from kinefuse.io.toml_file import read_toml
+
     p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as e:
-        raise InputError(f"{p}: cannot read the marker map: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: not valid TOML: {e}") from None
-    return parse_marker_map(data, name=p.stem, origin=str(p))
+    return parse_marker_map(read_toml(p, "marker map"), name=p.stem, origin=str(p))
 
 
 def shipped_marker_maps() -> dict[str, MarkerMap]:

@@ -21,7 +21,6 @@ Source names match exactly first, then ignoring case and any namespace prefix (`
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -308,14 +307,10 @@ def load_name_map(path: str | Path) -> NameMap:
     InputError
         Unreadable file, TOML syntax error, unknown keys, joints or specs.
     """
+    from kinefuse.io.toml_file import read_toml
+
     p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as e:
-        raise InputError(f"{p}: cannot read the name map: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: not valid TOML: {e}") from None
+    data = read_toml(p, "name map")
     unknown = sorted(set(data) - {"name", "extends", "joints"})
     if unknown:
         raise InputError(
