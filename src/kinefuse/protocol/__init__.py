@@ -1,0 +1,90 @@
+"""The wire protocol between sensor clients, control peers and the server (no I/O here).
+
+- :mod:`~kinefuse.protocol.messages`: one frozen dataclass per message, ``PROTOCOL_VERSION``;
+- :mod:`~kinefuse.protocol.codec`: length-prefixed msgpack framing (``encode``, ``Decoder``);
+- :mod:`~kinefuse.protocol.auth`: HMAC-SHA256 challenge-response;
+- :mod:`~kinefuse.protocol.errors`: the exception tree (each error has a wire ``code``).
+
+docs/protocol.md is the specification.
+"""
+
+from kinefuse.protocol.codec import MAX_FRAME_BYTES, Decoder, check_version, encode
+from kinefuse.protocol.errors import (
+    AuthError,
+    EmptyFrame,
+    FieldError,
+    FrameTooLarge,
+    FramingError,
+    MalformedMessage,
+    OutOfOrder,
+    RemoteError,
+    TruncatedFrame,
+    UnknownMessageType,
+    VersionError,
+    WireError,
+)
+from kinefuse.protocol.messages import (
+    MESSAGE_TYPES,
+    PROTOCOL_VERSION,
+    AuthReply,
+    BodyFrame,
+    CalibrationResult,
+    CalibrationStart,
+    CalibrationStop,
+    Challenge,
+    ClockProbe,
+    ClockReply,
+    Error,
+    FloorPlane,
+    Goodbye,
+    Heartbeat,
+    Hello,
+    Message,
+    SensorInfo,
+    Shutdown,
+    Status,
+    StatusRequest,
+    WandSighting,
+    Welcome,
+)
+
+__all__ = [
+    "MAX_FRAME_BYTES",
+    "MESSAGE_TYPES",
+    "PROTOCOL_VERSION",
+    "AuthError",
+    "AuthReply",
+    "BodyFrame",
+    "CalibrationResult",
+    "CalibrationStart",
+    "CalibrationStop",
+    "Challenge",
+    "ClockProbe",
+    "ClockReply",
+    "Decoder",
+    "EmptyFrame",
+    "Error",
+    "FieldError",
+    "FloorPlane",
+    "FrameTooLarge",
+    "FramingError",
+    "Goodbye",
+    "Heartbeat",
+    "Hello",
+    "MalformedMessage",
+    "Message",
+    "OutOfOrder",
+    "RemoteError",
+    "SensorInfo",
+    "Shutdown",
+    "Status",
+    "StatusRequest",
+    "TruncatedFrame",
+    "UnknownMessageType",
+    "VersionError",
+    "WandSighting",
+    "Welcome",
+    "WireError",
+    "check_version",
+    "encode",
+]
