@@ -285,9 +285,21 @@ def _cmd_realdata(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from kinefuse.app import run_demo
+    if not args.live:  # the offline pipeline on a simulated session (kinefuse.app.run_demo)
+        from kinefuse.app import run_demo
 
-    return run_demo(out_dir=args.out, seed=args.seed)
+        return run_demo(out_dir=args.out, seed=args.seed)
+    from kinefuse.live_demo import run_live_demo
+
+    return run_live_demo(
+        out_dir=args.out,
+        sensors=args.sensors,
+        seconds=args.seconds,
+        clip=args.clip,
+        net_jitter_ms=args.net_jitter_ms,
+        seed=args.seed,
+        as_json=args.json,
+    )
 
 
 def _phase(text: str) -> tuple[float, float]:
@@ -374,6 +386,24 @@ def build_parser() -> argparse.ArgumentParser:
         "demo made it)",
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="run the live system: a server and one client process per sensor on 127.0.0.1",
+    )
+    p.add_argument("--sensors", type=int, default=4, help="simulated sensors (live; 4)")
+    p.add_argument(
+        "--seconds", type=_positive_float, help="length of the captured motion (live; 20 s)"
+    )
+    p.add_argument("--clip", type=Path, help="motion clip (live; default: the bundled one)")
+    p.add_argument(
+        "--net-jitter-ms",
+        type=_nonneg_float,
+        metavar="MS",
+        help="put a proxy with asymmetric network jitter of mean MS between each client and "
+        "the server (live)",
+    )
+    p.add_argument("--json", action="store_true", help="print the figures as JSON (live)")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("simulate", help="simulate a capture session of a real motion clip")
