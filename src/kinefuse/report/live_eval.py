@@ -11,8 +11,11 @@ simulation's true time maps onto the server clock:
 
 - with a common playback epoch ``M`` (``--epoch-monotonic``): true time ``T`` is played at
   monotonic ``M + T``, so ``t_server = T + M - server_t0``;
-- otherwise from the sidecar's ``play_start_monotonic`` and ``play_start_source_s`` (source time
-  on the clock named by ``source_clock``: ``true``, ``host`` or ``device``).
+- otherwise the client started its own playback: ``T`` was played at ``m0 + T`` (``m0`` = the
+  Welcome instant minus the first frame's true time), or, when the sidecar names a
+  ``source_clock`` (``true``, ``host`` or ``device``), from its ``play_start_monotonic`` and
+  ``play_start_source_s`` (source time on that clock);
+- a sidecar's ``speed`` (simulated seconds per real second, default 1) divides those times.
 
 :func:`write_live_truth` writes that truth into the recording's truth tables (the true motion,
 wand and observations moved onto the server clock; each sensor's true pose; its clocks in server
@@ -113,9 +116,14 @@ def playback_truth(side: dict[str, Any], sim_clock: dict[str, float]) -> Playbac
         return float(v)
 
     h0, drift, m0 = num("h0"), num("drift"), num("m0")
+    speed = num("speed") if side.get("speed") is not None else 1.0
+    if not speed > 0:
+        raise InputError(f"truth sidecar of {side['sensor_id']!r}: speed must be > 0")
     epoch = side.get("epoch_monotonic")
-    if epoch is not None:
-        a, b = num("epoch_monotonic"), 1.0
+    if epoch is not None:  # true time T played at monotonic M + T / speed
+        a, b = num("epoch_monotonic"), 1.0 / speed
+    elif "source_clock" not in side:  # the client's own start: T played at m0 + T / speed
+        a, b = m0, 1.0 / speed
     else:
         clock = side.get("source_clock", "true")
         if clock not in SOURCE_CLOCKS:
