@@ -144,6 +144,25 @@ class LiveFusion:
     def n_sensors(self) -> int:
         return len(self._streams)
 
+    def set_poses(self, sensor2world: ArrayLike) -> None:
+        """Switch to new sensor poses ``(S', 4, 4)`` (a live calibration finished, a sensor was
+        added), keeping the filter, the bone lengths and each kept sensor's observations.
+
+        Sensor ``i`` stays index ``i``; ``S' >= S`` (new sensors get the new indices)."""
+        poses = np.asarray(sensor2world, dtype=np.float64)
+        if poses.ndim != 3 or poses.shape[1:] != (4, 4) or not np.isfinite(poses).all():
+            raise FusionError(f"sensor2world must be finite (S, 4, 4), got {poses.shape}")
+        if len(poses) < len(self._streams):
+            raise FusionError(
+                f"set_poses: {len(poses)} poses for {len(self._streams)} sensors; sensors are "
+                "only ever added (keep a removed one's pose)"
+            )
+        self._streams += [
+            _Stream(self.options.buffer) for _ in range(len(poses) - len(self._streams))
+        ]
+        self._sensor_pos = poses[:, :3, 3].copy()
+        self._r = poses[:, :3, :3].copy()
+
     def push(
         self,
         sensor: int,

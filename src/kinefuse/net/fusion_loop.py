@@ -1,0 +1,275 @@
+"""The server's fusion loop: one fused frame every 1/30 s on the server clock, published.
+
+Frame ``k`` is the skeleton at server time ``T = k / rate_hz``. It is fused when the server
+clock reaches ``T + lead_s + NOMINAL_LATENCY_S + wait_s``:
+
+- ``lead_s``: observations captured up to ``T + lead_s`` take part (``best-live``: its
+  :attr:`~kinefuse.fusion.live.LiveOptions.latency_s`, 1/30 s, so the frame time can be
+  interpolated between two observations; ``paper``: 0, the paper's assembly takes each sensor's
+  latest observation in ``(T - 1/30, T]``);
+- ``NOMINAL_LATENCY_S`` (60 ms, :mod:`kinefuse.sync.device`): a frame reaches its client PC
+  that long after capture on average (the device -> host model every mapping uses);
+- ``wait_s`` (``kinefuse serve --latency-budget-ms``, default 10 ms): how much longer the server
+  waits for frames that are late (network, jitter). What has not arrived by then is not waited
+  for: the filter holds the sensor's last observation or predicts (``PREDICTED``); a late
+  observation still helps later frames.
+
+Observations captured after ``T + lead_s`` wait in a small per-sensor buffer for their frame, so
+the live frames are what :func:`kinefuse.fusion.live.replay` gives offline on the recording
+(with ``latency_s = lead_s``) wherever every observation arrived in time.
+
+The published :class:`~kinefuse.net.publish.FusedFrame` carries ``latency_s``: the server time
+it was published minus the host receive time (mapped onto the server clock) of the newest
+observation it used.
+
+Cost: one ``best-live`` frame takes about 1.3 ms of CPU (``benchmarks/bench_live.py``), 4 % of a
+frame period, so it runs on the event loop: moving it to a thread would not free the loop (the
+fusion is Python code holding the GIL, and a thread switch waits for up to the interpreter's
+5 ms switch interval), and a probe reply that arrives meanwhile waits at most that 1.3 ms, which
+the clock's burst minimum (5 probes, the least delayed kept) absorbs.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections import deque
+from collections.abc import Awaitable, Callable, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.fusion.live import LiveFusion, LiveOptions
+from kinefuse.fusion.status import FusionStatus
+from kinefuse.net.publish import FusedFrame, Publisher
+from kinefuse.net.server_client import Observation, SensorClient
+from kinefuse.skeleton import N_JOINTS
+from kinefuse.sync.device import NOMINAL_LATENCY_S
+
+log = logging.getLogger("kinefuse.serve")
+
+Array = NDArray[np.float64]
+
+METHODS = ("best-live", "paper")
+
+
+class FrameFusion:
+    """Fuse frame by frame from pushed observations with ``best-live`` or the paper's method.
+
+    Sensors are known by id; only sensors with a pose take part (:meth:`set_poses`).
+    """
+
+    def __init__(self, method: str = "best-live", options: LiveOptions | None = None) -> None:
+        if method not in METHODS:
+            raise ValueError(f"unknown live fusion method {method!r}; choose {', '.join(METHODS)}")
+        self.method = method
+        self.options = options if options is not None else LiveOptions()
+        self.ids: list[str] = []
+        self._poses = np.zeros((0, 4, 4))
+        self._live: LiveFusion | None = None
+        self._latest: dict[str, Observation] = {}
+        self._paper_window: dict[str, deque[Observation]] = {}
+
+    @property
+    def lead_s(self) -> float:
+        return self.options.latency_s if self.method == "best-live" else 0.0
+
+    @property
+    def ready(self) -> bool:
+        return bool(self.ids)
+
+    def set_poses(self, poses: Mapping[str, Array]) -> None:
+        """Take (new) poses; sensors keep their indices, new ones are appended."""
+        for sid in poses:
+            if sid not in self.ids:
+                self.ids.append(sid)
+        self._poses = np.stack(
+            [np.asarray(poses.get(s, self._pose(s)), dtype=np.float64) for s in self.ids]
+        )
+        if self.method == "best-live":
+            if self._live is None:
+                self._live = LiveFusion(self._poses, self.options)
+            else:
+                self._live.set_poses(self._poses)
+
+    def _pose(self, sid: str) -> Array:
+        return self._poses[self.ids.index(sid)]
+
+    def push(self, sensor_id: str, obs: Observation) -> None:
+        if sensor_id not in self.ids:
+            return
+        self._latest[sensor_id] = obs
+        if self._live is not None:
+            self._live.push(
+                self.ids.index(sensor_id),
+                obs.t_capture_server_s,
+                obs.joints_m,
+                obs.states,
+                obs.occluded,
+            )
+        else:
+            q = self._paper_window.setdefault(sensor_id, deque(maxlen=8))
+            q.append(obs)
+
+    def fuse(self, t_server_s: float) -> tuple[Array, Array, NDArray[np.int8]]:
+        """``positions (25, 3)`` world, ``variance_m2 (25,)`` and ``status (25,)`` at ``T``."""
+        if self._live is not None:
+            fr = self._live.fuse(t_server_s)
+            return fr.positions, fr.variance_m2, fr.status
+        return self._fuse_paper(t_server_s)
+
+    def _fuse_paper(self, t: float) -> tuple[Array, Array, NDArray[np.int8]]:
+        from kinefuse.fusion.trilateration import trilaterate
+
+        n_s = len(self.ids)
+        joints = np.full((1, n_s, N_JOINTS, 3), np.nan)
+        states = np.zeros((1, n_s, N_JOINTS), dtype=np.int8)
+        occ = np.zeros((1, n_s, N_JOINTS), dtype=bool)
+        n_int = np.zeros((1, n_s), dtype=np.int64)
+        for i, sid in enumerate(self.ids):
+            best = None
+            for o in self._paper_window.get(sid, ()):
+                if t - 1.0 / 30.0 < o.t_capture_server_s <= t:
+                    best = o
+            if best is not None:
+                joints[0, i], states[0, i] = best.joints_m, best.states
+                if best.occluded is not None:
+                    occ[0, i] = best.occluded
+                n_int[0, i] = best.n_crossings or 0
+        if not (states > 0).any():
+            nan = np.full((N_JOINTS, 3), np.nan)
+            return nan, np.full(N_JOINTS, np.nan), np.full(N_JOINTS, FusionStatus.NO_DATA, np.int8)
+        res = trilaterate(joints, self._poses, "paper", states=states, occlusion=(occ, n_int))
+        return res.positions[0], np.full(N_JOINTS, np.nan), np.asarray(res.status[0], np.int8)
+
+    def raw_world(self) -> dict[str, Array]:
+        """Each calibrated sensor's latest skeleton in the world (for the viewer)."""
+        out = {}
+        for sid, o in self._latest.items():
+            p = self._pose(sid)
+            out[sid] = o.joints_m @ p[:3, :3].T + p[:3, 3]
+        return out
+
+
+class FusionLoop:
+    """Drains the clients' queues and fuses/publishes at ``rate_hz`` (see the module docstring).
+
+    Parameters
+    ----------
+    fusion : FrameFusion
+    clients : mapping sensor id -> SensorClient
+        The server's (live) table of sensors.
+    publisher : Publisher
+    clock : callable
+        The server clock, seconds.
+    wait_s : float
+        The latency budget: extra wait for late observations, seconds.
+    """
+
+    def __init__(
+        self,
+        fusion: FrameFusion,
+        clients: Mapping[str, SensorClient],
+        publisher: Publisher,
+        clock: Callable[[], float],
+        *,
+        wait_s: float = 0.010,
+        rate_hz: float = 30.0,
+        sleep: Callable[[float], Awaitable[object]] = asyncio.sleep,
+    ) -> None:
+        if not (math.isfinite(wait_s) and wait_s >= 0):
+            raise ValueError(f"the latency budget must be >= 0 s, got {wait_s}")
+        self.fusion = fusion
+        self.clients = clients
+        self.publisher = publisher
+        self.clock = clock
+        self.wait_s = float(wait_s)
+        self.rate_hz = float(rate_hz)
+        self._sleep = sleep
+        self._pending: dict[str, deque[Observation]] = {}
+        self._newest_host: float = -math.inf
+        self.frames = 0
+        self.skipped = 0
+        self.fuse_seconds = 0.0
+        self._published: deque[float] = deque(maxlen=31)
+
+    @property
+    def delay_s(self) -> float:
+        """How long after its frame time a frame is fused, seconds."""
+        return self.fusion.lead_s + NOMINAL_LATENCY_S + self.wait_s
+
+    def fps(self) -> float:
+        p = self._published
+        if len(p) < 2 or p[-1] <= p[0]:
+            return 0.0
+        return (len(p) - 1) / (p[-1] - p[0])
+
+    def _collect(self) -> None:
+        for sid, c in self.clients.items():
+            obs = c.drain()
+            if not obs:
+                continue
+            q = self._pending.setdefault(sid, deque(maxlen=64))
+            for o in obs:
+                if math.isfinite(o.t_capture_server_s):
+                    q.append(o)
+
+    def step(self, k: int) -> FusedFrame | None:
+        """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
+        t = k / self.rate_hz
+        self._collect()
+        horizon = t + self.fusion.lead_s
+        for sid, q in self._pending.items():
+            ready = sorted(
+                (o for o in q if o.t_capture_server_s <= horizon),
+                key=lambda o: o.t_capture_server_s,
+            )
+            if not ready:
+                continue
+            rest = [o for o in q if o.t_capture_server_s > horizon]
+            q.clear()
+            q.extend(rest)
+            for o in ready:
+                if sid in self.fusion.ids:
+                    self.fusion.push(sid, o)
+                    if math.isfinite(o.t_host_server_s):
+                        self._newest_host = max(self._newest_host, o.t_host_server_s)
+        if not self.fusion.ready:
+            return None
+        t0 = self.clock()
+        pos, var, status = self.fusion.fuse(t)
+        t_pub = self.clock()
+        self.fuse_seconds += t_pub - t0
+        latency = t_pub - self._newest_host if math.isfinite(self._newest_host) else math.nan
+        frame = FusedFrame(
+            seq=k,
+            t_server_s=t,
+            positions_m=pos,
+            variance_m2=var,
+            status=status,
+            latency_s=latency,
+            raw_m=self.fusion.raw_world(),
+        )
+        self.publisher.publish(frame)
+        self.frames += 1
+        self._published.append(t_pub)
+        return frame
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Fuse frames until ``stop`` is set; a loop that fell behind skips to the present."""
+        k = math.ceil((self.clock() - self.delay_s) * self.rate_hz)
+        while not stop.is_set():
+            due = k / self.rate_hz + self.delay_s
+            now = self.clock()
+            if due > now:
+                await self._sleep(due - now)
+                continue
+            behind = int((now - due) * self.rate_hz)
+            if behind > 3:
+                self.skipped += behind
+                log.warning("fusion fell %d frames behind; skipping to the present", behind)
+                k += behind
+            self.step(k)
+            k += 1
+            await asyncio.sleep(0)

@@ -1,0 +1,733 @@
+"""The live server (``kinefuse serve``): sensor clients in, fused frames out, everything recorded.
+
+Structure (all tasks in one :class:`asyncio.TaskGroup`, so an unexpected error anywhere stops
+the whole server loudly instead of leaving half of it running):
+
+- one task per accepted connection (:meth:`Server._connection`): the handshake (Hello, the HMAC
+  challenge when a token is set, Welcome or a refusal), then for a sensor its reader and its
+  clock prober (bursts of ``probe_burst`` probes ``probe_spacing_s`` apart every
+  ``probe_interval_s``), for a control peer its requests. A protocol error or a silent peer
+  closes only that connection, with the reason logged; a bug while serving one peer is logged
+  and closes that peer only;
+- the fusion loop (:class:`~kinefuse.net.fusion_loop.FusionLoop`, 30 Hz on the server clock);
+- housekeeping: ``ServerStatus`` about once a second and on every change, the end of a
+  calibration (:mod:`kinefuse.net.live_calibration`);
+- the recorder (:class:`~kinefuse.net.recorder.Recorder`), when recording.
+
+Per sensor the server keeps a :class:`~kinefuse.net.server_client.SensorClient` across
+connections (pose, clocks, statistics): a client that dies is marked offline and fusion goes on
+with the others; when it comes back (same ``sensor_id``) it is re-synchronized and fused with its
+pose at once. A second connection claiming a connected sensor id is refused (``duplicate_id``).
+
+The server clock is ``clock()``: ``time.monotonic() - t0`` by default (recorded as the meta
+``server_t0_monotonic``), injectable for tests.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ipaddress
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from kinefuse.calibration.floor import FloorPlane
+from kinefuse.errors import CalibrationError, SyncError
+from kinefuse.fusion.live import LiveOptions
+from kinefuse.io.store_live import SightingRow
+from kinefuse.net.fusion_loop import FrameFusion, FusionLoop
+from kinefuse.net.live_calibration import (
+    CalibrationOutcome,
+    LiveCalibration,
+    LiveCalibrationOptions,
+)
+from kinefuse.net.publish import Publisher, SensorStatus, ServerStatus
+from kinefuse.net.recorder import Recorder
+from kinefuse.net.server_client import Observation, SensorClient, sanitize_joints
+from kinefuse.net.server_conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
+from kinefuse.protocol import (
+    MAX_FRAME_BYTES,
+    AuthReply,
+    BodyFrame,
+    CalibrationResult,
+    CalibrationStart,
+    CalibrationStop,
+    Challenge,
+    ClockProbe,
+    ClockReply,
+    Goodbye,
+    Heartbeat,
+    Hello,
+    SensorInfo,
+    Shutdown,
+    Status,
+    StatusRequest,
+    WandSighting,
+    Welcome,
+    WireError,
+    check_version,
+)
+from kinefuse.protocol import (
+    FloorPlane as FloorMsg,
+)
+from kinefuse.protocol.auth import new_nonce, verify_mac
+from kinefuse.protocol.errors import OutOfOrder
+
+log = logging.getLogger("kinefuse.serve")
+
+
+@dataclass(frozen=True)
+class ServerOptions:
+    """Everything ``kinefuse serve`` can be told (seconds unless named otherwise)."""
+
+    host: str = "127.0.0.1"
+    port: int = 7400
+    token: str | None = None
+    record: Path | None = None
+    method: str = "best-live"
+    latency_budget_s: float = 0.010
+    auto_calibrate: bool = False
+    calibration: LiveCalibrationOptions = field(default_factory=LiveCalibrationOptions)
+    probe_burst: int = 5
+    probe_spacing_s: float = 0.020
+    probe_interval_s: float = 1.0
+    heartbeat_s: float = 1.0
+    timeout_s: float = 5.0
+    handshake_timeout_s: float = 5.0
+    status_interval_s: float = 1.0
+    max_frame_bytes: int = MAX_FRAME_BYTES
+    max_sensors: int = 64
+    session: str = "kinefuse-live"
+
+
+def is_loopback(host: str) -> bool:
+    """True for a loopback bind address (127.0.0.0/8, ::1, localhost)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class Server:
+    """The live server (see the module docstring).
+
+    Parameters
+    ----------
+    options : ServerOptions
+    clock : callable, optional
+        The server clock, seconds (default: monotonic seconds since construction).
+    """
+
+    def __init__(self, options: ServerOptions, *, clock: Callable[[], float] | None = None) -> None:
+        self.options = options
+        self.t0_monotonic = time.monotonic()
+        self.clock = clock or (lambda: time.monotonic() - self.t0_monotonic)
+        self.clients: dict[str, SensorClient] = {}
+        self.calibration = LiveCalibration(options.calibration)
+        self.publisher = Publisher()
+        live = LiveOptions()
+        self.fusion = FrameFusion(options.method, live)
+        self.loop = FusionLoop(
+            self.fusion, self.clients, self.publisher, self.clock, wait_s=options.latency_budget_s
+        )
+        self.recorder: Recorder | None = None
+        self.port: int | None = None
+        self._stop = asyncio.Event()
+        self._stop_reason = ""
+        self._conns: set[Connection] = set()
+        self._controls: set[Connection] = set()
+        self._sensor_conns: dict[str, Connection] = {}
+        self._tg: asyncio.TaskGroup | None = None
+        self._status_dirty = True
+        self._last_status = -math.inf
+        self._probe_id = 0
+        self.refused: list[tuple[str, str]] = []  # (code, reason) of refused/closed connections
+        self.last_outcome: CalibrationOutcome | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+
+    def load_calibration(self, cal: object) -> None:
+        """Start with a calibration file's poses (``kinefuse serve --calibration``)."""
+        from kinefuse.calibration.calib_file import CalibrationFile
+
+        assert isinstance(cal, CalibrationFile)
+        self.calibration.load(cal)
+        self.fusion.set_poses(cal.sensor2world)
+
+    def request_stop(self, reason: str = "stop requested") -> None:
+        """Stop cleanly: goodbye to every peer, finish the recording."""
+        if not self._stop.is_set():
+            self._stop_reason = reason
+            log.info("stopping: %s", reason)
+            self._stop.set()
+
+    async def run(self, ready: Callable[[str, int], None] | None = None) -> None:
+        """Serve until :meth:`request_stop`; ``ready(host, port)`` is called once listening."""
+        o = self.options
+        if not is_loopback(o.host) and not o.token:
+            log.warning(
+                "listening on %s without a token: anyone who can reach this port can send data; "
+                "pass --token (or KINEFUSE_TOKEN) and open the port only to the sensor PCs",
+                o.host,
+            )
+        if o.record is not None:
+            self.recorder = Recorder(o.record, self._meta(), clock=self.clock)
+            await self.recorder.open()
+            if self.calibration.calibration is not None:
+                from kinefuse.calibration.calib_file import dumps_calibration
+
+                cal = self.calibration.calibration
+                self.recorder.add_calibration(cal.method, dumps_calibration(cal))
+        clean = False
+        try:
+            async with asyncio.TaskGroup() as tg:
+                self._tg = tg
+                srv = await asyncio.start_server(
+                    self._accept, o.host, o.port, limit=o.max_frame_bytes + 8
+                )
+                self.port = int(srv.sockets[0].getsockname()[1])
+                if ready is not None:
+                    ready(o.host, self.port)
+                if self.recorder is not None:
+                    tg.create_task(self.recorder.run(self.publisher.subscribe(None)))
+                tg.create_task(self.loop.run(self._stop))
+                tg.create_task(self._housekeeping())
+                await self._stop.wait()
+                srv.close()
+                for c in list(self._conns):
+                    with contextlib.suppress(Exception):
+                        c.send(Goodbye(reason=f"server stopping: {self._stop_reason}"[:1024]))
+                    c.close()
+                self.publisher.close()
+                if self.recorder is not None:
+                    self.recorder.stop()
+            clean = True
+        finally:
+            self._tg = None
+            if self.recorder is not None:
+                await self.recorder.close(clean=clean)
+
+    def _meta(self) -> dict[str, object]:
+        o = self.options
+        return {
+            "recorded_by": "kinefuse serve",
+            "server_t0_monotonic": self.t0_monotonic,
+            "live_method": o.method,
+            "latency_budget_s": o.latency_budget_s,
+            "fusion_delay_s": self.loop.delay_s,
+            "calibration_method": o.calibration.method,
+            "wand_protocol": (
+                {"axis_length_m": o.calibration.axis_length_m}
+                if o.calibration.axis_length_m is not None
+                else {}
+            ),
+            "clock_probes": {
+                "burst": o.probe_burst,
+                "spacing_s": o.probe_spacing_s,
+                "interval_s": o.probe_interval_s,
+            },
+        }
+
+    def _event(self, kind: str, sensor_id: str | None, **detail: object) -> None:
+        if self.recorder is not None:
+            self.recorder.add_event(self.clock(), kind, sensor_id, dict(detail))
+
+    # -- connections -------------------------------------------------------------------------------
+
+    def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._tg is None or self._stop.is_set():
+            writer.close()
+            return
+        conn = Connection(reader, writer, self.clock, max_frame_bytes=self.options.max_frame_bytes)
+        self._conns.add(conn)
+        self._tg.create_task(self._connection(conn))
+
+    async def _connection(self, conn: Connection) -> None:
+        sensor: SensorClient | None = None
+        try:
+            hello = await self._handshake(conn)
+            if hello.role == "control":
+                await self._serve_control(conn)
+            else:
+                sensor = self._register(conn, hello)
+                await self._serve_sensor(conn, sensor)
+            conn.close()
+        except ConnectionClosed as e:
+            log.info("%s: %s", conn.name, e)
+        except WireError as e:
+            log.warning("closing %s: %s (%s)", conn.name, e, e.code)
+            self.refused.append((e.code, str(e)))
+            self._event(
+                "refused",
+                sensor.sensor_id if sensor else None,
+                code=e.code,
+                reason=str(e),
+                peer=conn.peer,
+            )
+            conn.refuse(e.code, str(e))
+        except Exception as e:  # a bug serving this peer: close it, keep serving the others
+            log.exception("internal error serving %s; closing it", conn.name)
+            self.refused.append(("internal", repr(e)))
+            conn.refuse("internal", f"server error: {type(e).__name__}")
+        finally:
+            conn.close()
+            self._conns.discard(conn)
+            self._controls.discard(conn)
+            if sensor is not None and self._sensor_conns.get(sensor.sensor_id) is conn:
+                del self._sensor_conns[sensor.sensor_id]
+                sensor.disconnect()
+                log.info("sensor %s is offline", sensor.sensor_id)
+                self._event("disconnected", sensor.sensor_id)
+                self._status_dirty = True
+            await conn.wait_closed()
+
+    async def _handshake(self, conn: Connection) -> Hello:
+        o = self.options
+        msg, _ = await conn.recv(o.handshake_timeout_s)
+        if not isinstance(msg, Hello):
+            raise OutOfOrder(f"the first message must be hello, got {msg.TYPE}")
+        check_version(msg.protocol_version)
+        conn.role = msg.role
+        conn.name = f"{msg.role} {msg.sensor_id or conn.peer}".strip()
+        if o.token:
+            nonce = new_nonce()
+            conn.send(Challenge(nonce=nonce))
+            reply, _ = await conn.recv(o.handshake_timeout_s)
+            if not isinstance(reply, AuthReply):
+                raise OutOfOrder(f"expected auth_reply after the challenge, got {reply.TYPE}")
+            verify_mac(o.token, nonce, reply.mac, role=msg.role, sensor_id=msg.sensor_id)
+        return msg
+
+    def _register(self, conn: Connection, hello: Hello) -> SensorClient:
+        sid = hello.sensor_id
+        if sid in self._sensor_conns:
+            raise DuplicateSensor(
+                f"sensor {sid} is already connected (from {self._sensor_conns[sid].peer}); give "
+                "each client its own sensor id"
+            )
+        if sid not in self.clients and len(self.clients) >= self.options.max_sensors:
+            raise TooSlow(f"the server takes at most {self.options.max_sensors} sensors")
+        assert hello.intrinsics is not None  # Hello.check() requires it of a sensor
+        client = self.clients.get(sid)
+        if client is None:
+            client = SensorClient(sid, hello.serial, hello.intrinsics)
+            self.clients[sid] = client
+            if self.recorder is not None:
+                self.recorder.add_sensor(sid, hello.serial, hello.intrinsics)
+        client.connect()
+        self._sensor_conns[sid] = conn
+        cal = self.calibration
+        if cal.collecting:
+            cal.add_target(sid)
+        conn.send(
+            Welcome(
+                session=self.options.session,
+                t_server_s=self.clock(),
+                heartbeat_s=self.options.heartbeat_s,
+                timeout_s=self.options.timeout_s,
+                calibrating=cal.collecting,
+                calibration_id=cal.calibration_id,
+            )
+        )
+        log.info(
+            "sensor %s connected from %s (connection #%d)%s",
+            sid,
+            conn.peer,
+            client.connections,
+            ", calibrated" if sid in cal.poses else "",
+        )
+        self._event(
+            "connected",
+            sid,
+            peer=conn.peer,
+            connection=client.connections,
+            has_pose=sid in cal.poses,
+        )
+        self._status_dirty = True
+        if (
+            self.options.auto_calibrate
+            and not cal.collecting
+            and cal.state != "solving"
+            and sid not in cal.poses
+        ):
+            self._start_calibration(method="", sensor_ids=())
+        return client
+
+    # -- a sensor ----------------------------------------------------------------------------------
+
+    async def _serve_sensor(self, conn: Connection, client: SensorClient) -> None:
+        outstanding: dict[int, float] = {}
+        prober = asyncio.ensure_future(self._probe_loop(conn, outstanding))
+        try:
+            await self._sensor_reader(conn, client, outstanding)
+        finally:
+            prober.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await prober
+
+    async def _probe_loop(self, conn: Connection, outstanding: dict[int, float]) -> None:
+        o = self.options
+        while not conn.closed:
+            for i in range(o.probe_burst):
+                self._probe_id += 1
+                t1 = self.clock()
+                outstanding[self._probe_id] = t1
+                conn.send(ClockProbe(probe_id=self._probe_id, t1=t1))
+                if i < o.probe_burst - 1:
+                    await asyncio.sleep(o.probe_spacing_s)
+            while len(outstanding) > 4 * o.probe_burst:  # lost replies
+                outstanding.pop(next(iter(outstanding)))
+            await asyncio.sleep(
+                max(o.probe_interval_s - (o.probe_burst - 1) * o.probe_spacing_s, 0.01)
+            )
+
+    async def _sensor_reader(
+        self, conn: Connection, client: SensorClient, outstanding: dict[int, float]
+    ) -> None:
+        sid = client.sensor_id
+        last_seq: int | None = None
+        while True:
+            msg, t_arr = await conn.recv(self.options.timeout_s)
+            conn.check_sender(msg)
+            if isinstance(msg, ClockReply):
+                t1 = outstanding.pop(msg.probe_id, None)
+                if t1 is None or t1 != msg.t1:
+                    raise OutOfOrder(
+                        f"clock_reply to probe {msg.probe_id}, which was not sent "
+                        "(or with another t1)"
+                    )
+                self._clock_reply(client, msg, t_arr)
+            elif isinstance(msg, BodyFrame):
+                if last_seq is not None and msg.seq <= last_seq:
+                    raise OutOfOrder(
+                        f"body_frame seq {msg.seq} after {last_seq}: seq must increase"
+                    )
+                last_seq = msg.seq
+                self._body(client, msg, t_arr)
+            elif isinstance(msg, WandSighting):
+                self._sighting(client, msg, t_arr)
+            elif isinstance(msg, FloorMsg):
+                fl = FloorPlane(msg.normal, msg.offset_m, msg.n_inliers, msg.residual_m)
+                self.calibration.add_floor(sid, fl)
+                if self.recorder is not None:
+                    self.recorder.add_floor(sid, t_arr, fl)
+            elif isinstance(msg, Goodbye):
+                log.info("sensor %s said goodbye: %s", sid, msg.reason)
+                return
+            elif isinstance(msg, Heartbeat):
+                pass
+            else:
+                raise OutOfOrder(f"a sensor may not send {msg.TYPE} after the handshake")
+
+    def _clock_reply(self, client: SensorClient, msg: ClockReply, t4: float) -> None:
+        try:
+            client.clock.add_probe(msg.t1, msg.t2, msg.t3, t4)
+        except SyncError as e:
+            raise OutOfOrder(f"impossible clock reply: {e}") from None
+        client.rtt_s = (t4 - msg.t1) - (msg.t3 - msg.t2)
+        rec = self.recorder
+        if rec is not None:
+            rec.add_probe(client.sensor_id, msg.t1, msg.t2, msg.t3, t4)
+            with contextlib.suppress(SyncError):
+                est = client.clock.estimate(t4)
+                rec.add_clock(
+                    client.sensor_id, t4, est.offset_s, est.drift_ppm, est.offset_se_s, est.epoch
+                )
+
+    def _body(self, client: SensorClient, msg: BodyFrame, t_arr: float) -> None:
+        if not client.accept(msg.seq, msg.t_device_s, msg.t_host_s):
+            return  # a frame seen before this connection (a restarted client replaying)
+        joints, states = sanitize_joints(msg.joints_m, msg.states)
+        t_cap = client.capture_to_server(msg.t_device_s)
+        t_host = client.host_to_server(msg.t_host_s)
+        if self.recorder is not None:
+            self.recorder.add_observation(
+                client.sensor_id,
+                msg.seq,
+                msg.t_device_s,
+                msg.t_host_s,
+                t_arr,
+                t_cap,
+                joints,
+                states,
+                msg.occluded,
+                msg.n_crossings,
+            )
+        obs = Observation(msg.seq, t_cap, t_host, joints, states, msg.occluded, msg.n_crossings)
+        client.enqueue(obs, t_arr)
+        if math.isfinite(t_host):
+            client.latency_s = t_arr - t_host
+
+    def _sighting(self, client: SensorClient, msg: WandSighting, t_arr: float) -> None:
+        # sightings carry host arrival times too: they feed the device -> host fit
+        client.device.add(msg.t_device_s, msg.t_host_s)
+        t_srv = client.capture_to_server(msg.t_device_s)
+        kept = self.calibration.add_sighting(client.sensor_id, t_srv, msg.centre_m, msg.score)
+        if self.recorder is not None:
+            c = msg.centre_m
+            self.recorder.add_sighting(
+                SightingRow(
+                    client.sensor_id,
+                    msg.seq,
+                    msg.t_device_s,
+                    msg.t_host_s,
+                    t_srv,
+                    (c[0], c[1], c[2]),
+                    msg.score,
+                    msg.n_points,
+                    msg.residual_m,
+                )
+            )
+        if kept and self.calibration.n_sightings().get(client.sensor_id) == 1:
+            self._status_dirty = True
+
+    # -- a control peer ----------------------------------------------------------------------------
+
+    async def _serve_control(self, conn: Connection) -> None:
+        conn.send(
+            Welcome(
+                session=self.options.session,
+                t_server_s=self.clock(),
+                heartbeat_s=self.options.heartbeat_s,
+                timeout_s=self.options.timeout_s,
+                calibrating=self.calibration.collecting,
+                calibration_id=self.calibration.calibration_id,
+            )
+        )
+        self._controls.add(conn)
+        log.info("control peer connected from %s", conn.peer)
+        beat = asyncio.ensure_future(self._heartbeat_loop(conn))
+        try:
+            while True:
+                msg, _ = await conn.recv(self.options.timeout_s)
+                conn.check_sender(msg)
+                if isinstance(msg, CalibrationStart):
+                    try:
+                        self._start_calibration(method=msg.method, sensor_ids=msg.sensor_ids)
+                    except CalibrationError as e:
+                        conn.send(
+                            CalibrationResult(
+                                calibration_id=msg.calibration_id,
+                                ok=False,
+                                grade="failed",
+                                message=str(e)[:1024],
+                            )
+                        )
+                elif isinstance(msg, CalibrationStop):
+                    if self.calibration.collecting:
+                        self._finish_calibration(abort=msg.abort, why="stopped by the control peer")
+                elif isinstance(msg, StatusRequest):
+                    conn.send(self._status_message(msg.request_id))
+                elif isinstance(msg, Shutdown):
+                    conn.send(Goodbye(reason="shutting down"))
+                    self.request_stop(f"shutdown asked by {conn.peer}: {msg.reason}")
+                    return
+                elif isinstance(msg, Goodbye):
+                    return
+                elif isinstance(msg, Heartbeat):
+                    pass
+                else:
+                    raise OutOfOrder(f"a control peer may not send {msg.TYPE} after the handshake")
+        finally:
+            beat.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await beat
+
+    async def _heartbeat_loop(self, conn: Connection) -> None:
+        while not conn.closed:
+            await asyncio.sleep(self.options.heartbeat_s / 2)
+            if self.clock() - conn.last_sent >= self.options.heartbeat_s:
+                conn.send(Heartbeat(t_s=self.clock()))
+
+    # -- calibration -------------------------------------------------------------------------------
+
+    def _start_calibration(self, *, method: str, sensor_ids: tuple[str, ...] | list[str]) -> None:
+        cal = self.calibration
+        if cal.state == "solving":
+            raise CalibrationError("a calibration is being solved; start again when it is done")
+        connected = [s for s, c in self.clients.items() if c.connected]
+        cid = cal.start(self.clock(), connected, sensor_ids=tuple(sensor_ids), method=method)
+        log.info(
+            "calibration %d started (%s) for %s",
+            cid,
+            cal.method,
+            ", ".join(cal.targets) or "the sensors that join",
+        )
+        self._event(
+            "calibration_start",
+            None,
+            calibration_id=cid,
+            method=cal.method,
+            targets=list(cal.targets),
+        )
+        for c in self._sensor_conns.values():
+            c.send(CalibrationStart(calibration_id=cid, method=cal.method))
+        self._status_dirty = True
+
+    def _finish_calibration(self, *, abort: bool, why: str) -> None:
+        cal = self.calibration
+        cid = cal.calibration_id
+        for c in self._sensor_conns.values():
+            c.send(CalibrationStop(calibration_id=cid, abort=abort))
+        log.info("calibration %d ends: %s; sightings %s", cid, why, cal.n_sightings())
+        self._event(
+            "calibration_stop",
+            None,
+            calibration_id=cid,
+            why=why,
+            abort=abort,
+            sightings=cal.n_sightings(),
+        )
+        if abort:
+            cal.abort()
+            self._status_dirty = True
+            return
+        cal.state = "solving"
+        assert self._tg is not None
+        self._tg.create_task(self._solve())
+
+    async def _solve(self) -> None:
+        cal = self.calibration
+        intr = {s: c.intrinsics for s, c in self.clients.items()}
+        serials = {s: c.serial for s, c in self.clients.items()}
+        out = await asyncio.to_thread(cal.solve, intr, serials)
+        self.last_outcome = out
+        log.info("calibration %d: %s", out.calibration_id, out.message)
+        for r in out.grade.reasons:
+            log.info("  %s", r)
+        if out.ok and out.calibration is not None:
+            self.fusion.set_poses(out.calibration.sensor2world)
+            if self.recorder is not None and out.text is not None:
+                self.recorder.add_calibration(out.method, out.text)
+                self.recorder.add_meta("live_calibration", _outcome_meta(out))
+        self._event("calibration_result", None, **_outcome_meta(out))
+        res = _result_message(out)
+        for c in list(self._controls):
+            c.send(res)
+        self._status_dirty = True
+
+    # -- status ------------------------------------------------------------------------------------
+
+    async def _housekeeping(self) -> None:
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._stop.wait(), 0.1)
+            now = self.clock()
+            why = self.calibration.should_stop(now)
+            if why is not None:
+                self._finish_calibration(abort=False, why=why)
+            if self._status_dirty or now - self._last_status >= self.options.status_interval_s:
+                self._status_dirty = False
+                self._last_status = now
+                if not self.publisher._closed:
+                    self.publisher.publish(self.status())
+
+    def status(self) -> ServerStatus:
+        now = self.clock()
+        poses = self.calibration.poses
+        sensors = []
+        for sid, c in self.clients.items():
+            off, sd = c.clock_ms(now)
+            p = poses.get(sid)
+            sensors.append(
+                SensorStatus(
+                    sensor_id=sid,
+                    connected=c.connected,
+                    rtt_ms=c.rtt_s * 1e3,
+                    clock_offset_ms=off,
+                    clock_offset_sd_ms=sd,
+                    fps=c.fps(now),
+                    latency_ms=c.latency_s * 1e3,
+                    tracked_fraction=c.tracked_fraction(),
+                    pose=None if p is None else tuple(float(v) for v in np.asarray(p).ravel()),
+                )
+            )
+        return ServerStatus(
+            t_server_s=now,
+            sensors=tuple(sensors),
+            calibration_state="collecting"
+            if self.calibration.state == "solving"
+            else self.calibration.state,
+            calibration_grade=self.calibration.grade,
+            fused_fps=self.loop.fps(),
+            method=self.options.method,
+            recording=str(self.options.record) if self.options.record else None,
+        )
+
+    def _status_message(self, request_id: int) -> Status:
+        s = self.status()
+        return Status(
+            request_id=request_id,
+            t_server_s=s.t_server_s,
+            sensors=tuple(
+                SensorInfo(
+                    x.sensor_id,
+                    x.connected,
+                    x.rtt_ms,
+                    x.clock_offset_ms,
+                    x.clock_offset_sd_ms,
+                    x.fps,
+                    x.latency_ms,
+                    x.tracked_fraction,
+                    None if x.pose is None else np.array(x.pose).reshape(4, 4),
+                )
+                for x in s.sensors
+            ),
+            calibration_state=s.calibration_state,
+            calibration_grade=s.calibration_grade,
+            fused_fps=s.fused_fps,
+            frames_fused=self.loop.frames,
+            method=s.method,
+            recording=s.recording,
+        )
+
+
+def _outcome_meta(out: CalibrationOutcome) -> dict[str, object]:
+    reg = out.registration
+    d: dict[str, object] = {
+        "calibration_id": out.calibration_id,
+        "ok": out.ok,
+        "method": out.method,
+        "grade": out.grade.grade,
+        "reasons": list(out.grade.reasons),
+        "message": out.message,
+        "targets": list(out.targets),
+    }
+    if reg is not None:
+        d["rms_m"] = float(reg.rms_m)
+        d["sensors"] = [
+            {
+                "id": sid,
+                "residual_m": float(reg.residual_m[k]),
+                "sightings": int(reg.n_sightings[k]),
+            }
+            for k, sid in enumerate(reg.sensor_ids)
+        ]
+    return d
+
+
+def _result_message(out: CalibrationOutcome) -> CalibrationResult:
+    cal = out.calibration
+    sensors = cal.sensors if cal is not None else ()
+    text = out.message + "".join(f"; {r}" for r in out.grade.reasons)
+    return CalibrationResult(
+        calibration_id=out.calibration_id,
+        ok=out.ok,
+        grade=out.grade.grade,
+        method=out.method,
+        sensor_ids=tuple(s.id for s in sensors),
+        sensor2world=np.array([s.sensor2world for s in sensors]).reshape(-1, 4, 4),
+        residual_m=np.array(
+            [s.residual_m if np.isfinite(s.residual_m) else np.nan for s in sensors]
+        ).reshape(-1),
+        n_sightings=np.array([s.n_sightings for s in sensors], dtype=np.int64).reshape(-1),
+        message=text[:1024],
+    )

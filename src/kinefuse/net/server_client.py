@@ -1,0 +1,191 @@
+"""What the server keeps per sensor: identity, clocks, the bounded queue of observations, stats.
+
+A :class:`SensorClient` lives as long as the server (keyed by sensor id), so a client that
+reconnects finds its pose, its device clock and its statistics again; only the connection
+(:class:`Connection` in :mod:`kinefuse.net.server`) is per TCP connection.
+
+Times of an observation (all seconds):
+
+- ``t_device_s``: capture on the sensor's device clock (from the client);
+- ``t_host_s``: arrival at the client PC on its host clock (from the client);
+- ``t_receive_server_s``: arrival at the server, server clock;
+- ``t_capture_server_s``: the capture time on the server clock the fusion uses, device -> host
+  with a running fit of ``t_host - t_device`` over the latest frames minus the nominal latency
+  (:func:`kinefuse.sync.device.estimate_device_clock`, the model the offline path fits over the
+  whole recording), host -> server with the client's :class:`~kinefuse.sync.online.OnlineClock`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.errors import SyncError
+from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.sync.device import DeviceClockEstimate, estimate_device_clock
+from kinefuse.sync.online import OnlineClock, OnlineClockParams
+
+Array = NDArray[np.float64]
+
+
+class DeviceClockTracker:
+    """Running device -> host clock of one sensor: the offline fit over the latest ``window``
+    frames, refitted every ``refit_every`` frames (and at each of the first ones)."""
+
+    def __init__(self, window: int = 600, refit_every: int = 30) -> None:
+        self._td: deque[float] = deque(maxlen=window)
+        self._th: deque[float] = deque(maxlen=window)
+        self._n = 0
+        self._every = refit_every
+        self.estimate: DeviceClockEstimate | None = None
+
+    def add(self, t_device_s: float, t_host_s: float) -> None:
+        if not (math.isfinite(t_device_s) and math.isfinite(t_host_s)):
+            return
+        self._td.append(t_device_s)
+        self._th.append(t_host_s)
+        self._n += 1
+        if self.estimate is None or self._n < self._every or self._n % self._every == 0:
+            self.estimate = estimate_device_clock(np.array(self._td), np.array(self._th))
+
+    def to_host(self, t_device_s: float) -> float:
+        """Capture time on the host clock (NaN before the first frame with a host time)."""
+        if self.estimate is None:
+            return float("nan")
+        return float(self.estimate.offset_s + self.estimate.rate * t_device_s)
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """One body frame as the fusion takes it (see the module docstring for the times)."""
+
+    seq: int
+    t_capture_server_s: float
+    t_host_server_s: float
+    joints_m: Array
+    states: NDArray[np.int8]
+    occluded: NDArray[np.bool_] | None
+    n_crossings: int | None
+
+
+def sanitize_joints(joints_m: Array, states: NDArray[np.int8]) -> tuple[Array, NDArray[np.int8]]:
+    """Joints NaN exactly where the state is NOT_TRACKED (the store's and fusion's rule): a
+    joint without a position is not tracked, a not-tracked joint has no position."""
+    j = np.array(joints_m, dtype=np.float64).reshape(N_JOINTS, 3)
+    st = np.array(states, dtype=np.int8).reshape(N_JOINTS)
+    missing = ~np.isfinite(j).all(axis=1)
+    st[missing] = TrackingState.NOT_TRACKED
+    j[st == TrackingState.NOT_TRACKED] = np.nan
+    return j, st
+
+
+class SensorClient:
+    """One sensor as the server knows it, across its connections.
+
+    Parameters
+    ----------
+    sensor_id, serial : str
+    intrinsics : Intrinsics
+    queue_size : int
+        Observations kept for the fusion loop; when it falls behind the oldest are dropped
+        (newest wins) and counted in :attr:`dropped`.
+    clock_params : OnlineClockParams, optional
+    """
+
+    def __init__(
+        self,
+        sensor_id: str,
+        serial: str,
+        intrinsics: Intrinsics,
+        *,
+        queue_size: int = 16,
+        clock_params: OnlineClockParams | None = None,
+    ) -> None:
+        self.sensor_id = sensor_id
+        self.serial = serial
+        self.intrinsics = intrinsics
+        self.clock = OnlineClock(clock_params)
+        self.device = DeviceClockTracker()
+        self.connected = False
+        self.connections = 0
+        self.queue: deque[Observation] = deque(maxlen=queue_size)
+        self.dropped = 0
+        self.last_seq: int | None = None
+        self.stale = 0  # frames not newer than last_seq (a restarted client replaying)
+        self.rtt_s = float("nan")
+        self.latency_s = float("nan")
+        self._arrivals: deque[float] = deque(maxlen=90)
+        self._tracked: deque[float] = deque(maxlen=90)
+
+    # -- connection lifecycle ----------------------------------------------------------------
+
+    def connect(self) -> None:
+        """A new connection: re-sync the clock from scratch (it may be another route or PC)."""
+        self.connected = True
+        self.connections += 1
+        if self.connections > 1:
+            self.clock.reset(f"reconnect #{self.connections - 1}")
+        self.queue.clear()
+
+    def disconnect(self) -> None:
+        self.connected = False
+
+    # -- clock ---------------------------------------------------------------------------------
+
+    def host_to_server(self, t_host_s: float) -> float:
+        """Server time of a host-clock time (NaN before the first kept probe)."""
+        if not math.isfinite(t_host_s):
+            return float("nan")
+        try:
+            return float(self.clock.to_server(t_host_s))
+        except SyncError:
+            return float("nan")
+
+    def capture_to_server(self, t_device_s: float) -> float:
+        """The capture time on the server clock of a device timestamp (NaN: not yet known)."""
+        return self.host_to_server(self.device.to_host(t_device_s))
+
+    # -- observations ----------------------------------------------------------------------------
+
+    def accept(self, seq: int, t_device_s: float, t_host_s: float) -> bool:
+        """Whether a body frame is new (its seq above every one seen, across connections)."""
+        if self.last_seq is not None and seq <= self.last_seq:
+            self.stale += 1
+            return False
+        self.last_seq = seq
+        self.device.add(t_device_s, t_host_s)
+        return True
+
+    def enqueue(self, obs: Observation, t_receive_server_s: float) -> None:
+        if len(self.queue) == self.queue.maxlen:
+            self.dropped += 1
+        self.queue.append(obs)
+        self._arrivals.append(t_receive_server_s)
+        self._tracked.append(float((obs.states == TrackingState.TRACKED).mean()))
+
+    def drain(self) -> list[Observation]:
+        out = list(self.queue)
+        self.queue.clear()
+        return out
+
+    # -- statistics ------------------------------------------------------------------------------
+
+    def fps(self, t_now_s: float) -> float:
+        recent = [t for t in self._arrivals if t > t_now_s - 1.0]
+        return float(len(recent))
+
+    def tracked_fraction(self) -> float:
+        return float(np.mean(self._tracked)) if self._tracked else float("nan")
+
+    def clock_ms(self, t_now_s: float) -> tuple[float, float]:
+        """Offset (client minus server) and its standard error now, ms (NaN: none yet)."""
+        try:
+            e = self.clock.estimate(t_now_s)
+        except SyncError:
+            return float("nan"), float("nan")
+        return e.offset_s * 1e3, e.offset_se_s * 1e3
