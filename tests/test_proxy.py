@@ -270,3 +270,50 @@ def test_a_clean_close_passes_through_and_the_thread_runner_works() -> None:
         loop.call_soon_threadsafe(done.set)
         th.join(10)
         loop.close()
+
+
+def test_the_proxy_command_forwards_and_stops_cleanly_on_sigint() -> None:
+    import re
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import threading
+
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def echo_once() -> None:
+        c, _ = srv.accept()
+        with c:
+            while data := c.recv(65536):
+                c.sendall(data)
+
+    threading.Thread(target=echo_once, daemon=True).start()
+    port = srv.getsockname()[1]
+    cmd = [sys.executable, "-m", "kinefuse", "proxy", "--target", f"127.0.0.1:{port}"]
+    cmd += ["--up-delay-ms", "5", "--down-jitter-ms", "2", "--seed", "3"]
+    p = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert p.stdout is not None
+        first = p.stdout.readline()
+        m = re.match(r"kinefuse proxy: listening on 127\.0\.0\.1:(\d+) -> 127\.0\.0\.1:\d+", first)
+        assert m, first
+        with socket.create_connection(("127.0.0.1", int(m[1])), timeout=10) as s:
+            s.sendall(b"through the proxy")
+            got = b""
+            while len(got) < 17:
+                got += s.recv(100)
+        assert got == b"through the proxy"
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=10)
+        assert p.returncode == 0, err
+        assert "connection 0: 17 bytes up, 17 bytes down" in out
+    finally:
+        if p.poll() is None:
+            p.kill()
+        srv.close()

@@ -479,3 +479,51 @@ def jitter_profiles(jitter_ms: float) -> tuple[LinkProfile, LinkProfile]:
         LinkProfile(delay_s=2e-4, jitter_s=s, jitter="exponential"),
         LinkProfile(delay_s=2e-4, jitter_s=s / 2, jitter="exponential"),
     )
+
+
+def serve_proxy(
+    target_host: str,
+    target_port: int,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    up: LinkProfile | None = None,
+    down: LinkProfile | None = None,
+    cut_after_s: float | None = None,
+    max_cuts: int | None = None,
+    seed: int = 0,
+    say: Callable[[str], None] | None = None,
+) -> int:
+    """``kinefuse proxy``: run one proxy until SIGINT/SIGTERM; print where it listens first
+    (``kinefuse proxy: listening on HOST:PORT``) and a line per connection when it ends."""
+    import signal
+
+    def _print(m: str) -> None:
+        print(m, flush=True)
+
+    out = say or _print
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        proxy = FaultProxy(
+            target_host, target_port, up=up, down=down, cut_after_s=cut_after_s,
+            max_cuts=max_cuts, seed=seed, host=host, port=port,
+        )  # fmt: skip
+        try:
+            await proxy.start()
+        except OSError as e:
+            raise InputError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
+        out(f"kinefuse proxy: listening on {host}:{proxy.port} -> {target_host}:{target_port}")
+        try:
+            await stop.wait()
+        finally:
+            await proxy.close()
+        for c in proxy.connections:
+            out(f"connection {c.index}: {c.bytes_up} bytes up, {c.bytes_down} bytes down"
+                + (f", {c.cut}" if c.cut else ""))  # fmt: skip
+
+    asyncio.run(main())
+    return 0
