@@ -81,11 +81,12 @@ class FrameFusion:
 
     def set_poses(self, poses: Mapping[str, Array]) -> None:
         """Take (new) poses; sensors keep their indices, new ones are appended."""
+        old = {sid: self._poses[i] for i, sid in enumerate(self.ids)}
         for sid in poses:
             if sid not in self.ids:
                 self.ids.append(sid)
         self._poses = np.stack(
-            [np.asarray(poses.get(s, self._pose(s)), dtype=np.float64) for s in self.ids]
+            [np.asarray(poses[s] if s in poses else old[s], dtype=np.float64) for s in self.ids]
         )
         if self.method == "best-live":
             if self._live is None:
