@@ -193,10 +193,11 @@ async def _control_calibrate(
         if not isinstance(msg, Welcome):
             raise KinefuseError(f"expected welcome from the server, got {msg.TYPE}")
         beat = msg.heartbeat_s
-        send(CalibrationStart(method=method))
+        send(CalibrationStart(method=method, seconds=seconds))
         loop = asyncio.get_running_loop()
         t_end = loop.time() + timeout_s
-        t_stop = loop.time() + seconds if seconds is not None else math.inf
+        # the server ends the phase after `seconds`; a Stop a little later in case it did not
+        t_stop = loop.time() + seconds + 2.0 if seconds is not None else math.inf
         while True:
             now = loop.time()
             if now > t_end:

@@ -28,6 +28,7 @@ from kinefuse.calibration.wand_paper import detect_wand_paper_sequence
 from kinefuse.calibration.wand_robust import detect_wand_sequence
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import CalibrationError
+from kinefuse.io import store_live
 from kinefuse.io.store import SessionStore
 from kinefuse.sync import sensor_timebase
 
@@ -71,9 +72,19 @@ def gather(
     floors: dict[str, FloorPlane] = {}
     empty = []
     periods = []
+    live_floors = store_live.floors(store)
     for s in store.sensors():
         if store.depth_frame_count(s.id) == 0:
-            empty.append(s.id)
+            # a live recording: the clients sent their wand sightings, not depth frames
+            live = _live_sightings(store, s.id)
+            if live is None:
+                empty.append(s.id)
+                continue
+            tracks[s.id], sightings[s.id], period = live
+            if period is not None:
+                periods.append(period)
+            if s.id in live_floors:
+                floors[s.id] = live_floors[s.id]
             continue
         # depth frames carry device timestamps: the body stream's arrival times (same device
         # clock) map them to the client's clock, the probes to the server's
@@ -122,7 +133,8 @@ def gather(
         )
     if not sightings:
         raise CalibrationError(
-            f"{store.path}: the session has no calibration phase (no depth frames); record one "
+            f"{store.path}: the session has no calibration phase (no depth frames or wand "
+            "sightings); record one "
             "(kinefuse simulate --calibration-seconds 20)"
         )
     protocol = meta.get("wand_protocol")
@@ -134,6 +146,35 @@ def gather(
         phase_server_s=(float(phase[0]), float(phase[1])) if isinstance(phase, list) else (0, 0),
         frame_period_s=float(np.median(periods)) if periods else 1 / 30,
     )
+
+
+def _live_sightings(
+    store: SessionStore, sensor_id: str
+) -> tuple[WandTrack, Sightings, float | None] | None:
+    """A live recording's sightings of one sensor (None: it has none), with their device times
+    mapped to the server clock as the body frames' are: device -> host from the arrival times of
+    the body frames and the sightings together, host -> server from the probes."""
+    live = store_live.sightings(store, sensor_id)
+    n = len(live.seq)
+    if n == 0:
+        return None
+    obs = store.observations(sensor_id)
+    clock = sensor_timebase(
+        store.clock_probes(sensor_id),
+        np.concatenate([obs.t_sensor_s, live.t_device_s]),
+        np.concatenate([obs.t_receive_host_s, live.t_host_s]),
+    )
+    t_server = clock.to_server(live.t_device_s)
+    track = WandTrack(
+        found=np.ones(n, dtype=bool),
+        centre_sensor_m=live.centre_sensor_m,
+        score=live.score,
+        n_points=live.n_points,
+        residual_m=np.full(n, np.nan),
+        reasons=("",) * n,
+    )
+    period = float(np.median(np.diff(np.sort(t_server)))) if n > 1 else None
+    return track, live.as_sightings(t_server), period
 
 
 def _protocol_windows(cal: CalibrationInput) -> tuple[tuple[float, float], tuple[float, float]]:

@@ -10,7 +10,8 @@ Flow
 2. While collecting, every target's :class:`~kinefuse.protocol.messages.WandSighting` is kept with
    its capture time mapped onto the server clock (device -> host -> server, as for body frames);
    floor planes the clients report are kept across calibrations.
-3. It ends (:meth:`LiveCalibration.should_stop`) on a control ``CalibrationStop``, or when every
+3. It ends (:meth:`LiveCalibration.should_stop`) on a control ``CalibrationStop``, after the
+   ``seconds`` the ``CalibrationStart`` asked for if it did, else when no
    sensor has sent a sighting for ``quiet_s`` (the wand was put away; the simulated sensors'
    depth phase ended) once one has sent ``min_sightings``, or after ``max_s``.
 4. :meth:`LiveCalibration.solve`: with no sensor kept fixed, every target is registered as the
@@ -126,6 +127,7 @@ class LiveCalibration:
         self._targets: set[str] = set()
         self._tracks: dict[str, _Track] = {}
         self._t_start = 0.0
+        self._seconds: float | None = None
         self._state_before = "none"
 
     # -- poses -----------------------------------------------------------------------------------
@@ -159,6 +161,7 @@ class LiveCalibration:
         sensor_ids: Sequence[str] = (),
         method: str = "",
         calibration_id: int | None = None,
+        seconds: float | None = None,
     ) -> int:
         """Begin collecting; returns the calibration id. Restarting discards what was collected."""
         if method and method not in METHODS:
@@ -173,6 +176,7 @@ class LiveCalibration:
         self._targets = targets
         self._tracks = {}
         self._t_start = float(t_server_s)
+        self._seconds = seconds
         if self.state != "collecting":
             self._state_before = self.state
         self.state = "collecting"
@@ -214,6 +218,10 @@ class LiveCalibration:
         o = self.options
         if t_server_s - self._t_start >= o.max_s:
             return f"the longest calibration ({o.max_s:g} s) has passed"
+        if self._seconds is not None:
+            if t_server_s - self._t_start >= self._seconds:
+                return f"the {self._seconds:g} s asked for have passed"
+            return None
         if not self._tracks:
             return None
         last = max(tr.t[-1] for tr in self._tracks.values())

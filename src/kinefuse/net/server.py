@@ -511,7 +511,9 @@ class Server:
                 conn.check_sender(msg)
                 if isinstance(msg, CalibrationStart):
                     try:
-                        self._start_calibration(method=msg.method, sensor_ids=msg.sensor_ids)
+                        self._start_calibration(
+                            method=msg.method, sensor_ids=msg.sensor_ids, seconds=msg.seconds
+                        )
                     except CalibrationError as e:
                         conn.send(
                             CalibrationResult(
@@ -549,12 +551,20 @@ class Server:
 
     # -- calibration -------------------------------------------------------------------------------
 
-    def _start_calibration(self, *, method: str, sensor_ids: tuple[str, ...] | list[str]) -> None:
+    def _start_calibration(
+        self,
+        *,
+        method: str,
+        sensor_ids: tuple[str, ...] | list[str],
+        seconds: float | None = None,
+    ) -> None:
         cal = self.calibration
         if cal.state == "solving":
             raise CalibrationError("a calibration is being solved; start again when it is done")
         connected = [s for s, c in self.clients.items() if c.connected]
-        cid = cal.start(self.clock(), connected, sensor_ids=tuple(sensor_ids), method=method)
+        cid = cal.start(
+            self.clock(), connected, sensor_ids=tuple(sensor_ids), method=method, seconds=seconds
+        )
         log.info(
             "calibration %d started (%s) for %s",
             cid,
