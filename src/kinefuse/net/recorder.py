@@ -211,7 +211,12 @@ class Recorder:
             return
         self._closed = True
         try:
-            await self.flush()
+            try:
+                await self.flush()
+            except Exception:
+                if clean:
+                    raise
+                log.exception("the last rows could not be written to %s", self.path)
             if clean:
                 await self._in_thread(self._finish_sync)
         finally:
