@@ -31,7 +31,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -164,7 +164,12 @@ class ChildProcesses:
         return int(p.returncode)
 
     def stop_all(self) -> None:
-        """Stop every child still running (SIGINT, then SIGKILL); never raises."""
+        """Stop every child still running (SIGINT, then SIGKILL); never raises. A second Ctrl-C
+        while it waits does not interrupt it (that would leave the children behind)."""
+        with _sigint_ignored():
+            self._stop_all()
+
+    def _stop_all(self) -> None:
         running = [c for c in self.children if c.popen.poll() is None]
         for c in running:
             with contextlib.suppress(ProcessLookupError):
@@ -179,6 +184,18 @@ class ChildProcesses:
             if c.popen.stdout is not None:
                 with contextlib.suppress(OSError):
                     c.popen.stdout.close()
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _kill(p: subprocess.Popen[bytes]) -> None:
