@@ -22,11 +22,17 @@ The published :class:`~kinefuse.net.publish.FusedFrame` carries ``latency_s``: t
 it was published minus the host receive time (mapped onto the server clock) of the newest
 observation it used.
 
-Cost: one ``best-live`` frame takes about 1.3 ms of CPU (``benchmarks/bench_live.py``), 4 % of a
-frame period, so it runs on the event loop: moving it to a thread would not free the loop (the
-fusion is Python code holding the GIL, and a thread switch waits for up to the interpreter's
-5 ms switch interval), and a probe reply that arrives meanwhile waits at most that 1.3 ms, which
-the clock's burst minimum (5 probes, the least delayed kept) absorbs.
+Cost and the event loop: a ``best-live`` frame takes about 1.3 ms of CPU on an idle machine and
+6 ms on this shared 2-core one, the paper's chain (one trilateration call per frame) 18 ms
+(``python benchmarks/bench_server_fusion.py``, medians, 4 sensors). While the fusion runs on the
+event loop, a clock-probe reply that arrives waits to be stamped, which biases that probe. So the
+loop measures its own fusion time: while the mean over the last frames stays under
+``thread_above_s`` (2 ms) the fusion runs on the loop (a thread hop would cost more than it
+saves); above it, each frame's ``fuse`` runs in a worker thread (``asyncio.to_thread``), and the
+loop only waits at most the interpreter's GIL switch interval (5 ms) to stamp a reply. The
+clock estimator's burst minimum (5 probes 20 ms apart, the least delayed kept) discards the
+probes that waited anyway. New poses (a calibration) are applied between frames, never during
+one.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
 
@@ -193,6 +200,11 @@ class FusionLoop:
         self.frames = 0
         self.skipped = 0
         self.fuse_seconds = 0.0
+        #: mean fusion time per frame above which the fusion runs in a worker thread, seconds
+        self.thread_above_s = 0.002
+        self._costs: deque[float] = deque(maxlen=30)
+        self._was_threaded = False
+        self._new_poses: dict[str, Array] | None = None
         self._published: deque[float] = deque(maxlen=31)
 
     @property
@@ -216,9 +228,22 @@ class FusionLoop:
                 if math.isfinite(o.t_capture_server_s):
                     q.append(o)
 
-    def step(self, k: int) -> FusedFrame | None:
+    def set_poses(self, poses: Mapping[str, Array]) -> None:
+        """New poses, applied before the next frame (not while one is being fused)."""
+        self._new_poses = dict(poses)
+
+    @property
+    def threaded(self) -> bool:
+        """Whether the fusion currently runs in a worker thread (see the module docstring)."""
+        c = self._costs
+        return len(c) >= 10 and sum(c) / len(c) > self.thread_above_s
+
+    async def step(self, k: int) -> FusedFrame | None:
         """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
         t = k / self.rate_hz
+        if self._new_poses is not None:
+            self.fusion.set_poses(self._new_poses)
+            self._new_poses = None
         self._collect()
         horizon = t + self.fusion.lead_s
         for sid, q in self._pending.items():
@@ -238,10 +263,23 @@ class FusionLoop:
                         self._newest_host = max(self._newest_host, o.t_host_server_s)
         if not self.fusion.ready:
             return None
-        t0 = self.clock()
-        pos, var, status = self.fusion.fuse(t)
+        threaded = self.threaded
+        if threaded != self._was_threaded:
+            log.info(
+                "fusion takes %.1f ms per frame: running it %s",
+                1e3 * sum(self._costs) / len(self._costs),
+                "in a worker thread" if threaded else "on the event loop",
+            )
+            self._was_threaded = threaded
+        t0 = time.perf_counter()
+        if threaded:
+            pos, var, status = await asyncio.to_thread(self.fusion.fuse, t)
+        else:
+            pos, var, status = self.fusion.fuse(t)
+        cost = time.perf_counter() - t0
+        self._costs.append(cost)
+        self.fuse_seconds += cost
         t_pub = self.clock()
-        self.fuse_seconds += t_pub - t0
         latency = t_pub - self._newest_host if math.isfinite(self._newest_host) else math.nan
         frame = FusedFrame(
             seq=k,
@@ -271,6 +309,6 @@ class FusionLoop:
                 self.skipped += behind
                 log.warning("fusion fell %d frames behind; skipping to the present", behind)
                 k += behind
-            self.step(k)
+            await self.step(k)
             k += 1
             await asyncio.sleep(0)

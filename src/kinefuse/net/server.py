@@ -208,12 +208,32 @@ class Server:
                     c.close()
                 self.publisher.close()
                 if self.recorder is not None:
+                    self.recorder.add_meta("live_run", self.run_stats())
                     self.recorder.stop()
             clean = True
         finally:
             self._tg = None
             if self.recorder is not None:
                 await self.recorder.close(clean=clean)
+
+    def run_stats(self) -> dict[str, object]:
+        """Figures of the run so far (also stored as the meta ``live_run`` at a clean stop)."""
+        lp = self.loop
+        return {
+            "frames_fused": lp.frames,
+            "frames_skipped": lp.skipped,
+            "fusion_ms_per_frame": 1e3 * lp.fuse_seconds / lp.frames if lp.frames else None,
+            "stop_reason": self._stop_reason,
+            "refused": [{"code": c, "reason": r} for c, r in self.refused],
+            "sensors": {
+                sid: {
+                    "connections": c.connections,
+                    "queue_dropped": c.dropped,
+                    "stale_frames": c.stale,
+                }
+                for sid, c in self.clients.items()
+            },
+        }
 
     def _meta(self) -> dict[str, object]:
         o = self.options
@@ -614,7 +634,7 @@ class Server:
         for r in out.grade.reasons:
             log.info("  %s", r)
         if out.ok and out.calibration is not None:
-            self.fusion.set_poses(out.calibration.sensor2world)
+            self.loop.set_poses(out.calibration.sensor2world)
             if self.recorder is not None and out.text is not None:
                 self.recorder.add_calibration(out.method, out.text)
                 self.recorder.add_meta("live_calibration", _outcome_meta(out))
