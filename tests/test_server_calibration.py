@@ -101,3 +101,34 @@ def test_when_a_calibration_ends(wand) -> None:
         cal.start(0.0, ["a"], method="magic")
     cal.abort()
     assert cal.state != "collecting"
+
+
+def test_the_scale_is_fixed_from_the_protocol_only_when_its_holds_were_seen(wand) -> None:
+    from kinefuse.calibration.floor import FloorPlane
+    from kinefuse.calibration.register import Sightings
+
+    truth, sights = wand
+    floors = {}
+    for sid, p in truth.items():  # the floor z = 0 seen from each sensor
+        n = p[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        floors[sid] = FloorPlane(n, float(p[2, 3]), 1000, 0.002)
+
+    def run(drop_s: float) -> str:
+        cal = LiveCalibration(LiveCalibrationOptions(axis_length_m=1.0))
+        for sid, fl in floors.items():
+            cal.add_floor(sid, fl)
+        cal.start(0.0, list(IDS))
+        cut = {
+            s: Sightings(
+                *(a[v.t_server_s >= drop_s] for a in (v.t_server_s, v.centre_sensor_m, v.quality))
+            )
+            for s, v in sights.items()
+        }
+        feed(cal, cut, IDS)
+        out = cal.solve({s: Intrinsics() for s in IDS}, {})
+        assert out.ok, out.message
+        return out.calibration.world
+
+    assert "scaled by" in run(0.0)  # both holds seen: the known 1 m move fixes the scale
+    # the start (the first hold) missed: the holds found are others, their move is no 1 m
+    assert "scale NOT corrected" in run(3.0)

@@ -183,6 +183,12 @@ def _protocol_windows(cal: CalibrationInput) -> tuple[tuple[float, float], tuple
     return find_hold_windows(cal.sightings)
 
 
+#: The largest scale correction :func:`calibrate` applies (a fraction): the range scale error of
+#: a time-of-flight sensor is a fraction of a percent, so a larger one means the protocol's holds
+#: were not found (e.g. the start of the wand phase was missed) and is not applied.
+MAX_SCALE_CORRECTION = 0.03
+
+
 def scale_from_axis(cal: CalibrationInput, reg: Registration) -> float:
     """The world's scale error, from the protocol's known move between the two holds.
 
@@ -256,5 +262,20 @@ def calibrate(cal: CalibrationInput, method: str, *, fix_scale: bool = True) -> 
             max_gap_s=1.6 * cal.frame_period_s,
             max_speed_m_s=min(1.5, 0.05 / cal.frame_period_s),
         )
-        return scale_registration(reg, scale_from_axis(cal, reg)) if fix_scale else reg
+        if not fix_scale:
+            return reg
+        try:
+            factor = scale_from_axis(cal, reg)
+        except CalibrationError as e:  # the scale is a refinement: the poses stand without it
+            return replace(reg, world=reg.world + f"; scale NOT corrected: {e}")
+        if abs(factor - 1.0) > MAX_SCALE_CORRECTION:
+            # a range scale error of time-of-flight sensors is a fraction of a percent: a move
+            # this far off its known length means the holds found are not the protocol's (a
+            # client that missed the start of the wand phase); correcting would break the world
+            return replace(
+                reg,
+                world=reg.world + f"; scale NOT corrected: the move between the holds found is "
+                f"{abs(1 / factor - 1):.1%} off the protocol's known length (holds missed?)",
+            )
+        return scale_registration(reg, factor)
     raise CalibrationError(f"unknown calibration method {method!r}; choose paper or full")
