@@ -75,6 +75,11 @@ def test_the_loop_uses_what_was_captured_up_to_its_horizon_and_publishes() -> No
     # the newest observation used (captured 1.00 s) reached its host at 1.06: latency = now - that
     assert fr.latency_s == pytest.approx(1.2 - 1.06, abs=1e-6)
     assert [len(q) for q in loop._pending.values()] == [2, 2]  # 1.05 and 1.20 s wait their frames
+    now[0] = 1.4
+    assert asyncio.run(loop.step(36)).latency_s == pytest.approx(1.4 - 1.26)  # T = 1.2 s
+    now[0] = 2.0
+    late = asyncio.run(loop.step(50))  # T = 1.67 s: nothing new for 0.47 s, a prediction
+    assert np.isnan(late.latency_s)
     items = []
 
     async def take() -> None:
@@ -83,7 +88,7 @@ def test_the_loop_uses_what_was_captured_up_to_its_horizon_and_publishes() -> No
             items.append(it)
 
     asyncio.run(take())
-    assert [it.seq for it in items] == [30]
+    assert [it.seq for it in items] == [30, 36, 50]
 
 
 def test_sanitize_joints_makes_nan_and_not_tracked_agree() -> None:
