@@ -523,6 +523,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", type=Path)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_inspect)
+
+    from kinefuse.sensor_app import add_parser as add_sensor_parser
+
+    add_sensor_parser(sub)  # kinefuse sensor: one live sensor client (docs/live.md)
     return parser
 
 

@@ -1,0 +1,877 @@
+"""The sensor client: plays one sensor's frames to the server in real time, as the sensor would.
+
+One client per sensor (paper A's client PC). It connects, says Hello, answers the challenge if
+the server has a token, and after the Welcome:
+
+- plays its :class:`~kinefuse.net.playback.Timeline`: each frame is handed over when its time
+  comes on the monotonic clock (``m0 + t_play / speed``), stamped ``t_host_s`` with the host
+  clock (:mod:`kinefuse.net.clocks`) and ``t_device_s`` with the source's device stamp;
+- answers every ClockProbe at once from the protocol callback (``t2`` stamped when the bytes
+  arrived, ``t3`` just before the reply is written), never queued behind data;
+- runs the paper's client-side parts: the 2-D bone-crossing occlusion test on every body frame
+  (:func:`kinefuse.occlusion.detect_occlusion`), and while the server runs a calibration the
+  wand detector on its depth frames (robust by default, ``detector="paper"``) plus one floor
+  plane fit; it sends only the results (depth images never leave the client);
+- keeps bounded send queues: the newest body frames win (older ones are dropped and counted),
+  wand detection runs on one worker thread and skips depth frames that arrive while it is busy
+  (the sighting's ``stride`` says how many frames its detection covers), so the client never
+  falls behind and never queues without bound;
+- sends a Heartbeat when idle, and reconnects with capped exponential backoff and jitter when
+  the connection breaks, keeping its sensor id and its stream (the play clock goes on).
+
+It stops on :meth:`SensorClient.stop` (SIGINT/SIGTERM in ``kinefuse sensor``; it sends
+Goodbye), on the server's Goodbye, or at the end of the source (or ``max_seconds``).
+
+Threads: the asyncio loop does the networking; one worker thread reads the source and runs
+occlusion ahead of the frames' times; one runs wand detection, one the floor fit. The client
+owns them and joins them when :meth:`SensorClient.run` returns.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import logging
+import math
+import random
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from kinefuse.errors import KinefuseError
+from kinefuse.net.clocks import HostClock, Monotonic
+from kinefuse.net.playback import Timed, Timeline
+from kinefuse.protocol import auth
+from kinefuse.protocol.codec import Decoder, check_version, encode
+from kinefuse.protocol.errors import WireError
+from kinefuse.protocol.messages import (
+    AuthReply,
+    BodyFrame,
+    CalibrationStart,
+    CalibrationStop,
+    Challenge,
+    ClockProbe,
+    ClockReply,
+    Error,
+    FloorPlane,
+    Goodbye,
+    Heartbeat,
+    Hello,
+    Message,
+    WandSighting,
+    Welcome,
+)
+from kinefuse.sources import DepthFrame
+
+log = logging.getLogger("kinefuse.sensor")
+
+#: exit codes of ``kinefuse sensor``
+EXIT_OK = 0
+EXIT_REFUSED = 3
+
+
+class ClientRefused(KinefuseError):
+    """The server refused this client for good (wrong or missing token, version, duplicate id).
+
+    ``code`` is the server's error code (``auth``, ``version``, ``duplicate_id``, ...).
+    """
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True)
+class ClientOptions:
+    """How a :class:`SensorClient` runs (every default lives here).
+
+    ``server``: (host, port). ``token``: the shared secret or None. ``detector``: "robust" or
+    "paper". ``detect_every``: consider every k-th depth frame for detection (1 = all; the
+    worker skips more when busy). ``occlusion_rule``: "crossing" (the paper's) or "coverage".
+    ``speed``: source seconds per real second. ``max_seconds``: stop after this much source
+    time (None = the whole source). ``body_queue``/``sighting_queue``: bounded send queues
+    (messages). ``backoff_initial_s``/``backoff_max_s``: reconnect delays (doubling, capped,
+    times a random factor in [0.5, 1]). ``connect_timeout_s``: for the TCP connect and each
+    handshake step. ``duplicate_wait_s``: how long to keep retrying while the server says the
+    sensor id is connected (its stale connection may linger until the server's timeout).
+    ``floor_frames``: depth frames whose per-pixel median gives the floor plane.
+    """
+
+    server: tuple[str, int]
+    token: str | None = None
+    detector: str = "robust"
+    detect_every: int = 1
+    occlusion_rule: str = "crossing"
+    speed: float = 1.0
+    max_seconds: float | None = None
+    serial: str = ""
+    software: str = ""
+    body_queue: int = 30
+    sighting_queue: int = 30
+    backoff_initial_s: float = 0.2
+    backoff_max_s: float = 5.0
+    connect_timeout_s: float = 5.0
+    duplicate_wait_s: float = 15.0
+    floor_frames: int = 15
+
+    def __post_init__(self) -> None:
+        if self.detector not in ("robust", "paper"):
+            raise ValueError(f"detector must be 'robust' or 'paper', got {self.detector!r}")
+        if self.occlusion_rule not in ("crossing", "coverage"):
+            raise ValueError(f"occlusion_rule must be crossing or coverage: {self.occlusion_rule}")
+        if not self.speed > 0:
+            raise ValueError(f"speed must be positive, got {self.speed}")
+        if self.detect_every < 1 or self.body_queue < 1 or self.sighting_queue < 1:
+            raise ValueError("detect_every and the queue sizes must be >= 1")
+        if self.token is not None:
+            auth.check_token(self.token)
+
+
+@dataclass
+class ClientStats:
+    """Counters of one client run (all connections)."""
+
+    connections: int = 0
+    body_sent: int = 0
+    body_dropped: int = 0
+    sightings_sent: int = 0
+    sightings_dropped: int = 0
+    depth_frames: int = 0
+    depth_detected: int = 0
+    depth_skipped_busy: int = 0
+    probes_answered: int = 0
+    late_frames: int = 0
+    max_late_s: float = 0.0
+    skipped_at_start: int = 0
+
+
+class _Connection(asyncio.Protocol):
+    """One TCP connection: decodes, answers probes inline, queues everything else."""
+
+    def __init__(self, client: SensorClient) -> None:
+        self.client = client
+        self.decoder = Decoder()
+        self.inbox: asyncio.Queue[Message | WireError] = asyncio.Queue()
+        self.closed = asyncio.get_running_loop().create_future()
+        self.transport: asyncio.Transport | None = None
+        self.writable = asyncio.Event()
+        self.writable.set()
+        self.last_rx = client.monotonic()
+        self.last_tx = client.monotonic()
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+
+    def data_received(self, data: bytes) -> None:
+        t_arrival = self.client.monotonic()  # first: t2 is the moment the bytes arrived
+        self.last_rx = t_arrival
+        try:
+            msgs = self.decoder.feed(data)
+            error: WireError | None = None
+        except WireError as e:
+            msgs, error = getattr(e, "decoded", []), e
+        for m in msgs:
+            if isinstance(m, ClockProbe):
+                self._answer(m, t_arrival)
+            else:
+                self.inbox.put_nowait(m)
+        if error is not None:
+            self.inbox.put_nowait(error)
+
+    def _answer(self, probe: ClockProbe, t_arrival: float) -> None:
+        host = self.client.host_clock
+        if self.transport is None or self.transport.is_closing():
+            return
+        if host is None:
+            # the emulated clock starts with the play; the arrival instant is kept, so the
+            # reply is exact when it goes (only its turnaround t3 - t2 is longer)
+            self.client._held_probes.append((self, probe, t_arrival))
+            return
+        t2 = host.at(t_arrival)
+        t3 = max(t2, host.now())
+        self.transport.write(encode(ClockReply(probe.probe_id, probe.t1, t2, t3)))
+        self.last_tx = self.client.monotonic()
+        self.client.stats.probes_answered += 1
+
+    def send(self, msg: Message) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.write(encode(msg))
+            self.last_tx = self.client.monotonic()
+
+    def pause_writing(self) -> None:
+        self.writable.clear()
+
+    def resume_writing(self) -> None:
+        self.writable.set()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.writable.set()
+        if not self.closed.done():
+            self.closed.set_result(exc)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+
+class _Outcome(Exception):
+    """How one connection ended (internal control flow)."""
+
+    def __init__(self, kind: str, detail: str = "") -> None:
+        super().__init__(detail or kind)
+        self.kind = kind
+
+
+class SensorClient:
+    """Plays ``timeline`` to a server (see the module notes).
+
+    Parameters
+    ----------
+    timeline : Timeline
+        The sensor's frames (:func:`kinefuse.net.playback.open_timeline`); the client closes it.
+    options : ClientOptions
+    host_clock : HostClock or callable
+        The host clock, or ``make(m0) -> HostClock`` called at the play start with the
+        monotonic instant that plays timeline time 0 (an emulated clock depends on it).
+    epoch_monotonic : float, optional
+        Play timeline time ``T`` at monotonic ``epoch + T / speed`` (several clients in step;
+        frames already past at the start are skipped). Default: the first frame plays at once.
+    monotonic : callable
+        The monotonic clock (tests inject one).
+    on_play_start : callable, optional
+        Called once with ``(m0, play_start_monotonic, play_start_source_s)`` when playing
+        starts (the sensor app writes its truth sidecar then).
+    """
+
+    def __init__(
+        self,
+        timeline: Timeline,
+        options: ClientOptions,
+        *,
+        host_clock: HostClock | Callable[[float], HostClock],
+        epoch_monotonic: float | None = None,
+        monotonic: Monotonic = time.monotonic,
+        on_play_start: Any = None,
+        rng: random.Random | None = None,
+    ) -> None:
+        self.timeline = timeline
+        self.options = options
+        self.monotonic = monotonic
+        self._host_spec: Callable[[float], HostClock] = (
+            (lambda _m0: host_clock) if isinstance(host_clock, HostClock) else host_clock
+        )
+        self.host_clock: HostClock | None = (
+            host_clock if isinstance(host_clock, HostClock) else None
+        )
+        self.epoch = epoch_monotonic
+        self.on_play_start = on_play_start
+        self.rng = rng or random.Random()
+        self.stats = ClientStats()
+        self.m0: float | None = None
+        self._stop = asyncio.Event()
+        self._stop_reason = ""
+        self._body: deque[BodyFrame] = deque()
+        self._sightings: deque[Message] = deque()
+        self._urgent: deque[Message] = deque()  # floor planes: tiny, once per calibration
+        self._wake = asyncio.Event()
+        self._welcomed = asyncio.Event()
+        self._conn: _Connection | None = None
+        self.calibrating = False
+        self.calibration_id = 0
+        self._floor: list[np.ndarray] | None = None
+        self._detect_busy = False
+        self._since_detect = 0
+        self._depth_count = 0
+        self._source_done = False
+        self._held_probes: list[tuple[_Connection, ClockProbe, float]] = []
+        self._delivered = 0
+        self._io = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-source")
+        self._det = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-detect")
+        self._det.submit(_warm_up)  # imports the detectors before the first depth frame
+        # the floor fit (a median over frames, ~0.1 s) must not hold up detection
+        self._flo = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-floor")
+
+    # -- public ----------------------------------------------------------------------------
+
+    def stop(self, reason: str = "stopped") -> None:
+        """Ask the client to stop (it says Goodbye and :meth:`run` returns 0)."""
+        self._stop_reason = self._stop_reason or reason
+        self._stop.set()
+        self._wake.set()
+
+    async def run(self) -> int:
+        """Connect, play, reconnect as needed; return the exit code (0 on a clean stop).
+
+        Raises
+        ------
+        ClientRefused
+            The server refused for good (auth, version, or a duplicate id for too long).
+        """
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(self._connections())
+                tg.create_task(self._play())
+        except* ClientRefused as eg:
+            raise eg.exceptions[0] from None
+        except* KinefuseError as eg:
+            raise eg.exceptions[0] from None  # bad input (a source that cannot be read)
+        finally:
+            self._io.shutdown(wait=True, cancel_futures=True)
+            self._det.shutdown(wait=True, cancel_futures=True)
+            self._flo.shutdown(wait=True, cancel_futures=True)
+            with contextlib.suppress(Exception):
+                self.timeline.close()
+        return EXIT_OK
+
+    # -- connections -----------------------------------------------------------------------
+
+    async def _connections(self) -> None:
+        attempt = 0
+        duplicate_since: float | None = None
+        while not self._stop.is_set():
+            try:
+                await self._one_connection()
+                return
+            except _Outcome as out:
+                if out.kind == "goodbye":
+                    log.info("the server said goodbye (%s): stopping", out)
+                    self.stop("server said goodbye")
+                    return
+                if out.kind == "stop":
+                    return
+                if out.kind == "duplicate_id":
+                    now = self.monotonic()
+                    duplicate_since = duplicate_since or now
+                    if now - duplicate_since > self.options.duplicate_wait_s:
+                        raise ClientRefused(
+                            "duplicate_id",
+                            f"the server keeps refusing sensor id {self.timeline.sensor_id!r} "
+                            f"as already connected ({out}); is another client playing it?",
+                        ) from None
+                else:
+                    duplicate_since = None
+                if out.kind == "welcomed":
+                    attempt = 0
+                log.warning("connection to %s:%d: %s", *self.options.server, out)
+            delay = min(
+                self.options.backoff_max_s, self.options.backoff_initial_s * 2.0**attempt
+            ) * (0.5 + 0.5 * self.rng.random())
+            attempt += 1
+            await _wait_event(self._stop, delay)
+
+    async def _one_connection(self) -> None:
+        loop = asyncio.get_running_loop()
+        host, port = self.options.server
+        t = self.options.connect_timeout_s
+        try:
+            async with asyncio.timeout(t):
+                _tr, conn = await loop.create_connection(lambda: _Connection(self), host, port)
+        except (OSError, TimeoutError) as e:
+            raise _Outcome("connect", f"cannot connect ({e or 'timed out'})") from None
+        self._conn = conn
+        try:
+            welcome = await self._handshake(conn)
+            self.stats.connections += 1
+            log.info(
+                "sensor %s connected to %s:%d (session %r)",
+                self.timeline.sensor_id, host, port, welcome.session,
+            )  # fmt: skip
+            if welcome.calibrating:
+                self._start_calibration(welcome.calibration_id)
+            self._welcomed.set()
+            await self._session(conn, welcome)
+        finally:
+            self._conn = None
+            conn.close()
+
+    async def _next(self, conn: _Connection, timeout: float) -> Message:
+        get = asyncio.ensure_future(conn.inbox.get())
+        stop = asyncio.ensure_future(self._stop.wait())
+        try:
+            done, _ = await asyncio.wait(
+                {get, stop, conn.closed}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED
+            )
+        finally:
+            for f in (get, stop):
+                if not f.done():
+                    f.cancel()
+        if get in done:
+            item = get.result()
+            if isinstance(item, WireError):
+                conn.send(Error(item.code, str(item)[:1000]))
+                raise _Outcome("protocol", f"the server broke the protocol: {item}")
+            return item
+        if stop in done:
+            raise _Outcome("stop")
+        if conn.closed in done:
+            raise _Outcome("lost", "the server closed the connection")
+        raise _Outcome("timeout", f"nothing from the server for {timeout:g} s")
+
+    async def _handshake(self, conn: _Connection) -> Welcome:
+        tl, opt = self.timeline, self.options
+        conn.send(
+            Hello(
+                role="sensor",
+                sensor_id=tl.sensor_id,
+                serial=opt.serial,
+                intrinsics=tl.intrinsics,
+                capabilities=("wand", "floor", "occlusion"),
+                software=opt.software,
+            )
+        )
+        msg = await self._next(conn, opt.connect_timeout_s)
+        if isinstance(msg, Challenge):
+            if opt.token is None:
+                conn.send(Goodbye("no token"))
+                raise ClientRefused(
+                    "auth", "the server requires a token: start the sensor with --token TOKEN"
+                )
+            mac = auth.compute_mac(opt.token, msg.nonce, role="sensor", sensor_id=tl.sensor_id)
+            conn.send(AuthReply(mac))
+            msg = await self._next(conn, opt.connect_timeout_s)
+        if isinstance(msg, Error):
+            if msg.code == "auth":
+                raise ClientRefused(
+                    "auth",
+                    f"the server refused the token ({msg.reason}); give the server's --token",
+                )
+            if msg.code == "version":
+                raise ClientRefused("version", f"the server speaks another version: {msg.reason}")
+            raise _Outcome(msg.code, f"refused: {msg.reason} ({msg.code})")
+        if isinstance(msg, Goodbye):
+            raise _Outcome("goodbye", msg.reason)
+        if not isinstance(msg, Welcome):
+            conn.send(Error("order", f"expected welcome, got {msg.TYPE}"))
+            raise _Outcome("protocol", f"the server sent {msg.TYPE} instead of welcome")
+        try:
+            check_version(msg.protocol_version)
+        except WireError as e:
+            raise ClientRefused("version", str(e)) from None
+        return msg
+
+    async def _session(self, conn: _Connection, welcome: Welcome) -> None:
+        writer = asyncio.ensure_future(self._writer(conn, welcome.heartbeat_s))
+        try:
+            while True:
+                idle = self.monotonic() - conn.last_rx
+                wait = max(0.05, welcome.timeout_s - idle)
+                try:
+                    msg = await self._next(conn, wait)
+                except _Outcome as out:
+                    if (
+                        out.kind == "timeout"
+                        and self.monotonic() - conn.last_rx < welcome.timeout_s
+                    ):
+                        continue  # probes (answered inline) arrived meanwhile
+                    if out.kind == "timeout":
+                        conn.send(Error("timeout", f"nothing heard for {welcome.timeout_s:g} s"))
+                    if out.kind == "stop":
+                        await self._flush(conn)
+                        conn.send(Goodbye(self._stop_reason or "stopped"))
+                    raise
+                self._handle(conn, msg)
+                if writer.done():
+                    writer.result()
+        finally:
+            writer.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await writer
+
+    def _handle(self, conn: _Connection, msg: Message) -> None:
+        if isinstance(msg, CalibrationStart):
+            self._start_calibration(msg.calibration_id)
+        elif isinstance(msg, CalibrationStop):
+            if self.calibrating:
+                log.info("calibration %d stopped", msg.calibration_id)
+            self.calibrating = False
+            self._floor = None
+        elif isinstance(msg, Goodbye):
+            raise _Outcome("goodbye", msg.reason)
+        elif isinstance(msg, Error):
+            raise _Outcome(msg.code, f"the server reported {msg.code}: {msg.reason}")
+        elif isinstance(msg, Heartbeat):
+            pass
+        elif "server" not in type(msg).SENDERS or isinstance(msg, Challenge | Welcome):
+            conn.send(Error("order", f"a server does not send {msg.TYPE} now"))
+            raise _Outcome("protocol", f"the server sent {msg.TYPE} out of order")
+        # other server messages (status, calibration_result) are not for a sensor: ignored
+
+    async def _writer(self, conn: _Connection, heartbeat_s: float) -> None:
+        while True:
+            await conn.writable.wait()
+            self._send_pending(conn)
+            idle = self.monotonic() - conn.last_tx
+            if idle >= heartbeat_s:
+                conn.send(Heartbeat(self._host_now(), self._n_sent(), self._n_dropped()))
+                idle = 0.0
+            self._wake.clear()
+            await _wait_event(self._wake, max(0.01, heartbeat_s - idle))
+
+    def _send_pending(self, conn: _Connection) -> None:
+        while conn.writable.is_set() and (self._urgent or self._sightings or self._body):
+            if self._urgent:
+                conn.send(self._urgent.popleft())
+            elif self._sightings:
+                conn.send(self._sightings.popleft())
+                self.stats.sightings_sent += 1
+            else:
+                conn.send(self._body.popleft())
+                self.stats.body_sent += 1
+
+    async def _flush(self, conn: _Connection, timeout: float = 2.0) -> None:
+        end = self.monotonic() + timeout
+        while (self._urgent or self._sightings or self._body) and self.monotonic() < end:
+            if conn.closed.done():
+                return
+            self._send_pending(conn)
+            await asyncio.sleep(0.01)
+
+    def _n_sent(self) -> int:
+        return self.stats.body_sent + self.stats.sightings_sent
+
+    def _n_dropped(self) -> int:
+        return self.stats.body_dropped + self.stats.sightings_dropped
+
+    def _host_now(self) -> float:
+        return self.host_clock.now() if self.host_clock is not None else self.monotonic()
+
+    # -- queues ----------------------------------------------------------------------------
+
+    def _enqueue_body(self, msg: BodyFrame) -> None:
+        if len(self._body) >= self.options.body_queue:
+            self._body.popleft()  # the newest wins
+            self.stats.body_dropped += 1
+        self._body.append(msg)
+        self._wake.set()
+
+    def _enqueue_sighting(self, msg: Message) -> None:
+        if len(self._sightings) >= self.options.sighting_queue:
+            self._sightings.popleft()
+            self.stats.sightings_dropped += 1
+        self._sightings.append(msg)
+        self._wake.set()
+
+    # -- playing ---------------------------------------------------------------------------
+
+    async def _play(self) -> None:
+        await self._wait_welcome_or_stop()
+        if self._stop.is_set():
+            return
+        loop = asyncio.get_running_loop()
+        ahead = _Prefetch(loop, _Prepared(self.timeline, self.options.occlusion_rule))
+        producer = loop.run_in_executor(self._io, ahead.run)
+        try:
+            await self._play_frames(ahead)
+        finally:
+            ahead.halt()
+            await producer
+        self._source_done = True
+        if not self._stop.is_set():
+            log.info("sensor %s: the source ended", self.timeline.sensor_id)
+            self.stop("source ended")
+
+    async def _play_frames(self, ahead: _Prefetch) -> None:
+        first = True
+        speed = self.options.speed
+        t_first: float | None = None
+        while not self._stop.is_set():
+            item = await ahead.get()
+            if item is None:
+                return
+            timed, occ = item
+            if first:
+                self._start_play(timed)
+                first = False
+            if t_first is None:
+                t_first = timed.t_play_s
+            if (
+                self.options.max_seconds is not None
+                and math.isfinite(timed.t_play_s)
+                and timed.t_play_s - t_first > self.options.max_seconds
+            ):
+                return
+            assert self.m0 is not None
+            if not self.timeline.live:
+                due = self.m0 + timed.t_play_s / speed
+                now = self.monotonic()
+                if due < now and self.epoch is not None and self._delivered == 0:
+                    self.stats.skipped_at_start += 1
+                    continue  # the common epoch is past (a late start): join at the present
+                if due > now:
+                    await _wait_event(self._stop, due - now)
+                    if self._stop.is_set():
+                        return
+                late = self.monotonic() - due
+                if late > 0.05:
+                    self.stats.late_frames += 1
+                self.stats.max_late_s = max(self.stats.max_late_s, late)
+            self._deliver(timed, occ)
+
+    async def _wait_welcome_or_stop(self) -> None:
+        w = asyncio.ensure_future(self._welcomed.wait())
+        s = asyncio.ensure_future(self._stop.wait())
+        try:
+            await asyncio.wait({w, s}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            w.cancel()
+            s.cancel()
+
+    def _start_play(self, first: Timed) -> None:
+        now = self.monotonic()
+        speed = self.options.speed
+        if self.timeline.live:
+            self.m0 = now
+            start_mono, start_src = now, math.nan
+        elif self.epoch is not None:
+            self.m0 = self.epoch
+            start_mono = max(now, self.epoch + first.t_play_s / speed)
+            start_src = (start_mono - self.epoch) * speed
+        else:
+            self.m0 = now - first.t_play_s / speed
+            start_mono, start_src = now, first.t_play_s
+        if self.host_clock is None:
+            self.host_clock = self._host_spec(self.m0)
+        held, self._held_probes = self._held_probes, []
+        for conn, probe, t_arrival in held:
+            conn._answer(probe, t_arrival)
+        if self.on_play_start is not None:
+            self.on_play_start(self.m0, start_mono, start_src)
+
+    def _deliver(self, timed: Timed, occ: tuple[np.ndarray, int] | None) -> None:
+        self._delivered += 1
+        f = timed.frame
+        assert self.host_clock is not None
+        if self.timeline.live and math.isfinite(f.t_host_s):
+            t_host = f.t_host_s  # a driver stamps on the PC clock itself
+        else:
+            t_host = self.host_clock.now()
+        if isinstance(f, DepthFrame):
+            self._on_depth(f, t_host)
+            return
+        occluded, n_cross = occ if occ is not None else (None, None)
+        self._enqueue_body(
+            BodyFrame(
+                seq=f.seq,
+                t_device_s=f.t_device_s,
+                t_host_s=t_host,
+                joints_m=f.joints_m,
+                states=f.states,
+                occluded=occluded,
+                n_crossings=n_cross,
+                dropped=self.stats.body_dropped,
+            )
+        )
+
+    # -- calibration -----------------------------------------------------------------------
+
+    def _start_calibration(self, calibration_id: int) -> None:
+        log.info("calibration %d started: sending wand sightings", calibration_id)
+        self.calibrating = True
+        self.calibration_id = calibration_id
+        self._floor = []
+        self._since_detect = 0
+
+    def _on_depth(self, f: DepthFrame, t_host: float) -> None:
+        self.stats.depth_frames += 1
+        if not self.calibrating:
+            return
+        loop = asyncio.get_running_loop()
+        cal_id = self.calibration_id
+        if self._floor is not None:
+            self._floor.append(f.depth_mm)
+            if len(self._floor) >= self.options.floor_frames:
+                stack, self._floor = self._floor, None
+                fut = loop.run_in_executor(self._flo, _fit_floor, stack, self.timeline, f)
+                fut.add_done_callback(lambda r: self._floor_done(r, cal_id, len(stack)))
+        self._depth_count += 1
+        self._since_detect += 1
+        if (self._depth_count - 1) % self.options.detect_every:
+            return
+        if self._detect_busy:
+            self.stats.depth_skipped_busy += 1
+            return
+        self._detect_busy = True
+        stride, self._since_detect = self._since_detect, 0
+        fut = loop.run_in_executor(
+            self._det, _detect, f.depth_mm, self.timeline, self.options.detector
+        )
+        fut.add_done_callback(lambda r: self._detected(r, f, t_host, stride, cal_id))
+
+    def _detected(
+        self, fut: asyncio.Future[Any], f: DepthFrame, t_host: float, stride: int, cal_id: int
+    ) -> None:
+        self._detect_busy = False
+        if fut.cancelled():
+            return
+        if fut.exception() is not None:
+            log.warning("wand detection failed on frame %d: %s", f.seq, fut.exception())
+            return
+        det = fut.result()
+        self.stats.depth_detected += 1
+        if not det.found or not self.calibrating or cal_id != self.calibration_id:
+            return
+        self._enqueue_sighting(
+            WandSighting(
+                seq=f.seq,
+                t_device_s=f.t_device_s,
+                t_host_s=t_host,
+                centre_m=det.centre_sensor_m,
+                score=float(np.clip(det.score, 0.0, 1.0)),
+                n_points=int(det.n_points),
+                residual_m=float(det.residual_m),
+                pixel_uv=det.pixel_uv,
+                detector=self.options.detector,
+                stride=stride,
+                calibration_id=cal_id,
+            )
+        )
+
+    def _floor_done(self, fut: asyncio.Future[Any], cal_id: int, n: int) -> None:
+        if fut.cancelled() or fut.exception() is not None:
+            return
+        res = fut.result()
+        if res is None or cal_id != self.calibration_id:
+            log.info("no floor plane found in the first %d depth frames", n)
+            return
+        plane, t_dev = res
+        self._urgent.append(
+            FloorPlane(
+                normal=plane.normal,
+                offset_m=float(plane.offset_m),
+                n_inliers=int(plane.n_inliers),
+                residual_m=float(plane.residual_m),
+                n_frames=n,
+                t_device_s=t_dev,
+                calibration_id=cal_id,
+            )
+        )
+        self._wake.set()
+
+
+async def _wait_event(event: asyncio.Event, timeout: float) -> bool:
+    """Wait for ``event`` at most ``timeout`` seconds; True if it is set.
+
+    (Not ``asyncio.wait_for``: on Python 3.11 it can swallow a cancellation that arrives as
+    the wait ends, and a cancelled task would then run on.)
+    """
+    try:
+        async with asyncio.timeout(timeout):
+            await event.wait()
+    except TimeoutError:
+        return event.is_set()
+    return True
+
+
+class _Prefetch:
+    """Runs the source ahead of the play clock on the source thread (``ahead`` frames at most).
+
+    Reading a store decodes depth frames in batches; without a lead, a frame would wait for a
+    whole batch to be decoded after its time had come.
+    """
+
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, prepared: _Prepared, ahead: int = 45
+    ) -> None:
+        self.loop = loop
+        self.prepared = prepared
+        self.queue: asyncio.Queue[Any] = asyncio.Queue()
+        self.slots = threading.Semaphore(ahead)
+        self.halted = threading.Event()
+
+    def run(self) -> None:
+        """The producer (on the source thread): until the source ends or :meth:`halt`."""
+        try:
+            while not self.halted.is_set():
+                if not self.slots.acquire(timeout=0.1):
+                    continue
+                item = self.prepared.next()
+                self.loop.call_soon_threadsafe(self.queue.put_nowait, item)
+                if item is None:
+                    return
+        except BaseException as e:
+            if not self.halted.is_set():
+                self.loop.call_soon_threadsafe(self.queue.put_nowait, e)
+        finally:
+            self.prepared.close()  # a store closes in its own thread
+
+    def halt(self) -> None:
+        self.halted.set()
+
+    async def get(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
+        item = await self.queue.get()
+        self.slots.release()
+        if isinstance(item, BaseException):
+            raise item
+        return item
+
+
+class _Prepared:
+    """The timeline's frames with the occlusion test done (runs on the source thread)."""
+
+    def __init__(self, timeline: Timeline, rule: str) -> None:
+        self.timeline = timeline
+        self.rule = rule
+        self._it: Iterator[Timed] | None = None
+
+    def close(self) -> None:
+        """End the iteration (on the source thread: a store closes in its own thread)."""
+        it, self._it = self._it, None
+        close = getattr(it, "close", None)
+        if close is not None:
+            close()
+
+    def next(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
+        from kinefuse.occlusion import detect_occlusion
+
+        if self._it is None:
+            self._it = iter(self.timeline.frames())
+        timed = next(self._it, None)
+        if timed is None:
+            return None
+        f = timed.frame
+        if isinstance(f, DepthFrame):
+            return timed, None
+        r = detect_occlusion(f.joints_m[None], self.timeline.intrinsics, rule=self.rule)  # type: ignore[arg-type]
+        return timed, (r.occluded[0], int(r.n_intersections[0]))
+
+
+def _warm_up() -> None:
+    import kinefuse.calibration.floor
+    import kinefuse.calibration.wand_paper
+    import kinefuse.calibration.wand_robust  # noqa: F401
+
+
+def _detect(depth_mm: np.ndarray, timeline: Timeline, detector: str) -> Any:
+    if detector == "paper":
+        from kinefuse.calibration.wand_paper import detect_wand_paper
+
+        return detect_wand_paper(depth_mm, timeline.intrinsics, timeline.wand)
+    from kinefuse.calibration.wand_robust import detect_wand
+
+    return detect_wand(depth_mm, timeline.intrinsics, timeline.wand)
+
+
+def _fit_floor(stack: list[np.ndarray], timeline: Timeline, last: DepthFrame) -> Any:
+    """The floor of the per-pixel median of ``stack`` (as calibration.session.gather does)."""
+    import warnings
+
+    from kinefuse.calibration.floor import fit_floor_plane
+    from kinefuse.errors import CalibrationError
+
+    a = np.stack(stack).astype(np.float32)
+    a[a == 0] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(a, axis=0)
+    med = np.where(np.isfinite(med), med, 0).astype(np.uint16)
+    try:
+        return fit_floor_plane(med, timeline.intrinsics, name=timeline.sensor_id), last.t_device_s
+    except CalibrationError:
+        return None
