@@ -134,9 +134,13 @@ def running():
     """Run ``body(server, frames)`` against a server with a token, a calibration for "good" and
     the good client streaming; returns what body returns. Bounded to 40 s."""
 
-    def run(body):
+    def run(body, **options):
         async def main():
-            srv = Server(ServerOptions(port=0, token=TOKEN, timeout_s=1.5, handshake_timeout_s=1.5))
+            srv = Server(
+                ServerOptions(
+                    port=0, token=TOKEN, timeout_s=1.5, handshake_timeout_s=1.5, **options
+                )
+            )
             cal = CalibrationFile(
                 "full",
                 _dt.datetime.now(_dt.UTC),
@@ -261,6 +265,20 @@ def test_out_of_order_and_silent_peers_are_closed(running) -> None:
     assert e2 is not None and e2.code == "order" and "seq" in e2.reason
     assert e3 is not None and e3.code == "timeout"
     assert not other_connected  # marked offline
+
+
+def test_the_paper_method_fuses_live(running) -> None:
+    async def body(srv, frames):
+        await asyncio.sleep(0.3)
+        return frames[-1], srv.options.method
+
+    last, method = running(body, method="paper")
+    assert method == "paper"
+    # one sensor: the paper's trilateration has a single range per joint; the frames flow and the
+    # skeleton is where that one sensor puts it (the paper's chain falls back to it)
+    assert np.isfinite(last.positions_m).all()
+    np.testing.assert_allclose(last.positions_m, standing_pose(), atol=0.01)  # 1 cm
+    assert np.isnan(last.variance_m2).all()  # the paper's method gives no variance
 
 
 def test_loopback_detection() -> None:
