@@ -49,7 +49,7 @@ from kinefuse.net.clocks import HostClock, Monotonic
 from kinefuse.net.playback import Timed, Timeline
 from kinefuse.protocol import auth
 from kinefuse.protocol.codec import Decoder, check_version, encode
-from kinefuse.protocol.errors import WireError
+from kinefuse.protocol.errors import VersionError, WireError
 from kinefuse.protocol.messages import (
     AuthReply,
     BodyFrame,
@@ -404,6 +404,8 @@ class SensorClient:
                     f.cancel()
         if get in done:
             item = get.result()
+            if isinstance(item, VersionError):
+                raise ClientRefused("version", f"the server speaks another version: {item}")
             if isinstance(item, WireError):
                 conn.send(Error(item.code, str(item)[:1000]))
                 raise _Outcome("protocol", f"the server broke the protocol: {item}")

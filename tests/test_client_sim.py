@@ -1,0 +1,320 @@
+"""The sensor client on a simulated session and as a process: the play timeline, the emulated
+host clock, wand sightings and the floor from its own depth frames, the truth sidecar, the
+driver interface, signals and exit codes."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinefuse.calibration.wand_robust import detect_wand
+from kinefuse.camera.wand import Wand
+from kinefuse.errors import InputError
+from kinefuse.io.store import SessionStore
+from kinefuse.net.client import ClientOptions, SensorClient
+from kinefuse.net.clocks import HostClock, SimClockTruth
+from kinefuse.net.playback import SimTimeline, open_timeline
+from kinefuse.protocol import (
+    BodyFrame,
+    CalibrationStop,
+    FloorPlane,
+    Goodbye,
+    Hello,
+    WandSighting,
+    Welcome,
+    encode,
+)
+from kinefuse.sensors.clock import ClockParams
+from kinefuse.sources import DepthFrame
+from test_client import LIMIT_S, TestServer, run
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def session(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """2 sensors, a 3 s wand phase (depth at 10 Hz), then 1 s of walking."""
+    from kinefuse.app import run_simulate
+
+    out = tmp_path_factory.mktemp("clientsim") / "s.sqlite"
+    run_simulate(
+        clip=shared_data / "motion" / "cmu" / "02_walk_a.amc",
+        out=out,
+        rig=ROOT / "rigs" / "level4.toml",
+        seconds=1.0,
+        calibration_s=3.0,
+        depth_rate_hz=10.0,
+    )
+    return out
+
+
+def test_host_clock_and_its_inverse():
+    c = HostClock(h0=900.0, drift=25e-6, m0=10.0, monotonic=lambda: 12.0)
+    assert c.now() == pytest.approx(900.0 + 2.0 * (1 + 25e-6), abs=1e-12)
+    assert c.mono_at(c.at(123.456)) == pytest.approx(123.456, abs=1e-9)
+    with pytest.raises(InputError, match="ppm is not a clock"):
+        HostClock(0.0, 0.05, 0.0)
+
+
+def test_the_sim_timeline_is_one_clock_depth_first_then_body(session: Path):
+    tl = SimTimeline(str(session), "k1")
+    items = list(tl.frames())
+    t = np.array([x.t_play_s for x in items])
+    assert np.all(np.diff(t) >= 0)
+    kinds = [isinstance(x.frame, DepthFrame) for x in items]
+    n_depth = sum(kinds)
+    assert kinds == [True] * n_depth + [False] * (len(kinds) - n_depth)  # wand phase first
+    with SessionStore.open(session) as st:
+        assert n_depth == st.depth_frame_count("k1")
+        assert len(items) - n_depth == st.observation_count("k1")
+        truth = SimClockTruth.from_store(st, "k1")
+        _seq, t_true, _j, _v, _s = st.truth().observations("k1")
+        wand_t, _ = st.truth().wand()
+    # a body frame plays when it reaches the host: its true capture + the capture-to-host latency
+    body_t = t[n_depth:]
+    lat = body_t - t_true[: len(body_t)]
+    p = ClockParams()
+    assert lat.min() >= p.latency_min_s - 1e-6 and lat.max() < p.latency_mean_s + 0.05
+    # depth frames play in the wand phase (true time), at capture + the unit's mean latency
+    assert t[0] >= 0.0 and t[n_depth - 1] <= wand_t[-1] + 0.2
+    assert tl.truth == truth and tl.wand == Wand(**{"radius_m": 0.1, "stick_length_m": 0.4,
+                                                    "stick_radius_m": 0.01})  # fmt: skip
+
+
+def test_sightings_and_floor_come_from_the_clients_own_depth_frames(session: Path):
+    def welcome_calibrating() -> Welcome:
+        return Welcome(session="t", heartbeat_s=0.5, calibrating=True, calibration_id=4)
+
+    async def go() -> TestServer:
+        server = TestServer(welcome=welcome_calibrating())
+        await server.start()
+        tl = open_timeline(f"sim:{session}#k0")
+        client = SensorClient(
+            tl,
+            ClientOptions(server=("127.0.0.1", server.port), speed=2.0),
+            host_clock=lambda m0: HostClock(5.0, 0.0, m0),
+        )
+        assert await client.run() == 0
+        return server
+
+    server = run(go())
+    msgs = server.peers[0].messages
+    sightings = [m for m in msgs if isinstance(m, WandSighting)]
+    floors = [m for m in msgs if isinstance(m, FloorPlane)]
+    assert len(sightings) >= 10 and len(floors) == 1
+    assert all(s.calibration_id == 4 and s.detector == "robust" for s in sightings)
+    assert sum(s.stride for s in sightings) <= 30 and all(s.stride >= 1 for s in sightings)
+    # each sighting is the robust detector on that very depth frame, nothing else
+    with SessionStore.open(session) as st:
+        intr = st.sensor("k0").intrinsics
+        frames = {
+            int(q): f
+            for seq, _t, fr in st.iter_depth_frames("k0")
+            for q, f in zip(seq, fr, strict=True)
+        }
+        sensor2world, _clock = st.truth().sensor("k0")
+    for s in sightings[:5]:
+        det = detect_wand(frames[s.seq], intr, Wand())
+        np.testing.assert_allclose(s.centre_m, det.centre_sensor_m, atol=1e-12)
+        assert s.score == pytest.approx(det.score)
+    # the floor seen from the sensor: the sensor's true height above z = 0 within 3 cm
+    assert floors[0].offset_m == pytest.approx(sensor2world[2, 3], abs=0.03)
+    assert floors[0].n_frames == 15 and floors[0].calibration_id == 4
+    # depth images never cross the wire; body frames come after the wand phase
+    assert [type(m).__name__ for m in msgs].count("BodyFrame") > 0
+    assert max(len(encode(m)) for m in msgs) < 2000  # bytes
+
+
+def test_calibration_stop_ends_the_sightings(session: Path):
+    def stop_soon(server: TestServer, writer: asyncio.StreamWriter) -> None:
+        asyncio.get_running_loop().call_later(0.6, writer.write, encode(CalibrationStop(4)))
+
+    async def go() -> TestServer:
+        server = TestServer(
+            welcome=Welcome(session="t", calibrating=True, calibration_id=4), on_welcome=stop_soon
+        )
+        await server.start()
+        client = SensorClient(
+            open_timeline(f"sim:{session}#k0"),
+            ClientOptions(server=("127.0.0.1", server.port), speed=1.0, max_seconds=2.0),
+            host_clock=lambda m0: HostClock(5.0, 0.0, m0),
+        )
+        assert await client.run() == 0
+        return server
+
+    server = run(go())
+    sightings = [m for m in server.peers[0].messages if isinstance(m, WandSighting)]
+    assert 0 < len(sightings) <= 8  # 0.6 s of a 10 Hz wand phase, then none (2 s played)
+
+
+# ---- the process ----------------------------------------------------------------------------
+
+
+def _env(extra_path: Path | None = None) -> dict[str, str]:
+    env = dict(os.environ)
+    paths = [str(ROOT / "src")] + ([str(extra_path)] if extra_path else [])
+    env["PYTHONPATH"] = os.pathsep.join([*paths, env.get("PYTHONPATH", "")])
+    return env
+
+
+def _sensor(port: int, *args: str, extra_path: Path | None = None) -> subprocess.Popen[str]:
+    cmd = [sys.executable, "-m", "kinefuse", "sensor", "--server", f"127.0.0.1:{port}", *args]
+    return subprocess.Popen(cmd, env=_env(extra_path), stderr=subprocess.PIPE, text=True)
+
+
+async def _wait_proc(proc: subprocess.Popen[str], timeout: float = 20.0) -> int:
+    end = time.monotonic() + timeout
+    while proc.poll() is None:
+        if time.monotonic() > end:
+            proc.kill()
+            raise AssertionError("the sensor process did not stop in time")
+        await asyncio.sleep(0.05)
+    return proc.returncode
+
+
+def test_sigterm_is_a_clean_stop_and_the_sidecar_holds_the_truth(session: Path, tmp_path: Path):
+    side = tmp_path / "k1.json"
+
+    async def go() -> tuple[TestServer, int, str, float]:
+        server = TestServer()
+        await server.start()
+        epoch = time.monotonic() + 1.5
+        proc = _sensor(
+            server.port, "--source", f"sim:{session}#k1", "--truth-out", str(side),
+            "--epoch-monotonic", repr(epoch),
+        )  # fmt: skip
+        try:
+            await server.wait_for(lambda: len(server.bodies()) >= 3, timeout=LIMIT_S - 10)
+            proc.send_signal(signal.SIGTERM)
+            code = await _wait_proc(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert proc.stderr is not None
+        return server, code, proc.stderr.read(), epoch
+
+    server, code, err, epoch = run(go())
+    assert code == 0, err
+    assert isinstance(server.peers[0].messages[-1], Goodbye)
+    assert server.peers[0].messages[-1].reason == "signal SIGTERM"
+    d = json.loads(side.read_text())
+    with SessionStore.open(session) as st:
+        clock = st.truth().sensor("k1")[1]
+    assert d["written_by"] == "kinefuse sensor" and d["sensor_id"] == "k1"
+    assert d["h0"] == clock["host_offset_s"] and d["drift"] == clock["host_drift_ppm"] * 1e-6
+    assert d["m0"] == d["epoch_monotonic"] == epoch and d["speed"] == 1.0
+    assert "source_clock" not in d and d["stats"]["body_sent"] >= 3
+    # the body frames' host stamps are the emulated clock at their simulated arrival
+    host = HostClock(d["h0"], d["drift"], d["m0"])
+    with SessionStore.open(session) as st:
+        obs = st.observations("k1")
+        arrive = dict(zip(obs.seq.tolist(), obs.t_receive_host_s, strict=True))
+    for b in server.bodies():
+        assert 0 <= b.t_host_s - arrive[b.seq] < 0.1  # s: sent when its time came, not before
+    assert host.at(d["m0"]) == d["h0"]
+
+
+def test_a_foreign_sidecar_path_is_never_overwritten(session: Path, tmp_path: Path):
+    side = tmp_path / "notes.json"
+    side.write_text('{"mine": true}\n')
+    proc = _sensor(1, "--source", f"sim:{session}#k1", "--truth-out", str(side))
+    _out, err = proc.communicate(timeout=LIMIT_S)
+    assert proc.returncode == 2 and "notes.json" in err
+    assert side.read_text() == '{"mine": true}\n'
+
+
+def test_wrong_token_exits_3_with_a_clear_message(session: Path):
+    async def go() -> tuple[int, str]:
+        server = TestServer(token="right")
+        await server.start()
+        proc = _sensor(server.port, "--source", f"sim:{session}#k0", "--token", "wrong")
+        code = await _wait_proc(proc)
+        assert proc.stderr is not None
+        return code, proc.stderr.read()
+
+    code, err = run(go())
+    assert code == 3
+    assert "refused the token" in err and "Traceback" not in err
+
+
+DRIVER = '''
+import math, time
+import numpy as np
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.sources import BodyFrame
+
+class FakeKinect:
+    """A driver: frames when the device delivers them, host stamps on time.monotonic()."""
+
+    def __init__(self, frames="5", serial="X"):
+        self.n = int(frames)
+
+    @property
+    def sensor_ids(self):
+        return ("kinect-1",)
+
+    def intrinsics(self, sensor_id):
+        return Intrinsics(fx=364.0, fy=364.0)
+
+    def __iter__(self):
+        for k in range(self.n):
+            time.sleep(0.02)
+            j = np.full((25, 3), 0.1 * k)
+            j[:, 2] = 2.0
+            yield BodyFrame("kinect-1", k, 10.0 + k / 30, time.monotonic(), j,
+                            np.full(25, 2, np.int8))
+
+def not_a_source():
+    return 42
+'''
+
+
+def test_a_driver_plugs_in_as_module_factory(tmp_path: Path):
+    (tmp_path / "fakedriver.py").write_text(textwrap.dedent(DRIVER))
+
+    async def go() -> tuple[TestServer, int, str]:
+        server = TestServer()
+        await server.start()
+        proc = _sensor(
+            server.port, "--source", "driver:fakedriver:FakeKinect?frames=7", extra_path=tmp_path
+        )
+        code = await _wait_proc(proc)
+        assert proc.stderr is not None
+        return server, code, proc.stderr.read()
+
+    server, code, err = run(go())
+    assert code == 0, err
+    hello = server.peers[0].messages[0]
+    assert isinstance(hello, Hello) and hello.sensor_id == "kinect-1"
+    assert hello.intrinsics is not None and hello.intrinsics.fx == 364.0
+    bodies = [m for m in server.peers[0].messages if isinstance(m, BodyFrame)]
+    assert [b.seq for b in bodies] == list(range(7))
+    assert all(abs(b.t_host_s - time.monotonic()) < 60 for b in bodies)  # the PC's own clock
+
+
+@pytest.mark.parametrize(
+    ("spec", "match"),
+    [
+        ("driver:fakedriver", "expected driver:MODULE:FACTORY"),
+        ("driver:no_such_module_x:Cls", "cannot import 'no_such_module_x'"),
+        ("driver:fakedriver:Nope", "has no callable 'Nope'"),
+        ("driver:fakedriver:not_a_source", "not a FrameSource"),
+        ("driver:fakedriver:FakeKinect?colour=red", "unexpected keyword argument 'colour'"),
+        ("nosuchkind:x", "unknown kind 'nosuchkind'"),
+    ],
+)
+def test_bad_driver_specs_say_what_is_wrong(tmp_path: Path, monkeypatch, spec, match):
+    (tmp_path / "fakedriver.py").write_text(textwrap.dedent(DRIVER))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(InputError, match=match):
+        open_timeline(spec)
