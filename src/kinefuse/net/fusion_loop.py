@@ -1,22 +1,19 @@
 """The server's fusion loop: one fused frame every 1/30 s on the server clock, published.
 
-Frame ``k`` is the skeleton at server time ``T = k / rate_hz``. It is fused when the server
-clock reaches ``T + lead_s + NOMINAL_LATENCY_S + wait_s``:
-
-- ``lead_s``: observations captured up to ``T + lead_s`` take part (``best-live``: its
-  :attr:`~kinefuse.fusion.live.LiveOptions.latency_s`, 1/30 s, so the frame time can be
-  interpolated between two observations; ``paper``: 0, the paper's assembly takes each sensor's
-  latest observation in ``(T - 1/30, T]``);
-- ``NOMINAL_LATENCY_S`` (60 ms, :mod:`kinefuse.sync.device`): a frame reaches its client PC
-  that long after capture on average (the device -> host model every mapping uses);
-- ``wait_s`` (``kinefuse serve --latency-budget-ms``, default 10 ms): how much longer the server
-  waits for frames that are late (network, jitter). What has not arrived by then is not waited
-  for: the filter holds the sensor's last observation or predicts (``PREDICTED``); a late
-  observation still helps later frames.
-
-Observations captured after ``T + lead_s`` wait in a small per-sensor buffer for their frame, so
-the live frames are what :func:`kinefuse.fusion.live.replay` gives offline on the recording
-(with ``latency_s = lead_s``) wherever every observation arrived in time.
+Frame ``k`` is the skeleton at server time ``T = k / rate_hz``. Observations captured up to
+``T + lead_s`` take part (``best-live``: its :attr:`~kinefuse.fusion.live.LiveOptions.latency_s`,
+1/30 s, the frame time is interpolated between the two observations around it; ``paper``: 0, the
+paper's assembly takes each sensor's latest observation in ``(T - 1/30, T]``). Frame ``T`` is
+fused as soon as every sensor that is delivering (connected, calibrated, an observation captured
+within the last ``stall_s`` = 0.2 s) has delivered one captured after ``T``: each sensor's
+frames arrive in capture order, so nothing that can change frame ``T`` is still to come, and the
+frame is the one :func:`kinefuse.fusion.live.replay` gives offline on the recording (with
+``latency_s = lead_s``): the fusion at ``T`` only looks at the observations around ``T``. A sensor
+whose frame is late is waited for until the deadline ``T + lead_s + NOMINAL_LATENCY_S + wait_s``
+(a frame reaches its client PC ``NOMINAL_LATENCY_S`` = 60 ms after capture on average,
+:mod:`kinefuse.sync.device`; ``wait_s`` is ``kinefuse serve --latency-budget-ms``, default
+10 ms); after it the frame is fused without it: the filter holds that sensor's last observation
+or predicts (``PREDICTED``); the late observation still helps later frames.
 
 The published :class:`~kinefuse.net.publish.FusedFrame` carries ``latency_s``: the server time
 it was published minus the host receive time (mapped onto the server clock) of the newest
@@ -39,11 +36,12 @@ one.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -185,7 +183,7 @@ class FusionLoop:
         *,
         wait_s: float = 0.010,
         rate_hz: float = 30.0,
-        sleep: Callable[[float], Awaitable[object]] = asyncio.sleep,
+        stall_s: float = 0.2,
     ) -> None:
         if not (math.isfinite(wait_s) and wait_s >= 0):
             raise ValueError(f"the latency budget must be >= 0 s, got {wait_s}")
@@ -195,7 +193,9 @@ class FusionLoop:
         self.clock = clock
         self.wait_s = float(wait_s)
         self.rate_hz = float(rate_hz)
-        self._sleep = sleep
+        self.stall_s = float(stall_s)
+        self._latest_cap: dict[str, float] = {}
+        self._wake = asyncio.Event()
         self._pending: dict[str, deque[Observation]] = {}
         # capture time (server clock) and host receive time of the newest observation pushed
         self._newest: tuple[float, float] = (-math.inf, math.nan)
@@ -211,7 +211,7 @@ class FusionLoop:
 
     @property
     def delay_s(self) -> float:
-        """How long after its frame time a frame is fused, seconds."""
+        """How long after its frame time a frame is fused at the latest, seconds."""
         return self.fusion.lead_s + NOMINAL_LATENCY_S + self.wait_s
 
     def fps(self) -> float:
@@ -229,6 +229,28 @@ class FusionLoop:
             for o in obs:
                 if math.isfinite(o.t_capture_server_s):
                     q.append(o)
+                    if o.t_capture_server_s > self._latest_cap.get(sid, -math.inf):
+                        self._latest_cap[sid] = o.t_capture_server_s
+
+    def notify(self) -> None:
+        """An observation was queued: check whether the next frame can be fused."""
+        self._wake.set()
+
+    def ready(self, k: int) -> bool:
+        """Whether every delivering sensor has sent an observation captured after frame ``k``."""
+        if not self.fusion.ready:
+            return False
+        t = k / self.rate_hz
+        some = False
+        for sid in self.fusion.ids:
+            c = self.clients.get(sid)
+            last = self._latest_cap.get(sid, -math.inf)
+            if c is None or not c.connected or last < t - self.stall_s:
+                continue  # not delivering: not waited for
+            if last <= t:
+                return False
+            some = True
+        return some
 
     def set_poses(self, poses: Mapping[str, Array]) -> None:
         """New poses, applied before the next frame (not while one is being fused)."""
@@ -307,14 +329,19 @@ class FusionLoop:
         while not stop.is_set():
             due = k / self.rate_hz + self.delay_s
             now = self.clock()
-            if due > now:
-                await self._sleep(due - now)
-                continue
-            behind = int((now - due) * self.rate_hz)
-            if behind > 3:
-                self.skipped += behind
-                log.warning("fusion fell %d frames behind; skipping to the present", behind)
-                k += behind
+            if now < due:
+                self._collect()
+                if not self.ready(k):
+                    self._wake.clear()
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(self._wake.wait(), due - now)
+                    continue
+            else:
+                behind = int((now - due) * self.rate_hz)
+                if behind > 3:
+                    self.skipped += behind
+                    log.warning("fusion fell %d frames behind; skipping to the present", behind)
+                    k += behind
             await self.step(k)
             k += 1
             await asyncio.sleep(0)

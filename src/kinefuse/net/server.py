@@ -483,6 +483,7 @@ class Server:
             )
         obs = Observation(msg.seq, t_cap, t_host, joints, states, msg.occluded, msg.n_crossings)
         client.enqueue(obs, t_arr)
+        self.loop.notify()
         if math.isfinite(t_host):
             client.latency_s = t_arr - t_host
 
