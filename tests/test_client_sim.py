@@ -222,6 +222,24 @@ def test_sigterm_is_a_clean_stop_and_the_sidecar_holds_the_truth(session: Path, 
     for b in server.bodies():
         assert 0 <= b.t_host_s - arrive[b.seq] < 0.1  # s: sent when its time came, not before
     assert host.at(d["m0"]) == d["h0"]
+    # every key the sidecar holds is documented in docs/live.md (D's evaluation reads them)
+    doc = (ROOT / "docs" / "live.md").read_text(encoding="utf-8")
+    table = doc.split("### The truth sidecar", 1)[1].split("###", 1)[0]
+    for key in d:
+        assert f"`{key}`" in table, key
+
+
+def test_every_sensor_option_is_documented():
+    from kinefuse.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    sensor = sub.choices["sensor"]  # type: ignore[attr-defined]
+    doc = (ROOT / "docs" / "live.md").read_text(encoding="utf-8")
+    section = doc.split("## Sensor client and drivers", 1)[1]
+    for action in sensor._actions:
+        for opt in action.option_strings:
+            if opt.startswith("--") and opt != "--help":
+                assert f"`{opt}" in section, opt
 
 
 def test_a_foreign_sidecar_path_is_never_overwritten(session: Path, tmp_path: Path):

@@ -690,7 +690,9 @@ class SensorClient:
             self._floor.append(f.depth_mm)
             if len(self._floor) >= self.options.floor_frames:
                 stack, self._floor = self._floor, None
-                fut = loop.run_in_executor(self._flo, _fit_floor, stack, self.timeline, f)
+                fut = loop.run_in_executor(
+                    self._flo, _fit_floor, stack, self.timeline, f.t_device_s
+                )
                 fut.add_done_callback(lambda r: self._floor_done(r, cal_id, len(stack)))
         self._depth_count += 1
         self._since_detect += 1
@@ -860,7 +862,7 @@ def _detect(depth_mm: np.ndarray, timeline: Timeline, detector: str) -> Any:
     return detect_wand(depth_mm, timeline.intrinsics, timeline.wand)
 
 
-def _fit_floor(stack: list[np.ndarray], timeline: Timeline, last: DepthFrame) -> Any:
+def _fit_floor(stack: list[np.ndarray], timeline: Timeline, t_device_s: float) -> Any:
     """The floor of the per-pixel median of ``stack`` (as calibration.session.gather does)."""
     import warnings
 
@@ -874,6 +876,6 @@ def _fit_floor(stack: list[np.ndarray], timeline: Timeline, last: DepthFrame) ->
         med = np.nanmedian(a, axis=0)
     med = np.where(np.isfinite(med), med, 0).astype(np.uint16)
     try:
-        return fit_floor_plane(med, timeline.intrinsics, name=timeline.sensor_id), last.t_device_s
+        return fit_floor_plane(med, timeline.intrinsics, name=timeline.sensor_id), t_device_s
     except CalibrationError:
         return None
