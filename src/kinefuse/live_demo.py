@@ -38,16 +38,18 @@ from typing import IO, Any
 
 from kinefuse.errors import InputError, KinefuseError
 
-#: Length of the simulated wand phase before the motion, seconds.
-DEMO_CALIBRATION_S = 12.0
+#: Length of the simulated wand phase before the motion, seconds (the wand protocol's holds come
+#: first, so every client must be playing from its start).
+DEMO_CALIBRATION_S = 15.0
 
 #: Default length of the captured motion, seconds (at most the clip's).
 DEMO_SECONDS = 20.0
 
 #: Time from starting the sensor processes to the instant every one starts playing, seconds:
-#: long enough for N Python processes to start and connect on a busy 2-core machine.
-START_SLACK_S = 3.0
-START_SLACK_PER_SENSOR_S = 0.6
+#: long enough for N Python processes to start and connect on a busy 2-core machine (about
+#: 1-2 s each here), so that none misses the start of the wand phase.
+START_SLACK_S = 4.0
+START_SLACK_PER_SENSOR_S = 1.0
 
 #: Bounded waits: the server's first line, a clean stop, a kill.
 SERVER_START_TIMEOUT_S = 60.0
