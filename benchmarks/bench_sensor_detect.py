@@ -28,7 +28,7 @@ from kinefuse.calibration.wand_paper import detect_wand_paper
 from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand
 from kinefuse.io.store import SessionStore
-from kinefuse.net.client import _fit_floor
+from kinefuse.net.client_parts import fit_floor
 from kinefuse.net.playback import SimTimeline
 from kinefuse.occlusion import detect_occlusion
 
@@ -69,7 +69,7 @@ def main() -> None:
             ("occlusion test, one body frame", _median_ms(
                 lambda j: detect_occlusion(j[None], intr), body)),
             ("floor fit (once per calibration)", _median_ms(
-                lambda k: _fit_floor(frames[k : k + 15], tl, 0.0), [0, 15, 30])),
+                lambda k: fit_floor(frames[k : k + 15], tl, 0.0), [0, 15, 30])),
         ]  # fmt: skip
     print(f"{len(frames)} depth frames of 512x424; Kinect v2 frame period {PERIOD_MS:.1f} ms")
     print(f"{'step':38s} {'ms/frame':>9s} {'x period':>9s} {'x decode':>9s} {'4 clients':>10s}")

@@ -35,20 +35,21 @@ import contextlib
 import logging
 import math
 import random
-import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from kinefuse.errors import KinefuseError
+from kinefuse.net.client_depth import DepthWork
+from kinefuse.net.client_parts import Connection, Prefetch, Prepared, wait_event
 from kinefuse.net.clocks import HostClock, Monotonic
 from kinefuse.net.playback import Timed, Timeline
 from kinefuse.protocol import auth
-from kinefuse.protocol.codec import Decoder, check_version, encode
+from kinefuse.protocol.codec import check_version
 from kinefuse.protocol.errors import VersionError, WireError
 from kinefuse.protocol.messages import (
     AuthReply,
@@ -57,14 +58,11 @@ from kinefuse.protocol.messages import (
     CalibrationStop,
     Challenge,
     ClockProbe,
-    ClockReply,
     Error,
-    FloorPlane,
     Goodbye,
     Heartbeat,
     Hello,
     Message,
-    WandSighting,
     Welcome,
 )
 from kinefuse.sources import DepthFrame
@@ -151,76 +149,6 @@ class ClientStats:
     skipped_at_start: int = 0
 
 
-class _Connection(asyncio.Protocol):
-    """One TCP connection: decodes, answers probes inline, queues everything else."""
-
-    def __init__(self, client: SensorClient) -> None:
-        self.client = client
-        self.decoder = Decoder()
-        self.inbox: asyncio.Queue[Message | WireError] = asyncio.Queue()
-        self.closed = asyncio.get_running_loop().create_future()
-        self.transport: asyncio.Transport | None = None
-        self.writable = asyncio.Event()
-        self.writable.set()
-        self.last_rx = client.monotonic()
-        self.last_tx = client.monotonic()
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self.transport = transport
-
-    def data_received(self, data: bytes) -> None:
-        t_arrival = self.client.monotonic()  # first: t2 is the moment the bytes arrived
-        self.last_rx = t_arrival
-        try:
-            msgs = self.decoder.feed(data)
-            error: WireError | None = None
-        except WireError as e:
-            msgs, error = getattr(e, "decoded", []), e
-        for m in msgs:
-            if isinstance(m, ClockProbe):
-                self._answer(m, t_arrival)
-            else:
-                self.inbox.put_nowait(m)
-        if error is not None:
-            self.inbox.put_nowait(error)
-
-    def _answer(self, probe: ClockProbe, t_arrival: float) -> None:
-        host = self.client.host_clock
-        if self.transport is None or self.transport.is_closing():
-            return
-        if host is None:
-            # the emulated clock starts with the play; the arrival instant is kept, so the
-            # reply is exact when it goes (only its turnaround t3 - t2 is longer)
-            self.client._held_probes.append((self, probe, t_arrival))
-            return
-        t2 = host.at(t_arrival)
-        t3 = max(t2, host.now())
-        self.transport.write(encode(ClockReply(probe.probe_id, probe.t1, t2, t3)))
-        self.last_tx = self.client.monotonic()
-        self.client.stats.probes_answered += 1
-
-    def send(self, msg: Message) -> None:
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(encode(msg))
-            self.last_tx = self.client.monotonic()
-
-    def pause_writing(self) -> None:
-        self.writable.clear()
-
-    def resume_writing(self) -> None:
-        self.writable.set()
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self.writable.set()
-        if not self.closed.done():
-            self.closed.set_result(exc)
-
-    def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
-
-
 class _Outcome(Exception):
     """How one connection ended (internal control flow)."""
 
@@ -282,21 +210,20 @@ class SensorClient:
         self._urgent: deque[Message] = deque()  # floor planes: tiny, once per calibration
         self._wake = asyncio.Event()
         self._welcomed = asyncio.Event()
-        self._conn: _Connection | None = None
-        self.calibrating = False
-        self.calibration_id = 0
-        self._floor: list[np.ndarray] | None = None
-        self._detect_busy = False
-        self._since_detect = 0
-        self._depth_count = 0
+        self._conn: Connection | None = None
         self._source_done = False
-        self._held_probes: list[tuple[_Connection, ClockProbe, float]] = []
+        self._held_probes: list[tuple[Connection, ClockProbe, float]] = []
         self._delivered = 0
         self._io = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-source")
-        self._det = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-detect")
-        self._det.submit(_warm_up)  # imports the detectors before the first depth frame
-        # the floor fit (a median over frames, ~0.1 s) must not hold up detection
-        self._flo = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-floor")
+        self.depth = DepthWork(
+            timeline,
+            detector=options.detector,
+            detect_every=options.detect_every,
+            floor_frames=options.floor_frames,
+            stats=self.stats,
+            send_sighting=self._enqueue_sighting,
+            send_floor=self._enqueue_urgent,
+        )
 
     # -- public ----------------------------------------------------------------------------
 
@@ -324,8 +251,7 @@ class SensorClient:
             raise eg.exceptions[0] from None  # bad input (a source that cannot be read)
         finally:
             self._io.shutdown(wait=True, cancel_futures=True)
-            self._det.shutdown(wait=True, cancel_futures=True)
-            self._flo.shutdown(wait=True, cancel_futures=True)
+            self.depth.shutdown()
             with contextlib.suppress(Exception):
                 self.timeline.close()
         return EXIT_OK
@@ -364,7 +290,7 @@ class SensorClient:
                 self.options.backoff_max_s, self.options.backoff_initial_s * 2.0**attempt
             ) * (0.5 + 0.5 * self.rng.random())
             attempt += 1
-            await _wait_event(self._stop, delay)
+            await wait_event(self._stop, delay)
 
     async def _one_connection(self) -> None:
         loop = asyncio.get_running_loop()
@@ -372,7 +298,7 @@ class SensorClient:
         t = self.options.connect_timeout_s
         try:
             async with asyncio.timeout(t):
-                _tr, conn = await loop.create_connection(lambda: _Connection(self), host, port)
+                _tr, conn = await loop.create_connection(lambda: Connection(self), host, port)
         except (OSError, TimeoutError) as e:
             raise _Outcome("connect", f"cannot connect ({e or 'timed out'})") from None
         self._conn = conn
@@ -384,14 +310,14 @@ class SensorClient:
                 self.timeline.sensor_id, host, port, welcome.session,
             )  # fmt: skip
             if welcome.calibrating:
-                self._start_calibration(welcome.calibration_id)
+                self.depth.start(welcome.calibration_id)
             self._welcomed.set()
             await self._session(conn, welcome)
         finally:
             self._conn = None
             conn.close()
 
-    async def _next(self, conn: _Connection, timeout: float) -> Message:
+    async def _next(self, conn: Connection, timeout: float) -> Message:
         get = asyncio.ensure_future(conn.inbox.get())
         stop = asyncio.ensure_future(self._stop.wait())
         try:
@@ -416,7 +342,7 @@ class SensorClient:
             raise _Outcome("lost", "the server closed the connection")
         raise _Outcome("timeout", f"nothing from the server for {timeout:g} s")
 
-    async def _handshake(self, conn: _Connection) -> Welcome:
+    async def _handshake(self, conn: Connection) -> Welcome:
         tl, opt = self.timeline, self.options
         conn.send(
             Hello(
@@ -458,7 +384,7 @@ class SensorClient:
             raise ClientRefused("version", str(e)) from None
         return msg
 
-    async def _session(self, conn: _Connection, welcome: Welcome) -> None:
+    async def _session(self, conn: Connection, welcome: Welcome) -> None:
         writer = asyncio.ensure_future(self._writer(conn, welcome.heartbeat_s))
         try:
             while True:
@@ -486,14 +412,11 @@ class SensorClient:
             with contextlib.suppress(asyncio.CancelledError):
                 await writer
 
-    def _handle(self, conn: _Connection, msg: Message) -> None:
+    def _handle(self, conn: Connection, msg: Message) -> None:
         if isinstance(msg, CalibrationStart):
-            self._start_calibration(msg.calibration_id)
+            self.depth.start(msg.calibration_id)
         elif isinstance(msg, CalibrationStop):
-            if self.calibrating:
-                log.info("calibration %d stopped", msg.calibration_id)
-            self.calibrating = False
-            self._floor = None
+            self.depth.stop(msg.calibration_id)
         elif isinstance(msg, Goodbye):
             raise _Outcome("goodbye", msg.reason)
         elif isinstance(msg, Error):
@@ -505,7 +428,7 @@ class SensorClient:
             raise _Outcome("protocol", f"the server sent {msg.TYPE} out of order")
         # other server messages (status, calibration_result) are not for a sensor: ignored
 
-    async def _writer(self, conn: _Connection, heartbeat_s: float) -> None:
+    async def _writer(self, conn: Connection, heartbeat_s: float) -> None:
         while True:
             await conn.writable.wait()
             self._send_pending(conn)
@@ -514,9 +437,9 @@ class SensorClient:
                 conn.send(Heartbeat(self._host_now(), self._n_sent(), self._n_dropped()))
                 idle = 0.0
             self._wake.clear()
-            await _wait_event(self._wake, max(0.01, heartbeat_s - idle))
+            await wait_event(self._wake, max(0.01, heartbeat_s - idle))
 
-    def _send_pending(self, conn: _Connection) -> None:
+    def _send_pending(self, conn: Connection) -> None:
         while conn.writable.is_set() and (self._urgent or self._sightings or self._body):
             if self._urgent:
                 conn.send(self._urgent.popleft())
@@ -527,7 +450,7 @@ class SensorClient:
                 conn.send(self._body.popleft())
                 self.stats.body_sent += 1
 
-    async def _flush(self, conn: _Connection, timeout: float = 2.0) -> None:
+    async def _flush(self, conn: Connection, timeout: float = 2.0) -> None:
         end = self.monotonic() + timeout
         while (self._urgent or self._sightings or self._body) and self.monotonic() < end:
             if conn.closed.done():
@@ -553,6 +476,10 @@ class SensorClient:
         self._body.append(msg)
         self._wake.set()
 
+    def _enqueue_urgent(self, msg: Message) -> None:
+        self._urgent.append(msg)
+        self._wake.set()
+
     def _enqueue_sighting(self, msg: Message) -> None:
         if len(self._sightings) >= self.options.sighting_queue:
             self._sightings.popleft()
@@ -567,7 +494,7 @@ class SensorClient:
         if self._stop.is_set():
             return
         loop = asyncio.get_running_loop()
-        ahead = _Prefetch(loop, _Prepared(self.timeline, self.options.occlusion_rule))
+        ahead = Prefetch(loop, Prepared(self.timeline, self.options.occlusion_rule))
         producer = loop.run_in_executor(self._io, ahead.run)
         try:
             await self._play_frames(ahead)
@@ -579,7 +506,7 @@ class SensorClient:
             log.info("sensor %s: the source ended", self.timeline.sensor_id)
             self.stop("source ended")
 
-    async def _play_frames(self, ahead: _Prefetch) -> None:
+    async def _play_frames(self, ahead: Prefetch) -> None:
         first = True
         speed = self.options.speed
         t_first: float | None = None
@@ -607,7 +534,7 @@ class SensorClient:
                     self.stats.skipped_at_start += 1
                     continue  # the common epoch is past (a late start): join at the present
                 if due > now:
-                    await _wait_event(self._stop, due - now)
+                    await wait_event(self._stop, due - now)
                     if self._stop.is_set():
                         return
                 late = self.monotonic() - due
@@ -655,7 +582,7 @@ class SensorClient:
         else:
             t_host = self.host_clock.now()
         if isinstance(f, DepthFrame):
-            self._on_depth(f, t_host)
+            self.depth.on_depth(f, t_host)
             return
         occluded, n_cross = occ if occ is not None else (None, None)
         self._enqueue_body(
@@ -670,212 +597,3 @@ class SensorClient:
                 dropped=self.stats.body_dropped,
             )
         )
-
-    # -- calibration -----------------------------------------------------------------------
-
-    def _start_calibration(self, calibration_id: int) -> None:
-        log.info("calibration %d started: sending wand sightings", calibration_id)
-        self.calibrating = True
-        self.calibration_id = calibration_id
-        self._floor = []
-        self._since_detect = 0
-
-    def _on_depth(self, f: DepthFrame, t_host: float) -> None:
-        self.stats.depth_frames += 1
-        if not self.calibrating:
-            return
-        loop = asyncio.get_running_loop()
-        cal_id = self.calibration_id
-        if self._floor is not None:
-            self._floor.append(f.depth_mm)
-            if len(self._floor) >= self.options.floor_frames:
-                stack, self._floor = self._floor, None
-                fut = loop.run_in_executor(
-                    self._flo, _fit_floor, stack, self.timeline, f.t_device_s
-                )
-                fut.add_done_callback(lambda r: self._floor_done(r, cal_id, len(stack)))
-        self._depth_count += 1
-        self._since_detect += 1
-        if (self._depth_count - 1) % self.options.detect_every:
-            return
-        if self._detect_busy:
-            self.stats.depth_skipped_busy += 1
-            return
-        self._detect_busy = True
-        stride, self._since_detect = self._since_detect, 0
-        fut = loop.run_in_executor(
-            self._det, _detect, f.depth_mm, self.timeline, self.options.detector
-        )
-        fut.add_done_callback(lambda r: self._detected(r, f, t_host, stride, cal_id))
-
-    def _detected(
-        self, fut: asyncio.Future[Any], f: DepthFrame, t_host: float, stride: int, cal_id: int
-    ) -> None:
-        self._detect_busy = False
-        if fut.cancelled():
-            return
-        if fut.exception() is not None:
-            log.warning("wand detection failed on frame %d: %s", f.seq, fut.exception())
-            return
-        det = fut.result()
-        self.stats.depth_detected += 1
-        if not det.found or not self.calibrating or cal_id != self.calibration_id:
-            return
-        self._enqueue_sighting(
-            WandSighting(
-                seq=f.seq,
-                t_device_s=f.t_device_s,
-                t_host_s=t_host,
-                centre_m=det.centre_sensor_m,
-                score=float(np.clip(det.score, 0.0, 1.0)),
-                n_points=int(det.n_points),
-                residual_m=float(det.residual_m),
-                pixel_uv=det.pixel_uv,
-                detector=self.options.detector,
-                stride=stride,
-                calibration_id=cal_id,
-            )
-        )
-
-    def _floor_done(self, fut: asyncio.Future[Any], cal_id: int, n: int) -> None:
-        if fut.cancelled() or fut.exception() is not None:
-            return
-        res = fut.result()
-        if res is None or cal_id != self.calibration_id:
-            log.info("no floor plane found in the first %d depth frames", n)
-            return
-        plane, t_dev = res
-        self._urgent.append(
-            FloorPlane(
-                normal=plane.normal,
-                offset_m=float(plane.offset_m),
-                n_inliers=int(plane.n_inliers),
-                residual_m=float(plane.residual_m),
-                n_frames=n,
-                t_device_s=t_dev,
-                calibration_id=cal_id,
-            )
-        )
-        self._wake.set()
-
-
-async def _wait_event(event: asyncio.Event, timeout: float) -> bool:
-    """Wait for ``event`` at most ``timeout`` seconds; True if it is set.
-
-    (Not ``asyncio.wait_for``: on Python 3.11 it can swallow a cancellation that arrives as
-    the wait ends, and a cancelled task would then run on.)
-    """
-    try:
-        async with asyncio.timeout(timeout):
-            await event.wait()
-    except TimeoutError:
-        return event.is_set()
-    return True
-
-
-class _Prefetch:
-    """Runs the source ahead of the play clock on the source thread (``ahead`` frames at most).
-
-    Reading a store decodes depth frames in batches; without a lead, a frame would wait for a
-    whole batch to be decoded after its time had come.
-    """
-
-    def __init__(
-        self, loop: asyncio.AbstractEventLoop, prepared: _Prepared, ahead: int = 45
-    ) -> None:
-        self.loop = loop
-        self.prepared = prepared
-        self.queue: asyncio.Queue[Any] = asyncio.Queue()
-        self.slots = threading.Semaphore(ahead)
-        self.halted = threading.Event()
-
-    def run(self) -> None:
-        """The producer (on the source thread): until the source ends or :meth:`halt`."""
-        try:
-            while not self.halted.is_set():
-                if not self.slots.acquire(timeout=0.1):
-                    continue
-                item = self.prepared.next()
-                self.loop.call_soon_threadsafe(self.queue.put_nowait, item)
-                if item is None:
-                    return
-        except BaseException as e:
-            if not self.halted.is_set():
-                self.loop.call_soon_threadsafe(self.queue.put_nowait, e)
-        finally:
-            self.prepared.close()  # a store closes in its own thread
-
-    def halt(self) -> None:
-        self.halted.set()
-
-    async def get(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
-        item = await self.queue.get()
-        self.slots.release()
-        if isinstance(item, BaseException):
-            raise item
-        return item
-
-
-class _Prepared:
-    """The timeline's frames with the occlusion test done (runs on the source thread)."""
-
-    def __init__(self, timeline: Timeline, rule: str) -> None:
-        self.timeline = timeline
-        self.rule = rule
-        self._it: Iterator[Timed] | None = None
-
-    def close(self) -> None:
-        """End the iteration (on the source thread: a store closes in its own thread)."""
-        it, self._it = self._it, None
-        close = getattr(it, "close", None)
-        if close is not None:
-            close()
-
-    def next(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
-        from kinefuse.occlusion import detect_occlusion
-
-        if self._it is None:
-            self._it = iter(self.timeline.frames())
-        timed = next(self._it, None)
-        if timed is None:
-            return None
-        f = timed.frame
-        if isinstance(f, DepthFrame):
-            return timed, None
-        r = detect_occlusion(f.joints_m[None], self.timeline.intrinsics, rule=self.rule)  # type: ignore[arg-type]
-        return timed, (r.occluded[0], int(r.n_intersections[0]))
-
-
-def _warm_up() -> None:
-    import kinefuse.calibration.floor
-    import kinefuse.calibration.wand_paper
-    import kinefuse.calibration.wand_robust  # noqa: F401
-
-
-def _detect(depth_mm: np.ndarray, timeline: Timeline, detector: str) -> Any:
-    if detector == "paper":
-        from kinefuse.calibration.wand_paper import detect_wand_paper
-
-        return detect_wand_paper(depth_mm, timeline.intrinsics, timeline.wand)
-    from kinefuse.calibration.wand_robust import detect_wand
-
-    return detect_wand(depth_mm, timeline.intrinsics, timeline.wand)
-
-
-def _fit_floor(stack: list[np.ndarray], timeline: Timeline, t_device_s: float) -> Any:
-    """The floor of the per-pixel median of ``stack`` (as calibration.session.gather does)."""
-    import warnings
-
-    from kinefuse.calibration.floor import fit_floor_plane
-    from kinefuse.errors import CalibrationError
-
-    a = np.stack(stack).astype(np.float32)
-    a[a == 0] = np.nan
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(a, axis=0)
-    med = np.where(np.isfinite(med), med, 0).astype(np.uint16)
-    try:
-        return fit_floor_plane(med, timeline.intrinsics, name=timeline.sensor_id), t_device_s
-    except CalibrationError:
-        return None
