@@ -276,6 +276,7 @@ class FakeKinect:
 
     def __init__(self, frames="5", serial="X"):
         self.n = int(frames)
+        self.serial = serial
 
     @property
     def sensor_ids(self):
@@ -304,7 +305,10 @@ def test_a_driver_plugs_in_as_module_factory(tmp_path: Path):
         server = TestServer()
         await server.start()
         proc = _sensor(
-            server.port, "--source", "driver:fakedriver:FakeKinect?frames=7", extra_path=tmp_path
+            server.port,
+            "--source",
+            "driver:fakedriver:FakeKinect?frames=7&serial=SN42",
+            extra_path=tmp_path,
         )
         code = await _wait_proc(proc)
         assert proc.stderr is not None
@@ -313,7 +317,7 @@ def test_a_driver_plugs_in_as_module_factory(tmp_path: Path):
     server, code, err = run(go())
     assert code == 0, err
     hello = server.peers[0].messages[0]
-    assert isinstance(hello, Hello) and hello.sensor_id == "kinect-1"
+    assert isinstance(hello, Hello) and hello.sensor_id == "kinect-1" and hello.serial == "SN42"
     assert hello.intrinsics is not None and hello.intrinsics.fx == 364.0
     bodies = [m for m in server.peers[0].messages if isinstance(m, BodyFrame)]
     assert [b.seq for b in bodies] == list(range(7))
@@ -336,3 +340,45 @@ def test_bad_driver_specs_say_what_is_wrong(tmp_path: Path, monkeypatch, spec, m
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(InputError, match=match):
         open_timeline(spec)
+
+
+def test_a_real_kinect_multitrack_log_goes_through_the_live_path(shared_data: Path):
+    log = shared_data / "kinect" / "kinect_multitrack" / "Study_4_Kinect_1_Time_1_22_06_PM.csv"
+    from kinefuse.sources import open_source
+
+    ref = [f for _, f in zip(range(40), open_source(f"multitrack:{log}"), strict=False)]
+
+    async def go() -> tuple[TestServer, SensorClient]:
+        server = TestServer()
+        await server.start()
+        tl = open_timeline(f"multitrack:{log}")
+        assert tl.source_clock == "host" and not tl.live
+        client = SensorClient(
+            tl,
+            ClientOptions(server=("127.0.0.1", server.port), speed=4.0, max_seconds=1.0),
+            host_clock=lambda m0: HostClock(0.0, 0.0, m0),
+        )
+        assert await client.run() == 0
+        return server, client
+
+    server, _client = run(go())
+    bodies = server.bodies()
+    assert server.peers[0].hello is not None
+    assert server.peers[0].hello.sensor_id == ref[0].sensor_id  # the log's Kinect_Id
+    assert 20 <= len(bodies) <= 40  # 1 s of a ~30 Hz log
+    for b in bodies:
+        r = ref[b.seq]
+        assert b.t_device_s == r.t_device_s  # the log's Skeleton_Time
+        np.testing.assert_allclose(b.joints_m, r.joints_m, atol=1e-6, equal_nan=True)
+        assert b.n_crossings is not None
+    # played on the log's own arrival times, 4 times as fast
+    t_host = np.array([b.t_host_s for b in bodies])
+    span_log = ref[bodies[-1].seq].t_host_s - ref[bodies[0].seq].t_host_s
+    assert abs((t_host[-1] - t_host[0]) - span_log / 4.0) < 0.05  # s
+
+
+def test_kinect2json_plays_on_its_device_clock(shared_data: Path):
+    tl = open_timeline(f"kinect2json:{shared_data / 'kinect' / 'kinect2_tracking' / 'walker.json'}")
+    first = [x for _, x in zip(range(3), tl.frames(), strict=False)]
+    assert tl.source_clock == "device"
+    assert [x.t_play_s for x in first] == pytest.approx([0.0, 1 / 30, 2 / 30])

@@ -11,6 +11,7 @@ import logging
 import math
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -113,7 +114,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="crossing",
         help="occlusion rule: the paper's bone crossing (default) or capsule coverage",
     )
-    p.add_argument("--serial", default="", help="the device's serial number (sent in Hello)")
+    p.add_argument(
+        "--serial", default="", help="the device's serial number for Hello (default: the source's)"
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
     p.set_defaults(func=cmd_sensor)
 
@@ -149,6 +152,8 @@ def cmd_sensor(args: argparse.Namespace) -> int:
         software=f"kinefuse {__version__}",
     )
     timeline = open_timeline(args.source)
+    if not args.serial and timeline.serial:
+        options = replace(options, serial=timeline.serial)
     try:
         truth = timeline.truth
         if timeline.live:

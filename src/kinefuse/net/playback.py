@@ -63,10 +63,13 @@ class Timeline:
         The simulated sensor's true clocks (sim sources only).
     live : bool
         The frames come in real time (a driver): play each as it comes.
+    serial : str
+        The device's serial number if the source knows it (a session, a driver's ``serial``).
     """
 
     sensor_id: str
     intrinsics: Intrinsics
+    serial: str = ""
     wand: Wand = Wand()
     source_clock: str = "host"
     truth: SimClockTruth | None = None
@@ -105,7 +108,9 @@ class SimTimeline(Timeline):
             self.truth = SimClockTruth.from_store(store, sensor_id)
             wand = store.meta().get("wand")
             self.wand = Wand(**wand) if isinstance(wand, dict) else Wand()
-            self.intrinsics = store.sensor(sensor_id).intrinsics
+            info = store.sensor(sensor_id)
+            self.intrinsics = info.intrinsics
+            self.serial = str(info.serial)
         finally:
             store.close()
         self.sensor_id = sensor_id
@@ -156,6 +161,7 @@ class SourceTimeline(Timeline):
             )
         self.live = live
         self.source_clock = "live" if live else "host"
+        self.serial = str(getattr(source, "serial", "") or "")
         self._source = source
 
     def frames(self) -> Iterator[Timed]:
