@@ -12,7 +12,7 @@ from kinefuse.cli import main
 
 def test_demo_runs_the_whole_pipeline(tmp_path, capsys) -> None:
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out)]) == 0
+    assert main(["demo", "--offline", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     for step in ("1/4 simulate", "2/4 calibrate", "3/4 fuse", "4/4 evaluate"):
         assert step in text
@@ -63,6 +63,6 @@ def test_demo_runs_the_whole_pipeline(tmp_path, capsys) -> None:
     assert "95 % interval" in text
     # a second run replaces the first one's folder, which it made
     first = (out / "session.sqlite").stat().st_mtime_ns
-    assert main(["demo", "--out", str(out)]) == 0
+    assert main(["demo", "--offline", "--out", str(out)]) == 0
     assert (out / "session.sqlite").stat().st_mtime_ns != first
     assert sorted(p.name for p in tmp_path.iterdir()) == ["demo"]

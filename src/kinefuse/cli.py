@@ -287,7 +287,7 @@ def _cmd_realdata(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if not args.live:  # the offline pipeline on a simulated session (kinefuse.app.run_demo)
+    if args.offline:  # the offline pipeline on a simulated session (kinefuse.app.run_demo)
         from kinefuse.app import run_demo
 
         return run_demo(out_dir=args.out, seed=args.seed)
@@ -379,7 +379,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"kinefuse {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("demo", help="simulate a session from the bundled clip and report on it")
+    p = sub.add_parser(
+        "demo",
+        help="the live system on this machine: a server and one client process per simulated "
+        "sensor, live calibration and capture, then an evaluation",
+    )
     p.add_argument(
         "--out",
         type=Path,
@@ -388,24 +392,25 @@ def build_parser() -> argparse.ArgumentParser:
         "demo made it)",
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sensors", type=int, default=4, help="simulated sensors (4)")
     p.add_argument(
-        "--live",
-        action="store_true",
-        help="run the live system: a server and one client process per sensor on 127.0.0.1",
+        "--seconds", type=_positive_float, help="length of the captured motion (20 s at most)"
     )
-    p.add_argument("--sensors", type=int, default=4, help="simulated sensors (live; 4)")
-    p.add_argument(
-        "--seconds", type=_positive_float, help="length of the captured motion (live; 20 s)"
-    )
-    p.add_argument("--clip", type=Path, help="motion clip (live; default: the bundled one)")
+    p.add_argument("--clip", type=Path, help="motion clip (default: the bundled CMU 01_01)")
     p.add_argument(
         "--net-jitter-ms",
         type=_nonneg_float,
         metavar="MS",
         help="put a proxy with asymmetric network jitter of mean MS between each client and "
-        "the server (live)",
+        "the server",
     )
-    p.add_argument("--json", action="store_true", help="print the figures as JSON (live)")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.add_argument(
+        "--offline",
+        action="store_true",
+        help="the offline pipeline instead (no processes: simulate, calibrate, fuse, compare "
+        "every method; the other options do not apply)",
+    )
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("simulate", help="simulate a capture session of a real motion clip")
