@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.client import ClientOptions, ClientRefused, SensorClient
+from kinefuse.net.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
 from kinefuse.net.clocks import HostClock, real_host_clock
 from kinefuse.net.playback import SourceTimeline
 from kinefuse.occlusion import detect_occlusion
@@ -421,3 +421,15 @@ def test_a_live_driver_source_is_sent_as_it_comes_with_its_own_host_stamps():
     assert [b.seq for b in bodies] == list(range(20))
     t_host = np.array([b.t_host_s for b in bodies])
     assert t_host[0] > t_before and np.all(np.diff(t_host) > 0.015)  # the driver's own stamps
+
+
+def test_backoff_doubles_is_capped_and_jittered():
+    import random
+
+    rng = random.Random(5)
+    d = np.array([[backoff_delay(a, 0.2, 5.0, rng) for a in range(12)] for _ in range(200)])
+    hi = np.minimum(5.0, 0.2 * 2.0 ** np.arange(12))
+    assert np.all(d <= hi) and np.all(d >= 0.5 * hi)  # within [0.5, 1] of the capped doubling
+    assert d[:, -1].max() <= 5.0 and d[:, 0].max() <= 0.2
+    assert d[:, 8].std() > 0.3  # s: jittered, not in step
+    assert backoff_delay(10**6, 0.2, 5.0, rng) <= 5.0  # no overflow after a long outage

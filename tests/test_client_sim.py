@@ -27,6 +27,7 @@ from kinefuse.net.playback import SimTimeline, open_timeline
 from kinefuse.protocol import (
     BodyFrame,
     CalibrationStop,
+    ClockProbe,
     FloorPlane,
     Goodbye,
     Hello,
@@ -382,3 +383,48 @@ def test_kinect2json_plays_on_its_device_clock(shared_data: Path):
     first = [x for _, x in zip(range(3), tl.frames(), strict=False)]
     assert tl.source_clock == "device"
     assert [x.t_play_s for x in first] == pytest.approx([0.0, 1 / 30, 2 / 30])
+
+
+def test_probes_stay_prompt_while_the_client_detects_the_wand(session: Path):
+    def probes(server: TestServer, writer: asyncio.StreamWriter) -> None:
+        async def every() -> None:
+            i = 0
+            while not writer.is_closing():
+                # bursts of 4 as the server sends them, one burst every 0.25 s
+                for _ in range(4):
+                    writer.write(encode(ClockProbe(i, server.clock())))
+                    i += 1
+                    await asyncio.sleep(0.01)
+                await asyncio.sleep(0.2)
+
+        server.task = asyncio.ensure_future(every())  # type: ignore[attr-defined]
+
+    async def go() -> tuple[TestServer, SensorClient]:
+        server = TestServer(
+            welcome=Welcome(session="t", calibrating=True, calibration_id=1), on_welcome=probes
+        )
+        await server.start()
+        client = SensorClient(
+            open_timeline(f"sim:{session}#k0"),
+            ClientOptions(server=("127.0.0.1", server.port), max_seconds=2.0),
+            host_clock=lambda m0: HostClock(300.0, 40e-6, m0),
+        )
+        assert await client.run() == 0
+        return server, client
+
+    server, client = run(go())
+    assert client.stats.depth_detected >= 10  # the detector was busy all along
+    host = client.host_clock
+    assert host is not None
+    replies = server.peers[0].replies
+    assert len(replies) >= 20
+    delay = np.array([(t4 - r.t1) - (r.t3 - r.t2) for r, t4 in replies])
+    mid = np.array([0.5 * (r.t1 + t4) for r, t4 in replies])
+    offset = np.array([0.5 * ((r.t2 - r.t1) + (r.t3 - t4)) for r, t4 in replies])
+    truth = np.array([host.at(server.t0 + m) - m for m in mid])
+    # the least-delay probe of each burst of 4 (what the server's estimator keeps)
+    n = len(replies) // 4 * 4
+    best = np.argmin(delay[:n].reshape(-1, 4), axis=1) + np.arange(0, n, 4)
+    err = np.abs(offset[best] - truth[best])
+    assert np.median(err) < 0.5e-3  # s
+    assert np.median(delay[best]) < 2e-3  # s

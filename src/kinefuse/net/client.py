@@ -157,6 +157,13 @@ class _Outcome(Exception):
         self.kind = kind
 
 
+def backoff_delay(attempt: int, initial_s: float, max_s: float, rng: random.Random) -> float:
+    """The wait before reconnect attempt ``attempt`` (0, 1, ...): ``initial_s * 2**attempt``
+    capped at ``max_s``, times a random factor in [0.5, 1) (clients that lost the server
+    together do not come back in step)."""
+    return min(max_s, initial_s * 2.0 ** min(attempt, 64)) * (0.5 + 0.5 * rng.random())
+
+
 class SensorClient:
     """Plays ``timeline`` to a server (see the module notes).
 
@@ -286,9 +293,8 @@ class SensorClient:
                 if out.kind == "welcomed":
                     attempt = 0
                 log.warning("connection to %s:%d: %s", *self.options.server, out)
-            delay = min(
-                self.options.backoff_max_s, self.options.backoff_initial_s * 2.0**attempt
-            ) * (0.5 + 0.5 * self.rng.random())
+            opt = self.options
+            delay = backoff_delay(attempt, opt.backoff_initial_s, opt.backoff_max_s, self.rng)
             attempt += 1
             await wait_event(self._stop, delay)
 
