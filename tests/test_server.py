@@ -449,3 +449,42 @@ def test_offline_best_live_agrees_with_the_live_frames(live_run) -> None:
     # the offline replay maps times with the whole recording's clock fits, the live server with
     # the running ones, and a late observation is predicted live: close, not identical
     assert np.nanmedian(d) < 0.02  # 2 cm
+
+
+def test_a_sensor_that_joins_later_is_registered_against_the_calibrated_ones(sim, scripts) -> None:
+    """The server starts with k0's and k1's poses (a calibration file); k2 joins without one and
+    is registered against them from this wand phase, the others are not redone."""
+    from kinefuse.calibration.calib_file import CalibrationFile
+
+    with SessionStore.open(sim) as st:
+        off = calibrate(gather(st), "full")
+        intr = {s.id: s.intrinsics for s in st.sensors()}
+    from kinefuse.calibration.calib_file import calibration_from_registration
+
+    full = calibration_from_registration(off, intr)
+    two = CalibrationFile(full.method, full.created, full.sensors[:2], full.world, full.rms_m)
+    assert [s.id for s in two.sensors] == ["k0", "k1"]
+
+    async def scenario():
+        opts = ServerOptions(
+            port=0, auto_calibrate=True, calibration=LiveCalibrationOptions(quiet_s=1.0)
+        )
+        srv = Server(opts)
+        srv.load_calibration(two)
+        task = asyncio.ensure_future(srv.run())
+        await wait_for(lambda: srv.port is not None, 5, "the server")
+        epoch = time.monotonic() + 0.3
+        clients = [SimClient(sc, epoch, 10.0 * k) for k, sc in enumerate(scripts.values())]
+        runs = [asyncio.ensure_future(c.run(srv.port, CAL_S + 0.5)) for c in clients]
+        await wait_for(lambda: srv.last_outcome is not None, CAL_S + 10, "the calibration")
+        await asyncio.gather(*runs)
+        srv.request_stop("done")
+        await asyncio.wait_for(task, 10)
+        return srv.last_outcome, srv.calibration.poses
+
+    out, poses = asyncio.run(asyncio.wait_for(scenario(), 60))
+    assert out.ok and out.targets == ("k2",), out.message
+    for sid in ("k0", "k1"):  # kept as they were
+        np.testing.assert_array_equal(poses[sid], off.pose(sid))
+    d = np.linalg.norm(poses["k2"][:3, 3] - off.pose("k2")[:3, 3])
+    assert d < 0.003  # 3 mm from the pose all three registered together give

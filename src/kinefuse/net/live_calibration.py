@@ -30,6 +30,7 @@ A sensor's pose is kept by its id, so a client that reconnects gets it back at o
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -322,17 +323,25 @@ class LiveCalibration:
                 f"sensor(s) {', '.join(fixed)}, but none of those saw the wand in this run; "
                 "wave the wand where their views overlap"
             )
+        prev = self.calibration
+        world = prev.world if prev is not None else "the calibrated sensors' world"
+        # the world's scale was corrected from the wand protocol (sensor positions scaled by f
+        # about the origin, the sensors' own measurements not): register in the unscaled world
+        # the sightings live in, then scale the new sensor's position the same way
+        f = world_scale(world)
+        unscaled = {}
+        for k in fixed_tracks:
+            u = np.array(fixed[k], dtype=np.float64)
+            u[:3, 3] /= f
+            unscaled[k] = u
         ids, poses, resid, n_used = [], [], [], []
         for sid, s in use.items():
-            pose, r, n = register_against(
-                fixed_tracks, {k: fixed[k] for k in fixed_tracks}, s, name=sid
-            )
+            pose, r, n = register_against(fixed_tracks, unscaled, s, name=sid)
+            pose[:3, 3] *= f
             ids.append(sid)
             poses.append(pose)
             resid.append(r)
             n_used.append(n)
-        prev = self.calibration
-        world = prev.world if prev is not None else "the calibrated sensors' world"
         return Registration(
             method=method,
             sensor_ids=tuple(ids),
@@ -342,6 +351,13 @@ class LiveCalibration:
             rms_m=float(np.sqrt(np.mean(np.square(resid)))),
             world=f"{world}; {', '.join(ids)} registered against {', '.join(sorted(fixed))}",
         )
+
+
+def world_scale(world: str) -> float:
+    """The scale factor a calibration's world was corrected by (``"scaled by F"`` in its world
+    description, as :func:`kinefuse.calibration.session.scale_registration` writes it), else 1."""
+    m = re.search(r"scaled by ([0-9]+(?:\.[0-9]+)?)", world)
+    return float(m.group(1)) if m else 1.0
 
 
 def register_against(
