@@ -49,7 +49,7 @@ class Connection(asyncio.Protocol):
             msgs = self.decoder.feed(data)
             error: WireError | None = None
         except WireError as e:
-            msgs, error = getattr(e, "decoded", []), e
+            msgs, error = e.decoded, e
         for m in msgs:
             if isinstance(m, ClockProbe):
                 self._answer(m, t_arrival)

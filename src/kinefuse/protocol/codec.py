@@ -202,7 +202,7 @@ class Decoder:
             try:
                 msg, more = self._next()
             except WireError as e:
-                e.decoded = out  # type: ignore[attr-defined]
+                e.decoded = out
                 if isinstance(e, FramingError):
                     self._broken = e
                     self._buf.clear()

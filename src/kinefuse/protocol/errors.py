@@ -25,13 +25,20 @@ connection layer decides: see ``docs/protocol.md``, "What closes a connection").
 
 from __future__ import annotations
 
+from typing import Any
+
 from kinefuse.errors import ProtocolError
 
 
 class WireError(ProtocolError):
-    """Base of the protocol's errors; :attr:`code` is what an ``Error`` message carries."""
+    """Base of the protocol's errors; :attr:`code` is what an ``Error`` message carries.
+
+    :attr:`decoded`: when raised by ``Decoder.feed``, the messages decoded before the bad frame
+    in that call (handle them, then close).
+    """
 
     code = "protocol"
+    decoded: list[Any] = []  # noqa: RUF012 (replaced per instance, never mutated)
 
 
 class FramingError(WireError):
