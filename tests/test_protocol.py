@@ -481,3 +481,34 @@ def test_error_codes_are_distinct_per_kind():
         "field",
         "version",
     }
+
+
+_t = st.floats(-1e9, 1e9, allow_nan=False)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    seq=st.integers(0, 2**63 - 1),
+    t_dev=_t,
+    t_host=_t,
+    seed=st.integers(0, 2**32 - 1),
+    crossings=st.one_of(st.none(), st.integers(0, 10000)),
+)
+def test_random_body_frames_round_trip(seq, t_dev, t_host, seed, crossings):
+    rng = np.random.default_rng(seed)
+    joints = rng.uniform(-99.0, 99.0, (25, 3))
+    joints[rng.random(25) < 0.3] = np.nan
+    msg = BodyFrame(
+        seq=seq,
+        t_device_s=t_dev,
+        t_host_s=t_host,
+        joints_m=joints,
+        states=rng.integers(0, 3, 25).astype(np.int8),
+        occluded=None if crossings is None else rng.random(25) < 0.5,
+        n_crossings=crossings,
+    )
+    (back,) = Decoder().feed(encode(msg))
+    assert back.seq == seq and back.t_device_s == t_dev and back.t_host_s == t_host  # exact
+    np.testing.assert_array_equal(back.joints_m, joints.astype(np.float32), strict=False)
+    assert (back.states == msg.states).all() and back.n_crossings == crossings
+    assert (back.occluded is None) == (msg.occluded is None)
