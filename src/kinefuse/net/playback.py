@@ -226,8 +226,10 @@ def open_timeline(spec: str) -> Timeline:
         if not target:
             raise InputError(f"source {spec!r}: expected sim:SESSION.sqlite#SENSOR_ID")
         return SimTimeline(target, sensor)
-    if kind in ("multitrack", "kinect2json"):
-        _target, _, sensor = rest.partition("#")
+    if kind in ("multitrack", "kinect2json", "simlive"):
+        # simlive (a simulated sensor generating its frames, where kinefuse.sources has it)
+        # plays on its own host stamps like a log
+        sensor = rest.partition("?")[0].partition("#")[2]
         src = open_source(spec)
         return SourceTimeline(src, sensor or None)
     if kind == "driver":
