@@ -324,29 +324,37 @@ class SensorClient:
             conn.close()
 
     async def _next(self, conn: Connection, timeout: float) -> Message:
-        get = asyncio.ensure_future(conn.inbox.get())
-        stop = asyncio.ensure_future(self._stop.wait())
-        try:
-            done, _ = await asyncio.wait(
-                {get, stop, conn.closed}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED
-            )
-        finally:
-            for f in (get, stop):
-                if not f.done():
-                    f.cancel()
-        if get in done:
-            item = get.result()
-            if isinstance(item, VersionError):
-                raise ClientRefused("version", f"the server speaks another version: {item}")
-            if isinstance(item, WireError):
-                conn.send(Error(item.code, str(item)[:1000]))
-                raise _Outcome("protocol", f"the server broke the protocol: {item}")
-            return item
-        if stop in done:
-            raise _Outcome("stop")
-        if conn.closed in done:
-            raise _Outcome("lost", "the server closed the connection")
-        raise _Outcome("timeout", f"nothing from the server for {timeout:g} s")
+        """The next message from the server; what is queued comes before a close or a stop
+        (a refusal and the close after it can arrive together: the refusal must be seen)."""
+        if conn.inbox.empty():
+            get = asyncio.ensure_future(conn.inbox.get())
+            stop = asyncio.ensure_future(self._stop.wait())
+            try:
+                done, _ = await asyncio.wait(
+                    {get, stop, conn.closed}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED
+                )
+            finally:
+                for f in (get, stop):
+                    if not f.done():
+                        f.cancel()  # a cancelled get leaves its item in the queue
+            if get in done:
+                item = get.result()
+            elif not conn.inbox.empty():
+                item = conn.inbox.get_nowait()
+            elif stop in done:
+                raise _Outcome("stop")
+            elif conn.closed in done:
+                raise _Outcome("lost", "the server closed the connection")
+            else:
+                raise _Outcome("timeout", f"nothing from the server for {timeout:g} s")
+        else:
+            item = conn.inbox.get_nowait()
+        if isinstance(item, VersionError):
+            raise ClientRefused("version", f"the server speaks another version: {item}")
+        if isinstance(item, WireError):
+            conn.send(Error(item.code, str(item)[:1000]))
+            raise _Outcome("protocol", f"the server broke the protocol: {item}")
+        return item
 
     async def _handshake(self, conn: Connection) -> Welcome:
         tl, opt = self.timeline, self.options
