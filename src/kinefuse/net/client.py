@@ -454,7 +454,12 @@ class SensorClient:
             await wait_event(self._wake, max(0.01, heartbeat_s - idle))
 
     def _send_pending(self, conn: Connection) -> None:
-        while conn.writable.is_set() and (self._urgent or self._sightings or self._body):
+        # a closing connection takes nothing: what is queued waits for the next connection
+        while (
+            conn.is_open
+            and conn.writable.is_set()
+            and (self._urgent or self._sightings or self._body)
+        ):
             if self._urgent:
                 conn.send(self._urgent.popleft())
             elif self._sightings:

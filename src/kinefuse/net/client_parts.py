@@ -73,8 +73,13 @@ class Connection(asyncio.Protocol):
         self.last_tx = self.client.monotonic()
         self.client.stats.probes_answered += 1
 
+    @property
+    def is_open(self) -> bool:
+        return self.transport is not None and not self.transport.is_closing()
+
     def send(self, msg: Message) -> None:
-        if self.transport is not None and not self.transport.is_closing():
+        if self.is_open:
+            assert self.transport is not None
             self.transport.write(encode(msg))
             self.last_tx = self.client.monotonic()
 
