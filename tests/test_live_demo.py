@@ -50,6 +50,9 @@ def test_live_demo_runs_the_whole_system_and_reports(tmp_path, capsys) -> None:
     assert r["calibration"]["mean_position_error_m"] < 0.03  # 3 cm
     assert r["clock_offset_error_ms"]["p50"] < 1.0 and r["clock_offset_error_ms"]["max"] < 5.0
     assert r["latency_ms"]["p50"] < r["latency_ms"]["p99"] < 100.0
+    # every client was connected before the playback started (none missed the wand phase)
+    assert sorted(r["clients"]) == ["k0", "k1"]
+    assert all(c["connected_before_playback_s"] > 0 for c in r["clients"].values())
     for p in r["outputs"]:
         assert Path(p).exists(), p
     for name in ("recording.sqlite", "sim.sqlite", "calibration.toml", "fused.c3d", "fused.trc",

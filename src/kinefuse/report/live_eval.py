@@ -398,6 +398,25 @@ def live_vs_offline(store: SessionStore) -> dict[str, Any]:
     }
 
 
+def client_connections(store: SessionStore) -> dict[str, dict[str, Any]]:
+    """Per sensor: its connections and how long before the playback of the simulated session
+    started (true time 0, on the server clock) it first connected, seconds (negative: it joined
+    late and missed the start of the wand phase)."""
+    from kinefuse.io.store_live import events
+
+    info = store.truth().info("live_playback")
+    start = info.get("true_to_server_s") if isinstance(info, dict) else None
+    out: dict[str, dict[str, Any]] = {}
+    for t, kind, sid, _ in events(store):
+        if sid is None or kind != "connected":
+            continue
+        c = out.setdefault(sid, {"connections": 0, "connected_before_playback_s": None})
+        c["connections"] += 1
+        if c["connections"] == 1 and isinstance(start, int | float):
+            c["connected_before_playback_s"] = float(start) - t
+    return out
+
+
 def evaluate_live(
     recording: Path, *, offline_report: dict[str, Any] | None = None
 ) -> dict[str, Any]:
@@ -431,6 +450,7 @@ def evaluate_live(
         result["latency_ms"]["definition"] = (
             "client host receive (on the server clock) -> fused frame published"
         )
+        result["clients"] = client_connections(store)
     if offline_report is not None:
         result["offline_methods_mae_m"] = {
             m: v["mae_m"] for m, v in offline_report.items() if isinstance(v, dict) and "mae_m" in v
@@ -457,4 +477,12 @@ def format_live(r: dict[str, Any]) -> str:
         f"latency (host receive -> published): p50 {f(lat['p50'], 1, '.1f')} ms, p99 "
         f"{f(lat['p99'], 1, '.1f')} ms",
     ]
+    late = [
+        f"{sid} ({-c['connected_before_playback_s']:.1f} s)"
+        for sid, c in r.get("clients", {}).items()
+        if isinstance(c.get("connected_before_playback_s"), float)
+        and c["connected_before_playback_s"] < 0
+    ]
+    if late:
+        lines.append("warning: joined after the playback started: " + ", ".join(late))
     return "\n".join(lines)
