@@ -286,24 +286,6 @@ def _cmd_realdata(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_demo(args: argparse.Namespace) -> int:
-    if args.offline:  # the offline pipeline on a simulated session (kinefuse.app.run_demo)
-        from kinefuse.app import run_demo
-
-        return run_demo(out_dir=args.out, seed=args.seed)
-    from kinefuse.live_demo import run_live_demo
-
-    return run_live_demo(
-        out_dir=args.out,
-        sensors=args.sensors,
-        seconds=args.seconds,
-        clip=args.clip,
-        net_jitter_ms=args.net_jitter_ms,
-        seed=args.seed,
-        as_json=args.json,
-    )
-
-
 def _phase(text: str) -> tuple[float, float]:
     try:
         a, b = (float(x) for x in text.split(":"))
@@ -379,39 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"kinefuse {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser(
-        "demo",
-        help="the live system on this machine: a server and one client process per simulated "
-        "sensor, live calibration and capture, then an evaluation",
-    )
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=Path("kinefuse-demo"),
-        help="output folder (kinefuse-demo in the current folder; replaced only if an earlier "
-        "demo made it)",
-    )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sensors", type=int, default=4, help="simulated sensors (4)")
-    p.add_argument(
-        "--seconds", type=_positive_float, help="length of the captured motion (20 s at most)"
-    )
-    p.add_argument("--clip", type=Path, help="motion clip (default: the bundled CMU 01_01)")
-    p.add_argument(
-        "--net-jitter-ms",
-        type=_nonneg_float,
-        metavar="MS",
-        help="put a proxy with asymmetric network jitter of mean MS between each client and "
-        "the server",
-    )
-    p.add_argument("--json", action="store_true", help="print the figures as JSON")
-    p.add_argument(
-        "--offline",
-        action="store_true",
-        help="the offline pipeline instead (no processes: simulate, calibrate, fuse, compare "
-        "every method; the other options do not apply)",
-    )
-    p.set_defaults(func=_cmd_demo)
+    from kinefuse.live_demo import add_parser as add_demo_parser
+
+    add_demo_parser(sub)  # kinefuse demo: the live system on this machine (docs/live.md)
 
     p = sub.add_parser("simulate", help="simulate a capture session of a real motion clip")
     p.add_argument("--clip", type=Path, required=True, help="motion clip (.bvh or .amc)")
@@ -455,7 +407,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_calibrate)
     _add_serve_parser(sub)
-    _add_proxy_parser(sub)
+    from kinefuse.proxy_app import add_parser as add_proxy_parser
+
+    add_proxy_parser(sub)  # kinefuse proxy: a fault-injecting TCP proxy (docs/live.md)
 
     p = sub.add_parser("fuse", help="fuse a session's joints into one skeleton")
     p.add_argument("session", type=Path)
@@ -614,55 +568,6 @@ def _add_serve_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     p.add_argument("--verbose", action="store_true", help="log debug messages")
     p.set_defaults(func=_cmd_serve)
-
-
-def _cmd_proxy(args: argparse.Namespace) -> int:
-    from kinefuse.net.proxy import LinkProfile, serve_proxy
-    from kinefuse.serve_app import parse_hostport
-
-    host, port = parse_hostport(args.listen, default_port=0)
-    t_host, t_port = parse_hostport(args.target)
-
-    def link(delay_ms: float, jitter_ms: float, cut: int | None) -> LinkProfile:
-        return LinkProfile(
-            delay_s=delay_ms * 1e-3, jitter_s=jitter_ms * 1e-3, jitter=args.jitter,
-            cut_after_bytes=cut,
-        )  # fmt: skip
-
-    return serve_proxy(
-        t_host,
-        t_port,
-        host=host,
-        port=port,
-        up=link(args.up_delay_ms, args.up_jitter_ms, args.cut_after_bytes),
-        down=link(args.down_delay_ms, args.down_jitter_ms, None),
-        cut_after_s=args.cut_after_s,
-        max_cuts=args.max_cuts,
-        seed=args.seed,
-    )
-
-
-def _add_proxy_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    from kinefuse.net.proxy import JITTER_KINDS
-
-    p = sub.add_parser(
-        "proxy", help="a fault-injecting TCP proxy (delay, jitter, cuts) for testing a live setup"
-    )
-    p.add_argument("--target", required=True, metavar="HOST:PORT", help="where to forward")
-    p.add_argument(
-        "--listen", default="127.0.0.1:0", metavar="HOST:PORT", help="(127.0.0.1:0: a free port)"
-    )
-    for d, what in (("up", "client -> target"), ("down", "target -> client")):
-        p.add_argument(f"--{d}-delay-ms", type=_nonneg_float, default=0.0, help=f"{what} delay")
-        p.add_argument(
-            f"--{d}-jitter-ms", type=_nonneg_float, default=0.0, help=f"{what} mean jitter"
-        )
-    p.add_argument("--jitter", choices=JITTER_KINDS, default="exponential")
-    p.add_argument("--cut-after-bytes", type=int, help="cut a connection after N bytes up")
-    p.add_argument("--cut-after-s", type=_nonneg_float, help="cut a connection after S seconds")
-    p.add_argument("--max-cuts", type=int, help="cut at most this many connections")
-    p.add_argument("--seed", type=int, default=0, help="seed of the jitter draws (0)")
-    p.set_defaults(func=_cmd_proxy)
 
 
 def _exit_cleanly_on_sigterm() -> None:
