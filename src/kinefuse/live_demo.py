@@ -240,10 +240,14 @@ def parse_listening(line: str) -> tuple[str, int]:
 # the command lines of the processes
 
 
-def serve_args(recording: Path) -> list[str]:
-    """``kinefuse serve`` as the demo runs it: loopback, a free port, recording, auto-calibrated."""
-    return ["serve", "--host", "127.0.0.1", "--port", "0", "--record", str(recording),
+def serve_args(recording: Path, wand_axis_m: float | None = None) -> list[str]:
+    """``kinefuse serve`` as the demo runs it: loopback, a free port, recording, auto-calibrated;
+    ``wand_axis_m``: the wand protocol's move between its holds (what the operator was told)."""
+    args = ["serve", "--host", "127.0.0.1", "--port", "0", "--record", str(recording),
             "--auto-calibrate"]  # fmt: skip
+    if wand_axis_m is not None:
+        args += ["--wand-axis-m", f"{wand_axis_m:g}"]
+    return args
 
 
 def sensor_args(
@@ -292,13 +296,15 @@ def run_live(
         ids = [s.id for s in st.sensors()]
         phases = st.meta()
     end_s = float(phases["motion_phase_server_s"][1])  # type: ignore[index]
+    protocol = phases.get("wand_protocol")
+    axis = protocol.get("axis_length_m") if isinstance(protocol, dict) else None
     recording = work / "recording.sqlite"
     truth_dir = work / "truth"
     truth_dir.mkdir(exist_ok=True)
     sidecars = {sid: truth_dir / f"{sid}.json" for sid in ids}
     t_start = time.monotonic()
     with ChildProcesses(work / "logs") as procs, ProxyThread() as proxies:
-        server = procs.start("server", serve_args(recording), announce=True)
+        server = procs.start("server", serve_args(recording, axis), announce=True)
         _host, port = parse_listening(procs.wait_first_line(server, SERVER_START_TIMEOUT_S))
         say(f"   server listening on 127.0.0.1:{port}, recording to {recording.name}")
         links: dict[str, int] = {}
