@@ -74,6 +74,25 @@ class Child:
     log: Path
     first_line: str | None = None
     ready: threading.Event = field(default_factory=threading.Event)
+    #: every stdout line so far (announcing children only), and a condition to wait on them
+    lines: list[str] = field(default_factory=list)
+    changed: threading.Condition = field(default_factory=threading.Condition)
+    ended: bool = False
+
+    def wait_line(self, pattern: re.Pattern[str], timeout_s: float) -> re.Match[str] | None:
+        """The first stdout line matching ``pattern``, waiting up to ``timeout_s``; None if the
+        output ended or the time passed without one."""
+        deadline = time.monotonic() + timeout_s
+        with self.changed:
+            while True:
+                for line in self.lines:
+                    m = pattern.search(line)
+                    if m is not None:
+                        return m
+                left = deadline - time.monotonic()
+                if self.ended or left <= 0:
+                    return None
+                self.changed.wait(left)
 
     def tail(self, n: int = 15) -> str:
         """The last ``n`` lines of the process's log (for error messages)."""
@@ -212,15 +231,22 @@ def _kill(p: subprocess.Popen[bytes]) -> None:
 def _copy_lines(stream: IO[bytes], log: IO[bytes], child: Child) -> None:
     try:
         for line in stream:
+            text = line.decode("utf-8", errors="replace").strip()
             if child.first_line is None:
-                child.first_line = line.decode("utf-8", errors="replace").strip()
+                child.first_line = text
                 child.ready.set()
+            with child.changed:
+                child.lines.append(text)
+                child.changed.notify_all()
             log.write(line)
             log.flush()
     except (OSError, ValueError):
         pass
     finally:
         child.ready.set()
+        with child.changed:
+            child.ended = True
+            child.changed.notify_all()
         with contextlib.suppress(OSError):
             log.close()
 
