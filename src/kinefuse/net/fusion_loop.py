@@ -204,6 +204,8 @@ class FusionLoop:
         self.fuse_seconds = 0.0
         #: mean fusion time per frame above which the fusion runs in a worker thread, seconds
         self.thread_above_s = 0.002
+        #: how far back the first calibration's fusion starts from the buffered observations, s
+        self.warm_up_s = 1.0
         self._costs: deque[float] = deque(maxlen=30)
         self._was_threaded = False
         self._new_poses: dict[str, Array] | None = None
@@ -262,15 +264,12 @@ class FusionLoop:
         c = self._costs
         return len(c) >= 10 and sum(c) / len(c) > self.thread_above_s
 
-    async def step(self, k: int) -> FusedFrame | None:
-        """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
-        t = k / self.rate_hz
-        if self._new_poses is not None:
-            self.fusion.set_poses(self._new_poses)
-            self._new_poses = None
-        self._collect()
-        horizon = t + self.fusion.lead_s
+    def _push_upto(self, horizon: float) -> None:
+        """Push the calibrated sensors' buffered observations captured up to ``horizon``, in
+        capture order; a sensor without a pose keeps its own (the last ``64``) for later."""
         for sid, q in self._pending.items():
+            if sid not in self.fusion.ids:
+                continue
             ready = sorted(
                 (o for o in q if o.t_capture_server_s <= horizon),
                 key=lambda o: o.t_capture_server_s,
@@ -281,10 +280,36 @@ class FusionLoop:
             q.clear()
             q.extend(rest)
             for o in ready:
-                if sid in self.fusion.ids:
-                    self.fusion.push(sid, o)
-                    if o.t_capture_server_s > self._newest[0]:
-                        self._newest = (o.t_capture_server_s, o.t_host_server_s)
+                self.fusion.push(sid, o)
+                if o.t_capture_server_s > self._newest[0]:
+                    self._newest = (o.t_capture_server_s, o.t_host_server_s)
+
+    def _warm_up(self, k: int) -> int:
+        """Fuse, without publishing, the frames before ``k`` that the buffered observations
+        cover (at most ``warm_up_s``): a filter that starts mid-motion (the first calibration
+        just finished) gets its state, bone lengths and facing from them, as the offline replay
+        gets them from the recording. Returns the frames fused."""
+        caps = [o.t_capture_server_s for q in self._pending.values() for o in q]
+        if not caps:
+            return 0
+        k0 = max(k - round(self.warm_up_s * self.rate_hz), math.ceil(min(caps) * self.rate_hz))
+        for kk in range(k0, k):
+            self._push_upto(kk / self.rate_hz + self.fusion.lead_s)
+            self.fusion.fuse(kk / self.rate_hz)
+        return max(k - k0, 0)
+
+    async def step(self, k: int) -> FusedFrame | None:
+        """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
+        t = k / self.rate_hz
+        self._collect()
+        if self._new_poses is not None:
+            first = not self.fusion.ready
+            self.fusion.set_poses(self._new_poses)
+            self._new_poses = None
+            if first:  # off the loop: up to a second of frames at once
+                n = await asyncio.to_thread(self._warm_up, k)
+                log.info("fusion starts at frame %d, warmed up on the %d frames before it", k, n)
+        self._push_upto(t + self.fusion.lead_s)
         if not self.fusion.ready:
             return None
         threaded = self.threaded
