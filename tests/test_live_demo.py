@@ -1,4 +1,4 @@
-"""The live demo end to end, short (2 sensors, 4 s of motion): real processes on 127.0.0.1.
+"""The live demo end to end, short (3 sensors, 4 s of motion): real processes on 127.0.0.1.
 
 The 4-sensor, 20-second run and its acceptance figures are ``benchmarks/bench_live.py``.
 """
@@ -35,25 +35,27 @@ def _processes_mentioning(text: str) -> list[str]:
 
 def test_live_demo_runs_the_whole_system_and_reports(tmp_path, capsys) -> None:
     out = tmp_path / "demo"
-    args = ["demo", "--out", str(out), "--sensors", "2", "--seconds", "4", "--json"]
+    # 3 sensors: with 2, best-live's facing (which way the body looks) is a tie between a sensor
+    # that sees the front and one that sees the back, decided by the frame the filter starts at
+    args = ["demo", "--out", str(out), "--sensors", "3", "--seconds", "4", "--json"]
     assert main(args) == 0
     captured = capsys.readouterr()
     r = json.loads(captured.out)  # stdout is the JSON alone; progress went to stderr
     for step in ("1/4 simulate", "2/4 live", "3/4 offline", "4/4 evaluate"):
         assert step in captured.err
     assert r["frames_fused"] > 0
-    # the live frames against offline best on the same recording and frames (2 sensors, 4 s:
-    # loose bounds here; the benchmark holds the issue's 15 %)
-    assert 0 < r["mae_m"]["offline"] < 0.15 and 0 < r["mae_m"]["live"] < 0.15
-    assert r["mae_m"]["ratio"] < 1.5
+    # the live frames against offline best on the same recording and frames (3 sensors, 4 s:
+    # 1.00 here; the benchmark holds the issue's 15 % on 4 sensors and 20 s)
+    assert 0 < r["mae_m"]["offline"] < 0.10 and 0 < r["mae_m"]["live"] < 0.10
+    assert r["mae_m"]["ratio"] < 1.3
     assert r["calibration"]["grade"] in ("good", "doubtful")
-    assert r["calibration"]["mean_position_error_m"] < 0.03  # 3 cm
+    assert r["calibration"]["mean_position_error_m"] < 0.01  # 1 cm (1.3 mm here)
     assert r["clock_offset_error_ms"]["p50"] < 1.0 and r["clock_offset_error_ms"]["max"] < 5.0
     # latency: its tail depends on how busy the machine is (the benchmark measures it); the
     # median holds on a loaded machine (100 ms: three frames)
     assert 0 < r["latency_ms"]["p50"] <= r["latency_ms"]["p99"] and r["latency_ms"]["p50"] < 100
     # every client was connected before the playback started (none missed the wand phase)
-    assert sorted(r["clients"]) == ["k0", "k1"]
+    assert sorted(r["clients"]) == ["k0", "k1", "k2"]
     assert all(c["connected_before_playback_s"] > 0 for c in r["clients"].values())
     for p in r["outputs"]:
         assert Path(p).exists(), p
