@@ -285,30 +285,36 @@ class FusionLoop:
                     self._newest = (o.t_capture_server_s, o.t_host_server_s)
 
     def _warm_up(self, k: int) -> int:
-        """Fuse, without publishing, the frames before ``k`` that the buffered observations
-        cover (at most ``warm_up_s``): a filter that starts mid-motion (the first calibration
-        just finished) gets its state, bone lengths and facing from them, as the offline replay
-        gets them from the recording. Returns the frames fused."""
+        """Fuse, without publishing, the frames from at most ``warm_up_s`` before ``k`` that the
+        buffered observations cover, and on until the present: a filter that starts mid-motion
+        (the first calibration just finished) gets its state, bone lengths and facing from
+        them, and publishing then starts on time. Runs in a worker thread (it only touches the
+        fusion and the buffers, which nothing else touches meanwhile; the clients' queues are
+        drained atomically). Returns the next frame to publish."""
         caps = [o.t_capture_server_s for q in self._pending.values() for o in q]
-        if not caps:
-            return 0
-        k0 = max(k - round(self.warm_up_s * self.rate_hz), math.ceil(min(caps) * self.rate_hz))
-        for kk in range(k0, k):
+        kk = k
+        if caps:
+            kk = max(k - round(self.warm_up_s * self.rate_hz), math.ceil(min(caps) * self.rate_hz))
+        n = 0
+        while True:
+            self._collect()
+            due = math.floor((self.clock() - self.delay_s) * self.rate_hz)
+            if kk >= max(due, k):
+                break
             self._push_upto(kk / self.rate_hz + self.fusion.lead_s)
             self.fusion.fuse(kk / self.rate_hz)
-        return max(k - k0, 0)
+            kk += 1
+            n += 1
+        log.info("fusion starts at frame %d after %d frames of warm-up", kk, n)
+        return kk
 
     async def step(self, k: int) -> FusedFrame | None:
         """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
         t = k / self.rate_hz
         self._collect()
         if self._new_poses is not None:
-            first = not self.fusion.ready
             self.fusion.set_poses(self._new_poses)
             self._new_poses = None
-            if first:  # off the loop: up to a second of frames at once
-                n = await asyncio.to_thread(self._warm_up, k)
-                log.info("fusion starts at frame %d, warmed up on the %d frames before it", k, n)
         self._push_upto(t + self.fusion.lead_s)
         if not self.fusion.ready:
             return None
@@ -352,6 +358,12 @@ class FusionLoop:
         """Fuse frames until ``stop`` is set; a loop that fell behind skips to the present."""
         k = math.ceil((self.clock() - self.delay_s) * self.rate_hz)
         while not stop.is_set():
+            if self._new_poses is not None and not self.fusion.ready:
+                # the first calibration: warm up off the loop, then publish from the present on
+                self._collect()
+                self.fusion.set_poses(self._new_poses)
+                self._new_poses = None
+                k = await asyncio.to_thread(self._warm_up, k)
             due = k / self.rate_hz + self.delay_s
             now = self.clock()
             if now < due:

@@ -169,8 +169,11 @@ class SensorClient:
         self._tracked.append(float((obs.states == TrackingState.TRACKED).mean()))
 
     def drain(self) -> list[Observation]:
-        out = list(self.queue)
-        self.queue.clear()
+        """Take what is queued (atomically per item: safe against an append meanwhile)."""
+        out = []
+        q = self.queue
+        while q:
+            out.append(q.popleft())
         return out
 
     # -- statistics ------------------------------------------------------------------------------
