@@ -6,7 +6,9 @@ same Python), once on plain loopback and once with ``--net-jitter-ms`` through t
 prints per run: the wall time against the 2-minute budget and against the time the session itself
 lasts in real time (wand phase + motion: the floor no live run can beat, measured in the same run),
 the clock offset error (p50, max after 5 s), the latency host receive -> fused frame published
-(p50, p99), live MAE against offline ``best`` on the same frames, and the calibration's error.
+(p50, p99; p99 also over the frames published before the first client left, i.e. without the
+stop, when the last frames wait for clients that have ended), live MAE against offline ``best`` on
+the same frames, and the calibration's error.
 Targets (issue 11): under 120 s; with jitter: clock p50 < 0.5 ms, max < 2 ms, latency p99 < 50 ms,
 live MAE within 15 % of offline ``best``.
 """
@@ -54,9 +56,9 @@ def main() -> None:
     print(f"kinefuse demo --sensors {args.sensors} --seconds {args.seconds:g} --json; the session "
           f"lasts {floor_s:g} s in real time (wand phase + motion)\n")  # fmt: skip
     print("| run | wall s | wall / session | < 120 s | frames | clock p50 ms | clock max ms | "
-          "latency p50 ms | latency p99 ms | MAE live cm | MAE offline cm | live / offline | "
-          "calibration mm | grade |")  # fmt: skip
-    print("|---|" + "---|" * 13)
+          "latency p50 ms | latency p99 ms | p99 before the stop ms | MAE live cm | "
+          "MAE offline cm | live / offline | calibration mm | grade |")  # fmt: skip
+    print("|---|" + "---|" * 14)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for jitter in (None, args.jitter):
@@ -68,7 +70,8 @@ def main() -> None:
                 f"| {name} | {r['wall_s']:.1f} | {r['wall_s'] / floor_s:.2f} | "
                 f"{'yes' if r['wall_s'] < 120 else 'NO'} | {r['frames_fused']} | "
                 f"{_f(k['p50'])} | {_f(k['max'])} | {_f(lat['p50'], '.1f')} | "
-                f"{_f(lat['p99'], '.1f')} | {_f(100 * m['live'], '.2f')} | "
+                f"{_f(lat['p99'], '.1f')} | {_f(lat['before_first_disconnect']['p99'], '.1f')} | "
+                f"{_f(100 * m['live'], '.2f')} | "
                 f"{_f(100 * m['offline'], '.2f')} | {_f(m['ratio'])} | "
                 f"{_f(1e3 * c['mean_position_error_m'], '.1f')} | {c['grade']} |"
             )
@@ -77,7 +80,11 @@ def main() -> None:
     checks = {
         "clock p50 < 0.5 ms": k["p50"] is not None and k["p50"] < 0.5,
         "clock max < 2 ms": k["max"] is not None and k["max"] < 2.0,
-        "latency p99 < 50 ms": lat["p99"] is not None and lat["p99"] < 50.0,
+        "latency p99 < 50 ms (every published frame)": lat["p99"] is not None and lat["p99"] < 50.0,
+        "latency p99 < 50 ms (frames before the first client left)": (
+            lat["before_first_disconnect"]["p99"] or 1e9
+        )
+        < 50.0,
         "live MAE within 15 % of offline best": m["ratio"] is not None and m["ratio"] <= 1.15,
         "both runs under 2 minutes": all(x["wall_s"] < 120 for _, x in rows),
     }

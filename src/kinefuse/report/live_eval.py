@@ -450,6 +450,13 @@ def evaluate_live(
         result["latency_ms"]["definition"] = (
             "client host receive (on the server clock) -> fused frame published"
         )
+        # the same over the frames published before the first client left (the capture, without
+        # the stop, when the last frames wait for clients that have ended)
+        from kinefuse.io.store_live import events
+
+        gone = [t for t, kind, _, _ in events(store) if kind == "disconnected"]
+        before = lf.t_recorded_s < min(gone) if gone else np.ones(lf.t_server_s.size, bool)
+        result["latency_ms"]["before_first_disconnect"] = _quantiles_ms(lf.latency_s[before])
         result["clients"] = client_connections(store)
     if offline_report is not None:
         result["offline_methods_mae_m"] = {
@@ -475,7 +482,8 @@ def format_live(r: dict[str, Any]) -> str:
         f"clock offset error after {k['warmup_s']:g} s: p50 {f(k['p50'], 1, '.3f')} ms, max "
         f"{f(k['max'], 1, '.3f')} ms",
         f"latency (host receive -> published): p50 {f(lat['p50'], 1, '.1f')} ms, p99 "
-        f"{f(lat['p99'], 1, '.1f')} ms",
+        f"{f(lat['p99'], 1, '.1f')} ms (before the first client left: p99 "
+        f"{f(lat.get('before_first_disconnect', {}).get('p99'), 1, '.1f')} ms)",
     ]
     late = [
         f"{sid} ({-c['connected_before_playback_s']:.1f} s)"
