@@ -434,3 +434,38 @@ def test_probes_stay_prompt_while_the_client_detects_the_wand(session: Path):
     err = np.abs(offset[best] - truth[best])
     assert np.median(err) < 0.5e-3  # s
     assert np.median(delay[best]) < 2e-3  # s
+
+
+def test_a_client_joining_a_past_epoch_starts_at_the_present(session: Path):
+    async def go() -> tuple[TestServer, SensorClient]:
+        server = TestServer(welcome=Welcome(session="t", calibrating=True, calibration_id=1))
+        await server.start()
+        epoch = time.monotonic() - 3.3  # the wand phase (3 s) is over: the motion has begun
+        client = SensorClient(
+            open_timeline(f"sim:{session}#k1"),
+            ClientOptions(server=("127.0.0.1", server.port)),
+            host_clock=lambda m0: HostClock(5.0, 0.0, m0),
+            epoch_monotonic=epoch,
+        )
+        assert await client.run() == 0
+        return server, client
+
+    server, client = run(go())
+    msgs = server.peers[0].messages
+    assert not any(isinstance(m, WandSighting | FloorPlane) for m in msgs)  # no depth was due
+    bodies = server.bodies()
+    assert bodies and client.stats.depth_frames == 0
+    with SessionStore.open(session) as st:
+        n_depth = st.depth_frame_count("k1")
+        n_body = st.observation_count("k1")
+    # everything before the present was skipped unprocessed, the rest played
+    assert client.stats.skipped_at_start + len(bodies) == n_depth + n_body
+    assert client.stats.skipped_at_start >= n_depth + 0.2 * 30
+    tl = SimTimeline(str(session), "k1")
+    truth = tl.truth
+    assert truth is not None
+    first_true = truth.host_to_true(
+        next(x.frame.t_host_s for x in tl.frames() if x.frame.seq == bodies[0].seq
+             and not isinstance(x.frame, DepthFrame))
+    )  # fmt: skip
+    assert first_true >= 3.3  # s: nothing older than the join instant was sent

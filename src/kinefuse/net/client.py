@@ -513,13 +513,26 @@ class SensorClient:
         if self._stop.is_set():
             return
         loop = asyncio.get_running_loop()
-        ahead = Prefetch(loop, Prepared(self.timeline, self.options.occlusion_rule))
+        epoch, speed = self.epoch, self.options.speed
+
+        def past(timed: Timed) -> bool:
+            # joining a common epoch late: what is past before the first delivery is skipped
+            return (
+                epoch is not None
+                and self._delivered == 0
+                and epoch + timed.t_play_s / speed < self.monotonic()
+            )
+
+        skip = past if epoch is not None and not self.timeline.live else None
+        prepared = Prepared(self.timeline, self.options.occlusion_rule, skip)
+        ahead = Prefetch(loop, prepared)
         producer = loop.run_in_executor(self._io, ahead.run)
         try:
             await self._play_frames(ahead)
         finally:
             ahead.halt()
             await producer
+            self.stats.skipped_at_start += prepared.skipped
         self._source_done = True
         if not self._stop.is_set():
             log.info("sensor %s: the source ended", self.timeline.sensor_id)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -157,11 +157,20 @@ class Prefetch:
 
 
 class Prepared:
-    """The timeline's frames with the occlusion test done (runs on the source thread)."""
+    """The timeline's frames with the occlusion test done (runs on the source thread).
 
-    def __init__(self, timeline: Timeline, rule: str) -> None:
+    ``skip(timed) -> bool``, if given, drops frames before any work is done on them (a client
+    joining a common epoch late skips what is already past: reading them costs little, their
+    occlusion test would cost the time it is trying to catch up); :attr:`skipped` counts them.
+    """
+
+    def __init__(
+        self, timeline: Timeline, rule: str, skip: Callable[[Timed], bool] | None = None
+    ) -> None:
         self.timeline = timeline
         self.rule = rule
+        self.skip = skip
+        self.skipped = 0
         self._it: Iterator[Timed] | None = None
 
     def close(self) -> None:
@@ -177,6 +186,9 @@ class Prepared:
         if self._it is None:
             self._it = iter(self.timeline.frames())
         timed = next(self._it, None)
+        while timed is not None and self.skip is not None and self.skip(timed):
+            self.skipped += 1
+            timed = next(self._it, None)
         if timed is None:
             return None
         f = timed.frame
