@@ -34,7 +34,7 @@ from kinefuse.protocol.auth import compute_mac
 from kinefuse.protocol.messages import AuthReply, Challenge, Error, Hello, Message
 
 CAL_S = 6.0  # the wand phase of the test sessions, s
-MOTION_S = 6.0  # their motion, s
+MOTION_S = 9.0  # their motion, s (a restarted client has several seconds left to stream)
 TOKEN = "test-token-123"
 
 
