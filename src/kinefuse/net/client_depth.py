@@ -69,12 +69,18 @@ class DepthWork:
         self._since = 0
         self._count = 0
         self._det = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-detect")
-        self._det.submit(warm_up)  # imports the detectors before the first depth frame
+        self._warm = False
         self._flo = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-floor")
 
     def start(self, calibration_id: int) -> None:
         """A calibration started: detect from the next depth frame on, fit the floor anew."""
         log.info("calibration %d started: sending wand sightings", calibration_id)
+        if not self._warm:
+            # import the detectors (scipy: ~1 s here) on the detection thread now, and only
+            # when a calibration needs them: a client that joins after the calibration never
+            # competes with its own catching up for the interpreter
+            self._warm = True
+            self._det.submit(warm_up)
         self.calibrating = True
         self.calibration_id = calibration_id
         self._floor = []

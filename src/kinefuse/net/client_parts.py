@@ -181,7 +181,8 @@ class Prepared:
             close()
 
     def next(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
-        from kinefuse.occlusion import detect_occlusion
+        # imported here, on the source thread, while the loop thread connects
+        from kinefuse.occlusion.segments import detect_occlusion
 
         if self._it is None:
             self._it = iter(self.timeline.frames())
