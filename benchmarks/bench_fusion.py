@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.app import place_actor
-from kinefuse.fusion.session import frame_grid, load_sensors, run_method
 from kinefuse.io.store import SessionStore
+from kinefuse.pipeline import frame_grid, load_sensors, run_method
 from kinefuse.sensors.lab import LabConfig, simulate_session
 from kinefuse.sensors.rig import default_rig
 

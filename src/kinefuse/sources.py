@@ -19,7 +19,6 @@ from __future__ import annotations
 import heapq
 import json
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -29,60 +28,25 @@ from numpy.typing import NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.io.store import SessionStore
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.observations import BodyFrame, BodyFrames, DepthFrame, Frame
+from kinefuse.skeleton import N_JOINTS
+
+__all__ = [
+    "BodyFrame",
+    "BodyFrames",
+    "DepthFrame",
+    "Frame",
+    "FrameSource",
+    "Kinect2TrackingReplay",
+    "MultitrackReplay",
+    "SessionReplay",
+    "open_source",
+]
 
 Array = NDArray[np.float64]
 
 #: Kinect camera space (x left, y up, z forward) -> kinefuse sensor axes (x right, y down, z fwd).
 _KINECT_AXES = np.array([-1.0, -1.0, 1.0])
-
-
-@dataclass(frozen=True, eq=False)
-class BodyFrame:
-    """One body-tracker frame of one sensor.
-
-    Attributes
-    ----------
-    sensor_id : str
-    seq : int
-        The sensor's frame counter.
-    t_device_s : float
-        Capture time on the device's clock, seconds.
-    t_host_s : float
-        Arrival at the sensor's client PC, on its clock (the one clock probes measure); NaN if
-        unknown.
-    joints_m : (25, 3) float
-        Joints in the sensor frame (x right, y down, z forward), metres; NaN where not tracked.
-    states : (25,) int8
-        :class:`~kinefuse.skeleton.TrackingState` per joint.
-    occluded : (25,) bool or None
-        The client's occlusion flags, if it ran the test.
-    n_crossings : int or None
-        The client's number of bone crossings, if it ran the test.
-    """
-
-    sensor_id: str
-    seq: int
-    t_device_s: float
-    t_host_s: float
-    joints_m: Array
-    states: NDArray[np.int8]
-    occluded: NDArray[np.bool_] | None = None
-    n_crossings: int | None = None
-
-
-@dataclass(frozen=True, eq=False)
-class DepthFrame:
-    """One depth image of one sensor (``depth_mm (H, W) uint16``, 0 = no reading)."""
-
-    sensor_id: str
-    seq: int
-    t_device_s: float
-    t_host_s: float
-    depth_mm: NDArray[np.uint16]
-
-
-Frame = BodyFrame | DepthFrame
 
 
 @runtime_checkable
@@ -144,18 +108,7 @@ class SessionReplay:
         return self._store.sensor(sensor_id).intrinsics
 
     def _body(self, sid: str) -> Iterator[BodyFrame]:
-        o = self._store.observations(sid)
-        for k in range(o.n_frames):
-            yield BodyFrame(
-                sensor_id=sid,
-                seq=int(o.seq[k]),
-                t_device_s=float(o.t_sensor_s[k]),
-                t_host_s=float(o.t_receive_host_s[k]),
-                joints_m=o.joints_m[k],
-                states=o.states[k],
-                occluded=None if o.occluded is None else o.occluded[k],
-                n_crossings=None if o.n_crossings is None else int(o.n_crossings[k]),
-            )
+        yield from self._store.observations(sid)
 
     def _depth_frames(self, sid: str) -> Iterator[DepthFrame]:
         for seq, t, frames in self._store.iter_depth_frames(sid):
@@ -201,19 +154,17 @@ class MultitrackReplay:
         return Intrinsics()  # the log does not say: Kinect v2 nominal values
 
     def __iter__(self) -> Iterator[Frame]:
-        s = self._stream
-        order = np.argsort(s.t_receive_s, kind="stable")
+        s = self._stream.frames
+        order = np.argsort(s.t_receive_server_s, kind="stable")
         for seq, k in enumerate(order.tolist()):
-            j = s.joints_m[k]
-            present = np.isfinite(j).all(-1)
-            states = np.where(present, TrackingState.TRACKED, TrackingState.NOT_TRACKED)
+            # the server's receive time is the only arrival time the log has
             yield BodyFrame(
                 sensor_id=s.sensor_id,
                 seq=seq,
-                t_device_s=float(s.t_sensor_s[k]),
-                t_host_s=float(s.t_receive_s[k]),
-                joints_m=np.where(present[:, None], j, np.nan),
-                states=states.astype(np.int8),
+                t_device_s=float(s.t_device_s[k]),
+                t_host_s=float(s.t_receive_server_s[k]),
+                joints_m=s.joints_m[k],
+                states=s.states[k],
             )
 
 

@@ -29,12 +29,14 @@ Each part can be switched off (:class:`BestOptions`) so that its gain can be mea
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter1d
 
+from kinefuse.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
 from kinefuse.sync.assembly import interp_neighbours, latest_in_window
 
@@ -122,29 +124,6 @@ class BestOptions:
             if len(v) != N_JOINTS or not all(x > 0 for x in v):
                 raise ValueError(f"{name} must be {N_JOINTS} positive numbers, one per joint")
             object.__setattr__(self, name, v)
-
-
-@dataclass(frozen=True)
-class SensorStream:
-    """One sensor's observations, ready for fusion.
-
-    Attributes
-    ----------
-    t_server_s : (N,) float
-        Capture times on the server clock.
-    joints_sensor : (N, 25, 3) float
-        Joints in the sensor frame (x right, y down, z forward), NaN = not tracked.
-    states : (N, 25) int8
-    sensor2world : (4, 4) float
-    occluded : (N, 25) bool or None
-        The client's occlusion flags, if any.
-    """
-
-    t_server_s: Array
-    joints_sensor: Array
-    states: NDArray[np.int8]
-    sensor2world: Array
-    occluded: NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)
@@ -508,28 +487,51 @@ def enforce_bone_lengths(
     return x, lengths
 
 
+def check_streams(streams: Sequence[BodyFrames], sensor2world: ArrayLike, what: str) -> Array:
+    """Validate S streams (capture times on the server clock) against their poses
+    ``(S, 4, 4)``; returns the poses as a float array."""
+    if not streams:
+        raise ValueError(f"{what} needs at least one sensor stream")
+    poses = np.asarray(sensor2world, dtype=np.float64)
+    if poses.shape != (len(streams), 4, 4) or not np.isfinite(poses).all():
+        raise ValueError(
+            f"{what}: sensor2world must be finite ({len(streams)}, 4, 4), one pose per stream; "
+            f"got {poses.shape}"
+        )
+    for s in streams:
+        if not np.isfinite(s.t_server_s).all():
+            raise ValueError(
+                f"{what}: sensor {s.sensor_id!r} has frames without a capture time on the "
+                "server clock; map its clock first (BodyFrames.on_server)"
+            )
+    return poses
+
+
 def fuse_best(
-    streams: list[SensorStream],
+    streams: Sequence[BodyFrames],
+    sensor2world: ArrayLike,
     t_grid_s: Array,
     options: BestOptions = BestOptions(),
     *,
     chunk: int = 2000,
 ) -> FusedSkeleton:
-    """Fuse S sensor streams into one skeleton at the frame times ``t_grid_s`` ``(T,)``."""
-    if not streams:
-        raise ValueError("fuse_best needs at least one sensor stream")
+    """Fuse S sensor streams into one skeleton at the frame times ``t_grid_s`` ``(T,)``.
+
+    ``streams`` carry their capture times on the server clock (``t_server_s``) and are in the
+    frames of their sensors, whose poses are ``sensor2world (S, 4, 4)``."""
+    poses = check_streams(streams, sensor2world, "fuse_best")
     t_grid = np.asarray(t_grid_s, dtype=np.float64)
     opt = options
     p_world, covs, t_obs = [], [], []
-    for s in streams:
-        r = s.sensor2world[:3, :3]
-        pw = s.joints_sensor @ r.T + s.sensor2world[:3, 3]
+    for s, pose in zip(streams, poses, strict=True):
+        r = pose[:3, :3]
+        pw = s.joints_m @ r.T + pose[:3, 3]
         p_world.append(pw)
-        covs.append(_measurement_cov(s.joints_sensor, s.states, s.occluded, r, opt))
-        t_obs.append(np.asarray(s.t_server_s, dtype=np.float64))
+        covs.append(_measurement_cov(s.joints_m, s.states, s.occluded, r, opt))
+        t_obs.append(s.t_server_s)
     swaps: dict[int, int] = {}
     if opt.lr_swap:
-        sensor_pos = np.array([s.sensor2world[:3, 3] for s in streams])
+        sensor_pos = poses[:, :3, 3]
         flags = correct_swaps(t_obs, p_world, sensor_pos)
         mirror = np.asarray(MIRROR_INDEX)
         for i, fl in enumerate(flags):

@@ -1,0 +1,104 @@
+"""The pipeline layer: reads a session store, hands arrays and frozen inputs to the core.
+
+The numerical core (:mod:`kinefuse.fusion.session`, :mod:`kinefuse.calibration.session`) reads
+no store and no clock; this module does both for the commands in :mod:`kinefuse.app`:
+
+- :func:`load_sensors`: every sensor's stream, its clock from the probes (capture times on the
+  server clock) and the client's occlusion flags (run here, on the sensor's own data, when the
+  client sent none), paired with its pose from a calibration;
+- :func:`run_method`: one fusion method on those sensors, timed;
+- :func:`gather_calibration`: the calibration phase's depth frames, clocks and protocol, read
+  from the store for :func:`kinefuse.calibration.session.gather`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import FusionError
+from kinefuse.fusion.session import (
+    METHODS,
+    CalibratedSensor,
+    MethodResult,
+    clip_grid,
+    frame_grid,
+)
+from kinefuse.fusion.session import run_method as _run_method
+from kinefuse.io.store import SessionStore
+from kinefuse.occlusion.segments import detect_occlusion
+from kinefuse.skeleton import N_JOINTS
+from kinefuse.sync import sensor_timebase
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "METHODS",
+    "CalibratedSensor",
+    "MethodResult",
+    "clip_grid",
+    "frame_grid",
+    "load_sensors",
+    "run_method",
+]
+
+
+def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[CalibratedSensor]:
+    """Read every sensor's stream, estimate its clock, run the client-side occlusion test.
+
+    Parameters
+    ----------
+    poses : dict
+        ``sensor id -> sensor2world (4, 4)`` from a calibration.
+    """
+    out = []
+    sensors = store.sensors()
+    if not sensors:
+        raise FusionError(f"{store.path}: the session has no sensors")
+    missing = [s.id for s in sensors if s.id not in poses]
+    if missing:
+        raise FusionError(
+            f"the calibration has no pose for sensor(s) {', '.join(missing)}; calibrate the "
+            "session again (kinefuse calibrate) or pass a calibration that covers every sensor"
+        )
+    for s in sensors:
+        obs = store.observations(s.id)
+        probes = store.clock_probes(s.id)
+        if len(probes) == 0:
+            raise FusionError(
+                f"sensor {s.id}: no clock probes in the session, so its timestamps cannot be put "
+                "on the server clock; record with clock sync enabled"
+            )
+        # device timestamps -> the client's clock (from each frame's arrival) -> the server's
+        timebase = sensor_timebase(probes, obs.t_device_s, obs.t_host_s)
+        if obs.occluded is None or obs.n_crossings is None:
+            if obs.n_frames:
+                # the client sent none (simulated sessions): run its test here, on its data only
+                occ = detect_occlusion(obs.joints_m, s.intrinsics)
+                obs = obs.with_occlusion(occ.occluded, occ.n_intersections)
+            else:
+                obs = obs.with_occlusion(np.zeros((0, N_JOINTS), bool), np.zeros(0, np.int64))
+        out.append(
+            CalibratedSensor(
+                observations=obs.on_server(timebase.to_server(obs.t_device_s)),
+                intrinsics=s.intrinsics,
+                sensor2world=np.asarray(poses[s.id], dtype=np.float64),
+                timebase=timebase,
+            )
+        )
+    return out
+
+
+def run_method(
+    sensors: Sequence[CalibratedSensor], grid: Array, method: str, **options: Any
+) -> MethodResult:
+    """:func:`kinefuse.fusion.session.run_method` (same keyword options), with the wall time it
+    took in ``seconds``."""
+    t0 = time.perf_counter()
+    res = _run_method(sensors, grid, method, **options)
+    return replace(res, seconds=time.perf_counter() - t0)
