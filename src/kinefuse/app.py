@@ -499,8 +499,9 @@ def run_calibrate(
         write_calibration,
     )
     from kinefuse.calibration.grade import grade_calibration
-    from kinefuse.calibration.session import METHODS, calibrate, gather
+    from kinefuse.calibration.session import METHODS, calibrate
     from kinefuse.io.outputs import atomic_dir, check_output_folder
+    from kinefuse.pipeline import gather_calibration as gather
 
     if method not in METHODS:
         raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")

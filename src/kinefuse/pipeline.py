@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.errors import FusionError
+from kinefuse.calibration.session import CalibrationInput
+from kinefuse.errors import CalibrationError, FusionError
 from kinefuse.fusion.session import (
     METHODS,
     CalibratedSensor,
@@ -43,6 +44,7 @@ __all__ = [
     "MethodResult",
     "clip_grid",
     "frame_grid",
+    "gather_calibration",
     "load_sensors",
     "run_method",
 ]
@@ -92,6 +94,48 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[Calibrate
             )
         )
     return out
+
+
+def gather_calibration(
+    store: SessionStore, *, floor_frames: int = 15, detector: str = "robust"
+) -> CalibrationInput:
+    """Read a session's calibration phase and run :func:`kinefuse.calibration.session.gather`
+    on it: every sensor's depth frames (read chunk by chunk as the detector goes), its clock
+    (device timestamps -> server, from the body stream's arrivals and the probes), the wand and
+    protocol the operator was given (the session's metadata)."""
+    from kinefuse.calibration.session import CalibrationSensor, gather
+    from kinefuse.camera.wand import Wand
+
+    meta = store.meta()
+    phase = meta.get("calibration_phase_server_s")
+    wand_meta = meta.get("wand")
+    protocol = meta.get("wand_protocol")
+    sensors = []
+    for s in store.sensors():
+        # depth frames carry device timestamps: the body stream's arrival times (same device
+        # clock) map them to the client's clock, the probes to the server's
+        if store.depth_frame_count(s.id) == 0:
+            sensors.append(CalibrationSensor(s.id, s.intrinsics, None, ()))
+            continue
+        obs = store.observations(s.id)
+        clock = sensor_timebase(store.clock_probes(s.id), obs.t_device_s, obs.t_host_s)
+        depth = ((t, frames) for _seq, t, frames in store.iter_depth_frames(s.id))
+        sensors.append(CalibrationSensor(s.id, s.intrinsics, clock, depth))
+    try:
+        return gather(
+            sensors,
+            wand=Wand(**wand_meta) if isinstance(wand_meta, dict) else Wand(),
+            protocol=protocol if isinstance(protocol, dict) else {},
+            phase_server_s=(float(phase[0]), float(phase[1]))
+            if isinstance(phase, list)
+            else (0, 0),
+            floor_frames=floor_frames,
+            detector=detector,
+        )
+    except CalibrationError as e:
+        if "no calibration phase" in str(e):
+            raise CalibrationError(f"{store.path}: {e}") from None
+        raise
 
 
 def run_method(

@@ -1,14 +1,17 @@
 """The server's side of calibration on a recorded session: sightings, registration, scale.
 
-Uses what a real server has: the calibration-phase depth frames, each sensor's clock probes, the
-sensors' intrinsics and the operator's protocol (where and how the wand was to be shown, stored
-in the session's metadata as the operator was told it). The truth is never read.
+Uses what a real server has: the calibration-phase depth frames, each sensor's clock (from its
+probes), the sensors' intrinsics and the operator's protocol (where and how the wand was to be
+shown, stored in the session's metadata as the operator was told it). It reads no store:
+:func:`kinefuse.pipeline.gather_calibration` reads a session and hands these in. The truth is
+never read.
 """
 
 from __future__ import annotations
 
 import contextlib
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -26,10 +29,10 @@ from kinefuse.calibration.register import (
 )
 from kinefuse.calibration.wand_paper import detect_wand_paper_sequence
 from kinefuse.calibration.wand_robust import detect_wand_sequence
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import CalibrationError
-from kinefuse.io.store import SessionStore
-from kinefuse.sync import sensor_timebase
+from kinefuse.sync import SensorTimebase
 
 Array = NDArray[np.float64]
 
@@ -52,44 +55,68 @@ class CalibrationInput:
 DETECTORS = ("paper", "robust")
 
 
+@dataclass(frozen=True, eq=False)
+class CalibrationSensor:
+    """One sensor's calibration phase, as the pipeline hands it in.
+
+    Attributes
+    ----------
+    id : str
+    intrinsics : Intrinsics
+    timebase : SensorTimebase or None
+        Device -> host -> server clock mapping (the depth frames carry device timestamps);
+        None only for a sensor without depth frames.
+    depth : iterable of ((N,) float, (N, H, W) uint16)
+        The depth frames in chunks: device timestamps and images, in capture order (read
+        lazily, so a long phase need not be in memory at once).
+    """
+
+    id: str
+    intrinsics: Intrinsics
+    timebase: SensorTimebase | None
+    depth: Iterable[tuple[Array, NDArray[np.uint16]]]
+
+
 def gather(
-    store: SessionStore, *, floor_frames: int = 15, detector: str = "robust"
+    sensors: Sequence[CalibrationSensor],
+    *,
+    wand: Wand,
+    protocol: dict[str, object],
+    phase_server_s: tuple[float, float],
+    floor_frames: int = 15,
+    detector: str = "robust",
 ) -> CalibrationInput:
     """Detect the wand in every sensor's calibration frames and fit each sensor's floor.
 
     ``detector``: ``"paper"`` (METHODS.md A.3, steps 1-4: iterated binarization of the nearest
     object) or ``"robust"`` (a known-radius sphere fit, :mod:`kinefuse.calibration.wand_robust`).
+    ``sensors`` with no depth frames are refused by name (a calibration needs every sensor);
+    :func:`kinefuse.pipeline.gather_calibration` reads them from a session.
     """
     if detector not in DETECTORS:
         raise CalibrationError(f"unknown wand detector {detector!r}; choose paper or robust")
-    meta = store.meta()
-    phase = meta.get("calibration_phase_server_s")
-    wand_meta = meta.get("wand")
-    wand = Wand(**wand_meta) if isinstance(wand_meta, dict) else Wand()
     sightings: dict[str, Sightings] = {}
     tracks: dict[str, WandTrack] = {}
     floors: dict[str, FloorPlane] = {}
     empty = []
     periods = []
-    for s in store.sensors():
-        if store.depth_frame_count(s.id) == 0:
-            empty.append(s.id)
-            continue
-        # depth frames carry device timestamps: the body stream's arrival times (same device
-        # clock) map them to the client's clock, the probes to the server's
-        obs = store.observations(s.id)
-        clock = sensor_timebase(store.clock_probes(s.id), obs.t_sensor_s, obs.t_receive_host_s)
+    for s in sensors:
         ts: list[Array] = []
         found_tracks: list[WandTrack] = []
         firsts: list[NDArray[np.uint16]] = []
         n_first = 0
-        for _seq, t_sensor, frames in store.iter_depth_frames(s.id):
+        for t_sensor, frames in s.depth:
+            if len(t_sensor) == 0:
+                continue
             ts.append(t_sensor)
             detect = detect_wand_paper_sequence if detector == "paper" else detect_wand_sequence
             found_tracks.append(detect(frames, s.intrinsics, wand, name=s.id))
             if n_first < floor_frames:
                 firsts.append(frames[: floor_frames - n_first])
                 n_first += len(firsts[-1])
+        if not ts or s.timebase is None:
+            empty.append(s.id)
+            continue
         track = WandTrack(
             found=np.concatenate([t.found for t in found_tracks]),
             centre_sensor_m=np.concatenate([t.centre_sensor_m for t in found_tracks]),
@@ -98,7 +125,7 @@ def gather(
             residual_m=np.concatenate([t.residual_m for t in found_tracks]),
             reasons=tuple(r for t in found_tracks for r in t.reasons),
         )
-        t_server = clock.to_server(np.concatenate(ts))
+        t_server = s.timebase.to_server(np.concatenate(ts))
         if len(t_server) > 1:
             periods.append(float(np.median(np.diff(t_server))))
         f = track.found
@@ -122,16 +149,15 @@ def gather(
         )
     if not sightings:
         raise CalibrationError(
-            f"{store.path}: the session has no calibration phase (no depth frames); record one "
+            "the session has no calibration phase (no depth frames); record one "
             "(kinefuse simulate --calibration-seconds 20)"
         )
-    protocol = meta.get("wand_protocol")
     return CalibrationInput(
         sightings=sightings,
         tracks=tracks,
         floors=floors,
-        protocol=protocol if isinstance(protocol, dict) else {},
-        phase_server_s=(float(phase[0]), float(phase[1])) if isinstance(phase, list) else (0, 0),
+        protocol=protocol,
+        phase_server_s=phase_server_s,
         frame_period_s=float(np.median(periods)) if periods else 1 / 30,
     )
 
