@@ -27,7 +27,6 @@ a replay that pushes every observation captured up to ``T + latency_s`` before f
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -134,28 +133,33 @@ class LiveFrame:
     n_sensors: NDArray[np.intp]
 
 
-class _Buffer:
-    """The latest observations of one sensor, in capture order (at most ``n``)."""
+class _Buffers:
+    """The latest observations of every sensor, in capture order (at most ``n`` each), as
+    arrays ``(S, n, ...)``; a row's unused tail holds ``inf`` times."""
 
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.t: list[float] = []
-        self.joints: list[Array] = []
-        self.states: list[NDArray[np.int8]] = []
-        self.occ: list[NDArray[np.bool_]] = []
+    def __init__(self, n_sensors: int, n: int) -> None:
+        self.t = np.full((n_sensors, n), np.inf)
+        self.joints = np.full((n_sensors, n, N_JOINTS, 3), np.nan)
+        self.states = np.zeros((n_sensors, n, N_JOINTS), np.int8)
+        self.occ = np.zeros((n_sensors, n, N_JOINTS), bool)
+        self.count = np.zeros(n_sensors, np.intp)
 
-    def add(self, t: float, j: Array, st: NDArray[np.int8], occ: NDArray[np.bool_]) -> None:
-        k = bisect.bisect_right(self.t, t)  # a late one goes in capture order
-        self.t.insert(k, t)
-        self.joints.insert(k, j)
-        self.states.insert(k, st)
-        self.occ.insert(k, occ)
-        if len(self.t) > self.n:
-            del self.t[0], self.joints[0], self.states[0], self.occ[0]
-
-    def arrays(self) -> tuple[Array, Array, NDArray[np.int8], NDArray[np.bool_]]:
-        return (np.array(self.t), np.array(self.joints), np.array(self.states),
-                np.array(self.occ))  # fmt: skip
+    def add(self, i: int, t: float, j: Array, st: NDArray[np.int8], occ: NDArray[np.bool_]) -> None:
+        n = int(self.count[i])
+        row = self.t[i]
+        k = int(np.searchsorted(row[:n], t, side="right"))  # a late one goes in capture order
+        width = row.shape[0]
+        if n == width:  # full: the oldest goes
+            if k == 0:
+                return  # older than everything kept
+            for a in (self.t, self.joints, self.states, self.occ):
+                a[i, : k - 1] = a[i, 1:k].copy()
+            k -= 1
+        else:
+            for a in (self.t, self.joints, self.states, self.occ):
+                a[i, k + 1 : n + 1] = a[i, k:n].copy()
+            self.count[i] = n + 1
+        self.t[i, k], self.joints[i, k], self.states[i, k], self.occ[i, k] = t, j, st, occ
 
 
 #: one frame's sequential part: the filter's position (25, 3) and variance (25,), alive,
@@ -189,7 +193,7 @@ class LiveFusion:
             raise FusionError(f"sensor2world must be finite (S, 4, 4), got {poses.shape}")
         self.options = options
         self._poses = poses.copy()
-        self._buffers = [_Buffer(options.buffer) for _ in poses]
+        self._buffers = _Buffers(len(poses), options.buffer)
         self._sensor_pos = poses[:, :3, 3].copy()
         b = options.best
         self._lateral = np.asarray(b.lateral_m)
@@ -211,7 +215,7 @@ class LiveFusion:
 
     @property
     def n_sensors(self) -> int:
-        return len(self._buffers)
+        return len(self._poses)
 
     def push(
         self,
@@ -226,8 +230,8 @@ class LiveFusion:
         captured at ``t_server_s`` on the server clock. Late observations (older than the
         sensor's latest) are put in order; ones older than the last fused frame still help
         interpolate later frames."""
-        if not 0 <= sensor < len(self._buffers):
-            raise FusionError(f"unknown sensor index {sensor}; there are {len(self._buffers)}")
+        if not 0 <= sensor < self.n_sensors:
+            raise FusionError(f"unknown sensor index {sensor}; there are {self.n_sensors}")
         t = float(t_server_s)
         if not np.isfinite(t):
             raise FusionError(f"sensor {sensor}: capture time must be finite, got {t_server_s!r}")
@@ -235,7 +239,7 @@ class LiveFusion:
         st = np.asarray(states, dtype=np.int8).reshape(N_JOINTS)
         occ = (np.zeros(N_JOINTS, bool) if occluded is None
                else np.asarray(occluded, dtype=bool).reshape(N_JOINTS))  # fmt: skip
-        self._buffers[sensor].add(t, j, st, occ)
+        self._buffers.add(sensor, t, j, st, occ)
 
     def fuse(self, t_server_s: float) -> LiveFrame:
         """The skeleton at ``t_server_s`` from everything pushed so far; advances the filter.
@@ -243,15 +247,9 @@ class LiveFusion:
         Frame times should not go backwards (an earlier time is fused as a prediction-free
         update at the filter's current time)."""
         t = float(t_server_s)
-        tt, inf = np.array([t]), np.array([np.inf])
-        n_s = self.n_sensors
-        joints = np.full((1, n_s, N_JOINTS, 3), np.nan)
-        states = np.zeros((1, n_s, N_JOINTS), np.int8)
-        occ = np.zeros((1, n_s, N_JOINTS), bool)
-        age = np.zeros((1, n_s))
-        for i, b in enumerate(self._buffers):
-            if b.t:
-                joints[:, i], states[:, i], occ[:, i], age[:, i] = self._at(tt, inf, *b.arrays())
+        b = self._buffers
+        joints, states, occ, age = self._at(np.array([t]), np.array([np.inf]), b.t, b.count,
+                                            b.joints, b.states, b.occ)  # fmt: skip
         z, cov, evidence = self._prepare(joints, states, occ, age)
         ev = None if evidence is None else (evidence[0][0], evidence[1][0], evidence[2][0])
         return self._frame(t, z[0], cov[0], states[0], ev)
@@ -259,12 +257,13 @@ class LiveFusion:
     # -- the parts of a frame ------------------------------------------------------------------
 
     def _at(
-        self, t: Array, available: Array, times: Array, joints: Array,
+        self, t: Array, available: Array, times: Array, count: NDArray[np.intp], joints: Array,
         states: NDArray[np.int8], occ: NDArray[np.bool_] | None,
     ) -> tuple[Array, NDArray[np.int8], NDArray[np.bool_], Array]:  # fmt: skip
         b = self.options.best
-        return sensor_at(t, available, times, joints, states, occ, max_gap_s=b.max_interp_gap_s,
-                         max_hold_s=self.options.max_hold_s, timestamp=b.timestamp)  # fmt: skip
+        return sensor_at(t, available, times, count, joints, states, occ,
+                         max_gap_s=b.max_interp_gap_s, max_hold_s=self.options.max_hold_s,
+                         timestamp=b.timestamp)  # fmt: skip
 
     def _prepare(
         self, joints: Array, states: NDArray[np.int8], occ: NDArray[np.bool_], age: Array
@@ -425,25 +424,27 @@ class LiveFusion:
         padded = np.concatenate([dev_bone, np.full((len(dev_bone), 1), np.nan)], axis=1)
         dev = np.fmax.reduce(padded[:, _JOINT_BONES], axis=-1)  # (T, 25)
         # one sweep over the bones, in groups that share no joint (so each group moves at
-        # once), each end moving in proportion to its variance
+        # once), each end moving in proportion to its variance (the variances do not change
+        # during the sweep: each bone's share is known before it)
         out = pos.copy()
         vv = np.where(np.isfinite(var), var, np.inf)
-        for group in _BONE_GROUPS:
-            a, c = pa[group], ch[group]
-            d = out[:, c] - out[:, a]
-            norm = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)
-            move = known[:, group] & np.isfinite(length[:, group]) & (length[:, group] > 1e-9)
-            move &= norm > 1e-9
-            with np.errstate(invalid="ignore", divide="ignore"):
-                shrink = np.where(move, 1.0 - lengths[:, group] / norm, 0.0)
-                va, vc = vv[:, a], vv[:, c]
-                tot = va + vc
-                wc = np.where(np.isfinite(tot) & (tot > 0), vc / tot, 0.5)
-            wc = np.where(np.isinf(vc) & ~np.isinf(va), 1.0, wc)
-            wc = np.where(np.isinf(va) & ~np.isinf(vc), 0.0, wc)
-            corr = np.where(move[..., None], d * shrink[..., None], 0.0)
-            out[:, c] -= wc[..., None] * corr
-            out[:, a] += (1.0 - wc)[..., None] * corr
+        va, vc = vv[:, pa], vv[:, ch]
+        inf_a, inf_c = np.isinf(va), np.isinf(vc)
+        tot = va + vc
+        with np.errstate(invalid="ignore", divide="ignore"):
+            wc_all = np.where(np.isfinite(tot) & (tot > 0), vc / tot, 0.5)
+            wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
+            movable = known & np.isfinite(length) & (length > 1e-9)
+            for group in _BONE_GROUPS:
+                a, c = pa[group], ch[group]
+                d = out[:, c] - out[:, a]
+                norm = np.sqrt((d * d).sum(-1))
+                move = movable[:, group] & (norm > 1e-9)
+                shrink = np.where(move, 1.0 - lengths[:, group] / norm, 0.0)[..., None]
+                corr = np.where(move[..., None], d * shrink, 0.0)
+                wc = wc_all[:, group, None]
+                out[:, c] -= wc * corr
+                out[:, a] += (1.0 - wc) * corr
         return out, dev
 
 
@@ -514,9 +515,12 @@ def replay_streams(
         occ = np.zeros((m, n_s, N_JOINTS), bool)
         age = np.zeros((m, n_s))
         for i, s in enumerate(ordered):
-            joints[:, i], states[:, i], occ[:, i], age[:, i] = fusion._at(
-                tg, avail, s.t_server_s, s.joints_m, s.states, s.occluded
-            )
+            if s.n_frames == 0:
+                continue
+            o = None if s.occluded is None else s.occluded[None]
+            j, st, oc, ag = fusion._at(tg, avail, s.t_server_s[None], np.array([s.n_frames]),
+                                       s.joints_m[None], s.states[None], o)  # fmt: skip
+            joints[:, i], states[:, i], occ[:, i], age[:, i] = j[:, 0], st[:, 0], oc[:, 0], ag[:, 0]
         z, cov, evidence = fusion._prepare(joints, states, occ, age)
         # a guess of each frame's swaps (the vote without the fused facing so far): frames
         # whose actual decision differs are combined again on their own

@@ -40,6 +40,7 @@ def sensor_at(
     t: Array,
     available_s: Array,
     times: Array,
+    count: NDArray[np.intp],
     joints: Array,
     states: NDArray[np.int8],
     occluded: NDArray[np.bool_] | None,
@@ -48,7 +49,7 @@ def sensor_at(
     max_hold_s: float,
     timestamp: bool = True,
 ) -> tuple[Array, NDArray[np.int8], NDArray[np.bool_], Array]:
-    """One sensor's joints at the frame times ``t (T,)`` from its observations.
+    """S sensors' joints at the frame times ``t (T,)`` from their observations.
 
     Parameters
     ----------
@@ -57,9 +58,11 @@ def sensor_at(
     available_s : (T,) float
         Per frame, the latest capture time that has arrived (a replay's ``t + latency``;
         ``inf`` for a live buffer, which holds only what arrived).
-    times : (N,) float
-        The observations' capture times, increasing.
-    joints, states, occluded : (N, 25, 3), (N, 25), (N, 25) or None
+    times : (S, N) float
+        Each sensor's observations' capture times, increasing over its first ``count[s]``.
+    count : (S,) int
+        How many of each row are observations (the rest is padding).
+    joints, states, occluded : (S, N, 25, 3), (S, N, 25), (S, N, 25) or None
     max_gap_s : float
         Interpolate only between observations at most this far apart.
     max_hold_s : float
@@ -70,40 +73,50 @@ def sensor_at(
 
     Returns
     -------
-    joints (T, 25, 3), states (T, 25), occluded (T, 25), age_s (T,)
-        NaN / NOT_TRACKED / False / 0 where the sensor has nothing for the frame.
+    joints (T, S, 25, 3), states (T, S, 25), occluded (T, S, 25), age_s (T, S)
+        NaN / NOT_TRACKED / False / 0 where a sensor has nothing for the frame.
     """
-    n_t, n = t.shape[0], times.shape[0]
-    if n == 0:
-        return (np.full((n_t, N_JOINTS, 3), np.nan), np.zeros((n_t, N_JOINTS), np.int8),
-                np.zeros((n_t, N_JOINTS), bool), np.zeros(n_t))  # fmt: skip
-    k = np.searchsorted(times, t, side="right")  # times[k-1] <= t < times[k]
-    ka, kb = np.maximum(k - 1, 0), np.minimum(k, n - 1)
-    ta, tb = times[ka], times[kb]
-    if timestamp:
-        interp = (k > 0) & (k < n) & (tb <= available_s) & (tb - ta <= max_gap_s)
-        hold = ~interp & (k > 0) & (t - ta <= max_hold_s)
-        first = ~interp & (k == 0) & (times[0] - t <= _FIRST_LEAD_S) & (times[0] <= available_s)
+    n_s, width = times.shape
+    n = np.asarray(count)[None, :]  # (1, S)
+    tt = t[:, None]
+    if width <= 32:  # a live buffer: count the arrived observations up to t (padding excluded)
+        valid = np.arange(width)[None, :] < n.T  # (S, N)
+        k = ((times[None] <= tt[..., None]) & valid[None]).sum(-1)  # (T, S)
     else:
-        interp = np.zeros(n_t, bool)
-        hold = (k > 0) & (t - ta < 1.0 / 30)
+        k = np.stack([np.searchsorted(times[i, : int(n[0, i])], t, side="right")
+                      for i in range(n_s)], axis=1)  # fmt: skip
+    si = np.arange(n_s)[None, :]
+    ka, kb = np.maximum(k - 1, 0), np.maximum(np.minimum(k, n - 1), 0)
+    ta, tb = times[si, ka], times[si, kb]
+    t0 = times[:, 0][None, :]
+    if timestamp:
+        avail = available_s[:, None]
+        interp = (k > 0) & (k < n) & (tb <= avail) & (tb - ta <= max_gap_s)
+        hold = ~interp & (k > 0) & (tt - ta <= max_hold_s)
+        first = ~interp & (k == 0) & (n > 0) & (t0 - tt <= _FIRST_LEAD_S) & (t0 <= avail)
+    else:
+        interp = np.zeros(k.shape, bool)
+        hold = (k > 0) & (tt - ta < 1.0 / 30)
         first = interp
     with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(tb > ta, (t - ta) / (tb - ta), 0.0)[:, None, None]
-    ja, jb = joints[ka], joints[kb]
-    out = np.where(interp[:, None, None], ja * (1.0 - w) + jb * w, ja)
-    st = np.where(interp[:, None], np.minimum(states[ka], states[kb]), states[ka])
+        w = np.where(tb > ta, (tt - ta) / (tb - ta), 0.0)[..., None, None]
+    ja, jb = joints[si, ka], joints[si, kb]
+    out = np.where(interp[..., None, None], ja * (1.0 - w) + jb * w, ja)
+    sa = states[si, ka]
+    st = np.where(interp[..., None], np.minimum(sa, states[si, kb]), sa)
     if occluded is None:
-        occ = np.zeros((n_t, N_JOINTS), bool)
+        occ = np.zeros(st.shape, bool)
     else:
-        occ = np.where(interp[:, None], occluded[ka] | occluded[kb], occluded[ka])
-    age = np.where(interp, 0.0, np.abs(t - ta)) if timestamp else np.zeros(n_t)
-    some = interp | hold | first
-    out[~some] = np.nan
-    st[~some] = TrackingState.NOT_TRACKED
-    occ[~some] = False
-    age[~some] = 0.0
-    return out, st.astype(np.int8), occ, age
+        oa = occluded[si, ka]
+        occ = np.where(interp[..., None], oa | occluded[si, kb], oa)
+    age = np.where(interp, 0.0, np.abs(tt - ta)) if timestamp else np.zeros(k.shape)
+    none = ~(interp | hold | first)
+    if none.any():
+        out[none] = np.nan
+        st[none] = TrackingState.NOT_TRACKED
+        occ[none] = False
+        age[none] = 0.0
+    return out, st.astype(np.int8, copy=False), occ, age
 
 
 def world_measurements(
@@ -230,16 +243,38 @@ def inv3(m: Array) -> Array:
     a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
     d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
     g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    co = np.stack(
-        [
-            e * i - f * h, c * h - b * i, b * f - c * e,
-            f * g - d * i, a * i - c * g, c * d - a * f,
-            d * h - e * g, b * g - a * h, a * e - b * d,
-        ],
-        axis=-1,
-    ).reshape(m.shape)  # fmt: skip
+    co = np.empty(m.shape)
+    co[..., 0, 0] = e * i - f * h
+    co[..., 0, 1] = c * h - b * i
+    co[..., 0, 2] = b * f - c * e
+    co[..., 1, 0] = f * g - d * i
+    co[..., 1, 1] = a * i - c * g
+    co[..., 1, 2] = c * d - a * f
+    co[..., 2, 0] = d * h - e * g
+    co[..., 2, 1] = b * g - a * h
+    co[..., 2, 2] = a * e - b * d
     det = a * co[..., 0, 0] + b * co[..., 1, 0] + c * co[..., 2, 0]
-    return co / det[..., None, None]
+    co /= det[..., None, None]
+    return co
+
+
+def inv3_sym(m: Array) -> Array:
+    """Inverses of symmetric ``(..., 3, 3)`` matrices (covariances, information matrices) by the
+    adjugate, from their upper triangle."""
+    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    e, f, i = m[..., 1, 1], m[..., 1, 2], m[..., 2, 2]
+    c00 = e * i - f * f
+    c01 = c * f - b * i
+    c02 = b * f - c * e
+    inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
+    co = np.empty(m.shape)
+    co[..., 0, 0] = c00 * inv_det
+    co[..., 0, 1] = co[..., 1, 0] = c01 * inv_det
+    co[..., 0, 2] = co[..., 2, 0] = c02 * inv_det
+    co[..., 1, 1] = (a * i - c * c) * inv_det
+    co[..., 1, 2] = co[..., 2, 1] = (c * b - a * f) * inv_det
+    co[..., 2, 2] = (a * e - b * b) * inv_det
+    return co
 
 
 def _matvec(m: Array, v: Array) -> Array:
@@ -247,11 +282,10 @@ def _matvec(m: Array, v: Array) -> Array:
 
 
 def _sum_sensors(a: Array) -> Array:
-    """Sum over axis 1 (sensors) in a fixed order, whatever the batch size."""
-    out = a[:, 0].copy()
-    for s in range(1, a.shape[1]):
-        out += a[:, s]
-    return out
+    """Sum over axis 1 (sensors). Not the innermost axis, so numpy adds the sensors one after
+    the other whatever the batch size (no pairwise blocking): a frame sums the same alone and
+    in a batch (``tests/test_live_fusion.py`` checks it bit for bit)."""
+    return np.add.reduce(a, axis=1)
 
 
 def robust_combine(
@@ -268,20 +302,21 @@ def robust_combine(
     """
     valid = np.asarray(np.isfinite(z).all(-1) & np.isfinite(cov).all((-1, -2)))
     eye = np.eye(3)
-    w_mat = inv3(np.where(valid[..., None, None], cov, eye))
+    w_mat = inv3_sym(np.where(valid[..., None, None], cov, eye))
     w_mat[~valid] = 0.0
     zz = np.where(valid[..., None], z, 0.0)
     wz = _matvec(w_mat, zz)
     rw: Array = valid.astype(np.float64)
     n_iter = 4 if robust else 1
     x: Array = np.zeros(0)
-    info: Array = np.zeros(0)
     has = np.asarray(valid.any(axis=1))
+    cov_x: Array = np.zeros(0)
     for it in range(n_iter):
         info = _sum_sensors(w_mat * rw[..., None, None])
         rhs = _sum_sensors(wz * rw[..., None])
-        has = _sum_sensors(rw[..., None])[..., 0] > 0
-        x = _matvec(inv3(np.where(has[..., None, None], info, eye)), rhs)
+        has = _sum_sensors(rw) > 0
+        cov_x = inv3_sym(np.where(has[..., None, None], info, eye))
+        x = _matvec(cov_x, rhs)
         if not robust or it == n_iter - 1:
             break
         r = zz - x[:, None]
@@ -292,7 +327,6 @@ def robust_combine(
         keep_some = np.asarray((valid & ~far).any(axis=1, keepdims=True))
         rw = np.where(far & keep_some, 0.0, rw)
     used = (rw > 0.2).sum(axis=1).astype(np.intp)
-    cov_x = inv3(np.where(has[..., None, None], info, eye))
     x = np.where(has[..., None], x, np.nan)
     cov_x = np.where(has[..., None, None], cov_x, np.nan)
     return x, cov_x, used
