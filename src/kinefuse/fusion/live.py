@@ -1,16 +1,18 @@
 """Causal fusion (``best-live``): push observations as they arrive, ask for the skeleton at a time.
 
-The live counterpart of :func:`kinefuse.fusion.best.fuse_best`, with the same measurement model
-(covariance along and across each sensor's ray, inflated for INFERRED and occluded joints; Huber-
-robust combination across sensors) but nothing that looks ahead:
+The one fusion: offline :func:`kinefuse.fusion.best.fuse_best` is its replay
+(:func:`replay_streams`) plus non-causal refinements. The measurement model
+(:mod:`kinefuse.fusion.model`: covariance along and across each sensor's ray, inflated for
+INFERRED and occluded joints; Huber-robust combination across sensors), and nothing that looks
+ahead:
 
 - **Timestamps**: each sensor's joints at the frame time come from its own observations on the
   server clock: interpolated between the two around the frame time when both have arrived,
   else the latest one if it is recent (its covariance grows with its age).
 - **Left/right swaps**: the body's facing is agreed from this frame's unambiguous sensors (a
   sensor whose reported facing points away from it cannot be swapped), the ambiguous ones at half
-  weight, and the fused skeleton's facing so far; an ambiguous sensor that contradicts it is
-  mirrored back. (Offline ``best`` votes over a centred 1 s window instead.)
+  weight, and the filter's facing so far; an ambiguous sensor that contradicts it is mirrored
+  back. (Offline ``best`` votes over a centred 1 s window instead.)
 - **Kalman filter**: one constant-velocity filter per joint and axis keeps its state between
   calls; a frame without measurements is a prediction; a joint unseen for ``max_predict_s``
   becomes missing.
@@ -22,7 +24,9 @@ robust combination across sensors) but nothing that looks ahead:
 
 Determinism: the result of :meth:`LiveFusion.fuse` depends only on the calls made before it, so
 a replay that pushes every observation captured up to ``T + latency_s`` before fusing frame
-``T`` gives bit-identical frames for a session and for any prefix of it (:func:`replay`).
+``T`` gives bit-identical frames for a session and for any prefix of it (:func:`replay`); the
+replay prepares the measurements of many frames at once and equals pushing and fusing frame by
+frame, bit for bit.
 """
 
 from __future__ import annotations
