@@ -334,26 +334,30 @@ def robust_combine(
 
 @dataclass
 class KalmanState:
-    """The constant-velocity filter per joint and axis: position, velocity and the three entries
-    of their covariance, each ``(J, 3)``; ``started`` and ``last_seen`` per joint and axis."""
+    """The constant-velocity filter per joint and axis: ``m (5, J, 3)`` holds position,
+    velocity and the three entries of their covariance (x, v, pxx, pxv, pvv); ``started`` and
+    ``last_seen`` per joint and axis."""
 
-    x: Array
-    v: Array
-    pxx: Array
-    pxv: Array
-    pvv: Array
+    m: Array
     started: NDArray[np.bool_]
     last_seen: Array
 
     @classmethod
     def empty(cls, n_joints: int = N_JOINTS) -> KalmanState:
-        z = np.zeros((n_joints, 3))
-        return cls(z, z.copy(), z.copy(), z.copy(), z.copy(), np.zeros(z.shape, bool),
-                   np.full(z.shape, -np.inf))  # fmt: skip
+        return cls(np.zeros((5, n_joints, 3)), np.zeros((n_joints, 3), bool),
+                   np.full((n_joints, 3), -np.inf))  # fmt: skip
+
+    @property
+    def x(self) -> Array:
+        return self.m[0]
+
+    @property
+    def pxx(self) -> Array:
+        return self.m[2]
 
     def moments(self) -> Array:
-        """``(5, J, 3)``: x, v, pxx, pxv, pvv."""
-        return np.stack([self.x, self.v, self.pxx, self.pxv, self.pvv])
+        """``(5, J, 3)``: x, v, pxx, pxv, pvv (a copy)."""
+        return self.m.copy()
 
 
 def kalman_step(
@@ -373,28 +377,26 @@ def kalman_step(
     A joint's first measurement starts its filter (position measured, velocity 0 with 1 m/s a
     priori). Returns the predicted moments ``(5, J, 3)`` if ``predicted`` (for a smoother; else
     None) and which joints and axes are alive (seen within ``max_predict_s``)."""
-    x = s.x + d * s.v
-    pxx = s.pxx + 2 * d * s.pxv + d * d * s.pvv + q * (d**3 / 3)
-    pxv = s.pxv + d * s.pvv + q * (d**2 / 2)
-    pvv = s.pvv + q * d
-    pred = np.stack([x, s.v, pxx, pxv, pvv]) if predicted else None
+    # predict: the moments move by one linear map (x += d v, P = F P F^T) plus the process noise
+    m = s.m.copy()
+    m[0] += d * m[1]
+    m[2] += 2 * d * m[3] + d * d * m[4] + q * (d**3 / 3)
+    m[3] += d * m[4] + q * (d**2 / 2)
+    m[4] += q * d
+    pred = m.copy() if predicted else None
     has = np.isfinite(z) & np.isfinite(r)
     z0 = np.where(has, z, 0.0)
-    sk = pxx + np.where(has, r, 1.0)
-    kx = np.where(has, pxx / sk, 0.0)
-    kv = np.where(has, pxv / sk, 0.0)
-    innov = z0 - x
-    s.x = x + kx * innov
-    s.v = s.v + kv * innov
-    s.pxx, s.pxv, s.pvv = (1 - kx) * pxx, (1 - kx) * pxv, pvv - kv * pxv
+    gain = np.where(has, m[2:4] / (m[2] + np.where(has, r, 1.0)), 0.0)  # (2, J, 3): kx, kv
+    m[:2] += gain * (z0 - m[0])
+    m[4] -= gain[1] * m[3]
+    m[2:4] *= 1.0 - gain[0]
     init = has & ~s.started
     if init.any():
         s.started |= has
-        s.x = np.where(init, z0, s.x)
-        s.v = np.where(init, 0.0, s.v)
-        s.pxx = np.where(init, r, s.pxx)
-        s.pxv = np.where(init, 0.0, s.pxv)
-        s.pvv = np.where(init, 1.0, s.pvv)
+        m[0] = np.where(init, z0, m[0])
+        m[1:5] = np.where(init, np.array([0.0, 0.0, 0.0, 1.0])[:, None, None], m[1:5])
+        m[2] = np.where(init, r, m[2])
+    s.m = m
     s.last_seen = np.where(has, t, s.last_seen)
     return pred, s.started & (t - s.last_seen <= max_predict_s)
 
