@@ -27,11 +27,11 @@ import numpy as np
 
 from kinefuse.app import place_actor, run_simulate
 from kinefuse.fusion.best import BestOptions
-from kinefuse.fusion.session import METHODS, frame_grid, load_sensors, run_method
 from kinefuse.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
 from kinefuse.geometry.transforms import make_transform, rot_z
 from kinefuse.io.store import SessionStore
 from kinefuse.motion import load_motion
+from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
 from kinefuse.report.evaluate import ABLATION, COMPARISONS, evaluate, truth_at
 from kinefuse.report.metrics import gain_ci
 from kinefuse.sensors.rig import load_rig

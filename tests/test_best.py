@@ -9,12 +9,12 @@ import pytest
 
 from kinefuse.fusion.best import (
     BestOptions,
-    SensorStream,
     correct_swaps,
     enforce_bone_lengths,
     fuse_best,
 )
 from kinefuse.geometry.transforms import apply_transform, invert_transform
+from kinefuse.observations import BodyFrames
 from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
 from kinefuse.sensors.rig import default_rig
 from kinefuse.skeleton import (
@@ -52,18 +52,25 @@ def make_streams(rng, *, seconds=8.0, noise=0.02, swap_sensor="k2", swap_p=0.5, 
             bad = rng.random(p.shape[:2]) < outlier_p
             p[bad] += rng.normal(0, 0.5, (bad.sum(), 3))
         st = np.full(p.shape[:2], TrackingState.TRACKED, np.int8)
-        streams.append(SensorStream(cap.t_true_s, p, st, s.sensor2world))
+        streams.append((BodyFrames.on_server_clock(cap.t_true_s, p, st), s.sensor2world))
     return streams
+
+
+def fuse(pairs, grid, options=None):
+    """``fuse_best`` of ``(frames, sensor2world)`` pairs."""
+    poses = np.array([pose for _, pose in pairs]).reshape(-1, 4, 4)
+    return fuse_best([f for f, _ in pairs], poses, grid, options or BestOptions())
 
 
 def mae(f, grid) -> float:
     return float(np.nanmean(np.linalg.norm(f.positions - truth(grid), axis=-1)))
 
 
-def single_sensor_mae(s: SensorStream, grid: np.ndarray) -> float:
+def single_sensor_mae(pair: tuple[BodyFrames, np.ndarray], grid: np.ndarray) -> float:
     """One sensor alone, no fusion: its world-frame joints linearly interpolated to ``grid``."""
-    r, o = s.sensor2world[:3, :3], s.sensor2world[:3, 3]
-    pw = (s.joints_sensor @ r.T + o).reshape(len(s.t_server_s), -1)
+    s, pose = pair
+    r, o = pose[:3, :3], pose[:3, 3]
+    pw = (s.joints_m @ r.T + o).reshape(len(s.t_server_s), -1)
     at = np.stack([np.interp(grid, s.t_server_s, pw[:, k]) for k in range(pw.shape[1])], axis=1)
     return float(np.linalg.norm(at.reshape(-1, 25, 3) - truth(grid), axis=-1).mean())
 
@@ -71,12 +78,12 @@ def single_sensor_mae(s: SensorStream, grid: np.ndarray) -> float:
 def test_fusion_beats_every_single_sensor(rng) -> None:
     streams = make_streams(rng, swap_p=0.0)
     grid = np.arange(0.5, 7.5, 1 / 30)
-    fused = fuse_best(streams, grid)
+    fused = fuse(streams, grid)
     assert np.isfinite(fused.positions).all()
     assert (fused.n_sensors == len(streams)).all()  # nobody gated out of clean data
     raw = [single_sensor_mae(s, grid) for s in streams]
     # each sensor alone through the same smoother and bone-length projection
-    alone = [mae(fuse_best([s], grid), grid) for s in streams]
+    alone = [mae(fuse([s], grid), grid) for s in streams]
     # 2 cm per axis is 3.2 cm a joint; interpolating between two samples at worst halves the
     # variance (2.3 cm): the baseline is a real single sensor, not something already fused
     assert all(0.018 < e < 0.04 for e in raw), raw
@@ -89,10 +96,12 @@ def test_fusion_beats_every_single_sensor(rng) -> None:
 def test_swaps_are_found_and_mirrored_back(rng) -> None:
     streams = make_streams(rng, swap_p=0.4)
     grid = np.arange(0.5, 7.5, 1 / 30)
-    on = fuse_best(streams, grid)
-    off = fuse_best(streams, grid, BestOptions(lr_swap=False))
+    on = fuse(streams, grid)
+    off = fuse(streams, grid, BestOptions(lr_swap=False))
     n_swapped_sensor = on.swaps[2]
-    assert 0.3 * len(streams[2].t_server_s) < n_swapped_sensor < 0.5 * len(streams[2].t_server_s)
+    assert (
+        0.3 * len(streams[2][0].t_server_s) < n_swapped_sensor < 0.5 * len(streams[2][0].t_server_s)
+    )
     assert sum(v for k, v in on.swaps.items() if k != 2) == 0
     assert mae(on, grid) < mae(off, grid)
 
@@ -111,24 +120,24 @@ def test_swap_decision_uses_sensor_side() -> None:
 def test_robust_rejects_outliers(rng) -> None:
     streams = make_streams(rng, swap_p=0.0, outlier_p=0.05)
     grid = np.arange(0.5, 7.5, 1 / 30)
-    on = fuse_best(streams, grid, BestOptions(temporal=None, bones=False))
-    off = fuse_best(streams, grid, BestOptions(temporal=None, bones=False, robust=False))
+    on = fuse(streams, grid, BestOptions(temporal=None, bones=False))
+    off = fuse(streams, grid, BestOptions(temporal=None, bones=False, robust=False))
     assert mae(on, grid) < 0.8 * mae(off, grid)
 
 
 def test_inferred_joints_weigh_less(rng) -> None:
     streams = make_streams(rng, swap_p=0.0, noise=0.01)
     # sensor 0 reports a badly biased, INFERRED left wrist
-    s0 = streams[0]
-    j = s0.joints_sensor.copy()
+    s0, pose0 = streams[0]
+    j = s0.joints_m.copy()
     j[:, J["WristLeft"]] += 0.15
     st = s0.states.copy()
     st[:, J["WristLeft"]] = TrackingState.INFERRED
-    streams[0] = replace(s0, joints_sensor=j, states=st)
+    streams[0] = (replace(s0, joints_m=j, states=st), pose0)
     grid = np.arange(0.5, 7.5, 1 / 30)
     opt = BestOptions(robust=False, temporal=None, bones=False)
-    w = fuse_best(streams, grid, opt).positions[:, J["WristLeft"]]
-    u = fuse_best(streams, grid, replace(opt, covariance=False)).positions[:, J["WristLeft"]]
+    w = fuse(streams, grid, opt).positions[:, J["WristLeft"]]
+    u = fuse(streams, grid, replace(opt, covariance=False)).positions[:, J["WristLeft"]]
     e_w = np.linalg.norm(w - truth(grid)[:, J["WristLeft"]], axis=-1).mean()
     e_u = np.linalg.norm(u - truth(grid)[:, J["WristLeft"]], axis=-1).mean()
     assert e_w < 0.5 * e_u
@@ -139,15 +148,15 @@ def test_gaps_give_nan_not_wrong_numbers(rng, temporal) -> None:
     streams = make_streams(rng, swap_p=0.0)
     # nobody sees the head between 3 and 5 s
     cut = []
-    for s in streams:
-        j = s.joints_sensor.copy()
+    for s, pose in streams:
+        j = s.joints_m.copy()
         gap = (s.t_server_s > 3.0) & (s.t_server_s < 5.0)
         j[gap, J["Head"]] = np.nan
         st = s.states.copy()
         st[gap, J["Head"]] = TrackingState.NOT_TRACKED
-        cut.append(replace(s, joints_sensor=j, states=st))
+        cut.append((replace(s, joints_m=j, states=st), pose))
     grid = np.arange(0.5, 7.5, 1 / 30)
-    f = fuse_best(cut, grid, BestOptions(temporal=temporal, bones=False))
+    f = fuse(cut, grid, BestOptions(temporal=temporal, bones=False))
     head = f.positions[:, J["Head"]]
     mid = (grid > 3.6) & (grid < 4.4)
     assert np.isnan(head[mid]).all()
@@ -169,7 +178,7 @@ def test_bone_lengths_become_constant(rng) -> None:
 def test_single_sensor_and_bad_options(rng) -> None:
     streams = make_streams(rng, swap_p=0.0)[:1]
     grid = np.arange(0.5, 7.5, 1 / 30)
-    one = fuse_best(streams, grid)
+    one = fuse(streams, grid)
     # the one sensor sees every joint in every frame: every fused joint is there, from it alone
     assert np.isfinite(one.positions).all()
     assert (one.n_sensors == 1).all()
@@ -177,7 +186,7 @@ def test_single_sensor_and_bad_options(rng) -> None:
     # smoothing and bone lengths make the one sensor better, not worse, than its raw joints
     assert mae(one, grid) < single_sensor_mae(streams[0], grid)
     with pytest.raises(ValueError, match="at least one sensor"):
-        fuse_best([], grid)
+        fuse_best([], np.zeros((0, 4, 4)), grid)
     with pytest.raises(ValueError, match="temporal must be"):
         BestOptions(temporal="kalman")
     with pytest.raises(ValueError, match="25 positive numbers"):

@@ -225,7 +225,7 @@ def test_sigterm_is_a_clean_stop_and_the_sidecar_holds_the_truth(session: Path, 
     host = HostClock(d["h0"], d["drift"], d["m0"])
     with SessionStore.open(session) as st:
         obs = st.observations("k1")
-        arrive = dict(zip(obs.seq.tolist(), obs.t_receive_host_s, strict=True))
+        arrive = dict(zip(obs.seq.tolist(), obs.t_host_s, strict=True))
     for b in server.bodies():
         assert 0 <= b.t_host_s - arrive[b.seq] < 0.1  # s: sent when its time came, not before
     assert host.at(d["m0"]) == d["h0"]

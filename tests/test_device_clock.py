@@ -193,8 +193,9 @@ def sim_and_blind(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -
 
 def _calibrate_and_fuse(path: Path) -> dict[str, dict[str, np.ndarray]]:
     """Both calibrations, and every fusion method on the ``full`` one, through the library."""
-    from kinefuse.calibration.session import calibrate, gather
-    from kinefuse.fusion.session import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.calibration.session import calibrate
+    from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline import gather_calibration as gather
 
     out: dict[str, dict[str, np.ndarray]] = {}
     with SessionStore.open(path) as store:

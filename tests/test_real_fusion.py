@@ -18,16 +18,16 @@ from kinefuse.calibration.body import (
 )
 from kinefuse.cli import realdata_main as main
 from kinefuse.errors import InputError, SyncError
-from kinefuse.fusion.best import SensorStream
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.io.kinect_multitrack import (
-    MultitrackStream,
     kmt_rotation,
+    multitrack_sensor,
     read_kinect_multitrack,
     reference_sensor,
     sensor_poses,
     unique_frames,
 )
+from kinefuse.observations import BodyFrames
 from kinefuse.realdata_app import format_report, fuse_multitrack
 from kinefuse.report.consistency import consistency
 from kinefuse.skeleton import (
@@ -65,9 +65,9 @@ def real_runs() -> dict[str, tuple[dict, list]]:
     for name, pattern in (("parallel", "Study_4_Kinect_0_*.csv"), ("45", "Study_4_Kinect_1_*.csv")):
         calls: list = []
 
-        def record(streams, grid, calls=calls, **kw):
-            res = real_consistency(streams, grid, **kw)
-            calls.append((list(streams), np.asarray(grid), res))
+        def record(streams, poses, grid, calls=calls, **kw):
+            res = real_consistency(streams, poses, grid, **kw)
+            calls.append((list(zip(streams, poses, strict=True)), np.asarray(grid), res))
             return res
 
         with pytest.MonkeyPatch.context() as mp:
@@ -248,24 +248,25 @@ def test_refine_registration_recovers_a_rigid_offset(rng) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _stream(rng, pos, *, swapped: bool, seconds: float = 4.0) -> SensorStream:
+def _stream(rng, pos, *, swapped: bool, seconds: float = 4.0) -> tuple[BodyFrames, np.ndarray]:
     s2w = look_at(pos, [0.0, 0.0, 1.0])
     t = rng.uniform(0, 1 / 30) + np.arange(0.0, seconds, 1 / 30)
     p = apply_transform(invert_transform(s2w), _truth(t)) + rng.normal(0, 0.01, (t.size, 25, 3))
     if swapped:  # a Kinect that sees the back reports the person as facing it
         p = p[:, MIRROR_INDEX]
     st = np.full(p.shape[:2], TrackingState.TRACKED, np.int8)
-    return SensorStream(t, p, st, s2w)
+    return BodyFrames.on_server_clock(t, p, st), s2w
 
 
 def test_swapped_sensor_is_corrected_and_disagreement_drops(rng) -> None:
-    streams = [
+    pairs = [
         _stream(rng, [2.5, 0.0, 1.0], swapped=False),  # in front
         _stream(rng, [1.8, 1.8, 1.0], swapped=False),  # front, 45 deg to the side
         _stream(rng, [-2.5, 0.3, 1.0], swapped=True),  # behind
     ]
+    streams = [f for f, _ in pairs]
     grid = np.arange(0.2, 3.8, 1 / 30)
-    c = consistency(streams, grid, names=["front", "side", "back"])
+    c = consistency(streams, np.stack([p for _, p in pairs]), grid, names=["front", "side", "back"])
     assert c["swaps"]["back"] > 0.9 * len(streams[2].t_server_s)
     assert c["swaps"]["front"] == 0 and c["swaps"]["side"] == 0
     hand = "HandLeft"
@@ -282,13 +283,16 @@ def test_swapped_sensor_is_corrected_and_disagreement_drops(rng) -> None:
 
 
 def test_consistency_bad_input(rng) -> None:
-    s = _stream(rng, [2.5, 0.0, 1.0], swapped=False)
+    s, pose = _stream(rng, [2.5, 0.0, 1.0], swapped=False)
+    two = np.stack([pose, pose])
     with pytest.raises(InputError, match="at least 2 sensor streams"):
-        consistency([s], np.arange(0, 1, 1 / 30))
+        consistency([s], pose[None], np.arange(0, 1, 1 / 30))
     with pytest.raises(InputError, match="one per stream"):
-        consistency([s, s], np.arange(0, 1, 1 / 30), names=["a"])
+        consistency([s, s], two, np.arange(0, 1, 1 / 30), names=["a"])
     with pytest.raises(InputError, match="t_grid_s"):
-        consistency([s, s], np.array([]))
+        consistency([s, s], two, np.array([]))
+    with pytest.raises(ValueError, match="one pose per stream"):
+        consistency([s, s], pose[None], np.arange(0, 1, 1 / 30))
 
 
 # --------------------------------------------------------------------------------------------
@@ -343,8 +347,8 @@ def test_real_fusion_is_more_than_a_mean_of_the_two_sensors(real_runs) -> None:
         for (streams, grid, res), sc in zip(calls, report["scenarios"], strict=True):
             fused = res["_fused"].positions
             each = [
-                interpolate(s.t_server_s, apply_transform(s.sensor2world, s.joints_sensor), grid)
-                for s in streams
+                interpolate(s.t_server_s, apply_transform(pose, s.joints_m), grid)
+                for s, pose in streams
             ]
             mean = np.nanmean(np.stack(each), axis=0)
             # the real Kinects' bones stretch by several % as the person moves; fused bones
@@ -395,21 +399,11 @@ def test_unique_frames_drops_repeats_and_sorts() -> None:
     ticks = np.array([0, 333, 333, 1000, 667, 1000, 1333])  # x 1e-4 s
     t_rx = np.array([0.05, 0.08, 0.11, 0.14, 0.15, 0.18, 0.2])
     joints = np.repeat(ticks[:, None, None] * 1e-4, 25, axis=1).repeat(3, axis=2)
-    s = MultitrackStream(
-        sensor_id="k",
-        t_receive_s=t_rx,
-        t_sensor_s=ticks * 1e-4,
-        joints_m=joints,
-        scenario=np.ones(7, dtype=np.int64),
-        init_angle_rad=0.0,
-        init_dist_m=2.0,
-        tilt_deg=0.0,
-        height_m=1.0,
-    )
+    s = multitrack_sensor("k", t_rx, ticks * 1e-4, joints, np.ones(7, dtype=np.int64))
     f = unique_frames(s)
     np.testing.assert_allclose(f.t_sensor_s, [0, 0.0333, 0.0667, 0.1, 0.1333])
     np.testing.assert_allclose(f.t_receive_s, [0.05, 0.08, 0.15, 0.14, 0.2])  # first receipt
-    np.testing.assert_allclose(f.joints[:, 0, 0], f.t_sensor_s)
+    np.testing.assert_allclose(f.joints_m[:, 0, 0], f.t_sensor_s)
     assert (f.n_rows, f.n_duplicates, f.n_out_of_order) == (7, 2, 1)
 
 

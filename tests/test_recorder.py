@@ -74,7 +74,7 @@ def test_rows_are_committed_within_half_a_second_and_the_stop_completes(tmp_path
         assert st.complete and st.meta()["recorded_by"] == "test"
         o = st.observations("k0")
         assert o.seq.tolist() == list(range(10))
-        np.testing.assert_allclose(o.t_receive_host_s, 2.0 + np.arange(10) / 30)
+        np.testing.assert_allclose(o.t_host_s, 2.0 + np.arange(10) / 30)
         assert len(st.clock_probes("k0")) == 1
         seq, t = store_live.obs_times(st, "k0")
         assert seq.tolist() == list(range(10)) and np.allclose(t, 2.9)

@@ -100,7 +100,7 @@ def scripts(sim) -> dict[str, Script]:
         cal = gather(st)
         for s in st.sensors():
             obs = st.observations(s.id)
-            tb = sensor_timebase(st.clock_probes(s.id), obs.t_sensor_s, obs.t_receive_host_s)
+            tb = sensor_timebase(st.clock_probes(s.id), obs.t_device_s, obs.t_host_s)
             sc = Script(s.id, s.serial, s.intrinsics)
             t_dev = np.concatenate([t for _, t, _ in st.iter_depth_frames(s.id)])
             tr = cal.tracks[s.id]
@@ -119,14 +119,14 @@ def scripts(sim) -> dict[str, Script]:
                         ),
                     )
                 )
-            t_cap = tb.to_server(obs.t_sensor_s)
+            t_cap = tb.to_server(obs.t_device_s)
             for k in range(obs.n_frames):
                 sc.bodies.append(
                     (
                         float(t_cap[k]) + NOMINAL_LATENCY_S,
                         BodyFrame(
                             seq=int(obs.seq[k]),
-                            t_device_s=float(obs.t_sensor_s[k]),
+                            t_device_s=float(obs.t_device_s[k]),
                             t_host_s=0.0,
                             joints_m=obs.joints_m[k],
                             states=obs.states[k],
@@ -409,7 +409,7 @@ def test_the_recording_reopens_and_offline_commands_work_on_it(live_run, tmp_pat
         assert meta["live_calibration"]["grade"] == "good"
         for s in st.sensors():
             o = st.observations(s.id)
-            assert o.n_frames > 20 and np.isfinite(o.t_receive_host_s).all()
+            assert o.n_frames > 20 and np.isfinite(o.t_host_s).all()
             assert np.isfinite(o.t_receive_server_s).all()
             assert len(st.clock_probes(s.id)) >= 10
             assert len(store_live.sightings(st, s.id).seq) > 30

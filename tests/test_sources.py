@@ -101,3 +101,52 @@ def test_the_kinect2_tracking_walk(shared_data, tmp_path) -> None:
     bad.write_text('{"frames": []}')
     with pytest.raises(InputError, match="not a kinect2-tracking JSON"):
         Kinect2TrackingReplay(bad)
+
+
+def test_a_simulated_sensor_runs_live_with_the_batch_simulators_numbers(
+    session, shared_data, monkeypatch
+) -> None:
+    """``simlive:`` generates one sensor's frames as they are asked for; they are the frames the
+    batch simulator stored for the same clip, rig and seed (the fixture's session: seed 0, 1 s
+    of calibration at 5 Hz depth, 1 s of motion), bit for bit."""
+    from kinefuse.sensors.lab import SensorSimulation
+
+    clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"
+    spec = f"simlive:{clip}#k1?seed=0&calibration=1&seconds=1&depth_rate=5"
+    src = open_source(spec)
+    assert isinstance(src, FrameSource) and src.sensor_ids == ("k1",)
+    with SessionStore.open(session) as st:
+        stored = list(SessionReplay(st, ["k1"]))
+        probes = st.clock_probes("k1")
+        intr = st.sensor("k1").intrinsics
+    np.testing.assert_array_equal(src.probes, probes)
+    assert src.intrinsics("k1") == intr
+    # lazy: the first depth frame comes before the motion phase is drawn
+    calls = []
+    real_body = SensorSimulation.body
+    monkeypatch.setattr(SensorSimulation, "body", lambda self: calls.append(1) or real_body(self))
+    it = iter(src)
+    first = next(it)
+    assert isinstance(first, DepthFrame) and calls == []
+    live = [first, *it]
+    assert calls == [1]
+    # the store merges a sensor's depth and body frames by arrival; the live sensor delivers
+    # its calibration phase first, then its bodies: compare each kind in order
+    for kind in (DepthFrame, BodyFrame):
+        a = [f for f in stored if isinstance(f, kind)]
+        b = [f for f in live if isinstance(f, kind)]
+        assert len(a) == len(b) > 0
+        for x, y in zip(a, b, strict=True):
+            assert (x.seq, x.t_device_s) == (y.seq, y.t_device_s)
+            if kind is BodyFrame:
+                assert x.t_host_s == y.t_host_s
+                np.testing.assert_array_equal(x.joints_m, y.joints_m)
+                np.testing.assert_array_equal(x.states, y.states)
+            else:
+                np.testing.assert_array_equal(x.depth_mm, y.depth_mm)
+    with pytest.raises(InputError, match="unknown option"):
+        open_source(f"simlive:{clip}#k1?sead=3")
+    with pytest.raises(InputError, match="name the sensor"):
+        open_source(f"simlive:{clip}")
+    with pytest.raises(InputError, match="no sensor 'k9'"):
+        open_source(f"simlive:{clip}#k9?seconds=1")

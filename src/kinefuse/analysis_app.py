@@ -87,8 +87,8 @@ def sequence_from_session(
     stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
     """
     from kinefuse.app import resolve_poses
-    from kinefuse.fusion.session import METHODS, frame_grid, load_sensors, run_method
     from kinefuse.io.store import SessionStore
+    from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
 
     if method not in METHODS:
         raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")

@@ -309,10 +309,10 @@ def run_fuse(
     (the one case that writes to the session). The export's folder and kind are checked before
     the work starts, so a bad ``out`` fails fast.
     """
-    from kinefuse.fusion.session import clip_grid, frame_grid, load_sensors, run_method
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
+    from kinefuse.pipeline import clip_grid, frame_grid, load_sensors, run_method
 
     if out is not None:
         check_export_path(out)
@@ -362,8 +362,8 @@ def run_evaluate(
     ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
     swapped in on success (an existing folder is replaced only if kinefuse made it).
     """
-    from kinefuse.fusion.session import METHODS, load_sensors
     from kinefuse.io.outputs import atomic_dir, check_output_folder
+    from kinefuse.pipeline import METHODS, load_sensors
     from kinefuse.report.evaluate import calibration_alignment, evaluate, write_tables
 
     unknown = [m for m in methods if m not in METHODS]
@@ -499,8 +499,9 @@ def run_calibrate(
         write_calibration,
     )
     from kinefuse.calibration.grade import grade_calibration
-    from kinefuse.calibration.session import METHODS, calibrate, gather
+    from kinefuse.calibration.session import METHODS, calibrate
     from kinefuse.io.outputs import atomic_dir, check_output_folder
+    from kinefuse.pipeline import gather_calibration as gather
 
     if method not in METHODS:
         raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +40,7 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
 from kinefuse.errors import InputError
-from kinefuse.fusion.best import BestOptions, SensorStream
+from kinefuse.fusion.best import BestOptions
 from kinefuse.geometry.transforms import apply_transform, make_transform
 from kinefuse.io.kinect_multitrack import (
     LAYOUT_NAMES,
@@ -53,8 +52,9 @@ from kinefuse.io.kinect_multitrack import (
     sensor_poses,
     unique_frames,
 )
+from kinefuse.observations import BodyFrames
 from kinefuse.report.consistency import consistency, pair_disagreement, pose_summary
-from kinefuse.skeleton import JOINTS, TrackingState
+from kinefuse.skeleton import JOINTS
 from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
 
 Array = NDArray[np.float64]
@@ -152,27 +152,29 @@ def fuse_multitrack(
     # registration and the sensors' relative latency, estimated in turn
     t_clock_oth = t_cap[oth_id]
     latency = 0.0
-    reg = refine_registration(t_cap[ref_id], fr.joints, t_clock_oth, fo.joints)
+    reg = refine_registration(t_cap[ref_id], fr.joints_m, t_clock_oth, fo.joints_m)
     lag_clock = residual_lag_s(
-        t_cap[ref_id], fr.joints, t_clock_oth, apply_transform(reg.other2ref, fo.joints)
+        t_cap[ref_id], fr.joints_m, t_clock_oth, apply_transform(reg.other2ref, fo.joints_m)
     )
     if motion_latency:
         dl = lag_clock
         for _ in range(2):
             latency += dl
-            reg = refine_registration(t_cap[ref_id], fr.joints, t_clock_oth - latency, fo.joints)
+            reg = refine_registration(
+                t_cap[ref_id], fr.joints_m, t_clock_oth - latency, fo.joints_m
+            )
             dl = residual_lag_s(
                 t_cap[ref_id],
-                fr.joints,
+                fr.joints_m,
                 t_clock_oth - latency,
-                apply_transform(reg.other2ref, fo.joints),
+                apply_transform(reg.other2ref, fo.joints_m),
             )
         t_cap[oth_id] = t_clock_oth - latency
     start = fr.t_receive_s <= fr.t_receive_s.min() + 1.0
-    c_ref = np.nanmean(fr.joints[start], axis=(0, 1))
+    c_ref = np.nanmean(fr.joints_m[start], axis=(0, 1))
     floor = fit_foot_plane(
         t_cap[ref_id],
-        fr.joints,
+        fr.joints_m,
         fallback_tilt_deg=ref_stream.tilt_deg if math.isfinite(ref_stream.tilt_deg) else 0.0,
         fallback_height_m=ref_stream.height_m if math.isfinite(ref_stream.height_m) else 1.0,
     )
@@ -200,12 +202,12 @@ def fuse_multitrack(
     m = kmt_rotation(delta)
     oth2ref_logged = make_transform(m, o_kmt)
     oth2ref_refined = reg.other2ref @ oth2ref_logged
-    joints_other_sensor = (fo.joints - o_kmt) @ m  # = M^T (p - o): the sensor's own frame
+    joints_other_sensor = (fo.joints_m - o_kmt) @ m  # = M^T (p - o): the sensor's own frame
     s2w = {ref_id: ref2world, oth_id: ref2world @ oth2ref}
-    joints_sensor = {ref_id: fr.joints, oth_id: joints_other_sensor}
+    joints_sensor = {ref_id: fr.joints_m, oth_id: joints_other_sensor}
 
     # floor of the other sensor's joints (mapped), before and after the correction
-    fo_floor = fit_foot_plane(t_cap[oth_id], fo.joints)
+    fo_floor = fit_foot_plane(t_cap[oth_id], fo.joints_m)
     up_logged = fo_floor.up
     up_refined = reg.other2ref[:3, :3] @ fo_floor.up
 
@@ -229,17 +231,10 @@ def fuse_multitrack(
 
     opt = BestOptions() if options is None else options
     streams_all = {
-        k: SensorStream(
-            t_server_s=t_cap[k],
-            joints_sensor=joints_sensor[k],
-            states=np.where(np.isfinite(joints_sensor[k]).all(-1), TrackingState.TRACKED, 0).astype(
-                np.int8
-            ),
-            sensor2world=s2w[k],
-        )
+        k: BodyFrames.on_server_clock(t_cap[k], joints_sensor[k], sensor_id=k)
         for k in (ref_id, oth_id)
     }
-    pw = {k: apply_transform(s.sensor2world, s.joints_sensor) for k, s in streams_all.items()}
+    pw = {k: apply_transform(s2w[k], s.joints_m) for k, s in streams_all.items()}
     pw_logged_other = apply_transform(ref2world @ oth2ref_logged, joints_other_sensor)
     pw_refined_other = apply_transform(ref2world @ oth2ref_refined, joints_other_sensor)
 
@@ -249,16 +244,9 @@ def fuse_multitrack(
         if not all(v.any() for v in sel.values()):
             continue
         grid = _grid([t_cap[k][sel[k]] for k in frames], grid_hz)
-        sub = [
-            replace(
-                streams_all[k],
-                t_server_s=streams_all[k].t_server_s[sel[k]],
-                joints_sensor=streams_all[k].joints_sensor[sel[k]],
-                states=streams_all[k].states[sel[k]],
-            )
-            for k in (ref_id, oth_id)
-        ]
-        cons = consistency(sub, grid, names=[ref_id, oth_id], options=opt)
+        sub = [streams_all[k].take(sel[k]) for k in (ref_id, oth_id)]
+        poses = np.stack([s2w[ref_id], s2w[oth_id]])
+        cons = consistency(sub, poses, grid, names=[ref_id, oth_id], options=opt)
         key = f"{ref_id}|{oth_id}"
         gap = opt.max_interp_gap_s
         dis = {

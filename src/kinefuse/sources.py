@@ -6,7 +6,9 @@ received them. Sources here:
 
 - :class:`SessionReplay`: a stored session (simulated or live-recorded), every sensor or one;
 - :class:`MultitrackReplay`: a real KinectMultiTrack log (two Kinect v2, one CSV), one sensor;
-- :class:`Kinect2TrackingReplay`: the kinect2-tracking JSON (one real Kinect v2 walk).
+- :class:`Kinect2TrackingReplay`: the kinect2-tracking JSON (one real Kinect v2 walk);
+- :class:`SimulatedSensorSource`: one simulated sensor, its frames generated as they are asked
+  for (the same numbers the batch simulator writes for the same seed).
 
 A driver for a physical sensor implements the same protocol (``sensor_id``, ``intrinsics``,
 ``__iter__``); the live client (issue 11) plays any of them in real time. Times are each
@@ -19,9 +21,8 @@ from __future__ import annotations
 import heapq
 import json
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,60 +30,31 @@ from numpy.typing import NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.io.store import SessionStore
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.observations import BodyFrame, BodyFrames, DepthFrame, Frame
+from kinefuse.skeleton import N_JOINTS
+
+if TYPE_CHECKING:
+    from kinefuse.motion.types import Motion
+    from kinefuse.sensors.lab import LabConfig
+    from kinefuse.sensors.rig import Rig
+
+__all__ = [
+    "BodyFrame",
+    "BodyFrames",
+    "DepthFrame",
+    "Frame",
+    "FrameSource",
+    "Kinect2TrackingReplay",
+    "MultitrackReplay",
+    "SessionReplay",
+    "SimulatedSensorSource",
+    "open_source",
+]
 
 Array = NDArray[np.float64]
 
 #: Kinect camera space (x left, y up, z forward) -> kinefuse sensor axes (x right, y down, z fwd).
 _KINECT_AXES = np.array([-1.0, -1.0, 1.0])
-
-
-@dataclass(frozen=True, eq=False)
-class BodyFrame:
-    """One body-tracker frame of one sensor.
-
-    Attributes
-    ----------
-    sensor_id : str
-    seq : int
-        The sensor's frame counter.
-    t_device_s : float
-        Capture time on the device's clock, seconds.
-    t_host_s : float
-        Arrival at the sensor's client PC, on its clock (the one clock probes measure); NaN if
-        unknown.
-    joints_m : (25, 3) float
-        Joints in the sensor frame (x right, y down, z forward), metres; NaN where not tracked.
-    states : (25,) int8
-        :class:`~kinefuse.skeleton.TrackingState` per joint.
-    occluded : (25,) bool or None
-        The client's occlusion flags, if it ran the test.
-    n_crossings : int or None
-        The client's number of bone crossings, if it ran the test.
-    """
-
-    sensor_id: str
-    seq: int
-    t_device_s: float
-    t_host_s: float
-    joints_m: Array
-    states: NDArray[np.int8]
-    occluded: NDArray[np.bool_] | None = None
-    n_crossings: int | None = None
-
-
-@dataclass(frozen=True, eq=False)
-class DepthFrame:
-    """One depth image of one sensor (``depth_mm (H, W) uint16``, 0 = no reading)."""
-
-    sensor_id: str
-    seq: int
-    t_device_s: float
-    t_host_s: float
-    depth_mm: NDArray[np.uint16]
-
-
-Frame = BodyFrame | DepthFrame
 
 
 @runtime_checkable
@@ -144,18 +116,7 @@ class SessionReplay:
         return self._store.sensor(sensor_id).intrinsics
 
     def _body(self, sid: str) -> Iterator[BodyFrame]:
-        o = self._store.observations(sid)
-        for k in range(o.n_frames):
-            yield BodyFrame(
-                sensor_id=sid,
-                seq=int(o.seq[k]),
-                t_device_s=float(o.t_sensor_s[k]),
-                t_host_s=float(o.t_receive_host_s[k]),
-                joints_m=o.joints_m[k],
-                states=o.states[k],
-                occluded=None if o.occluded is None else o.occluded[k],
-                n_crossings=None if o.n_crossings is None else int(o.n_crossings[k]),
-            )
+        yield from self._store.observations(sid)
 
     def _depth_frames(self, sid: str) -> Iterator[DepthFrame]:
         for seq, t, frames in self._store.iter_depth_frames(sid):
@@ -201,19 +162,17 @@ class MultitrackReplay:
         return Intrinsics()  # the log does not say: Kinect v2 nominal values
 
     def __iter__(self) -> Iterator[Frame]:
-        s = self._stream
-        order = np.argsort(s.t_receive_s, kind="stable")
+        s = self._stream.frames
+        order = np.argsort(s.t_receive_server_s, kind="stable")
         for seq, k in enumerate(order.tolist()):
-            j = s.joints_m[k]
-            present = np.isfinite(j).all(-1)
-            states = np.where(present, TrackingState.TRACKED, TrackingState.NOT_TRACKED)
+            # the server's receive time is the only arrival time the log has
             yield BodyFrame(
                 sensor_id=s.sensor_id,
                 seq=seq,
-                t_device_s=float(s.t_sensor_s[k]),
-                t_host_s=float(s.t_receive_s[k]),
-                joints_m=np.where(present[:, None], j, np.nan),
-                states=states.astype(np.int8),
+                t_device_s=float(s.t_device_s[k]),
+                t_host_s=float(s.t_receive_server_s[k]),
+                joints_m=s.joints_m[k],
+                states=s.states[k],
             )
 
 
@@ -262,19 +221,136 @@ class Kinect2TrackingReplay:
             yield BodyFrame(self._id, k, t, float("nan"), joints, states)
 
 
+class SimulatedSensorSource:
+    """One simulated sensor as a live source: its frames generated as they are asked for.
+
+    The calibration phase's depth frames are rendered one at a time (the costly part, 26 ms a
+    frame); the motion phase's body frames are drawn when the first of them is asked for (the
+    tracker's error processes are smooth over the whole take), then handed out one by one.
+    The numbers are those :func:`kinefuse.sensors.lab.simulate_session` writes for the same
+    ``motion``, ``rig``, sensor and seed (the same random streams in the same order).
+
+    Parameters
+    ----------
+    motion : Motion
+        Already placed in the lab (:func:`kinefuse.app.place_actor`).
+    rig : Rig
+    sensor_id : str
+        One of the rig's sensors.
+    seed : int
+        The session's seed (it replaces ``config.seed``).
+    config : LabConfig, optional
+        Phases and error model (default ``LabConfig()``).
+    depth : bool
+        Also deliver the calibration phase's depth frames (default True).
+
+    ``probes`` holds the client's clock probes over the session ``(N, 4)`` (server ``t1``,
+    client ``t2``, ``t3``, server ``t4``), as the client would answer them.
+    """
+
+    def __init__(
+        self,
+        motion: Motion,
+        rig: Rig,
+        sensor_id: str,
+        seed: int = 0,
+        *,
+        config: LabConfig | None = None,
+        depth: bool = True,
+    ) -> None:
+        from dataclasses import replace
+
+        from kinefuse.sensors.lab import LabConfig, SensorSimulation
+
+        cfg = replace(LabConfig() if config is None else config, seed=int(seed))
+        self._args = (motion, rig, sensor_id, cfg)
+        self._depth = depth
+        first = SensorSimulation(*self._args)
+        self._id = sensor_id
+        self._intrinsics = first.intrinsics
+        self.probes = first.probes
+        self.rate_hz = cfg.errors.clock.frame_rate_hz
+
+    @property
+    def sensor_ids(self) -> tuple[str, ...]:
+        return (self._id,)
+
+    def intrinsics(self, sensor_id: str) -> Intrinsics:
+        return self._intrinsics
+
+    def __iter__(self) -> Iterator[Frame]:
+        from kinefuse.sensors.lab import SensorSimulation
+
+        sim = SensorSimulation(*self._args)  # fresh random streams: every pass is the same
+        if self._depth:
+            for seq, t_dev, t_host, frame in sim.depth_frames():
+                yield DepthFrame(self._id, seq, t_dev, t_host, frame)
+        cap, out, _truth = sim.body()
+        for k in range(cap.seq.size):
+            yield BodyFrame(self._id, int(cap.seq[k]), float(cap.t_sensor_s[k]),
+                            float(cap.t_receive_host_s[k]), out.joints_sensor[k],
+                            out.states[k])  # fmt: skip
+
+
+def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensorSource:
+    """``simlive:CLIP#SENSOR_ID?rig=...&seed=...&calibration=...&seconds=...&sensors=...``."""
+    from urllib.parse import parse_qs
+
+    from kinefuse.app import place_actor
+    from kinefuse.motion import load_motion
+    from kinefuse.sensors.lab import LabConfig
+    from kinefuse.sensors.rig import default_rig, load_rig
+
+    known = {"rig", "seed", "calibration", "seconds", "sensors", "depth_rate"}
+    args = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
+    bad = sorted(set(args) - known)
+    if bad:
+        raise InputError(
+            f"source {spec!r}: unknown option(s) {', '.join(bad)}; simlive takes "
+            + ", ".join(sorted(known))
+        )
+    try:
+        seed = int(args.get("seed", "0"))
+        cal = float(args.get("calibration", "20"))
+        seconds = float(args["seconds"]) if "seconds" in args else None
+        n = int(args.get("sensors", "4"))
+        depth_rate = float(args.get("depth_rate", "10"))
+    except ValueError as e:
+        raise InputError(f"source {spec!r}: {e}; seed and sensors are integers, "
+                         "calibration and seconds numbers of seconds") from None  # fmt: skip
+    rig = load_rig(args["rig"]) if "rig" in args else default_rig(n)
+    if not sensor:
+        raise InputError(
+            f"source {spec!r}: name the sensor after '#' (one of "
+            f"{', '.join(s.id for s in rig.sensors)})"
+        )
+    motion = place_actor(load_motion(target), rig, seconds)
+    config = LabConfig(seed=seed, calibration_s=cal, motion_s=seconds, depth_rate_hz=depth_rate)
+    return SimulatedSensorSource(motion, rig, sensor, seed, config=config)
+
+
 def open_source(spec: str) -> FrameSource:
     """A source from its command-line form: ``sim:SESSION.sqlite#SENSOR_ID``,
-    ``multitrack:FILE.csv#KINECT_ID`` or ``kinect2json:FILE.json``.
+    ``multitrack:FILE.csv#KINECT_ID``, ``kinect2json:FILE.json`` or
+    ``simlive:CLIP#SENSOR_ID?rig=RIG.toml&seed=N&calibration=S&seconds=S&sensors=N&depth_rate=HZ``
+    (a simulated sensor generating its frames as they are asked for,
+    :class:`SimulatedSensorSource`: a clip (.bvh, .amc), a rig file or the default rig of
+    ``sensors`` sensors, the session's seed, the calibration phase's and the motion's length,
+    the depth frame rate; defaults as ``kinefuse simulate``: seed 0, 20 s of calibration, the
+    whole clip, 4 sensors, 10 Hz).
 
     A session replay opens its store read-only; it stays open as long as the source lives.
     """
     kind, _, rest = spec.partition(":")
+    rest, _, query = rest.partition("?")
     target, _, sensor = rest.partition("#")
     if not target:
         raise InputError(
             f"source {spec!r}: expected sim:SESSION.sqlite#SENSOR_ID, "
-            "multitrack:FILE.csv#KINECT_ID or kinect2json:FILE.json"
+            "multitrack:FILE.csv#KINECT_ID, kinect2json:FILE.json or simlive:CLIP#SENSOR_ID"
         )
+    if kind == "simlive":
+        return _simlive(target, sensor, query, spec)
     if kind == "sim":
         store = SessionStore.open(target)
         return SessionReplay(store, [sensor] if sensor else None)
@@ -282,4 +358,6 @@ def open_source(spec: str) -> FrameSource:
         return MultitrackReplay(target, sensor or None)
     if kind == "kinect2json":
         return Kinect2TrackingReplay(target)
-    raise InputError(f"source {spec!r}: unknown kind {kind!r}; use sim, multitrack or kinect2json")
+    raise InputError(
+        f"source {spec!r}: unknown kind {kind!r}; use sim, multitrack, kinect2json or simlive"
+    )

@@ -1,14 +1,17 @@
 """The server's side of calibration on a recorded session: sightings, registration, scale.
 
-Uses what a real server has: the calibration-phase depth frames, each sensor's clock probes, the
-sensors' intrinsics and the operator's protocol (where and how the wand was to be shown, stored
-in the session's metadata as the operator was told it). The truth is never read.
+Uses what a real server has: the calibration-phase depth frames, each sensor's clock (from its
+probes), the sensors' intrinsics and the operator's protocol (where and how the wand was to be
+shown, stored in the session's metadata as the operator was told it). It reads no store:
+:func:`kinefuse.pipeline.gather_calibration` reads a session and hands these in. The truth is
+never read.
 """
 
 from __future__ import annotations
 
 import contextlib
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -26,11 +29,10 @@ from kinefuse.calibration.register import (
 )
 from kinefuse.calibration.wand_paper import detect_wand_paper_sequence
 from kinefuse.calibration.wand_robust import detect_wand_sequence
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import CalibrationError
-from kinefuse.io import store_live
-from kinefuse.io.store import SessionStore
-from kinefuse.sync import sensor_timebase
+from kinefuse.sync import SensorTimebase
 
 Array = NDArray[np.float64]
 
@@ -53,54 +55,90 @@ class CalibrationInput:
 DETECTORS = ("paper", "robust")
 
 
+@dataclass(frozen=True, eq=False)
+class CalibrationSensor:
+    """One sensor's calibration phase, as the pipeline hands it in.
+
+    Attributes
+    ----------
+    id : str
+    intrinsics : Intrinsics
+    timebase : SensorTimebase or None
+        Device -> host -> server clock mapping (the depth frames carry device timestamps);
+        None only for a sensor without depth frames.
+    depth : iterable of ((N,) float, (N, H, W) uint16)
+        The depth frames in chunks: device timestamps and images, in capture order (read
+        lazily, so a long phase need not be in memory at once).
+    live : LiveSightings or None
+        A live recording's calibration phase: the clients detected the wand and fitted their
+        floor themselves and sent the results, not depth frames (``depth`` is then empty).
+    """
+
+    id: str
+    intrinsics: Intrinsics
+    timebase: SensorTimebase | None
+    depth: Iterable[tuple[Array, NDArray[np.uint16]]]
+    live: LiveSightings | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class LiveSightings:
+    """What a live client sent for the calibration: its wand detections (times already on the
+    server clock) and its floor plane, if it saw one."""
+
+    track: WandTrack
+    sightings: Sightings
+    floor: FloorPlane | None = None
+
+
 def gather(
-    store: SessionStore, *, floor_frames: int = 15, detector: str = "robust"
+    sensors: Sequence[CalibrationSensor],
+    *,
+    wand: Wand,
+    protocol: dict[str, object],
+    phase_server_s: tuple[float, float],
+    floor_frames: int = 15,
+    detector: str = "robust",
 ) -> CalibrationInput:
     """Detect the wand in every sensor's calibration frames and fit each sensor's floor.
 
     ``detector``: ``"paper"`` (METHODS.md A.3, steps 1-4: iterated binarization of the nearest
     object) or ``"robust"`` (a known-radius sphere fit, :mod:`kinefuse.calibration.wand_robust`).
+    ``sensors`` with no depth frames are refused by name (a calibration needs every sensor);
+    :func:`kinefuse.pipeline.gather_calibration` reads them from a session.
     """
     if detector not in DETECTORS:
         raise CalibrationError(f"unknown wand detector {detector!r}; choose paper or robust")
-    meta = store.meta()
-    phase = meta.get("calibration_phase_server_s")
-    wand_meta = meta.get("wand")
-    wand = Wand(**wand_meta) if isinstance(wand_meta, dict) else Wand()
     sightings: dict[str, Sightings] = {}
     tracks: dict[str, WandTrack] = {}
     floors: dict[str, FloorPlane] = {}
     empty = []
     periods = []
-    live_floors = store_live.floors(store)
-    for s in store.sensors():
-        if store.depth_frame_count(s.id) == 0:
-            # a live recording: the clients sent their wand sightings, not depth frames
-            live = _live_sightings(store, s.id)
-            if live is None:
-                empty.append(s.id)
-                continue
-            tracks[s.id], sightings[s.id], period = live
-            if period is not None:
-                periods.append(period)
-            if s.id in live_floors:
-                floors[s.id] = live_floors[s.id]
+    for s in sensors:
+        if s.live is not None:  # a live recording: the client's own detections
+            tracks[s.id], sightings[s.id] = s.live.track, s.live.sightings
+            t_live = s.live.sightings.t_server_s
+            if len(t_live) > 1:
+                periods.append(float(np.median(np.diff(np.sort(t_live)))))
+            if s.live.floor is not None:
+                floors[s.id] = s.live.floor
             continue
-        # depth frames carry device timestamps: the body stream's arrival times (same device
-        # clock) map them to the client's clock, the probes to the server's
-        obs = store.observations(s.id)
-        clock = sensor_timebase(store.clock_probes(s.id), obs.t_sensor_s, obs.t_receive_host_s)
         ts: list[Array] = []
         found_tracks: list[WandTrack] = []
         firsts: list[NDArray[np.uint16]] = []
         n_first = 0
-        for _seq, t_sensor, frames in store.iter_depth_frames(s.id):
+        for t_sensor, frames in s.depth:
+            if len(t_sensor) == 0:
+                continue
             ts.append(t_sensor)
             detect = detect_wand_paper_sequence if detector == "paper" else detect_wand_sequence
             found_tracks.append(detect(frames, s.intrinsics, wand, name=s.id))
             if n_first < floor_frames:
                 firsts.append(frames[: floor_frames - n_first])
                 n_first += len(firsts[-1])
+        if not ts or s.timebase is None:
+            empty.append(s.id)
+            continue
         track = WandTrack(
             found=np.concatenate([t.found for t in found_tracks]),
             centre_sensor_m=np.concatenate([t.centre_sensor_m for t in found_tracks]),
@@ -109,7 +147,7 @@ def gather(
             residual_m=np.concatenate([t.residual_m for t in found_tracks]),
             reasons=tuple(r for t in found_tracks for r in t.reasons),
         )
-        t_server = clock.to_server(np.concatenate(ts))
+        t_server = s.timebase.to_server(np.concatenate(ts))
         if len(t_server) > 1:
             periods.append(float(np.median(np.diff(t_server))))
         f = track.found
@@ -133,60 +171,29 @@ def gather(
         )
     if not sightings:
         raise CalibrationError(
-            f"{store.path}: the session has no calibration phase (no depth frames or wand "
-            "sightings); record one "
+            "the session has no calibration phase (no depth frames or wand sightings); record one "
             "(kinefuse simulate --calibration-seconds 20)"
         )
-    protocol = meta.get("wand_protocol")
     return CalibrationInput(
         sightings=sightings,
         tracks=tracks,
         floors=floors,
-        protocol=protocol if isinstance(protocol, dict) else {},
-        phase_server_s=(float(phase[0]), float(phase[1])) if isinstance(phase, list) else (0, 0),
+        protocol=protocol,
+        phase_server_s=phase_server_s,
         frame_period_s=float(np.median(periods)) if periods else 1 / 30,
     )
-
-
-def _live_sightings(
-    store: SessionStore, sensor_id: str
-) -> tuple[WandTrack, Sightings, float | None] | None:
-    """A live recording's sightings of one sensor (None: it has none), with their device times
-    mapped to the server clock as the body frames' are: device -> host from the arrival times of
-    the body frames and the sightings together, host -> server from the probes."""
-    live = store_live.sightings(store, sensor_id)
-    n = len(live.seq)
-    if n == 0:
-        return None
-    obs = store.observations(sensor_id)
-    clock = sensor_timebase(
-        store.clock_probes(sensor_id),
-        np.concatenate([obs.t_sensor_s, live.t_device_s]),
-        np.concatenate([obs.t_receive_host_s, live.t_host_s]),
-    )
-    t_server = clock.to_server(live.t_device_s)
-    track = WandTrack(
-        found=np.ones(n, dtype=bool),
-        centre_sensor_m=live.centre_sensor_m,
-        score=live.score,
-        n_points=live.n_points,
-        residual_m=np.full(n, np.nan),
-        reasons=("",) * n,
-    )
-    period = float(np.median(np.diff(np.sort(t_server)))) if n > 1 else None
-    return track, live.as_sightings(t_server), period
-
-
-def _protocol_windows(cal: CalibrationInput) -> tuple[tuple[float, float], tuple[float, float]]:
-    """The two still holds of the protocol, found in the sightings themselves (not in the
-    simulator's choreography: a real operator's timing is not known to the second)."""
-    return find_hold_windows(cal.sightings)
 
 
 #: The largest scale correction :func:`calibrate` applies (a fraction): the range scale error of
 #: a time-of-flight sensor is a fraction of a percent, so a larger one means the protocol's holds
 #: were not found (e.g. the start of the wand phase was missed) and is not applied.
 MAX_SCALE_CORRECTION = 0.03
+
+
+def _protocol_windows(cal: CalibrationInput) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The two still holds of the protocol, found in the sightings themselves (not in the
+    simulator's choreography: a real operator's timing is not known to the second)."""
+    return find_hold_windows(cal.sightings)
 
 
 def scale_from_axis(cal: CalibrationInput, reg: Registration) -> float:

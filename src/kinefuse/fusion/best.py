@@ -29,122 +29,28 @@ Each part can be switched off (:class:`BestOptions`) so that its gain can be mea
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter1d
 
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
-from kinefuse.sync.assembly import interp_neighbours, latest_in_window
+from kinefuse.fusion.model import facing, rts_smooth
+from kinefuse.fusion.options import BestOptions
+from kinefuse.observations import BodyFrames
+from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, bone_index_array
+
+__all__ = [
+    "BestOptions",
+    "FusedSkeleton",
+    "check_streams",
+    "correct_swaps",
+    "enforce_bone_lengths",
+    "fuse_best",
+]
 
 Array = NDArray[np.float64]
-
-#: Base measurement noise of a tracked joint, metres: lateral (across the ray) and axial (along
-#: it). Extremities are noisier (Wang et al. 2015, Otte et al. 2016: hands, wrists, ankles and feet
-#: have the largest errors). These are prior knowledge of the device, not fitted to any truth.
-_LATERAL_M = np.full(N_JOINTS, 0.015)
-_AXIAL_M = np.full(N_JOINTS, 0.025)
-for _name, _f in {
-    "WristLeft": 1.6,
-    "WristRight": 1.6,
-    "HandLeft": 1.8,
-    "HandRight": 1.8,
-    "HandTipLeft": 2.2,
-    "HandTipRight": 2.2,
-    "ThumbLeft": 2.2,
-    "ThumbRight": 2.2,
-    "AnkleLeft": 1.8,
-    "AnkleRight": 1.8,
-    "FootLeft": 2.0,
-    "FootRight": 2.0,
-    "ElbowLeft": 1.3,
-    "ElbowRight": 1.3,
-    "KneeLeft": 1.3,
-    "KneeRight": 1.3,
-    "Head": 1.2,
-}.items():
-    _LATERAL_M[JOINT_INDEX[_name]] *= _f
-    _AXIAL_M[JOINT_INDEX[_name]] *= _f
-
-#: Process noise (white acceleration spectral density, m^2/s^3) of the constant-velocity model:
-#: limbs accelerate harder than the trunk.
-_ACCEL_PSD = np.full(N_JOINTS, 4.0)
-for _name, _q in {
-    "WristLeft": 40.0,
-    "WristRight": 40.0,
-    "HandLeft": 60.0,
-    "HandRight": 60.0,
-    "HandTipLeft": 80.0,
-    "HandTipRight": 80.0,
-    "ThumbLeft": 80.0,
-    "ThumbRight": 80.0,
-    "ElbowLeft": 15.0,
-    "ElbowRight": 15.0,
-    "AnkleLeft": 40.0,
-    "AnkleRight": 40.0,
-    "FootLeft": 60.0,
-    "FootRight": 60.0,
-    "KneeLeft": 15.0,
-    "KneeRight": 15.0,
-}.items():
-    _ACCEL_PSD[JOINT_INDEX[_name]] = _q
-
-
-@dataclass(frozen=True)
-class BestOptions:
-    """Switches and tuning of the fusion (see the module docstring)."""
-
-    timestamp: bool = True
-    covariance: bool = True
-    robust: bool = True
-    lr_swap: bool = True
-    temporal: str | None = "smoother"
-    bones: bool = True
-    inferred_inflation: float = 4.0
-    occluded_inflation: float = 2.0
-    gate_chi2: float = 11.34  # chi-square, 3 dof, 99 %
-    max_interp_gap_s: float = 0.1
-    max_predict_s: float = 0.5
-    #: per joint (25 values): lateral and axial measurement noise (m), process noise (m^2/s^3);
-    #: tuples, so that options compare and hash (they key caches and the ablation table)
-    lateral_m: tuple[float, ...] = tuple(_LATERAL_M.tolist())
-    axial_m: tuple[float, ...] = tuple(_AXIAL_M.tolist())
-    accel_psd: tuple[float, ...] = tuple(_ACCEL_PSD.tolist())
-
-    def __post_init__(self) -> None:
-        if self.temporal not in (None, "smoother", "filter"):
-            raise ValueError(
-                f"temporal must be None, 'smoother' or 'filter', got {self.temporal!r}"
-            )
-        for name in ("lateral_m", "axial_m", "accel_psd"):
-            v = tuple(float(x) for x in np.asarray(getattr(self, name), dtype=float).ravel())
-            if len(v) != N_JOINTS or not all(x > 0 for x in v):
-                raise ValueError(f"{name} must be {N_JOINTS} positive numbers, one per joint")
-            object.__setattr__(self, name, v)
-
-
-@dataclass(frozen=True)
-class SensorStream:
-    """One sensor's observations, ready for fusion.
-
-    Attributes
-    ----------
-    t_server_s : (N,) float
-        Capture times on the server clock.
-    joints_sensor : (N, 25, 3) float
-        Joints in the sensor frame (x right, y down, z forward), NaN = not tracked.
-    states : (N, 25) int8
-    sensor2world : (4, 4) float
-    occluded : (N, 25) bool or None
-        The client's occlusion flags, if any.
-    """
-
-    t_server_s: Array
-    joints_sensor: Array
-    states: NDArray[np.int8]
-    sensor2world: Array
-    occluded: NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)
@@ -171,19 +77,6 @@ class FusedSkeleton:
     swaps: dict[int, int]
 
 
-def _facing(p_world: Array) -> Array:
-    """Horizontal unit facing direction ``(..., 3)`` of skeletons ``(..., 25, 3)`` (NaN: none)."""
-    j = JOINT_INDEX
-    lr = (p_world[..., j["HipLeft"], :] - p_world[..., j["HipRight"], :]) + (
-        p_world[..., j["ShoulderLeft"], :] - p_world[..., j["ShoulderRight"], :]
-    )
-    f = np.cross(lr, np.array([0.0, 0.0, 1.0]))
-    f[..., 2] = 0.0
-    n = np.linalg.norm(f, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 1e-6, f / n, np.nan)
-
-
 def correct_swaps(
     t_server_s: list[Array], p_world: list[Array], sensor_pos: Array, *, bin_s: float = 1 / 30
 ) -> list[NDArray[np.bool_]]:
@@ -205,7 +98,7 @@ def correct_swaps(
         return [np.zeros(len(t), bool) for t in t_server_s]
     t0 = t_all.min()
     n_bins = int((t_all.max() - t0) / bin_s) + 1
-    facing = [_facing(p) for p in p_world]
+    facing_ = [facing(p) for p in p_world]
     # direction from the body to the sensor, horizontal
     toward = []
     for s in range(n_s):
@@ -224,7 +117,7 @@ def correct_swaps(
     votes = np.zeros((n_bins, 3))
     for s in range(n_s):
         b = ((t_server_s[s] - t0) / bin_s).astype(np.intp)
-        f = facing[s]
+        f = facing_[s]
         ok = np.isfinite(f).all(1) & np.isfinite(toward[s]).all(1)
         amb = np.einsum("ni,ni->n", np.nan_to_num(f), np.nan_to_num(toward[s])) > 0
         w = np.where(amb, 0.5, 1.0) * ok
@@ -246,231 +139,11 @@ def correct_swaps(
     out = []
     for s in range(n_s):
         b = np.clip(((t_server_s[s] - t0) / bin_s).astype(np.intp), 0, n_bins - 1)
-        f = facing[s]
+        f = facing_[s]
         agree = np.einsum("ni,ni->n", np.nan_to_num(f), consensus[b])
         amb = np.einsum("ni,ni->n", np.nan_to_num(f), np.nan_to_num(toward[s])) > 0
         out.append((agree < 0) & amb & np.isfinite(f).all(1))
     return out
-
-
-def _measurement_cov(
-    p_sensor: Array,
-    states: NDArray[np.int8],
-    occluded: NDArray[np.bool_] | None,
-    r_s2w: Array,
-    opt: BestOptions,
-) -> Array:
-    """World covariance ``(N, 25, 3, 3)`` of measurements in one sensor."""
-    n = p_sensor.shape[0]
-    if not opt.covariance:
-        return np.broadcast_to(np.eye(3) * 0.03**2, (n, N_JOINTS, 3, 3)).copy()
-    ray = p_sensor / np.linalg.norm(p_sensor, axis=-1, keepdims=True)
-    ray = np.nan_to_num(ray)
-    inflate = np.ones((n, N_JOINTS))
-    inflate = np.where(states == TrackingState.INFERRED, opt.inferred_inflation, inflate)
-    if occluded is not None:
-        inflate = inflate * np.where(occluded, opt.occluded_inflation, 1.0)
-    lat2 = (np.asarray(opt.lateral_m) ** 2)[None, :] * inflate**2
-    ax2 = (np.asarray(opt.axial_m) ** 2)[None, :] * inflate**2
-    outer = ray[..., :, None] * ray[..., None, :]
-    cov_s = lat2[..., None, None] * (np.eye(3) - outer) + ax2[..., None, None] * outer
-    return np.einsum("ij,ntjk,lk->ntil", r_s2w, cov_s, r_s2w)
-
-
-def _interp_stream(
-    t_grid: Array, t_obs: Array, p: Array, cov: Array, max_gap_s: float
-) -> tuple[Array, Array]:
-    """Linear interpolation of one stream ``(N, 25, 3)`` to ``t_grid``; NaN across big gaps.
-
-    A joint missing at either neighbour is missing (unless the weight is 0/1 on the good one);
-    its covariance is the larger of the two neighbours'.
-    """
-    i0, i1, w, ok = interp_neighbours(t_obs, t_grid, max_gap_s=max_gap_s)
-    wv = w[:, None, None]
-    out = np.where(ok[:, None, None], p[i0] * (1 - wv) + p[i1] * wv, np.nan)
-    c = np.maximum(cov[i0], cov[i1]) if cov.size else cov
-    c = np.where(np.isfinite(out)[..., None], c, np.nan)
-    return out, c
-
-
-def _latest_stream(
-    t_grid: Array, t_obs: Array, p: Array, cov: Array, window_s: float
-) -> tuple[Array, Array]:
-    """The latest observation of one stream in ``(T - window_s, T]`` at each grid time."""
-    rows, _, ok = latest_in_window(t_obs, t_grid, window_s=window_s)
-    kk = np.maximum(rows, 0)
-    out = np.where(ok[:, None, None], p[kk], np.nan)
-    c = np.where(ok[:, None, None, None], cov[kk], np.nan)
-    return out, c
-
-
-def _robust_combine(
-    p: Array, cov: Array, opt: BestOptions
-) -> tuple[Array, Array, NDArray[np.intp]]:
-    """Combine ``(T, S, J, 3)`` measurements with ``(T, S, J, 3, 3)`` covariances."""
-    valid = np.asarray(np.isfinite(p).all(-1) & np.isfinite(cov).all((-1, -2)), dtype=bool)
-    eye = np.eye(3)
-    c = np.where(valid[..., None, None], cov, eye)
-    w_mat = _inv3(c)
-    w_mat = np.where(valid[..., None, None], w_mat, 0.0)
-    z = np.where(valid[..., None], p, 0.0)
-    rw: Array = valid.astype(np.float64)
-    x = np.full(p.shape[:1] + p.shape[2:], np.nan)
-    info = np.zeros(p.shape[:1] + p.shape[2:3] + (3, 3))
-    n_iter = 4 if opt.robust else 1
-    for it in range(n_iter):
-        wm = w_mat * rw[..., None, None]
-        info = wm.sum(axis=1)
-        rhs = np.einsum("tsjab,tsjb->tja", wm, z)
-        has = rw.sum(axis=1) > 0
-        info_safe = np.where(has[..., None, None], info, eye)
-        x = np.einsum("tjab,tjb->tja", _inv3(info_safe), rhs)
-        x = np.where(has[..., None], x, np.nan)
-        if not opt.robust or it == n_iter - 1:
-            break
-        r = z - np.nan_to_num(x)[:, None]
-        d2 = (np.einsum("tsjab,tsjb->tsja", w_mat, r) * r).sum(-1)
-        # Huber weights on the Mahalanobis distance: full weight inside the gate, falling off
-        # as 1/d outside it
-        rw = valid * np.minimum(1.0, np.sqrt(opt.gate_chi2 / np.maximum(d2, 1e-12)))
-        # a measurement far outside the gate is dropped outright, unless that would drop
-        # every measurement of the joint (two sensors that disagree: keep both, down-weighted)
-        far = d2 > 4 * opt.gate_chi2
-        keep_some = (valid & ~far).any(axis=1, keepdims=True)
-        rw = np.where(far & keep_some, 0.0, rw)
-    used = (rw > 0.2).sum(axis=1)
-    has = rw.sum(axis=1) > 0
-    cov_x = _inv3(np.where(has[..., None, None], info, eye))
-    cov_x = np.where(has[..., None, None], cov_x, np.nan)
-    return x, cov_x, used
-
-
-def _inv3(m: Array) -> Array:
-    """Inverses of ``(..., 3, 3)`` matrices by the adjugate (much faster than LAPACK per call)."""
-    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    co = np.stack(
-        [
-            e * i - f * h, c * h - b * i, b * f - c * e,
-            f * g - d * i, a * i - c * g, c * d - a * f,
-            d * h - e * g, b * g - a * h, a * e - b * d,
-        ],
-        axis=-1,
-    ).reshape(m.shape)  # fmt: skip
-    det = a * co[..., 0, 0] + b * co[..., 1, 0] + c * co[..., 2, 0]
-    return co / det[..., None, None]
-
-
-def _kalman(
-    t: Array, z: Array, r_cov: Array, q_psd: Array, *, smooth: bool, max_predict_s: float
-) -> tuple[Array, Array]:
-    """Constant-velocity Kalman filter (and RTS smoother) per joint and axis.
-
-    Each axis of each joint is filtered on its own with the measurement's variance along that
-    axis (the diagonal of the fused covariance; the cross-axis terms were used where they matter
-    most, in the fusion across sensors). That makes every step plain element-wise arithmetic on
-    ``(J, 3)`` arrays; the recursion over frames is sequential by nature.
-
-    Parameters
-    ----------
-    t : (T,) float
-        Frame times, seconds.
-    z : (T, J, 3) float
-        Measurements (NaN = none).
-    r_cov : (T, J, 3, 3) float
-        Their covariances.
-    q_psd : (J,) float
-        White-acceleration spectral density per joint.
-
-    Returns
-    -------
-    positions : (T, J, 3) float
-        NaN before a joint's first measurement and more than ``max_predict_s`` after its last.
-    variance : (T, J) float
-        Position variance per axis (mean over the axes).
-    """
-    n_t, n_j = z.shape[:2]
-    dt = np.diff(t, prepend=t[0])
-    r = np.diagonal(r_cov, axis1=-2, axis2=-1)  # (T, J, 3)
-    has_all = np.isfinite(z) & np.isfinite(r)
-    z0 = np.where(has_all, z, 0.0)
-    r0 = np.where(has_all, r, 1.0)
-    q = q_psd[:, None]
-    shape = (n_j, 3)
-    x, v = np.zeros(shape), np.zeros(shape)  # position, velocity
-    pxx, pxv, pvv = np.zeros(shape), np.zeros(shape), np.zeros(shape)  # covariance entries
-    started = np.zeros(shape, bool)
-    last = np.full(shape, -np.inf)
-    out_f = np.empty((5, n_t, n_j, 3))  # filtered x, v, pxx, pxv, pvv
-    out_p = np.empty((5, n_t, n_j, 3))  # predicted
-    alive = np.empty((n_t, n_j, 3), bool)
-    for k in range(n_t):
-        d = dt[k]
-        # predict
-        x = x + d * v
-        pxx = pxx + 2 * d * pxv + d * d * pvv + q * d**3 / 3
-        pxv = pxv + d * pvv + q * d**2 / 2
-        pvv = pvv + q * d
-        out_p[:, k] = x, v, pxx, pxv, pvv
-        has = has_all[k]
-        init = has & ~started
-        started |= has
-        # update (joints without a measurement get a zero gain)
-        s = pxx + r0[k]
-        kx = np.where(has, pxx / s, 0.0)
-        kv = np.where(has, pxv / s, 0.0)
-        innov = z0[k] - x
-        x = x + kx * innov
-        v = v + kv * innov
-        pxx, pxv, pvv = (1 - kx) * pxx, (1 - kx) * pxv, pvv - kv * pxv
-        # a joint's first measurement starts its filter: position measured, velocity unknown
-        x = np.where(init, z0[k], x)
-        v = np.where(init, 0.0, v)
-        pxx = np.where(init, r0[k], pxx)
-        pxv = np.where(init, 0.0, pxv)
-        pvv = np.where(init, 1.0, pvv)  # 1 m/s a priori
-        last = np.where(has, t[k], last)
-        alive[k] = started & (t[k] - last <= max_predict_s)
-        out_f[:, k] = x, v, pxx, pxv, pvv
-    xf, vf, fxx, fxv, fvv = out_f
-    if not smooth:
-        return (
-            np.where(alive, xf, np.nan),
-            np.where(alive.all(-1), fxx.mean(-1), np.nan),
-        )
-    xp, vp, qxx, qxv, qvv = out_p
-    # smoother gain C = P_f F^T P_p^-1 of the 2x2 blocks, for every frame at once
-    d = dt[1:, None, None]
-    a11, a12 = fxx[:-1] + d * fxv[:-1], fxv[:-1]  # (P_f F^T) rows
-    a21, a22 = fxv[:-1] + d * fvv[:-1], fvv[:-1]
-    b11, b12, b22 = qxx[1:], qxv[1:], qvv[1:]
-    det = b11 * b22 - b12 * b12
-    with np.errstate(invalid="ignore", divide="ignore"):
-        i11, i12, i22 = b22 / det, -b12 / det, b11 / det
-    c11, c12 = a11 * i11 + a12 * i12, a11 * i12 + a12 * i22
-    c21, c22 = a21 * i11 + a22 * i12, a21 * i12 + a22 * i22
-    xs, vs, sxx = xf.copy(), vf.copy(), fxx.copy()
-    sxv, svv = fxv.copy(), fvv.copy()
-    for k in range(n_t - 2, -1, -1):
-        ok = alive[k] & alive[k + 1]
-        dx, dv = xs[k + 1] - xp[k + 1], vs[k + 1] - vp[k + 1]
-        xs[k] = np.where(ok, xf[k] + c11[k] * dx + c12[k] * dv, xf[k])
-        vs[k] = np.where(ok, vf[k] + c21[k] * dx + c22[k] * dv, vf[k])
-        e11, e12 = sxx[k + 1] - qxx[k + 1], sxv[k + 1] - qxv[k + 1]
-        e22 = svv[k + 1] - qvv[k + 1]
-        # P_s = P_f + C (P_s' - P_p') C^T, 2x2 per axis
-        m11 = c11[k] * e11 + c12[k] * e12
-        m12 = c11[k] * e12 + c12[k] * e22
-        m21 = c21[k] * e11 + c22[k] * e12
-        m22 = c21[k] * e12 + c22[k] * e22
-        sxx[k] = np.where(ok, fxx[k] + m11 * c11[k] + m12 * c12[k], fxx[k])
-        sxv[k] = np.where(ok, fxv[k] + m11 * c21[k] + m12 * c22[k], fxv[k])
-        svv[k] = np.where(ok, fvv[k] + m21 * c21[k] + m22 * c22[k], fvv[k])
-    return (
-        np.where(alive, xs, np.nan),
-        np.where(alive.all(-1), sxx.mean(-1), np.nan),
-    )
 
 
 def enforce_bone_lengths(
@@ -508,68 +181,90 @@ def enforce_bone_lengths(
     return x, lengths
 
 
+def check_streams(streams: Sequence[BodyFrames], sensor2world: ArrayLike, what: str) -> Array:
+    """Validate S streams (capture times on the server clock) against their poses
+    ``(S, 4, 4)``; returns the poses as a float array."""
+    if not streams:
+        raise ValueError(f"{what} needs at least one sensor stream")
+    poses = np.asarray(sensor2world, dtype=np.float64)
+    if poses.shape != (len(streams), 4, 4) or not np.isfinite(poses).all():
+        raise ValueError(
+            f"{what}: sensor2world must be finite ({len(streams)}, 4, 4), one pose per stream; "
+            f"got {poses.shape}"
+        )
+    for s in streams:
+        if not np.isfinite(s.t_server_s).all():
+            raise ValueError(
+                f"{what}: sensor {s.sensor_id!r} has frames without a capture time on the "
+                "server clock; map its clock first (BodyFrames.on_server)"
+            )
+    return poses
+
+
 def fuse_best(
-    streams: list[SensorStream],
+    streams: Sequence[BodyFrames],
+    sensor2world: ArrayLike,
     t_grid_s: Array,
     options: BestOptions = BestOptions(),
-    *,
-    chunk: int = 2000,
 ) -> FusedSkeleton:
-    """Fuse S sensor streams into one skeleton at the frame times ``t_grid_s`` ``(T,)``."""
-    if not streams:
-        raise ValueError("fuse_best needs at least one sensor stream")
+    """Fuse S sensor streams into one skeleton at the frame times ``t_grid_s`` ``(T,)``.
+
+    The replay of the causal fusion (:func:`kinefuse.fusion.live.replay_streams`, with every
+    observation available: an offline budget of unlimited latency) followed by the non-causal
+    refinements the options ask for: the swap consensus over the whole take instead of the
+    causal vote (``lr_swap``), the Rauch-Tung-Striebel smoother over the filter's recorded
+    states (``temporal="smoother"``; ``"filter"``: the causal filter's output; ``None``: the
+    per-frame combination), session-wide bone lengths (``bones``).
+
+    ``streams`` carry their capture times on the server clock (``t_server_s``) and are in the
+    frames of their sensors, whose poses are ``sensor2world (S, 4, 4)``."""
+    from kinefuse.fusion.live import LiveOptions, replay_streams
+
+    poses = check_streams(streams, sensor2world, "fuse_best")
     t_grid = np.asarray(t_grid_s, dtype=np.float64)
     opt = options
-    p_world, covs, t_obs = [], [], []
-    for s in streams:
-        r = s.sensor2world[:3, :3]
-        pw = s.joints_sensor @ r.T + s.sensor2world[:3, 3]
-        p_world.append(pw)
-        covs.append(_measurement_cov(s.joints_sensor, s.states, s.occluded, r, opt))
-        t_obs.append(np.asarray(s.t_server_s, dtype=np.float64))
-    swaps: dict[int, int] = {}
-    if opt.lr_swap:
-        sensor_pos = np.array([s.sensor2world[:3, 3] for s in streams])
-        flags = correct_swaps(t_obs, p_world, sensor_pos)
+    swaps: dict[int, int] = {i: 0 for i in range(len(streams))}
+    streams = list(streams)
+    if opt.lr_swap and len(streams) > 1:
+        p_world = [s.joints_m @ p[:3, :3].T + p[:3, 3] for s, p in zip(streams, poses, strict=True)]
+        flags = correct_swaps([s.t_server_s for s in streams], p_world, poses[:, :3, 3])
         mirror = np.asarray(MIRROR_INDEX)
         for i, fl in enumerate(flags):
             swaps[i] = int(fl.sum())
             if fl.any():
-                p_world[i][fl] = p_world[i][fl][:, mirror]
-                covs[i][fl] = covs[i][fl][:, mirror]
-    n_t, n_s = t_grid.size, len(streams)
-    fused = np.full((n_t, N_JOINTS, 3), np.nan)
-    fcov = np.full((n_t, N_JOINTS, 3, 3), np.nan)
-    used = np.zeros((n_t, N_JOINTS), dtype=np.intp)
-    for a in range(0, n_t, chunk):
-        tg = t_grid[a : a + chunk]
-        zs = np.full((tg.size, n_s, N_JOINTS, 3), np.nan)
-        cs = np.full((tg.size, n_s, N_JOINTS, 3, 3), np.nan)
-        for i in range(n_s):
-            if t_obs[i].size == 0:
-                continue
-            if opt.timestamp:
-                zs[:, i], cs[:, i] = _interp_stream(
-                    tg, t_obs[i], p_world[i], covs[i], opt.max_interp_gap_s
-                )
-            else:
-                zs[:, i], cs[:, i] = _latest_stream(tg, t_obs[i], p_world[i], covs[i], 1 / 30)
-        x, cx, u = _robust_combine(zs, cs, opt)
-        fused[a : a + chunk], fcov[a : a + chunk], used[a : a + chunk] = x, cx, u
-    if opt.temporal is not None:
-        pos, var = _kalman(
-            t_grid,
-            fused,
-            fcov,
-            np.asarray(opt.accel_psd),
-            smooth=opt.temporal == "smoother",
-            max_predict_s=opt.max_predict_s,
-        )
+                streams[i] = _mirrored(streams[i], fl, mirror)
+    live = LiveOptions(best=replace(opt, lr_swap=False, bones=False), latency_s=np.inf)
+    r = replay_streams(streams, poses, t_grid, live, record=opt.temporal != "filter")
+    if opt.temporal == "filter":
+        pos, var = r["positions"], r["variance_m2"]
+    elif opt.temporal == "smoother":
+        alive = np.asarray(np.isfinite(r["positions"]).all(-1))
+        dt = np.diff(t_grid, prepend=t_grid[:1])
+        alive3 = np.repeat(alive[..., None], 3, axis=-1)
+        xs, sxx = rts_smooth(dt, r["predicted"], r["filtered"], alive3)
+        pos = np.where(alive[..., None], xs, np.nan)
+        var = np.where(alive, sxx.mean(-1), np.nan)
     else:
-        pos = fused
-        var = np.trace(fcov, axis1=-2, axis2=-1) / 3
+        pos = r["measurement"]
+        var = np.trace(r["measurement_cov"], axis1=-2, axis2=-1) / 3
     if opt.bones:
         pos, _ = enforce_bone_lengths(pos, var)
     return FusedSkeleton(
-        t_server_s=t_grid, positions=pos, variance_m2=var, n_sensors=used, swaps=swaps
+        t_server_s=t_grid,
+        positions=pos,
+        variance_m2=var,
+        n_sensors=r["n_sensors"].astype(np.intp),
+        swaps=swaps,
     )
+
+
+def _mirrored(s: BodyFrames, flags: NDArray[np.bool_], mirror: NDArray[np.intp]) -> BodyFrames:
+    """``s`` with left and right exchanged in the frames ``flags (T,)``."""
+    j, st = s.joints_m.copy(), s.states.copy()
+    j[flags] = j[flags][:, mirror]
+    st[flags] = st[flags][:, mirror]
+    occ = None
+    if s.occluded is not None:
+        occ = s.occluded.copy()
+        occ[flags] = occ[flags][:, mirror]
+    return replace(s, joints_m=j, states=st, occluded=occ)

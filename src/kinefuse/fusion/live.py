@@ -1,16 +1,18 @@
 """Causal fusion (``best-live``): push observations as they arrive, ask for the skeleton at a time.
 
-The live counterpart of :func:`kinefuse.fusion.best.fuse_best`, with the same measurement model
-(covariance along and across each sensor's ray, inflated for INFERRED and occluded joints; Huber-
-robust combination across sensors) but nothing that looks ahead:
+The one fusion: offline :func:`kinefuse.fusion.best.fuse_best` is its replay
+(:func:`replay_streams`) plus non-causal refinements. The measurement model
+(:mod:`kinefuse.fusion.model`: covariance along and across each sensor's ray, inflated for
+INFERRED and occluded joints; Huber-robust combination across sensors), and nothing that looks
+ahead:
 
 - **Timestamps**: each sensor's joints at the frame time come from its own observations on the
   server clock: interpolated between the two around the frame time when both have arrived,
   else the latest one if it is recent (its covariance grows with its age).
 - **Left/right swaps**: the body's facing is agreed from this frame's unambiguous sensors (a
   sensor whose reported facing points away from it cannot be swapped), the ambiguous ones at half
-  weight, and the fused skeleton's facing so far; an ambiguous sensor that contradicts it is
-  mirrored back. (Offline ``best`` votes over a centred 1 s window instead.)
+  weight, and the filter's facing so far; an ambiguous sensor that contradicts it is mirrored
+  back. (Offline ``best`` votes over a centred 1 s window instead.)
 - **Kalman filter**: one constant-velocity filter per joint and axis keeps its state between
   calls; a frame without measurements is a prediction; a joint unseen for ``max_predict_s``
   becomes missing.
@@ -22,31 +24,65 @@ robust combination across sensors) but nothing that looks ahead:
 
 Determinism: the result of :meth:`LiveFusion.fuse` depends only on the calls made before it, so
 a replay that pushes every observation captured up to ``T + latency_s`` before fusing frame
-``T`` gives bit-identical frames for a session and for any prefix of it (:func:`replay`).
+``T`` gives bit-identical frames for a session and for any prefix of it (:func:`replay`); the
+replay prepares the measurements of many frames at once and equals pushing and fusing frame by
+frame, bit for bit.
 """
 
 from __future__ import annotations
 
-import bisect
 import math
-from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import FusionError
-from kinefuse.fusion.best import BestOptions
+from kinefuse.fusion.model import (
+    KalmanState,
+    decide_flips,
+    kalman_step,
+    robust_combine,
+    sensor_at,
+    swap_evidence,
+    swap_vote,
+    world_measurements,
+)
+from kinefuse.fusion.options import BestOptions
 from kinefuse.fusion.status import FusionStatus
+from kinefuse.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
 
 Array = NDArray[np.float64]
 
 _BONES = bone_index_array()
 _MIRROR = np.asarray(MIRROR_INDEX)
-_TRUNK = [JOINT_INDEX["SpineBase"], JOINT_INDEX["SpineShoulder"]]
-_HIP_L, _HIP_R = JOINT_INDEX["HipLeft"], JOINT_INDEX["HipRight"]
-_SH_L, _SH_R = JOINT_INDEX["ShoulderLeft"], JOINT_INDEX["ShoulderRight"]
+#: frames whose measurements a replay prepares at once (bounds its memory)
+_CHUNK = 1024
+#: hips and shoulders (left, right, left, right): the body's facing
+_FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]
+
+
+def _bone_groups() -> tuple[list[NDArray[np.intp]], NDArray[np.intp]]:
+    """The bones in groups that share no joint (greedy, from the root out), and per joint the
+    indices of its bones ``(25, 4)`` padded with ``len(bones)``."""
+    groups: list[list[int]] = []
+    for b, (pa, ch) in enumerate(_BONES.tolist()):
+        for g in groups:
+            if all(pa not in _BONES[o] and ch not in _BONES[o] for o in g):
+                g.append(b)
+                break
+        else:
+            groups.append([b])
+    inc = [[b for b in range(len(_BONES)) if j in _BONES[b]] for j in range(N_JOINTS)]
+    width = max(len(i) for i in inc)
+    table = np.array([i + [len(_BONES)] * (width - len(i)) for i in inc], dtype=np.intp)
+    return [np.array(g, dtype=np.intp) for g in groups], table
+
+
+_BONE_GROUPS, _JOINT_BONES = _bone_groups()
 
 
 @dataclass(frozen=True)
@@ -101,13 +137,48 @@ class LiveFrame:
     n_sensors: NDArray[np.intp]
 
 
-class _Stream:
-    """The latest observations of one sensor, in capture order."""
+class _Buffers:
+    """The latest observations of every sensor, in capture order (at most ``n`` each), as
+    arrays ``(S, n, ...)``; a row's unused tail holds ``inf`` times."""
 
-    def __init__(self, n: int) -> None:
-        self.obs: deque[tuple[float, Array, NDArray[np.int8], NDArray[np.bool_] | None]] = deque(
-            maxlen=n
-        )
+    def __init__(self, n_sensors: int, n: int) -> None:
+        self.t = np.full((n_sensors, n), np.inf)
+        self.joints = np.full((n_sensors, n, N_JOINTS, 3), np.nan)
+        self.states = np.zeros((n_sensors, n, N_JOINTS), np.int8)
+        self.occ = np.zeros((n_sensors, n, N_JOINTS), bool)
+        self.count = np.zeros(n_sensors, np.intp)
+
+    def add(self, i: int, t: float, j: Array, st: NDArray[np.int8], occ: NDArray[np.bool_]) -> None:
+        n = int(self.count[i])
+        row = self.t[i]
+        k = int(np.searchsorted(row[:n], t, side="right"))  # a late one goes in capture order
+        width = row.shape[0]
+        if n == width:  # full: the oldest goes
+            if k == 0:
+                return  # older than everything kept
+            for a in (self.t, self.joints, self.states, self.occ):
+                a[i, : k - 1] = a[i, 1:k].copy()
+            k -= 1
+        else:
+            for a in (self.t, self.joints, self.states, self.occ):
+                a[i, k + 1 : n + 1] = a[i, k:n].copy()
+            self.count[i] = n + 1
+        self.t[i, k], self.joints[i, k], self.states[i, k], self.occ[i, k] = t, j, st, occ
+
+
+#: one frame's sequential part: the filter's position (25, 3) and variance (25,), alive,
+#: measured, sensors used, TRACKED sensors (25,)
+_Step = tuple[Array, Array, NDArray[np.bool_], NDArray[np.bool_], NDArray[np.intp], NDArray[Any]]
+
+
+@dataclass(frozen=True, eq=False)
+class _Guess:
+    """A frame's combination prepared in a batch, for the swap decision it assumed."""
+
+    flips: NDArray[np.bool_]
+    x: Array
+    cov_x: Array
+    used: NDArray[np.intp]
 
 
 class LiveFusion:
@@ -125,24 +196,30 @@ class LiveFusion:
         if poses.ndim != 3 or poses.shape[1:] != (4, 4) or not np.isfinite(poses).all():
             raise FusionError(f"sensor2world must be finite (S, 4, 4), got {poses.shape}")
         self.options = options
-        self._streams = [_Stream(options.buffer) for _ in poses]
+        self._poses = poses.copy()
+        self._buffers = _Buffers(len(poses), options.buffer)
         self._sensor_pos = poses[:, :3, 3].copy()
-        self._r = poses[:, :3, :3].copy()
-        shape = (N_JOINTS, 3)
-        self._x, self._v = np.zeros(shape), np.zeros(shape)
-        self._pxx, self._pxv, self._pvv = np.zeros(shape), np.zeros(shape), np.zeros(shape)
-        self._started = np.zeros(shape, bool)
-        self._last_seen = np.full(shape, -np.inf)
+        b = options.best
+        self._lateral = np.asarray(b.lateral_m)
+        self._axial = np.asarray(b.axial_m)
+        self._q = np.asarray(b.accel_psd)[:, None]
+        self._kf = KalmanState.empty()
         self._t: float | None = None
         self._facing: Array | None = None
         n_b = len(_BONES)
         self._bone_n = np.zeros(n_b, dtype=np.int64)
         self._bone_len = np.zeros(n_b)
         self._bone_var = np.zeros(n_b)
+        #: with ``record``, the filter's last predicted and updated moments (5, 25, 3), for a
+        #: smoother
+        self.record = False
+        self.last_moments: tuple[Array, Array] | None = None
+        #: the last frame's combined measurement (25, 3) and its covariance (25, 3, 3)
+        self.last_measurement: tuple[Array, Array] | None = None
 
     @property
     def n_sensors(self) -> int:
-        return len(self._streams)
+        return len(self._poses)
 
     def set_poses(self, sensor2world: ArrayLike) -> None:
         """Switch to new sensor poses ``(S', 4, 4)`` (a live calibration finished, a sensor was
@@ -152,16 +229,21 @@ class LiveFusion:
         poses = np.asarray(sensor2world, dtype=np.float64)
         if poses.ndim != 3 or poses.shape[1:] != (4, 4) or not np.isfinite(poses).all():
             raise FusionError(f"sensor2world must be finite (S, 4, 4), got {poses.shape}")
-        if len(poses) < len(self._streams):
+        n_old = self.n_sensors
+        if len(poses) < n_old:
             raise FusionError(
-                f"set_poses: {len(poses)} poses for {len(self._streams)} sensors; sensors are "
-                "only ever added (keep a removed one's pose)"
+                f"set_poses: {len(poses)} poses for {n_old} sensors; sensors are only ever added "
+                "(keep a removed one's pose)"
             )
-        self._streams += [
-            _Stream(self.options.buffer) for _ in range(len(poses) - len(self._streams))
-        ]
+        if len(poses) > n_old:  # new sensors get empty buffer rows
+            grown = _Buffers(len(poses), self.options.buffer)
+            b = self._buffers
+            grown.t[:n_old], grown.joints[:n_old] = b.t, b.joints
+            grown.states[:n_old], grown.occ[:n_old] = b.states, b.occ
+            grown.count[:n_old] = b.count
+            self._buffers = grown
+        self._poses = poses.copy()
         self._sensor_pos = poses[:, :3, 3].copy()
-        self._r = poses[:, :3, :3].copy()
 
     def push(
         self,
@@ -176,198 +258,16 @@ class LiveFusion:
         captured at ``t_server_s`` on the server clock. Late observations (older than the
         sensor's latest) are put in order; ones older than the last fused frame still help
         interpolate later frames."""
-        if not 0 <= sensor < len(self._streams):
-            raise FusionError(f"unknown sensor index {sensor}; there are {len(self._streams)}")
+        if not 0 <= sensor < self.n_sensors:
+            raise FusionError(f"unknown sensor index {sensor}; there are {self.n_sensors}")
         t = float(t_server_s)
         if not np.isfinite(t):
             raise FusionError(f"sensor {sensor}: capture time must be finite, got {t_server_s!r}")
         j = np.asarray(joints_sensor, dtype=np.float64).reshape(N_JOINTS, 3)
         st = np.asarray(states, dtype=np.int8).reshape(N_JOINTS)
-        occ = None if occluded is None else np.asarray(occluded, dtype=bool).reshape(N_JOINTS)
-        q = self._streams[sensor].obs
-        item = (t, j, st, occ)
-        if not q or t >= q[-1][0]:
-            q.append(item)
-        else:  # a late one: keep the buffer in capture order
-            items = sorted([*q, item], key=lambda o: o[0])
-            q.clear()
-            q.extend(items[-q.maxlen :] if q.maxlen else items)
-
-    # -- one frame -----------------------------------------------------------------------------
-
-    def _measurements(self, t: float) -> tuple[Array, Array, NDArray[np.int8]]:
-        """Every sensor's joints at ``t`` in the world, ``(S, 25, 3)``, their covariances
-        ``(S, 25, 3, 3)`` and states ``(S, 25)`` (NaN / 0 where a sensor has nothing)."""
-        opt = self.options
-        n_s = len(self._streams)
-        joints = np.full((n_s, N_JOINTS, 3), np.nan)
-        states = np.zeros((n_s, N_JOINTS), dtype=np.int8)
-        occ = np.zeros((n_s, N_JOINTS), dtype=bool)
-        age = np.zeros(n_s)
-        for i, s in enumerate(self._streams):
-            if not s.obs:
-                continue
-            times = [o[0] for o in s.obs]
-            k = bisect.bisect_right(times, t)  # obs[k-1].t <= t < obs[k].t
-            if 0 < k < len(times) and times[k] - times[k - 1] <= opt.best.max_interp_gap_s:
-                (ta, ja, sa, oa), (tb, jb, sb, ob) = s.obs[k - 1], s.obs[k]
-                w = (t - ta) / (tb - ta) if tb > ta else 0.0
-                joints[i] = ja * (1.0 - w) + jb * w
-                states[i] = np.minimum(sa, sb)
-                if oa is not None and ob is not None:
-                    occ[i] = oa | ob
-            else:
-                if k > 0 and t - times[k - 1] <= opt.max_hold_s:
-                    o = s.obs[k - 1]
-                elif k == 0 and times[0] - t <= 0.5 / 30:
-                    o = s.obs[0]  # the first observation, within half a frame
-                else:
-                    continue
-                joints[i], states[i], age[i] = o[1], o[2], abs(t - o[0])
-                if o[3] is not None:
-                    occ[i] = o[3]
-        cov = self._covariance(joints, states, occ)
-        # a held observation: the body moved meanwhile (1 m/s a priori)
-        cov += (age**2)[:, None, None, None] * np.eye(3)
-        z = np.einsum("sab,sjb->sja", self._r, joints) + self._sensor_pos[:, None, :]
-        return z, cov, states
-
-    def _covariance(
-        self, joints: Array, states: NDArray[np.int8], occluded: NDArray[np.bool_]
-    ) -> Array:
-        """World covariances ``(S, 25, 3, 3)`` of all sensors' joints at once (the model of
-        :func:`kinefuse.fusion.best._measurement_cov`)."""
-        opt = self.options.best
-        if not opt.covariance:
-            return np.broadcast_to(np.eye(3) * 0.03**2, (*joints.shape[:2], 3, 3)).copy()
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ray = np.nan_to_num(joints / np.linalg.norm(joints, axis=-1, keepdims=True))
-        inflate = np.where(states == TrackingState.INFERRED, opt.inferred_inflation, 1.0)
-        inflate = inflate * np.where(occluded, opt.occluded_inflation, 1.0)
-        lat2 = np.asarray(opt.lateral_m) ** 2 * inflate**2
-        ax2 = np.asarray(opt.axial_m) ** 2 * inflate**2
-        outer = ray[..., :, None] * ray[..., None, :]
-        cov_s = lat2[..., None, None] * (np.eye(3) - outer) + ax2[..., None, None] * outer
-        r = self._r
-        return np.einsum("sab,sjbc,sdc->sjad", r, cov_s, r)
-
-    def _correct_swaps(self, z: Array, cov: Array, states: NDArray[np.int8]) -> None:
-        """Mirror, in place, the ambiguous sensors that contradict the facing consensus."""
-        facing = _facing_fast(z)  # (S, 3)
-        trunk = z[:, _TRUNK]
-        n_ok = np.isfinite(trunk).all(-1).sum(1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            centre = np.where(np.isfinite(trunk), trunk, 0.0).sum(1) / n_ok[:, None]
-            toward = self._sensor_pos - centre
-            toward[:, 2] = 0.0
-            toward /= np.linalg.norm(toward, axis=1, keepdims=True)
-        ok = np.isfinite(facing).all(1) & np.isfinite(toward).all(1)
-        if not ok.any():
-            return
-        amb = (np.nan_to_num(facing) * np.nan_to_num(toward)).sum(1) > 0
-        w = np.where(amb, 0.5, 1.0) * ok
-        vote = (np.nan_to_num(facing) * w[:, None]).sum(0)
-        if self._facing is not None:
-            vote = vote + self.options.facing_prior_weight * self._facing
-        n = np.linalg.norm(vote)
-        if n < 1e-9:
-            return
-        consensus = vote / n
-        flip = ok & amb & ((np.nan_to_num(facing) @ consensus) < 0)
-        for i in np.flatnonzero(flip):
-            z[i] = z[i][_MIRROR]
-            cov[i] = cov[i][_MIRROR]
-            states[i] = states[i][_MIRROR]
-
-    def _filter(self, t: float, x: Array, cov_x: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
-        """Predict the per-joint, per-axis constant-velocity filter to ``t`` and update it with
-        the fused measurement ``x (25, 3)``; returns position, variance and which joints are
-        alive (seen within ``max_predict_s``)."""
-        opt = self.options.best
-        d = 0.0 if self._t is None else max(t - self._t, 0.0)
-        self._t = t if self._t is None else max(t, self._t)
-        q = np.asarray(opt.accel_psd)[:, None]
-        x_ = self._x + d * self._v
-        pxx = self._pxx + 2 * d * self._pxv + d * d * self._pvv + q * d**3 / 3
-        pxv = self._pxv + d * self._pvv + q * d**2 / 2
-        pvv = self._pvv + q * d
-        r = np.diagonal(cov_x, axis1=-2, axis2=-1)
-        has = np.isfinite(x) & np.isfinite(r)
-        z0 = np.where(has, x, 0.0)
-        r0 = np.where(has, r, 1.0)
-        init = has & ~self._started
-        self._started |= has
-        s = pxx + r0
-        kx = np.where(has, pxx / s, 0.0)
-        kv = np.where(has, pxv / s, 0.0)
-        innov = z0 - x_
-        x_ = x_ + kx * innov
-        v = self._v + kv * innov
-        pxx, pxv, pvv = (1 - kx) * pxx, (1 - kx) * pxv, pvv - kv * pxv
-        self._x = np.where(init, z0, x_)
-        self._v = np.where(init, 0.0, v)
-        self._pxx = np.where(init, r0, pxx)
-        self._pxv = np.where(init, 0.0, pxv)
-        self._pvv = np.where(init, 1.0, pvv)  # 1 m/s a priori
-        self._last_seen = np.where(has, t, self._last_seen)
-        alive = self._started & (t - self._last_seen <= opt.max_predict_s)
-        return self._x.copy(), self._pxx.mean(-1), np.asarray(alive.all(-1))
-
-    def _bones(self, pos: Array, var: Array, good: NDArray[np.bool_]) -> tuple[Array, Array]:
-        """Update the running bone lengths from well-observed joints; project onto them.
-
-        Returns the projected positions and each joint's largest bone deviation before the
-        projection, in units of the allowed one (NaN where no bone of the joint is known yet).
-        """
-        pa, ch = _BONES[:, 0], _BONES[:, 1]
-        seg = pos[ch] - pos[pa]
-        length = np.linalg.norm(seg, axis=-1)
-        ok = good[pa] & good[ch] & np.isfinite(length)
-        # robust running mean: innovations clipped at 3 sigma once a bone has a few samples
-        n = self._bone_n
-        sigma = np.sqrt(self._bone_var / np.maximum(n, 1)) + 0.01
-        innov = np.where(n >= 5, np.clip(length - self._bone_len, -3 * sigma, 3 * sigma),
-                         length - self._bone_len)  # fmt: skip
-        upd = ok & np.isfinite(innov)
-        n_new = n + upd
-        step = np.where(upd, innov / np.maximum(n_new, 1), 0.0)
-        self._bone_len = self._bone_len + step
-        self._bone_var = self._bone_var + np.where(upd, innov * (innov - step), 0.0)
-        self._bone_n = n_new
-        known = self._bone_n >= self.options.bone_min_samples
-        # deviation relative to the tolerance: > 1 breaks the bone (short bones, the hands' and
-        # feet's, get an absolute floor of 3 cm, about their trackers' noise)
-        allowed = np.maximum(self.options.bone_tolerance * self._bone_len, 0.03)
-        dev_bone = np.where(known, np.abs(length - self._bone_len) / allowed, np.nan)
-        dev = np.full(N_JOINTS, np.nan)
-        np.fmax.at(dev, pa, dev_bone)
-        np.fmax.at(dev, ch, dev_bone)
-        # one Gauss-Seidel sweep over the bones from the root out, each end moving in proportion
-        # to its variance; plain floats, as the sweep is sequential and the arrays tiny
-        out = pos.tolist()
-        vv = np.where(np.isfinite(var), var, np.inf).tolist()
-        lengths = self._bone_len.tolist()
-        for b in np.flatnonzero(known & np.isfinite(length) & (length > 1e-9)).tolist():
-            a, c = int(pa[b]), int(ch[b])
-            pa_, pc = out[a], out[c]
-            d = [pc[0] - pa_[0], pc[1] - pa_[1], pc[2] - pa_[2]]
-            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            if not norm > 1e-9:
-                continue
-            k = 1.0 - lengths[b] / norm
-            va, vc = vv[a], vv[c]
-            tot = va + vc
-            if math.isinf(vc) and not math.isinf(va):
-                wc = 1.0
-            elif math.isinf(va) and not math.isinf(vc):
-                wc = 0.0
-            else:
-                wc = vc / tot if math.isfinite(tot) and tot > 0 else 0.5
-            for ax in range(3):
-                corr = d[ax] * k
-                pc[ax] -= wc * corr
-                pa_[ax] += (1.0 - wc) * corr
-        return np.array(out), dev
+        occ = (np.zeros(N_JOINTS, bool) if occluded is None
+               else np.asarray(occluded, dtype=bool).reshape(N_JOINTS))  # fmt: skip
+        self._buffers.add(sensor, t, j, st, occ)
 
     def fuse(self, t_server_s: float) -> LiveFrame:
         """The skeleton at ``t_server_s`` from everything pushed so far; advances the filter.
@@ -375,77 +275,312 @@ class LiveFusion:
         Frame times should not go backwards (an earlier time is fused as a prediction-free
         update at the filter's current time)."""
         t = float(t_server_s)
-        z, cov, states = self._measurements(t)
+        b = self._buffers
+        joints, states, occ, age = self._at(np.array([t]), np.array([np.inf]), b.t, b.count,
+                                            b.joints, b.states, b.occ)  # fmt: skip
+        z, cov, evidence = self._prepare(joints, states, occ, age)
+        ev = None if evidence is None else (evidence[0][0], evidence[1][0], evidence[2][0])
+        return self._frame(t, z[0], cov[0], states[0], ev)
+
+    # -- the parts of a frame ------------------------------------------------------------------
+
+    def _at(
+        self, t: Array, available: Array, times: Array, count: NDArray[np.intp], joints: Array,
+        states: NDArray[np.int8], occ: NDArray[np.bool_] | None,
+    ) -> tuple[Array, NDArray[np.int8], NDArray[np.bool_], Array]:  # fmt: skip
+        b = self.options.best
+        return sensor_at(t, available, times, count, joints, states, occ,
+                         max_gap_s=b.max_interp_gap_s, max_hold_s=self.options.max_hold_s,
+                         timestamp=b.timestamp)  # fmt: skip
+
+    def _prepare(
+        self, joints: Array, states: NDArray[np.int8], occ: NDArray[np.bool_], age: Array
+    ) -> tuple[Array, Array, tuple[Array, NDArray[np.bool_], Array] | None]:
+        """Frames' ``(T, S, ...)`` sensor joints -> world measurements, covariances and, when
+        swaps are corrected, the swap evidence (facing, ambiguous, vote ``(T, 3)``)."""
+        b = self.options.best
+        z, cov = world_measurements(
+            joints, states, occ, age, self._poses, lateral_m=self._lateral, axial_m=self._axial,
+            inferred_inflation=b.inferred_inflation, occluded_inflation=b.occluded_inflation,
+            covariance=b.covariance,
+        )  # fmt: skip
+        if not (b.lr_swap and self.n_sensors > 1):
+            return z, cov, None
+        f, amb, w = swap_evidence(z, self._sensor_pos)
+        return z, cov, (f, amb, swap_vote(f, w))
+
+    def _combine(self, z: Array, cov: Array) -> tuple[Array, Array, NDArray[np.intp]]:
+        b = self.options.best
+        return robust_combine(z, cov, robust=b.robust, gate_chi2=b.gate_chi2)
+
+    def _frame(
+        self,
+        t: float,
+        z: Array,
+        cov: Array,
+        states: NDArray[np.int8],
+        evidence: tuple[Array, NDArray[np.bool_], Array] | None,
+    ) -> LiveFrame:
+        """One frame: :meth:`_step` then :meth:`_finish`."""
+        pos, var, alive, measured, used, tracked = self._step(t, z, cov, states, evidence)
+        r = self._finish(pos[None], var[None], alive[None], measured[None], used[None],
+                         tracked[None])  # fmt: skip
+        return LiveFrame(t, r[0][0], r[1][0], r[2][0], r[3][0])
+
+    def _step(
+        self,
+        t: float,
+        z: Array,
+        cov: Array,
+        states: NDArray[np.int8],
+        evidence: tuple[Array, NDArray[np.bool_], Array] | None,
+        guess: _Guess | None = None,
+    ) -> _Step:
+        """The sequential part of a frame, from its measurements ``z (S, 25, 3)``, ``cov (S, 25,
+        3, 3)``, ``states (S, 25)``: the swap decision (with the filter's facing so far), the
+        combination (``guess``'s if it assumed the same swaps) and the filter.
+
+        Returns the filter's position ``(25, 3)`` and variance ``(25,)``, which joints are alive
+        and measured, the sensors used and the TRACKED sensors per joint ``(25,)``."""
         opt = self.options
-        if opt.best.lr_swap and self.n_sensors > 1:
-            self._correct_swaps(z, cov, states)
-        x, cov_x, used = _combine(z, cov, opt.best)
+        flips = None
+        if evidence is not None:
+            f, amb, vote = evidence
+            flips = decide_flips(f, amb, vote, self._facing, opt.facing_prior_weight)
+        if flips is not None and not flips.any():
+            flips = None
+        if guess is not None and (
+            (not guess.flips.any()) if flips is None else np.array_equal(guess.flips, flips)
+        ):
+            x, cov_x, used = guess.x, guess.cov_x, guess.used
+            if flips is not None:
+                states = states.copy()
+                states[flips] = states[flips][:, _MIRROR]
+                z = z.copy()
+                z[flips] = z[flips][:, _MIRROR]
+        else:
+            if flips is not None:
+                z, cov, states = z.copy(), cov.copy(), states.copy()
+                for i in np.flatnonzero(flips):
+                    z[i], cov[i], states[i] = z[i][_MIRROR], cov[i][_MIRROR], states[i][_MIRROR]
+            xx, cc, uu = self._combine(z[None], cov[None])
+            x, cov_x, used = xx[0], cc[0], uu[0]
+        self.last_measurement = (x, cov_x)
         pos, var, alive = self._filter(t, x, cov_x)
-        measured = np.isfinite(x).all(-1)
-        present = np.isfinite(z).all(-1)  # (S, 25)
-        tracked = (present & (states == TrackingState.TRACKED)).sum(0)
-        status = np.full(N_JOINTS, FusionStatus.OK, dtype=np.int8)
+        measured = np.asarray(np.isfinite(x).all(-1))
+        tracked = np.asarray((np.isfinite(z).all(-1) & (states == TrackingState.TRACKED)).sum(0))
+        # the body's facing so far, from the filter (hips and shoulders alive)
+        h = pos[_FACING_JOINTS, :2].tolist()
+        lr0 = h[0][0] - h[1][0] + h[2][0] - h[3][0]
+        lr1 = h[0][1] - h[1][1] + h[2][1] - h[3][1]
+        n = math.hypot(lr0, lr1)
+        if alive[_FACING_JOINTS].all() and n > 1e-6:
+            self._facing = np.array([lr1 / n, -lr0 / n, 0.0])
+        return pos, var, alive, measured, used, tracked
+
+    def _finish(
+        self,
+        pos: Array,
+        var: Array,
+        alive: NDArray[Any],
+        measured: NDArray[Any],
+        used: NDArray[Any],
+        tracked: NDArray[Any],
+    ) -> tuple[Array, Array, NDArray[np.int8], NDArray[np.intp]]:
+        """Frames ``(T, 25, ...)`` of :meth:`_step` results -> positions, variances, status and
+        sensors used: statuses, the running bone lengths (updated frame by frame, in order) and
+        the projection onto them."""
+        status = np.full(pos.shape[:2], FusionStatus.OK, dtype=np.int8)
         status[measured & (used <= 1)] = FusionStatus.SINGLE_SENSOR
         status[measured & (tracked == 0)] = FusionStatus.INFERRED_ONLY
         good = alive & measured & (used >= 2) & (tracked >= 1)
-        if opt.best.bones:
+        if self.options.best.bones:
             pos, dev = self._bones(pos, var, good)
             broken = measured & (dev > 1.0)
             status[broken] = np.maximum(status[broken], FusionStatus.BONE_LENGTH)
         status[~measured] = FusionStatus.PREDICTED
         status[~alive] = FusionStatus.NO_DATA
-        pos = np.where(alive[:, None], pos, np.nan)
+        pos = np.where(alive[..., None], pos, np.nan)
         var = np.where(alive, var, np.nan)
-        f = _facing_fast(pos)
-        if np.isfinite(f).all():
-            self._facing = f
-        return LiveFrame(t, pos, var, status, np.asarray(used, dtype=np.intp))
+        return pos, var, status, np.asarray(used, dtype=np.intp)
+
+    def _filter(self, t: float, x: Array, cov_x: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
+        """Predict the per-joint, per-axis constant-velocity filter to ``t`` and update it with
+        the fused measurement ``x (25, 3)``; returns position, variance and which joints are
+        alive (seen within ``max_predict_s``)."""
+        d = 0.0 if self._t is None else max(t - self._t, 0.0)
+        self._t = t if self._t is None else max(t, self._t)
+        r = np.diagonal(cov_x, axis1=-2, axis2=-1)
+        pred, alive = kalman_step(self._kf, t, d, x, r, self._q, self.options.best.max_predict_s,
+                                  predicted=self.record)  # fmt: skip
+        if pred is not None:
+            self.last_moments = (pred, self._kf.moments())
+        p = self._kf.pxx
+        return self._kf.x.copy(), (p[:, 0] + p[:, 1] + p[:, 2]) / 3, np.asarray(alive.all(-1))
+
+    def _bones(self, pos: Array, var: Array, good: NDArray[np.bool_]) -> tuple[Array, Array]:
+        """Frames ``(T, 25, 3)``: update the running bone lengths from well-observed joints,
+        frame by frame; project each frame onto the lengths known at it.
+
+        Returns the projected positions and each joint's largest bone deviation before the
+        projection, in units of the allowed one (NaN where no bone of the joint is known yet).
+        """
+        pa, ch = _BONES[:, 0], _BONES[:, 1]
+        seg = pos[:, ch] - pos[:, pa]
+        length = np.sqrt(seg[..., 0] ** 2 + seg[..., 1] ** 2 + seg[..., 2] ** 2)  # (T, 24)
+        ok = good[:, pa] & good[:, ch] & np.isfinite(length)
+        lengths = np.empty(length.shape)
+        counts = np.empty(length.shape, dtype=np.int64)
+        for k in range(length.shape[0]):
+            # robust running mean: innovations clipped at 3 sigma once a bone has a few samples
+            n = self._bone_n
+            innov = length[k] - self._bone_len
+            sigma = np.sqrt(self._bone_var / np.maximum(n, 1)) + 0.01
+            innov = np.where(n >= 5, np.clip(innov, -3 * sigma, 3 * sigma), innov)
+            upd = ok[k] & np.isfinite(innov)
+            n_new = n + upd
+            step = np.where(upd, innov / np.maximum(n_new, 1), 0.0)
+            self._bone_len = self._bone_len + step
+            self._bone_var = self._bone_var + np.where(upd, innov * (innov - step), 0.0)
+            self._bone_n = n_new
+            lengths[k], counts[k] = self._bone_len, n_new
+        known = counts >= self.options.bone_min_samples
+        # deviation relative to the tolerance: > 1 breaks the bone (short bones, the hands' and
+        # feet's, get an absolute floor of 3 cm, about their trackers' noise)
+        allowed = np.maximum(self.options.bone_tolerance * lengths, 0.03)
+        dev_bone = np.where(known, np.abs(length - lengths) / allowed, np.nan)
+        padded = np.concatenate([dev_bone, np.full((len(dev_bone), 1), np.nan)], axis=1)
+        dev = np.fmax.reduce(padded[:, _JOINT_BONES], axis=-1)  # (T, 25)
+        # one sweep over the bones, in groups that share no joint (so each group moves at
+        # once), each end moving in proportion to its variance (the variances do not change
+        # during the sweep: each bone's share is known before it)
+        out = pos.copy()
+        vv = np.where(np.isfinite(var), var, np.inf)
+        va, vc = vv[:, pa], vv[:, ch]
+        inf_a, inf_c = np.isinf(va), np.isinf(vc)
+        tot = va + vc
+        with np.errstate(invalid="ignore", divide="ignore"):
+            wc_all = np.where(np.isfinite(tot) & (tot > 0), vc / tot, 0.5)
+            wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
+            movable = known & np.isfinite(length) & (length > 1e-9)
+            for group in _BONE_GROUPS:
+                a, c = pa[group], ch[group]
+                d = out[:, c] - out[:, a]
+                norm = np.sqrt((d * d).sum(-1))
+                move = movable[:, group] & (norm > 1e-9)
+                shrink = np.where(move, 1.0 - lengths[:, group] / norm, 0.0)[..., None]
+                corr = np.where(move[..., None], d * shrink, 0.0)
+                wc = wc_all[:, group, None]
+                out[:, c] -= wc * corr
+                out[:, a] += (1.0 - wc) * corr
+        return out, dev
 
 
-def _facing_fast(p: Array) -> Array:
-    """:func:`kinefuse.fusion.best._facing` for ``(..., 25, 3)`` without ``np.cross``: the
-    horizontal unit normal to the left-right axis of hips and shoulders (NaN: none)."""
-    lr = (p[..., _HIP_L, :] - p[..., _HIP_R, :]) + (p[..., _SH_L, :] - p[..., _SH_R, :])
-    f = np.stack([lr[..., 1], -lr[..., 0], np.zeros_like(lr[..., 0])], axis=-1)
-    n = np.sqrt(f[..., 0] ** 2 + f[..., 1] ** 2)[..., None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 1e-6, f / n, np.nan)
+def replay_streams(
+    streams: Sequence[BodyFrames],
+    sensor2world: ArrayLike,
+    grid_s: Array,
+    options: LiveOptions = LiveOptions(),
+    *,
+    record: bool = False,
+) -> dict[str, Array]:
+    """Run :class:`LiveFusion` over recorded streams as a live server would have.
 
+    Before frame ``T`` is fused, every observation captured up to ``T + options.latency_s`` has
+    arrived; nothing later is seen. The measurements of every frame (which depend only on the
+    observations) are prepared in batches; the swap decision, filter and bone lengths then run
+    frame by frame through the same :class:`LiveFusion` code as a live server's, so the result
+    equals pushing and fusing frame by frame (a sensor's buffer aside: the replay looks up
+    every arrived observation, a live buffer keeps the last ``options.buffer``, which covers
+    the latency budget at any real frame rate).
 
-def _combine(z: Array, cov: Array, opt: BestOptions) -> tuple[Array, Array, NDArray[np.intp]]:
-    """One frame of :func:`kinefuse.fusion.best._robust_combine`: ``(S, 25, 3)`` measurements
-    with ``(S, 25, 3, 3)`` covariances -> fused ``(25, 3)``, its covariance and the sensors
-    used; written for small arrays (batched LAPACK inverses, no per-frame batching axis)."""
-    valid = np.asarray(np.isfinite(z).all(-1) & np.isfinite(cov).all((-1, -2)))  # (S, 25)
-    eye = np.eye(3)
-    w_mat = np.linalg.inv(np.where(valid[..., None, None], cov, eye))
-    w_mat[~valid] = 0.0
-    zz = np.where(valid[..., None], z, 0.0)
-    wz = np.einsum("sjab,sjb->sja", w_mat, zz)  # W z per measurement
-    rw = valid.astype(np.float64)
-    has = np.asarray(valid.any(axis=0))
-    n_iter = 4 if opt.robust else 1
-    info = np.zeros((N_JOINTS, 3, 3))
-    x = np.zeros((N_JOINTS, 3))
-    for it in range(n_iter):
-        info = np.einsum("s,sjab->jab", np.ones(len(z)), w_mat * rw[..., None, None])
-        rhs = (wz * rw[..., None]).sum(axis=0)
-        info[~has] = eye
-        x = np.asarray(np.linalg.solve(info, rhs[..., None])[..., 0])
-        if not opt.robust or it == n_iter - 1:
-            break
-        r = zz - x[None]
-        d2 = np.einsum("sja,sjab,sjb->sj", r, w_mat, r)
-        rw = valid * np.minimum(1.0, np.sqrt(opt.gate_chi2 / np.maximum(d2, 1e-12)))
-        far = d2 > 4 * opt.gate_chi2
-        keep_some = (valid & ~far).any(axis=0)
-        rw = np.where(far & keep_some[None], 0.0, rw)
-        has = np.asarray(rw.sum(axis=0) > 0)
-    used = np.asarray((rw > 0.2).sum(axis=0), dtype=np.intp)
-    cov_x = np.asarray(np.linalg.inv(info), dtype=np.float64)
-    x[~has] = np.nan
-    cov_x[~has] = np.nan
-    return x, cov_x, used
+    Parameters
+    ----------
+    streams : list of BodyFrames
+        Capture times on the server clock (``t_server_s``), increasing per stream.
+    sensor2world : (S, 4, 4) float
+    grid_s : (T,) float
+        Frame times, increasing.
+    record : bool
+        Also return the filter's moments and the combined measurements (for a smoother).
+
+    Returns
+    -------
+    dict
+        ``positions (T, 25, 3)``, ``variance_m2 (T, 25)``, ``status (T, 25) int8``,
+        ``n_sensors (T, 25)``; with ``record``: ``predicted``, ``filtered`` ``(5, T, 25, 3)``,
+        ``measurement (T, 25, 3)``, ``measurement_cov (T, 25, 3, 3)``.
+    """
+    fusion = LiveFusion(sensor2world, options)
+    fusion.record = record
+    grid = np.asarray(grid_s, dtype=np.float64)
+    n_t, n_s = grid.size, fusion.n_sensors
+    if len(streams) != n_s:
+        raise FusionError(f"{len(streams)} streams for {n_s} sensor poses; give one pose each")
+    ordered = []  # each stream in capture order (the order a live buffer keeps)
+    for s in streams:
+        if not np.isfinite(s.t_server_s).all():
+            raise FusionError(f"sensor {s.sensor_id!r}: capture times must be finite")
+        inc = s.t_server_s.size < 2 or bool((np.diff(s.t_server_s) >= 0).all())
+        ordered.append(s if inc else s.take(np.argsort(s.t_server_s, kind="stable")))
+    out = {
+        "positions": np.full((n_t, N_JOINTS, 3), np.nan),
+        "variance_m2": np.full((n_t, N_JOINTS), np.nan),
+        "status": np.full((n_t, N_JOINTS), FusionStatus.NO_DATA, dtype=np.int8),
+        "n_sensors": np.zeros((n_t, N_JOINTS), dtype=np.intp),
+    }
+    if record:
+        out["predicted"] = np.full((5, n_t, N_JOINTS, 3), np.nan)
+        out["filtered"] = np.full((5, n_t, N_JOINTS, 3), np.nan)
+        out["measurement"] = np.full((n_t, N_JOINTS, 3), np.nan)
+        out["measurement_cov"] = np.full((n_t, N_JOINTS, 3, 3), np.nan)
+    for a in range(0, n_t, _CHUNK):
+        tg = grid[a : a + _CHUNK]
+        avail = tg + options.latency_s
+        m = tg.size
+        joints = np.full((m, n_s, N_JOINTS, 3), np.nan)
+        states = np.zeros((m, n_s, N_JOINTS), np.int8)
+        occ = np.zeros((m, n_s, N_JOINTS), bool)
+        age = np.zeros((m, n_s))
+        for i, s in enumerate(ordered):
+            if s.n_frames == 0:
+                continue
+            o = None if s.occluded is None else s.occluded[None]
+            j, st, oc, ag = fusion._at(tg, avail, s.t_server_s[None], np.array([s.n_frames]),
+                                       s.joints_m[None], s.states[None], o)  # fmt: skip
+            joints[:, i], states[:, i], occ[:, i], age[:, i] = j[:, 0], st[:, 0], oc[:, 0], ag[:, 0]
+        z, cov, evidence = fusion._prepare(joints, states, occ, age)
+        # a guess of each frame's swaps (the vote without the fused facing so far): frames
+        # whose actual decision differs are combined again on their own
+        if evidence is None:
+            flips = np.zeros((m, n_s), bool)
+        else:
+            f, amb, vote = evidence
+            dots = (f * vote[:, None, :]).sum(-1)
+            flips = amb & (dots < 0) & ((vote * vote).sum(-1) >= 1e-18)[:, None]
+        zg, cg = z, cov
+        if flips.any():
+            zg, cg = z.copy(), cov.copy()
+            tt, ss = np.nonzero(flips)
+            zg[tt, ss] = z[tt, ss][:, _MIRROR]
+            cg[tt, ss] = cov[tt, ss][:, _MIRROR]
+        x, cov_x, used = fusion._combine(zg, cg)
+        steps = []
+        for k in range(m):
+            ev = None if evidence is None else (evidence[0][k], evidence[1][k], evidence[2][k])
+            guess = _Guess(flips[k], x[k], cov_x[k], used[k])
+            steps.append(fusion._step(float(tg[k]), z[k], cov[k], states[k], ev, guess))
+            if record:
+                assert fusion.last_moments is not None and fusion.last_measurement is not None
+                g = a + k
+                out["predicted"][:, g], out["filtered"][:, g] = fusion.last_moments
+                out["measurement"][g], out["measurement_cov"][g] = fusion.last_measurement
+        sl = slice(a, a + m)
+        stacked = [np.stack(v) for v in zip(*steps, strict=True)]
+        res = fusion._finish(*stacked)
+        out["positions"][sl], out["variance_m2"][sl], out["status"][sl] = res[:3]
+        out["n_sensors"][sl] = res[3]
+    return out
 
 
 def replay(
@@ -458,10 +593,7 @@ def replay(
     *,
     occluded: list[NDArray[np.bool_] | None] | None = None,
 ) -> tuple[Array, Array, NDArray[np.int8], NDArray[np.intp]]:
-    """Run :class:`LiveFusion` over recorded streams as a live server would have.
-
-    Before frame ``T`` is fused, every observation captured up to ``T + options.latency_s`` is
-    pushed, in capture order across sensors; nothing later is seen.
+    """:func:`replay_streams` of streams given as arrays per sensor.
 
     Parameters
     ----------
@@ -476,22 +608,11 @@ def replay(
     -------
     positions (T, 25, 3), variance_m2 (T, 25), status (T, 25) int8, n_sensors (T, 25)
     """
-    fusion = LiveFusion(sensor2world, options)
     occ = occluded if occluded is not None else [None] * len(t_server_s)
-    events = sorted((float(t), i, k) for i, ts in enumerate(t_server_s) for k, t in enumerate(ts))
-    n_t = len(grid_s)
-    pos = np.full((n_t, N_JOINTS, 3), np.nan)
-    var = np.full((n_t, N_JOINTS), np.nan)
-    status = np.full((n_t, N_JOINTS), FusionStatus.NO_DATA, dtype=np.int8)
-    used = np.zeros((n_t, N_JOINTS), dtype=np.intp)
-    e = 0
-    for f, t in enumerate(np.asarray(grid_s, dtype=np.float64)):
-        while e < len(events) and events[e][0] <= t + options.latency_s:
-            _, i, k = events[e]
-            o = occ[i]
-            fusion.push(i, events[e][0], joints_sensor[i][k], states[i][k],
-                        None if o is None else o[k])  # fmt: skip
-            e += 1
-        fr = fusion.fuse(float(t))
-        pos[f], var[f], status[f], used[f] = fr.positions, fr.variance_m2, fr.status, fr.n_sensors
-    return pos, var, status, used
+    streams = [
+        BodyFrames.on_server_clock(t, j, st, occluded=o)
+        for t, j, st, o in zip(t_server_s, joints_sensor, states, occ, strict=True)
+    ]
+    r = replay_streams(streams, sensor2world, grid_s, options)
+    return (r["positions"], r["variance_m2"], r["status"].astype(np.int8),
+            r["n_sensors"].astype(np.intp))  # fmt: skip

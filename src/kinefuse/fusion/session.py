@@ -1,13 +1,15 @@
-"""The server's side of fusion on a recorded session: clocks, frames, methods.
+"""The server's side of fusion on a recorded session: the frame grid and the methods.
 
-Everything here uses only what a real server has: the sensors' observations with their device
-timestamps and the client PCs' receive times, the clock probes, the sensors' intrinsics and a
-calibration (sensor poses). The truth is never read (``--true-calibration`` hands in true poses
-explicitly, for evaluation only).
+Everything here uses only what a real server has: each sensor's observations with their
+capture times on the server clock and the client's occlusion flags, and a calibration (sensor
+poses). It reads no store and no clock: :mod:`kinefuse.pipeline` reads a session and hands the
+sensors in (:func:`kinefuse.pipeline.load_sensors`) and times the methods. The truth is never
+read (``--true-calibration`` hands in true poses explicitly, for evaluation only).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,13 +17,11 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import FusionError
-from kinefuse.fusion.best import BestOptions, SensorStream, fuse_best
+from kinefuse.fusion.best import BestOptions, fuse_best
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
-from kinefuse.io.store import Observations, SessionStore
-from kinefuse.occlusion.segments import detect_occlusion
-from kinefuse.skeleton import N_JOINTS
-from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest, sensor_timebase
+from kinefuse.observations import BodyFrames
+from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest
 
 Array = NDArray[np.float64]
 
@@ -30,19 +30,60 @@ Array = NDArray[np.float64]
 METHODS = ("linear", "geometric", "nonlinear", "paper", "best", "best-live")
 
 
-@dataclass(frozen=True)
-class SensorData:
-    """One sensor as the server knows it."""
+@dataclass(frozen=True, eq=False)
+class CalibratedSensor:
+    """One sensor as the server knows it.
 
-    id: str
+    Attributes
+    ----------
+    observations : BodyFrames
+        Its stream, with capture times on the server clock (``t_server_s``) and the client's
+        occlusion flags and crossing counts (``occluded``, ``n_crossings``) filled in.
+    intrinsics : Intrinsics
+    sensor2world : (4, 4) float
+        Its calibrated pose.
+    timebase : SensorTimebase or None
+        Device -> host -> server clock mapping (from the clock probes).
+    """
+
+    observations: BodyFrames
     intrinsics: Intrinsics
     sensor2world: Array
-    clock: ClockEstimate  # the client PC's clock against the server's (from the probes)
-    observations: Observations
-    t_server_s: Array  # capture times on the server clock
-    occluded: NDArray[np.bool_]  # (N, 25) the client's occlusion flags
-    n_intersections: NDArray[np.int64]  # (N,)
-    timebase: SensorTimebase | None = None  # device -> host -> server
+    timebase: SensorTimebase | None = None
+
+    def __post_init__(self) -> None:
+        o = self.observations
+        if not np.isfinite(o.t_server_s).all() or o.occluded is None or o.n_crossings is None:
+            raise FusionError(
+                f"sensor {o.sensor_id!r}: fusion needs every frame's capture time on the server "
+                "clock and occlusion flags; build the sensor with kinefuse.pipeline.load_sensors"
+            )
+
+    @property
+    def id(self) -> str:
+        return self.observations.sensor_id
+
+    @property
+    def clock(self) -> ClockEstimate | None:
+        """The client PC's clock against the server's (from the probes)."""
+        return None if self.timebase is None else self.timebase.host
+
+    @property
+    def t_server_s(self) -> Array:
+        """``(N,)`` capture times on the server clock, seconds."""
+        return self.observations.t_server_s
+
+    @property
+    def occluded(self) -> NDArray[np.bool_]:
+        """``(N, 25)`` the client's occlusion flags."""
+        assert self.observations.occluded is not None  # checked in __post_init__
+        return self.observations.occluded
+
+    @property
+    def n_intersections(self) -> NDArray[np.int64]:
+        """``(N,)`` the client's bone-crossing counts."""
+        assert self.observations.n_crossings is not None  # checked in __post_init__
+        return self.observations.n_crossings
 
 
 @dataclass(frozen=True)
@@ -53,67 +94,13 @@ class MethodResult:
     t_server_s: Array  # (T,)
     positions: Array  # (T, 25, 3) world, NaN where NO_DATA
     status: NDArray[np.int8]  # (T, 25) FusionStatus
-    seconds: float  # wall time the method took (for reports)
+    seconds: float  # wall time the method took (for reports; measured by the pipeline)
     #: (T, 25) a per-joint quality, metres, NaN where none: for ``best`` the RMS 3D position
     #: uncertainty of the filter, for the range methods the RMS range residual of the solution
     residual_m: Array | None = None
 
 
-def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[SensorData]:
-    """Read every sensor's stream, estimate its clock, run the client-side occlusion test.
-
-    Parameters
-    ----------
-    poses : dict
-        ``sensor id -> sensor2world (4, 4)`` from a calibration.
-    """
-    out = []
-    sensors = store.sensors()
-    if not sensors:
-        raise FusionError(f"{store.path}: the session has no sensors")
-    missing = [s.id for s in sensors if s.id not in poses]
-    if missing:
-        raise FusionError(
-            f"the calibration has no pose for sensor(s) {', '.join(missing)}; calibrate the "
-            "session again (kinefuse calibrate) or pass a calibration that covers every sensor"
-        )
-    for s in sensors:
-        obs = store.observations(s.id)
-        probes = store.clock_probes(s.id)
-        if len(probes) == 0:
-            raise FusionError(
-                f"sensor {s.id}: no clock probes in the session, so its timestamps cannot be put "
-                "on the server clock; record with clock sync enabled"
-            )
-        # device timestamps -> the client's clock (from each frame's arrival) -> the server's
-        timebase = sensor_timebase(probes, obs.t_sensor_s, obs.t_receive_host_s)
-        clock = timebase.host
-        if obs.occluded is not None and obs.n_crossings is not None:
-            occluded, crossings = obs.occluded, obs.n_crossings  # the client's own flags
-        elif obs.n_frames:
-            # the client sent none (simulated sessions): run its test here, on its data only
-            occ = detect_occlusion(obs.joints_m, s.intrinsics)
-            occluded, crossings = occ.occluded, occ.n_intersections
-        else:
-            occluded = np.zeros((0, N_JOINTS), bool)
-            crossings = np.zeros(0, dtype=np.int64)
-        out.append(
-            SensorData(
-                id=s.id,
-                intrinsics=s.intrinsics,
-                sensor2world=np.asarray(poses[s.id], dtype=np.float64),
-                clock=clock,
-                observations=obs,
-                t_server_s=timebase.to_server(obs.t_sensor_s),
-                occluded=occluded,
-                n_intersections=crossings,
-                timebase=timebase,
-            )
-        )
-    return out
-
-
-def frame_grid(sensors: list[SensorData], rate_hz: float = 30.0) -> Array:
+def frame_grid(sensors: Sequence[CalibratedSensor], rate_hz: float = 30.0) -> Array:
     """Server frame times ``(T,)`` at ``rate_hz`` over the span where any sensor saw a body."""
     spans = []
     for s in sensors:
@@ -146,7 +133,7 @@ def clip_grid(grid: Array, start_s: float | None, end_s: float | None) -> Array:
 
 
 def run_method(
-    sensors: list[SensorData],
+    sensors: Sequence[CalibratedSensor],
     grid: Array,
     method: str,
     *,
@@ -155,12 +142,11 @@ def run_method(
     occlusion_compensation: bool = True,
 ) -> MethodResult:
     """Fuse with one method. The paper's methods use the paper's frame assembly (each sensor's
-    latest observation in the frame window); ``best`` interpolates at capture times."""
-    import time
+    latest observation in the frame window); ``best`` interpolates at capture times.
 
+    The result's ``seconds`` is NaN: :func:`kinefuse.pipeline.run_method` times the call."""
     if method not in METHODS:
         raise FusionError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
-    t0 = time.perf_counter()
     if method == "best-live":
         from kinefuse.fusion.live import LiveOptions, replay
 
@@ -176,17 +162,12 @@ def run_method(
         )
         residual = np.sqrt(3.0 * var)
     elif method == "best":
-        streams = [
-            SensorStream(
-                t_server_s=s.t_server_s,
-                joints_sensor=s.observations.joints_m,
-                states=s.observations.states,
-                sensor2world=s.sensor2world,
-                occluded=s.occluded,
-            )
-            for s in sensors
-        ]
-        fused = fuse_best(streams, grid, best_options or BestOptions())
+        fused = fuse_best(
+            [s.observations for s in sensors],
+            np.stack([s.sensor2world for s in sensors]),
+            grid,
+            best_options or BestOptions(),
+        )
         pos = fused.positions
         status = np.where(np.isfinite(pos).all(-1), FusionStatus.OK, FusionStatus.NO_DATA).astype(
             np.int8
@@ -227,7 +208,7 @@ def run_method(
         t_server_s=grid,
         positions=pos,
         status=np.asarray(status, dtype=np.int8),
-        seconds=time.perf_counter() - t0,
+        seconds=float("nan"),
         residual_m=residual,
     )
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +44,8 @@ from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import make_transform
-from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS
+from kinefuse.observations import BodyFrames
+from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
@@ -73,40 +74,97 @@ _AXES = np.array([-1.0, -1.0, 1.0])
 
 
 @dataclass(frozen=True, eq=False)
-class MultitrackStream:
-    """One sensor's rows of a KinectMultiTrack log, in file order.
+class MultitrackSensor:
+    """One sensor of a KinectMultiTrack log: its frames, and what the log says of the sensor.
 
     Attributes
     ----------
-    sensor_id : str
-        ``Kinect_Id`` (the sensor PC's IP address).
-    t_receive_s : (N,) float
-        Server receive time, seconds since the file's first ``Tracker_Time``.
-    t_sensor_s : (N,) float
-        The sensor's own clock (``Skeleton_Time``), seconds.
-    joints_m : (N, 25, 3) float
-        Joints in the reference sensor's frame (kinefuse sensor axes), metres, ``JOINTS`` order.
+    frames : BodyFrames
+        Its rows (file order from the reader; distinct frames in capture order after
+        :func:`unique_frames`): ``t_device_s`` the sensor's own clock (``Skeleton_Time``),
+        ``t_receive_server_s`` the receiving server's clock (``Tracker_Time``, seconds since the
+        file's first row), joints in the reference sensor's frame (kinefuse sensor axes),
+        metres, every joint TRACKED (the log has no tracking states); ``t_host_s`` unknown.
     scenario : (N,) int
-        ``Scenario_Id`` of each row.
+        ``Scenario_Id`` of each frame.
     init_angle_rad, init_dist_m : float
         Body yaw relative to this sensor and its distance when tracking started (NaN if absent).
     tilt_deg, height_m : float
         The sensor's tilt and height as logged (NaN if absent).
+    n_rows, n_duplicates, n_out_of_order : int
+        Rows in the file, rows that repeated an already-logged frame, and frames logged after a
+        frame captured later (0 until :func:`unique_frames` counts them).
     """
 
-    sensor_id: str
-    t_receive_s: Array
-    t_sensor_s: Array
-    joints_m: Array
+    frames: BodyFrames
     scenario: NDArray[np.int64]
     init_angle_rad: float
     init_dist_m: float
     tilt_deg: float
     height_m: float
+    n_rows: int
+    n_duplicates: int = 0
+    n_out_of_order: int = 0
+
+    @property
+    def sensor_id(self) -> str:
+        return self.frames.sensor_id
 
     @property
     def n_frames(self) -> int:
-        return int(self.t_receive_s.shape[0])
+        return self.frames.n_frames
+
+    @property
+    def t_sensor_s(self) -> Array:
+        """``(N,)`` the sensor's clock, seconds (``frames.t_device_s``)."""
+        return self.frames.t_device_s
+
+    @property
+    def t_receive_s(self) -> Array:
+        """``(N,)`` the server's receive time, seconds since the file's first row."""
+        return self.frames.t_receive_server_s
+
+    @property
+    def joints_m(self) -> Array:
+        """``(N, 25, 3)`` joints as logged (``frames.joints_m``), metres."""
+        return self.frames.joints_m
+
+
+def multitrack_sensor(
+    sensor_id: str,
+    t_receive_s: Array,
+    t_sensor_s: Array,
+    joints_m: Array,
+    scenario: NDArray[np.int64],
+    *,
+    init_angle_rad: float = float("nan"),
+    init_dist_m: float = float("nan"),
+    tilt_deg: float = float("nan"),
+    height_m: float = float("nan"),
+) -> MultitrackSensor:
+    """A sensor's logged rows ``(N,)`` times, ``(N, 25, 3)`` joints as a :class:`MultitrackSensor`
+    (sequence numbers are the row order; present joints TRACKED, NaN ones NOT_TRACKED)."""
+    j = np.asarray(joints_m, dtype=np.float64)
+    present = np.isfinite(j).all(-1)
+    n = j.shape[0]
+    frames = BodyFrames(
+        sensor_id=sensor_id,
+        seq=np.arange(n, dtype=np.int64),
+        t_device_s=t_sensor_s,
+        t_host_s=np.full(n, np.nan),  # unknown
+        joints_m=j,
+        states=np.where(present, TrackingState.TRACKED, TrackingState.NOT_TRACKED),
+        t_receive_server_s=t_receive_s,
+    )
+    return MultitrackSensor(
+        frames=frames,
+        scenario=np.asarray(scenario, dtype=np.int64),
+        init_angle_rad=init_angle_rad,
+        init_dist_m=init_dist_m,
+        tilt_deg=tilt_deg,
+        height_m=height_m,
+        n_rows=n,
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,16 +179,16 @@ class MultitrackRecording:
         files).
     t_receive_epoch_ms : int
         The first ``Tracker_Time``, milliseconds (the origin of every ``t_receive_s``).
-    streams : tuple of MultitrackStream
+    streams : tuple of MultitrackSensor
         One per sensor, in order of first appearance.
     """
 
     path: str
     kinect_config: int
     t_receive_epoch_ms: int
-    streams: tuple[MultitrackStream, ...]
+    streams: tuple[MultitrackSensor, ...]
 
-    def stream(self, sensor_id: str) -> MultitrackStream:
+    def stream(self, sensor_id: str) -> MultitrackSensor:
         for s in self.streams:
             if s.sensor_id == sensor_id:
                 return s
@@ -258,12 +316,12 @@ def read_kinect_multitrack(path: str | Path) -> MultitrackRecording:
     for sid in order:
         m = id_arr == sid
         streams.append(
-            MultitrackStream(
-                sensor_id=sid,
-                t_receive_s=(t_recv_ms[m] - epoch) * 1e-3,
-                t_sensor_s=t_skel[m],
-                joints_m=joints[m],
-                scenario=scenario[m],
+            multitrack_sensor(
+                sid,
+                (t_recv_ms[m] - epoch) * 1e-3,
+                t_skel[m],
+                joints[m],
+                scenario[m],
                 init_angle_rad=_first(opt["Skeleton_Init_Angle"][m]),
                 init_dist_m=_first(opt["Skeleton_Init_Dist"][m]),
                 tilt_deg=_first(opt["Kinect_Tilt_Angle"][m]),
@@ -293,35 +351,9 @@ def _first(values: Array) -> float:
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class SensorFrames:
-    """One sensor's distinct frames, sorted by capture time.
-
-    Attributes
-    ----------
-    sensor_id : str
-    t_sensor_s, t_receive_s : (N,) float
-        Sensor clock, and first receive time (seconds since the file's first row).
-    joints : (N, 25, 3) float
-        As logged (reference sensor's frame, kinefuse axes), metres.
-    scenario : (N,) int
-    n_rows, n_duplicates, n_out_of_order : int
-        Rows in the file, rows that repeated an already-logged frame, and frames logged after a
-        frame captured later.
-    """
-
-    sensor_id: str
-    t_sensor_s: Array
-    t_receive_s: Array
-    joints: Array
-    scenario: NDArray[np.int64]
-    n_rows: int
-    n_duplicates: int
-    n_out_of_order: int
-
-
-def unique_frames(stream: MultitrackStream) -> SensorFrames:
-    """Reduce a logged stream to its distinct frames (first receipt of each), in capture order."""
+def unique_frames(stream: MultitrackSensor) -> MultitrackSensor:
+    """Reduce a logged stream to its distinct frames (first receipt of each), in capture order,
+    counting the rows that repeated a frame and the frames logged out of order."""
     ticks = np.round(stream.t_sensor_s * 1e7).astype(np.int64)
     order = np.lexsort((stream.t_receive_s, ticks))
     first = np.ones(order.size, dtype=bool)
@@ -331,13 +363,11 @@ def unique_frames(stream: MultitrackStream) -> SensorFrames:
     row_first = np.sort(keep)
     later = np.maximum.accumulate(ticks[row_first])
     ooo = int((ticks[row_first][1:] < later[:-1]).sum())
-    return SensorFrames(
-        sensor_id=stream.sensor_id,
-        t_sensor_s=stream.t_sensor_s[keep],
-        t_receive_s=stream.t_receive_s[keep],
-        joints=stream.joints_m[keep],
+    return replace(
+        stream,
+        frames=stream.frames.take(keep),
         scenario=stream.scenario[keep],
-        n_rows=stream.n_frames,
+        n_rows=stream.n_rows,
         n_duplicates=int(stream.n_frames - keep.size),
         n_out_of_order=ooo,
     )

@@ -28,7 +28,7 @@ import os
 import sqlite3
 import zlib
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 from types import TracebackType
@@ -40,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, StoreError
 from kinefuse.geometry.transforms import check_rigid
+from kinefuse.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 __all__ = [
@@ -191,58 +192,9 @@ class SensorInfo:
     rate_hz: float
 
 
-@dataclass(frozen=True, eq=False)
-class Observations:
-    """One sensor's body-tracker stream, ordered by sequence number.
-
-    Attributes
-    ----------
-    seq : (N,) int64
-        Frame sequence numbers, strictly increasing.
-    t_sensor_s : (N,) float
-        Capture time on the sensor's own clock, seconds.
-    joints_m : (N, 25, 3) float
-        Joint positions in the sensor frame (x right, y down, z forward), metres; NaN where the
-        joint is not tracked.
-    states : (N, 25) int8
-        :class:`kinefuse.skeleton.TrackingState` per joint.
-    t_receive_server_s : (N,) float
-        Arrival time on the server's clock, seconds; NaN where unknown.
-    sensor_id : str
-        The sensor the stream came from.
-    t_receive_host_s : (N,) float
-        When the sensor's client PC received the frame from the device, on the client's own
-        clock (the clock that answers the clock probes), seconds; NaN where unknown (sessions
-        recorded before this column existed: their ``t_sensor_s`` is on the client's clock).
-    occluded : (N, 25) bool or None
-        The client's occlusion flags (paper A's 2D bone-crossing test, run where the sensor
-        is), or None when the client sent none.
-    n_crossings : (N,) int64 or None
-        The client's count of bone crossings per frame (the paper's tie-breaker), or None.
-    """
-
-    seq: NDArray[np.int64]
-    t_sensor_s: Array
-    joints_m: Array
-    states: NDArray[np.int8]
-    t_receive_server_s: Array
-    sensor_id: str = ""
-    t_receive_host_s: Array = field(default_factory=lambda: np.zeros(0))
-    occluded: NDArray[np.bool_] | None = None
-    n_crossings: NDArray[np.int64] | None = None
-
-    def __post_init__(self) -> None:
-        if self.t_receive_host_s.shape != self.t_sensor_s.shape:  # not given: unknown
-            object.__setattr__(self, "t_receive_host_s", np.full(self.t_sensor_s.shape, np.nan))
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.seq.shape[0])
-
-    @property
-    def has_body(self) -> NDArray[np.bool_]:
-        """``(N,)`` True for frames in which at least one joint is not ``NOT_TRACKED``."""
-        return np.asarray((self.states != TrackingState.NOT_TRACKED).any(axis=1))
+#: The batch form of a sensor's stream (:class:`kinefuse.observations.BodyFrames`) under the
+#: name this module first gave it; :meth:`SessionStore.observations` returns it.
+Observations = BodyFrames
 
 
 # --------------------------------------------------------------------------------------------
@@ -923,7 +875,7 @@ class SessionStore:
         blobs: list[bytes | None] = list(_blobs(occ, _U1))
         return blobs, [int(c) for c in cr.tolist()]
 
-    def observations(self, sensor_id: str, *, since_seq: int | None = None) -> Observations:
+    def observations(self, sensor_id: str, *, since_seq: int | None = None) -> BodyFrames:
         """Observations of one sensor ordered by sequence number: all of them, or only those
         after ``since_seq`` (a reader following a live recording asks for what is new)."""
         what = f"observations of sensor {sensor_id!r}"
@@ -946,14 +898,14 @@ class SessionStore:
             blank = bytes(N_JOINTS)
             occluded = _unblob([f or blank for f in flags], _U1, (N_JOINTS,), what).astype(bool)
             crossings = np.array([r[7] or 0 for r in rows], dtype=np.int64)
-        return Observations(
+        return BodyFrames(
             sensor_id=sensor_id,
             seq=np.array([r[0] for r in rows], dtype=np.int64),
-            t_sensor_s=_column(rows, 1),
+            t_device_s=_column(rows, 1),
             joints_m=_unblob([r[3] for r in rows], _F8, (N_JOINTS, 3), what),
             states=_unblob([r[4] for r in rows], _I1, (N_JOINTS,), what),
             t_receive_server_s=_column(rows, 2),
-            t_receive_host_s=_column(rows, 5),
+            t_host_s=_column(rows, 5),
             occluded=occluded,
             n_crossings=crossings,
         )

@@ -16,8 +16,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.fusion.best import BestOptions, SensorStream, correct_swaps, fuse_best
+from kinefuse.fusion.best import BestOptions, check_streams, correct_swaps, fuse_best
 from kinefuse.geometry.transforms import apply_transform
+from kinefuse.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, TRUNK_JOINTS
 from kinefuse.sync.assembly import interpolate
 
@@ -42,7 +43,8 @@ def distance_stats(d: Array) -> dict[str, Any]:
 
 
 def consistency(
-    streams: Sequence[SensorStream],
+    streams: Sequence[BodyFrames],
+    sensor2world: ArrayLike,
     t_grid_s: ArrayLike,
     *,
     names: Sequence[str] | None = None,
@@ -53,8 +55,10 @@ def consistency(
 
     Parameters
     ----------
-    streams : list of SensorStream
-        Capture times on one clock, joints in each sensor's frame, poses ``sensor2world``.
+    streams : list of BodyFrames
+        Capture times on one clock (``t_server_s``), joints in each sensor's frame.
+    sensor2world : (S, 4, 4) float
+        The sensors' poses.
     t_grid_s : (T,) float
         Frame times, seconds.
     names : list of str, optional
@@ -89,9 +93,10 @@ def consistency(
         raise InputError(f"{len(labels)} names for {len(streams)} streams; give one per stream")
     opt = BestOptions() if options is None else options
     opt_on, opt_off = replace(opt, lr_swap=True), replace(opt, lr_swap=False)
-    t_obs = [np.asarray(s.t_server_s, dtype=np.float64) for s in streams]
-    p_world = [apply_transform(s.sensor2world, s.joints_sensor) for s in streams]
-    sensor_pos = np.array([s.sensor2world[:3, 3] for s in streams])
+    poses = check_streams(streams, sensor2world, "consistency")
+    t_obs = [s.t_server_s for s in streams]
+    p_world = [apply_transform(pose, s.joints_m) for s, pose in zip(streams, poses, strict=True)]
+    sensor_pos = poses[:, :3, 3]
     flags = correct_swaps(t_obs, [p.copy() for p in p_world], sensor_pos)
     mirror = np.asarray(MIRROR_INDEX)
     p_corr = []
@@ -103,8 +108,8 @@ def consistency(
         interpolate(t, p, grid, max_gap_s=max_gap_s) for t, p in zip(t_obs, p_world, strict=True)
     ]
     cor = [interpolate(t, p, grid, max_gap_s=max_gap_s) for t, p in zip(t_obs, p_corr, strict=True)]
-    fused_on = fuse_best(list(streams), grid, opt_on)
-    fused_off = fuse_best(list(streams), grid, opt_off)
+    fused_on = fuse_best(streams, poses, grid, opt_on)
+    fused_off = fuse_best(streams, poses, grid, opt_off)
     out: dict[str, Any] = {"disagreement": {}, "disagreement_lr": {}}
     for a in range(len(streams)):
         for b in range(a + 1, len(streams)):

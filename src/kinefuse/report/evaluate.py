@@ -14,19 +14,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.best import BestOptions
-from kinefuse.fusion.session import (
-    METHODS,
-    MethodResult,
-    SensorData,
-    clip_grid,
-    frame_grid,
-    run_method,
-)
 from kinefuse.fusion.status import status_counts
 from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
+from kinefuse.pipeline import (
+    METHODS,
+    CalibratedSensor,
+    MethodResult,
+    clip_grid,
+    frame_grid,
+    run_method,
+)
 from kinefuse.report.metrics import bias_noise, gain, position_errors
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState
 
@@ -105,7 +105,7 @@ def _by_status(res: MethodResult, truth: Array) -> dict[str, dict[str, float]]:
     return out
 
 
-def occlusion_score(store: SessionStore, sensors: list[SensorData]) -> dict[str, float]:
+def occlusion_score(store: SessionStore, sensors: list[CalibratedSensor]) -> dict[str, float]:
     """Precision and recall of the clients' occlusion flags against ray-cast visibility."""
     occ, vis, valid = [], [], []
     truth = store.truth()
@@ -148,7 +148,7 @@ def calibration_alignment(store: SessionStore, poses: dict[str, Array]) -> tuple
 
 def evaluate(
     store: SessionStore,
-    sensors: list[SensorData],
+    sensors: list[CalibratedSensor],
     methods: tuple[str, ...] = METHODS,
     *,
     ablation: bool = True,
@@ -215,7 +215,7 @@ def _write_table(out_dir: Path, name: str, header: list[str], rows: list[list[st
 
 
 def table_c_threshold(
-    sensors: list[SensorData],
+    sensors: list[CalibratedSensor],
     grid: Array,
     truth: Array,
     thresholds: tuple[float, ...] = (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6),
@@ -253,7 +253,7 @@ def table_c_threshold(
 
 
 def table_occlusion(
-    sensors: list[SensorData], grid: Array, truth: Array
+    sensors: list[CalibratedSensor], grid: Array, truth: Array
 ) -> tuple[list[str], list[list[str]]]:
     """Table II: MAE with and without occlusion compensation, arm and leg joints."""
     on = run_method(sensors, grid, "paper")
@@ -313,7 +313,7 @@ def write_tables(
     out_dir: Path,
     report: dict[str, Any],
     results: dict[str, MethodResult],
-    sensors: list[SensorData],
+    sensors: list[CalibratedSensor],
     truth: Array,
     methods: tuple[str, ...],
 ) -> list[Path]:

@@ -71,7 +71,7 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
         loaded = [s for s in load_sensors(store, poses) if s.id in with_body]
     # a frame sent twice (a log that repeats a sensor's latest skeleton) counts once, and
     # frames go in capture order
-    frames = {s.id: _distinct_frames(s.t_server_s, s.observations.t_sensor_s) for s in loaded}
+    frames = {s.id: _distinct_frames(s.t_server_s, s.observations.t_device_s) for s in loaded}
     sensors = loaded
     times = {s.id: s.t_server_s[frames[s.id]] for s in sensors}
     joints = {s.id: s.observations.joints_m[frames[s.id]] for s in sensors}

@@ -13,7 +13,7 @@ tables that only evaluation code reads.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -27,11 +27,23 @@ from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
-from kinefuse.sensors.choreography import WandProtocol, holding_poses, make_wand_path
-from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_sensor_clocks
+from kinefuse.sensors.choreography import WandPath, WandProtocol, holding_poses, make_wand_path
+from kinefuse.sensors.clock import (
+    CaptureTimes,
+    ClockParams,
+    capture_times,
+    clock_probes,
+    draw_sensor_clocks,
+)
 from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
 from kinefuse.sensors.rig import Rig
-from kinefuse.sensors.tracker import TrackerParams, draw_subject_bias, simulate_tracker
+from kinefuse.sensors.tracker import (
+    SubjectBias,
+    TrackerOutput,
+    TrackerParams,
+    draw_subject_bias,
+    simulate_tracker,
+)
 from kinefuse.skeleton import JOINT_INDEX, capsule_radii
 
 Array = NDArray[np.float64]
@@ -106,6 +118,128 @@ def _to_plain(obj: object) -> object:
     return obj
 
 
+def _check_config(motion: Motion, config: LabConfig) -> float:
+    """Refuse an impossible configuration; returns the motion phase's length, seconds."""
+    if config.calibration_s < 0:
+        raise InputError(f"calibration phase must be >= 0 s, got {config.calibration_s}")
+    if config.depth_rate_hz <= 0 or config.depth_rate_hz > config.errors.clock.frame_rate_hz:
+        raise InputError(
+            f"depth rate must be in (0, {config.errors.clock.frame_rate_hz}] Hz, "
+            f"got {config.depth_rate_hz}"
+        )
+    motion_s = motion.duration_s if config.motion_s is None else float(config.motion_s)
+    if not 0 < motion_s <= motion.duration_s + 1e-9:
+        raise InputError(
+            f"motion length must be in (0, {motion.duration_s:.2f}] s (the clip's length), "
+            f"got {motion_s}"
+        )
+    return motion_s
+
+
+@dataclass(frozen=True, eq=False)
+class _Seeds:
+    """The session-wide draws: the subject's bias, the wand's path, one seed per sensor."""
+
+    subject: SubjectBias
+    wand_track: WandPath
+    sensors: tuple[np.random.SeedSequence, ...]
+
+
+def _seeds(seed: int, n_sensors: int, config: LabConfig) -> _Seeds:
+    root = np.random.SeedSequence(seed)
+    seq_subject, seq_wand, *seq_sensors = root.spawn(2 + n_sensors)
+    subject = draw_subject_bias(np.random.default_rng(seq_subject), config.errors.tracker)
+    wand = make_wand_path(
+        float(config.calibration_s), np.random.default_rng(seq_wand), config.protocol
+    )
+    return _Seeds(subject, wand, tuple(seq_sensors))
+
+
+class SensorSimulation:
+    """One simulated sensor of a session, frame by frame: what :func:`simulate_session` writes
+    for it, and what a live simulated sensor (:class:`kinefuse.sources.SimulatedSensorSource`)
+    delivers. The same ``motion``, ``rig``, sensor and ``config`` give the same numbers either
+    way (the random streams are the session's: seeded by ``config.seed`` and the sensor's place
+    in the rig, consumed in the same order).
+
+    Parameters
+    ----------
+    motion : Motion
+        Already placed in the lab.
+    rig : Rig
+    sensor_id : str
+        One of the rig's sensors.
+    config : LabConfig
+    """
+
+    def __init__(self, motion: Motion, rig: Rig, sensor_id: str, config: LabConfig) -> None:
+        ids = [s.id for s in rig.sensors]
+        if sensor_id not in ids:
+            raise InputError(f"the rig has no sensor {sensor_id!r}; its sensors: {', '.join(ids)}")
+        motion_s = _check_config(motion, config)
+        index = ids.index(sensor_id)
+        self.spec = rig.sensors[index]
+        self.motion, self.rig, self.config = motion, rig, config
+        self.t_cal_s = float(config.calibration_s)
+        self.t_end_s = self.t_cal_s + motion_s
+        self.height_m = subject_height(motion)
+        seeds = _seeds(config.seed, len(ids), config)
+        self._subject, self._wand_track = seeds.subject, seeds.wand_track
+        errs = config.errors
+        rng_clock, rng_intr, self._rng_track, self._rng_depth, rng_probe = (
+            np.random.default_rng(s) for s in seeds.sensors[index].spawn(5)
+        )
+        # the device clock stamps frames; the client PC's clock answers the probes
+        self.clocks = draw_sensor_clocks(rng_clock, errs.clock)
+        self.intrinsics = draw_intrinsics(rng_intr, errs.intrinsics)
+        #: (N, 4) the client's clock probes over the session (server t1, client t2, t3, server t4)
+        self.probes = clock_probes(self.clocks.host, 0.0, self.t_end_s, rng_probe, errs.clock)
+
+    def depth_frames(self) -> Iterator[tuple[int, float, float, NDArray[np.uint16]]]:
+        """The calibration phase's depth frames, rendered one at a time as they are asked for:
+        ``(seq, t_device_s, t_host_s, depth_mm (H, W) uint16)``. Call once (it consumes the
+        sensor's depth noise stream)."""
+        if self.t_cal_s <= 0:
+            return
+        errs, cfg, intr = self.config.errors, self.config, self.intrinsics
+        cap = capture_times(self.clocks.device, 0.0, self.t_cal_s, self._rng_depth, errs.clock,
+                            host=self.clocks.host,
+                            latency_offset_s=self.clocks.latency_offset_s)  # fmt: skip
+        step = max(round(errs.clock.frame_rate_hz / cfg.depth_rate_hz), 1)
+        pick = np.flatnonzero((cap.seq % step) == 0)
+        t_true = cap.t_true_s[pick]
+        centres = self._wand_track.at(t_true)
+        # the operator sees where the sensors stand and keeps out of their way
+        sensor_positions = np.array([s.sensor2world[:3, 3] for s in self.rig.sensors])
+        poses, handles = holding_poses(centres, self.motion.positions[0], cfg.wand,
+                                       sensor_positions=sensor_positions,
+                                       height_m=self.height_m)  # fmt: skip
+        for i, k in enumerate(pick.tolist()):
+            scene = Scene.from_pose(poses[i], self.height_m, wand=cfg.wand,
+                                    wand_centre=centres[i], wand_handle_dir=handles[i],
+                                    room_min_xy_m=self.rig.room_min_xy_m,
+                                    room_max_xy_m=self.rig.room_max_xy_m)  # fmt: skip
+            frame = render_depth(scene, self.spec.sensor2world, intr, self._rng_depth, errs.depth)
+            yield (int(cap.seq[k]), float(cap.t_sensor_s[k]), float(cap.t_receive_host_s[k]),
+                   frame)  # fmt: skip
+
+    def body(self) -> tuple[CaptureTimes, TrackerOutput, Array]:
+        """The motion phase: capture times, the body tracker's output, and the true joints at
+        the capture instants ``(N, 25, 3)`` world. The tracker's error processes are smooth
+        over the whole take (correlated noise, dropouts, held guesses), so the phase is drawn
+        at once; call once (it consumes the sensor's tracker stream)."""
+        errs = self.config.errors
+        cap = capture_times(self.clocks.device, self.t_cal_s, self.t_end_s, self._rng_track,
+                            errs.clock, host=self.clocks.host,
+                            latency_offset_s=self.clocks.latency_offset_s)  # fmt: skip
+        truth_world = self.motion.at(cap.t_true_s - self.t_cal_s)
+        out = simulate_tracker(truth_world, self.spec.sensor2world, self.intrinsics,
+                               capsule_radii(self.height_m), self._rng_track, errs.tracker,
+                               dt_s=1.0 / errs.clock.frame_rate_hz, subject=self._subject,
+                               t_s=cap.t_true_s)  # fmt: skip
+        return cap, out, truth_world
+
+
 def simulate_session(
     motion: Motion,
     rig: Rig,
@@ -123,28 +257,11 @@ def simulate_session(
     Deterministic: the same inputs and ``config.seed`` give the same observation rows.
     """
     say = progress or (lambda _msg: None)
-    if config.calibration_s < 0:
-        raise InputError(f"calibration phase must be >= 0 s, got {config.calibration_s}")
-    if config.depth_rate_hz <= 0 or config.depth_rate_hz > config.errors.clock.frame_rate_hz:
-        raise InputError(
-            f"depth rate must be in (0, {config.errors.clock.frame_rate_hz}] Hz, "
-            f"got {config.depth_rate_hz}"
-        )
-    motion_s = motion.duration_s if config.motion_s is None else float(config.motion_s)
-    if not 0 < motion_s <= motion.duration_s + 1e-9:
-        raise InputError(
-            f"motion length must be in (0, {motion.duration_s:.2f}] s (the clip's length), "
-            f"got {motion_s}"
-        )
+    motion_s = _check_config(motion, config)
     t_cal = float(config.calibration_s)
     t_end = t_cal + motion_s
     height = subject_height(motion)
-    radii = capsule_radii(height)
     errs = config.errors
-
-    root = np.random.SeedSequence(config.seed)
-    seq_subject, seq_wand, *seq_sensors = root.spawn(2 + len(rig.sensors))
-    subject = draw_subject_bias(np.random.default_rng(seq_subject), errs.tracker)
 
     if Path(out).exists():
         if not overwrite:
@@ -179,85 +296,28 @@ def simulate_session(
         store.write_truth_motion(t_cal + t_truth, motion.at(t_truth), motion.synthesized)
 
         # the calibration phase's wand path, on a fine grid (truth)
-        wand_track = make_wand_path(t_cal, np.random.default_rng(seq_wand), config.protocol)
+        wand_track = _seeds(config.seed, len(rig.sensors), config).wand_track
         if t_cal > 0:
             t_w = np.arange(0.0, t_cal, 1.0 / 120.0)
             store.append_truth_wand(t_w, wand_track.at(t_w))
 
-        rest_pose = motion.positions[0]
-        # the operator sees where the sensors stand and keeps out of their way
-        sensor_positions = np.array([s.sensor2world[:3, 3] for s in rig.sensors])
-        for spec, ss in zip(rig.sensors, seq_sensors, strict=True):
-            rng_clock, rng_intr, rng_track, rng_depth, rng_probe = (
-                np.random.default_rng(s) for s in ss.spawn(5)
-            )
-            # the device clock stamps frames; the client PC's clock answers the probes
-            clocks = draw_sensor_clocks(rng_clock, errs.clock)
-            clock = clocks.device
-            intr = draw_intrinsics(rng_intr, errs.intrinsics)
-            store.add_sensor(spec.id, spec.serial, intr, rate_hz=errs.clock.frame_rate_hz)
-            store.write_truth_sensor(spec.id, spec.sensor2world, clocks.to_dict())
-            probes = clock_probes(clocks.host, 0.0, t_end, rng_probe, errs.clock)
-            store.append_clock_probes(spec.id, *probes.T)
-
+        for spec in rig.sensors:
+            sim = SensorSimulation(motion, rig, spec.id, config)
+            store.add_sensor(spec.id, spec.serial, sim.intrinsics, rate_hz=errs.clock.frame_rate_hz)
+            store.write_truth_sensor(spec.id, spec.sensor2world, sim.clocks.to_dict())
+            store.append_clock_probes(spec.id, *sim.probes.T)
             if t_cal > 0:
                 say(f"{spec.id}: rendering calibration depth frames")
-                cap = capture_times(
-                    clock,
-                    0.0,
-                    t_cal,
-                    rng_depth,
-                    errs.clock,
-                    host=clocks.host,
-                    latency_offset_s=clocks.latency_offset_s,
-                )
-                step = max(round(errs.clock.frame_rate_hz / config.depth_rate_hz), 1)
-                pick = (cap.seq % step) == 0
-                t_true = cap.t_true_s[pick]
-                centres = wand_track.at(t_true)
-                poses, handles = holding_poses(
-                    centres,
-                    rest_pose,
-                    config.wand,
-                    sensor_positions=sensor_positions,
-                    height_m=height,
-                )
-                frames = np.empty((t_true.size, intr.height, intr.width), dtype=np.uint16)
-                for i in range(t_true.size):
-                    scene = Scene.from_pose(
-                        poses[i],
-                        height,
-                        wand=config.wand,
-                        wand_centre=centres[i],
-                        wand_handle_dir=handles[i],
-                        room_min_xy_m=rig.room_min_xy_m,
-                        room_max_xy_m=rig.room_max_xy_m,
+                depth = list(sim.depth_frames())
+                if depth:
+                    store.append_depth_frames(
+                        spec.id,
+                        np.array([d[0] for d in depth], dtype=np.int64),
+                        np.array([d[1] for d in depth]),
+                        np.stack([d[3] for d in depth]),
                     )
-                    frames[i] = render_depth(scene, spec.sensor2world, intr, rng_depth, errs.depth)
-                store.append_depth_frames(spec.id, cap.seq[pick], cap.t_sensor_s[pick], frames)
-
             say(f"{spec.id}: simulating the body tracker")
-            cap = capture_times(
-                clock,
-                t_cal,
-                t_end,
-                rng_track,
-                errs.clock,
-                host=clocks.host,
-                latency_offset_s=clocks.latency_offset_s,
-            )
-            truth_world = motion.at(cap.t_true_s - t_cal)
-            out_ = simulate_tracker(
-                truth_world,
-                spec.sensor2world,
-                intr,
-                radii,
-                rng_track,
-                errs.tracker,
-                dt_s=1.0 / errs.clock.frame_rate_hz,
-                subject=subject,
-                t_s=cap.t_true_s,
-            )
+            cap, out_, truth_world = sim.body()
             store.append_observations(
                 spec.id,
                 cap.seq,
