@@ -80,8 +80,9 @@ class LiveSource:
             sent: ServerStatus | None = None
             async for item in sub:
                 if isinstance(item, ServerStatus):
-                    await ws.send_str(json.dumps(status_message(item)))
-                    sent = item
+                    if item is not sent:  # not already sent ahead of a frame
+                        await ws.send_str(json.dumps(status_message(item)))
+                        sent = item
                     continue
                 assert isinstance(item, FusedFrame)
                 last = self.publisher.last_status  # a lagging page may have lost it in the queue
