@@ -29,8 +29,22 @@ def session(tmp_path_factory, shared_data) -> Path:
     """A short simulated walk (no wand phase) with two stored results, fused on the true poses."""
     out = tmp_path_factory.mktemp("viewer") / "walk.sqlite"
     clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"
-    assert main(["simulate", "--clip", str(clip), "--calibration-seconds", "0", "--seed", "3",
-                 "--out", str(out)]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "simulate",
+                "--clip",
+                str(clip),
+                "--calibration-seconds",
+                "0",
+                "--seed",
+                "3",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     for m in ("best", "paper"):
         assert main(["fuse", str(out), "--method", m, "--true-calibration", "--store"]) == 0
     return out
@@ -49,8 +63,17 @@ def _frame(seq: int, sensors: int = 8, rng: np.random.Generator | None = None) -
 
 def _status(n: int = 4) -> ServerStatus:
     sensors = tuple(
-        SensorStatus(f"k{i}", i != 2, 1.5, 0.25 * i, 0.05, 30.0, 20.0, 0.9,
-                     tuple(float(v) for v in np.eye(4).ravel()))  # fmt: skip
+        SensorStatus(
+            f"k{i}",
+            i != 2,
+            1.5,
+            0.25 * i,
+            0.05,
+            30.0,
+            20.0,
+            0.9,
+            tuple(float(v) for v in np.eye(4).ravel()),
+        )
         for i in range(n)
     )
     return ServerStatus(1.0, sensors, "calibrated", "good", 30.0, "best-live")
@@ -170,8 +193,11 @@ def test_replay_plays_seeks_and_steps_with_the_truth(session) -> None:
             ws = await s.ws_connect(f"http://127.0.0.1:{port}/ws")
             hello, status, player, first = [await _recv(ws) for _ in range(4)]
             out = [hello, status, player, first]
-            for cmd in ({"cmd": "seek", "frame": 40}, {"cmd": "step", "delta": -1},
-                        {"cmd": "seek", "t_s": float(view.t_s[10])}):  # fmt: skip
+            for cmd in (
+                {"cmd": "seek", "frame": 40},
+                {"cmd": "step", "delta": -1},
+                {"cmd": "seek", "t_s": float(view.t_s[10])},
+            ):
                 await ws.send_str(json.dumps(cmd))
                 out += [await _recv(ws), await _recv(ws)]
             await ws.send_str(json.dumps({"cmd": "speed", "value": 4}))

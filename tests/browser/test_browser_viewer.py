@@ -1,4 +1,4 @@
-"""The viewer page in a real browser: live status and frames, motion, replay scrubbing, reconnect."""
+"""The viewer page in a real browser: live status and frames, motion, replay, reconnecting."""
 
 from __future__ import annotations
 
@@ -135,7 +135,9 @@ def test_replay_scrubbing_changes_the_frame_time(calibrated_session, loop_thread
             "(el, i) => { el.value = String(i); el.dispatchEvent(new Event('input')); }",
             target,
         )
-        page.wait_for_function(f"document.getElementById('frame-counter').textContent === '{target}'")
+        page.wait_for_function(
+            f"document.getElementById('frame-counter').textContent === '{target}'"
+        )
         assert float(page.inner_text("#frame-time")) == pytest.approx(v.t_s[target], abs=1e-3)
         page.click("#step-fwd")
         page.wait_for_function(
