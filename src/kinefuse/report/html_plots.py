@@ -26,7 +26,7 @@ METHOD_COLOURS = {
     "best": "#1971c2",
     "best-live": "#2f9e44",
 }
-SENSOR_COLOURS = ("#e8590c", "#9c36b5", "#0c8599", "#d9480f", "#5c940d", "#c2255c", "#1864ab")
+SENSOR_COLOURS = ("#e8590c", "#9c36b5", "#0c8599", "#c2255c", "#5c940d", "#1864ab", "#d9480f")
 
 
 def _colour(method: str, k: int = 0) -> str:

@@ -2,10 +2,11 @@
 
 The viewer shows stored fused results, which a session does not tag with the calibration they
 were fused with: ``kinefuse fuse --store`` uses the session's calibration (its own world: origin
-and heading are the protocol's choice), ``--true-calibration`` the simulator's world. The truth
-is therefore offered in both worlds and the one closer to the shown result is used (the same
-yaw-and-translation alignment :func:`kinefuse.report.evaluate.calibration_alignment` fits for
-``kinefuse evaluate``), and the page says which.
+and heading are the protocol's choice), ``--true-calibration`` the simulator's world. As
+``kinefuse evaluate`` does, the truth is moved into the calibration's world (the
+yaw-and-translation alignment of :func:`kinefuse.report.evaluate.calibration_alignment`),
+unless the unaligned truth is less than half as far from the shown result (then that result was
+evidently fused with the true poses); the page says which.
 """
 
 from __future__ import annotations
@@ -60,6 +61,6 @@ def replay_truth(
     with np.errstate(invalid="ignore"):
         e_raw = np.nanmean(np.linalg.norm(shown_m - truth, axis=-1))
         e_cal = np.nanmean(np.linalg.norm(shown_m - aligned, axis=-1))
-    if np.isfinite(e_raw) and (not np.isfinite(e_cal) or e_raw < e_cal):
+    if np.isfinite(e_raw) and (not np.isfinite(e_cal) or e_raw < 0.5 * e_cal):
         return truth, "truth in the simulator's world (the result was fused with the true poses)"
     return aligned, "truth aligned to the session's calibration (yaw + translation)"

@@ -20,7 +20,7 @@ const S = {
   hoverJoint: -1,
 };
 const KIND_FUSED = 0, KIND_RAW = 1, KIND_TRUTH = 2;
-const SENSOR_COLOURS = ["#e8875b", "#c678dd", "#56b6c2", "#d19a66", "#98c379", "#e06c9f",
+const SENSOR_COLOURS = ["#e8875b", "#c678dd", "#56b6c2", "#e06c9f", "#d19a66", "#98c379",
                         "#61afef", "#e5c07b", "#be5046", "#7f8c8d"];
 const METHOD_COLOURS = ["#ffffff", "#ff9f43", "#a29bfe", "#74b9ff", "#fd79a8", "#55efc4"];
 // status classes: tracked / inferred or single-sensor / predicted / missing (FusionStatus codes)
@@ -283,7 +283,7 @@ function frameCamera(f) {
   for (const s of (S.status ? S.status.sensors : [])) {
     if (s.pose) far = Math.max(far, Math.hypot(s.pose[3] - cam.target[0], s.pose[7] - cam.target[1]));
   }
-  cam.dist = Math.min(20, 1.9 * far + 1.5);
+  cam.dist = Math.min(20, 1.3 * far + 1.2);
   dirty();
 }
 function basis() {
