@@ -42,11 +42,11 @@ def page(browser) -> Iterator[Any]:
 
 @pytest.fixture(scope="session")
 def calibrated_session(tmp_path_factory, shared_data) -> Path:
-    """A simulated walk after 8 s of wand waving, calibrated, fused with best and paper (stored)."""
+    """A simulated walk after 5 s of wand waving, calibrated, fused with best and paper (stored)."""
     out = tmp_path_factory.mktemp("browser") / "walk.sqlite"
     clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"
-    # 8 s of wand at the default depth rate: a calibration graded good (about 2 mm)
-    assert main(["simulate", "--clip", str(clip), "--calibration-seconds", "8", "--seed", "1",
+    # 5 s of wand at the default depth rate: a calibration graded good (about 2.5 mm)
+    assert main(["simulate", "--clip", str(clip), "--calibration-seconds", "5", "--seed", "1",
                  "--out", str(out)]) == 0  # fmt: skip
     assert main(["calibrate", str(out), "--store"]) == 0
     for m in ("best", "paper"):

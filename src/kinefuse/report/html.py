@@ -62,6 +62,33 @@ def mae_intervals(
     return (float(lo), float(hi)), (jl, jh)
 
 
+#: The angles the report draws when the analysis runs (names of ``Angles.anatomical()``).
+ANGLE_WORDS = ("knee", "hip", "elbow")
+
+
+def joint_angle_curves(
+    result: MethodResult, phase_s: tuple[float, float]
+) -> tuple[Array, dict[str, Array]]:
+    """Paper B's flexion angles (degrees) of a fused result, the movement axes learned on the
+    range-of-motion phase ``phase_s`` (Direction Joining, as ``kinefuse analyze``)."""
+    from kinefuse import analysis as an
+    from kinefuse.analysis.sequence import SkeletonSequence
+
+    t = result.t_server_s
+    seq = SkeletonSequence.from_kinect(
+        result.positions, t_s=t, rate_hz=30.0, source=f"fused with {result.method}"
+    )
+    norm = an.normalize(seq)
+    model = an.learn_axes(seq, norm, phase=phase_s, method="dj")
+    deg = an.joint_angles(seq, norm, model).anatomical()
+    keep = {
+        k: v
+        for k, v in sorted(deg.items())
+        if "flexion" in k and any(w in k for w in ANGLE_WORDS) and np.isfinite(v).any()
+    }
+    return t, keep
+
+
 CSS = """
 body { font: 14px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; color: #1f2933;
        max-width: 1080px; margin: 0 auto; padding: 20px 28px 60px; background: #fff; }
@@ -326,11 +353,30 @@ def render_report(
         )
     # joint angles
     add('<h2 id="angles">Joint angles</h2>')
-    if angles is not None:
-        add(_img(hp.data_uri(hp.angle_figure(*angles)), "joint angles"))
+    method = "best" if "best" in results else methods[-1]
+    angle_note = ""
+    if angles is None and facts.rom_phase_s is not None:
+        from kinefuse.errors import KinefuseError
+
+        try:
+            angles = joint_angle_curves(results[method], facts.rom_phase_s)
+            lo, hi = facts.rom_phase_s
+            angle_note = (
+                f"paper B's flexion angles of {method}; movement axes learned on the "
+                f"session's range-of-motion phase ({lo:.1f} to {hi:.1f} s)"
+            )
+        except (KinefuseError, ValueError) as exc:
+            angle_note = f"the analysis could not run on {method}: {exc}"
+    if angles is not None and angles[1]:
+        add(_img(hp.data_uri(hp.angle_figure(*angles, facts.rom_phase_s)), "joint angles"))
+        if angle_note:
+            add(f'<p class="note">{_e(angle_note)}</p>')
+    elif angle_note:
+        add(f'<p class="note">{_e(angle_note)}</p>')
     else:
         add(
             '<p class="note">the analysis has not run on this session: '
+            "it needs a range-of-motion phase (<code>kinefuse simulate --rom SECONDS</code>); "
             "<code>kinefuse analyze SESSION --out DIR</code> computes paper B's joint angles</p>"
         )
     top = f'<meta charset="utf-8">{GENERATOR}<title>kinefuse report: {_e(facts.name)}</title>'

@@ -49,6 +49,8 @@ class SessionFacts:
     latency_ms: Array | None = None  # fused-frame latencies, when the session recorded them
     latency_note: str = ""
     has_truth: bool = False
+    #: the range-of-motion phase the session stored (server clock, s): the analysis can run
+    rom_phase_s: tuple[float, float] | None = None
 
 
 def _calibration_rows(
@@ -119,6 +121,8 @@ def session_facts(
         )
     cal_rows, cal_note = _calibration_rows(store, poses, source)
     clip = meta.get("clip")
+    rom = meta.get("rom_phase_server_s")
+    rom_phase = (float(rom[0]), float(rom[1])) if isinstance(rom, list) and len(rom) == 2 else None
     return SessionFacts(
         name=store.path.name,
         clip=str(clip) if clip is not None else None,
@@ -135,4 +139,5 @@ def session_facts(
             "has no live server; a live recording stores them with its fused frames)"
         ),
         has_truth=store.has_truth(),
+        rom_phase_s=rom_phase,
     )

@@ -287,14 +287,26 @@ def trajectory_figure(
     return fig
 
 
-def angle_figure(t_s: Array, angles_deg: dict[str, Array]) -> Figure:
-    """Joint-angle curves (degrees) over time."""
-    fig = Figure(figsize=(10, 3.2))
-    ax = fig.subplots()
-    for k, (name, v) in enumerate(angles_deg.items()):
-        ax.plot(t_s, v, lw=1.1, color=f"C{k % 10}", label=name)
-    ax.set_xlabel("time (s)", fontsize=9)
-    ax.set_ylabel("deg", fontsize=9)
-    ax.legend(fontsize=7, ncol=4)
-    _style(ax)
+def angle_figure(
+    t_s: Array, angles_deg: dict[str, Array], phase_s: tuple[float, float] | None = None
+) -> Figure:
+    """Joint-angle curves (degrees) over time, one panel per joint (knee, hip, elbow: left and
+    right together), the range-of-motion phase shaded."""
+    groups: dict[str, list[str]] = {}
+    for name in angles_deg:
+        groups.setdefault(name.split("_")[0], []).append(name)
+    n = max(len(groups), 1)
+    fig = Figure(figsize=(10, 2.4 * n))
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (joint, names) in zip(axes, sorted(groups.items()), strict=False):
+        for k, name in enumerate(sorted(names)):
+            ax.plot(t_s, angles_deg[name], lw=1.1, color=("#1971c2", "#e8590c")[k % 2],
+                    label=name.replace("_", " "))  # fmt: skip
+        if phase_s is not None:
+            ax.axvspan(*phase_s, color="0.92", zorder=0)
+        ax.set_ylabel(f"{joint} (deg)", fontsize=9)
+        ax.legend(fontsize=8, loc="upper left")
+        _style(ax)
+    axes[-1].set_xlabel("server time (s); shaded: range-of-motion phase", fontsize=9)
+    fig.tight_layout()
     return fig
