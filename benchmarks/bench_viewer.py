@@ -19,9 +19,12 @@ Measured per frame, on the loop's clock:
 * ``delivered``: tick due -> the recorder has the frame (what the recording sees).
 
 Printed: p50 and p99 of both, without and with the viewer, and the p99 difference (the
-acceptance asks for under 2 ms). To measure the real server after the merge, replace
-:func:`synthetic_server` by the server's own loop publishing into the same ``Publisher`` (its
-``latency_s`` is then client host receive -> published); the rest stays.
+acceptance asks for under 2 ms); and the CPU time of encoding one frame for a page, the work a
+page adds to the loop per frame besides the socket write.
+
+To measure the real server after the merge, replace :func:`synthetic_server` by the server's
+own loop publishing into the same ``Publisher`` (its ``latency_s`` is then client host receive
+-> published); the rest stays.
 """
 
 from __future__ import annotations
@@ -84,6 +87,21 @@ async def synthetic_server(
         pub.publish(FusedFrame(seq, due - t0, f["fused"], np.full(N_JOINTS, 1e-4), st,
                                loop.time() - due, raw))  # fmt: skip
         seq += 1
+
+
+def encode_cost_us(n_sensors: int, n: int = 2000) -> float:
+    """CPU time of one page's frame encoding on the loop (fused + raw skeletons), microseconds."""
+    import time
+
+    from kinefuse.viewer.wire import fused_frame_bytes
+
+    f = _frames(n_sensors)[0]
+    frame = FusedFrame(0, 0.0, f["fused"], np.full(N_JOINTS, 1e-4), np.zeros(N_JOINTS, np.int8),
+                       0.001, {f"k{i}": f[f"k{i}"] for i in range(n_sensors)})  # fmt: skip
+    t0 = time.perf_counter()
+    for _ in range(n):
+        fused_frame_bytes(frame)
+    return (time.perf_counter() - t0) / n * 1e6
 
 
 _WS_CHILD = """
@@ -176,6 +194,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
 
     without, with_ = stats(samples[False]), stats(samples[True])
     return {
+        "encode_us_per_frame": encode_cost_us(args.sensors),
         "sensors": args.sensors,
         "rate_hz": args.rate,
         "client": args.client,
@@ -206,6 +225,7 @@ def main() -> int:
     for name, key in (("fused-frame latency", "latency"), ("delivered to recorder", "delivered")):
         for label, s in (("without viewer", w), ("with viewer", v)):
             print(f"{name + ', ' + label:<40} {s[key + '_p50_ms']:8.3f} {s[key + '_p99_ms']:8.3f}")
+    print(f"encoding a frame for a page: {r['encode_us_per_frame']:.1f} us on the loop")
     print(f"added by the viewer (p99): latency {r['added_latency_p99_ms']:+.3f} ms, delivered "
           f"{r['added_delivered_p99_ms']:+.3f} ms (target: under 2 ms)")  # fmt: skip
     if args.json:

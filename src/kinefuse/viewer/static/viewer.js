@@ -283,7 +283,7 @@ function frameCamera(f) {
   for (const s of (S.status ? S.status.sensors : [])) {
     if (s.pose) far = Math.max(far, Math.hypot(s.pose[3] - cam.target[0], s.pose[7] - cam.target[1]));
   }
-  cam.dist = Math.min(20, 1.3 * far + 1.2);
+  cam.dist = Math.min(20, 1.6 * far + 1.0);
   dirty();
 }
 function basis() {
