@@ -16,8 +16,10 @@ from kinefuse.cli import main
 CHROMIUM = Path("/usr/bin/chromium")
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
+    """Chromium for one test module. Playwright's sync API keeps an event loop running in this
+    thread while it is open, so it is closed with its module: later tests' ``asyncio.run`` works."""
     if not CHROMIUM.exists():
         pytest.skip(f"{CHROMIUM} not found (install Debian's chromium: apt-get install chromium)")
     sync_api = pytest.importorskip("playwright.sync_api")
