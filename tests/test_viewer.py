@@ -69,7 +69,7 @@ def _status(n: int = 4) -> ServerStatus:
             1.5,
             0.25 * i,
             0.05,
-            30.0,
+            math.nan if i == 0 else 30.0,  # fps not known yet
             20.0,
             0.9,
             tuple(float(v) for v in np.eye(4).ravel()),
@@ -149,6 +149,7 @@ def test_live_viewer_sends_hello_status_and_frames_then_stops() -> None:
     assert got[0]["type"] == "hello" and got[0]["mode"] == "live"
     assert len(got[0]["joints"]) == 25 and len(got[0]["bones"]) == 24
     st = got[1]
+    assert st["sensors"][0]["fps"] is None  # NaN goes out as null: the page's JSON.parse reads it
     assert st["type"] == "status" and [s["id"] for s in st["sensors"]] == ["k0", "k1", "k2", "k3"]
     assert st["sensors"][2]["connected"] is False and st["calibration_grade"] == "good"
     assert len(st["sensors"][0]["pose"]) == 16
@@ -243,3 +244,35 @@ def test_view_command_errors_are_clear(tmp_path, session, capsys) -> None:
     assert "missing.sqlite" in capsys.readouterr().err
     assert main(["view", str(session), "--port", "70000"]) == 2
     assert "--port" in capsys.readouterr().err
+
+
+def test_view_prints_its_url_and_stops_cleanly_on_ctrl_c(session) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "kinefuse", "view", str(session), "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        lines = [proc.stdout.readline() for _ in range(2)]
+        url = lines[1].split()[1]
+        assert url.startswith("http://127.0.0.1:") and "2 results" not in lines[0]
+        assert "best, paper" in lines[0] and "with truth" in lines[0]
+        with urllib.request.urlopen(url, timeout=TIMEOUT_S) as r:
+            assert b"viewer.js" in r.read()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "viewer stopped" in out and "Traceback" not in err

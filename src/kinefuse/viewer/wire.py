@@ -138,7 +138,7 @@ def status_message(status: ServerStatus) -> dict[str, Any]:
     """The ``status`` text message of a :class:`~kinefuse.net.publish.ServerStatus` (NaN: null)."""
     return {
         "type": "status",
-        "t_server_s": status.t_server_s,
+        "t_server_s": _num(status.t_server_s),
         "calibration_state": status.calibration_state,
         "calibration_grade": status.calibration_grade,
         "fused_fps": _num(status.fused_fps),
@@ -154,7 +154,9 @@ def status_message(status: ServerStatus) -> dict[str, Any]:
                 "fps": _num(s.fps),
                 "latency_ms": _num(s.latency_ms),
                 "tracked_fraction": _num(s.tracked_fraction),
-                "pose": list(s.pose) if s.pose is not None else None,
+                "pose": None
+                if s.pose is None or not all(math.isfinite(v) for v in s.pose)
+                else list(s.pose),
             }
             for s in status.sensors
         ],
