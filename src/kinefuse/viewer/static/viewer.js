@@ -268,7 +268,8 @@ const cam = {target: [0, 0, 0.9], az: -0.9, el: 0.45, dist: 7.5, fov: 45 * Math.
 function resetCamera() {
   cam.target = [0, 0, 0.9]; cam.az = -0.9; cam.el = 0.45; cam.dist = 7.5; dirty();
 }
-// look at the body (and the sensors, when they are known) the first time a frame arrives
+// look at the rig's centre (the body's when no sensor pose is known) the first time a frame
+// arrives, from far enough to see every sensor
 function frameCamera(f) {
   const l = f.layers.find((o) => o.kind === KIND_FUSED);
   if (!l) return;
@@ -278,12 +279,18 @@ function frameCamera(f) {
   }
   if (!n) return;
   S.framed = true;
-  cam.target = [sx / n, sy / n, 0.9];
-  let far = 1.5;
-  for (const s of (S.status ? S.status.sensors : [])) {
-    if (s.pose) far = Math.max(far, Math.hypot(s.pose[3] - cam.target[0], s.pose[7] - cam.target[1]));
+  const poses = (S.status ? S.status.sensors : []).filter((s) => s.pose);
+  if (poses.length) {
+    cam.target = [poses.reduce((a, s) => a + s.pose[3], 0) / poses.length,
+                  poses.reduce((a, s) => a + s.pose[7], 0) / poses.length, 0.9];
+  } else {
+    cam.target = [sx / n, sy / n, 0.9];
   }
-  cam.dist = Math.min(20, 1.6 * far + 1.0);
+  let far = 1.5;
+  for (const s of poses) {
+    far = Math.max(far, Math.hypot(s.pose[3] - cam.target[0], s.pose[7] - cam.target[1]));
+  }
+  cam.dist = Math.min(20, 2.0 * far + 1.0);
   dirty();
 }
 function basis() {
