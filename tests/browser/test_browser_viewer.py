@@ -148,6 +148,15 @@ def test_replay_scrubbing_changes_the_frame_time(calibrated_session, loop_thread
         mean_mm = float(page.inner_text("#error-mean-mm"))
         assert 5 < mean_mm < 150  # best on a walk: centimetres, not metres
         assert page.locator("#layers input[data-layer='0:paper']").count() == 1
+        # hovering a joint names it and gives its error, and marks its row in the side panel
+        joint = page.evaluate("window.kinefuseJoints()")[-1]  # the nearest one, drawn last
+        box = page.locator("#scene").bounding_box()
+        page.mouse.move(box["x"] + joint["x"], box["y"] + joint["y"])
+        page.wait_for_selector("#tooltip:not([hidden])")
+        tip = page.inner_text("#tooltip")
+        name = page.evaluate("(j) => S.hello.joints[j]", joint["joint"])
+        assert name in tip and "error" in tip and "mm" in tip
+        assert page.inner_text("#errors tr.hot td >> nth=0") == name
         page.click("#play")
         page.wait_for_function(
             f"Number(document.getElementById('frame-counter').textContent) > {target + 3}"

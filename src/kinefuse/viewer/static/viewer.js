@@ -394,6 +394,9 @@ function drawSkeleton(l, colour, width, dash) {
 }
 
 let screenJoints = [];  // for hovering: [x, y, joint]
+// where each drawn joint of the shown result is, in CSS pixels of the canvas (for tests)
+window.kinefuseJoints = () => screenJoints.map(
+  (q) => ({joint: q.j, x: q.s[0] / (devicePixelRatio || 1), y: q.s[1] / (devicePixelRatio || 1)}));
 function drawPrimary(l) {
   drawSkeleton(l, "#dfe6ee", 3 * devicePixelRatio);
   const counts = [0, 0, 0, 0];
