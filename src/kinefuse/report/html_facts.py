@@ -56,19 +56,31 @@ class SessionFacts:
 def _calibration_rows(
     store: SessionStore, poses: dict[str, Array], source: str
 ) -> tuple[list[dict[str, Any]] | None, str]:
-    from kinefuse.calibration.calib_file import loads_calibration
+    from pathlib import Path
+
+    from kinefuse.calibration.calib_file import (
+        is_calibration_file,
+        loads_calibration,
+        read_calibration,
+    )
     from kinefuse.calibration.evaluate import pose_errors
 
-    name = next((n for n in ("full", "paper") if f"({n})" in source), None)
+    # ``source`` is how kinefuse.app.resolve_poses named the poses it used
+    name = next((n for n in ("full", "paper") if source == f"session calibration ({n})"), None)
     text = store.calibration(name) if name else None
-    if text is None:
-        return None, f"the fusion used {source}: no stored calibration residuals to show"
-    cal = loads_calibration(text, source=f"{store.path} [{name}]")
+    if text is not None:
+        cal = loads_calibration(text, source=f"{store.path} [{name}]")
+        what = f"stored calibration '{name}'"
+    elif Path(source).is_file() and is_calibration_file(Path(source)):
+        cal = read_calibration(source)
+        what = f"calibration file {Path(source).name}"
+    else:
+        return None, f"the fusion used {source}: no calibration residuals to show"
     rows = [
         {"id": s.id, "residual_mm": s.residual_m * 1e3, "sightings": s.n_sightings}
         for s in cal.sensors
     ]
-    note = f"stored calibration '{name}' ({cal.method}); world: {cal.world}"
+    note = f"{what} ({cal.method}); world: {cal.world}"
     if store.has_truth():
         ids = [str(r["id"]) for r in rows]
         true = np.stack([store.truth().sensor(i)[0] for i in ids])
