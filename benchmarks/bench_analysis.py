@@ -71,7 +71,9 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float):  # type: i
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])
     simulate_session(placed, rig, out, LabConfig(seed=seed, calibration_s=cal_s), overwrite=True)
-    run_calibrate(session=out, method="full", out=None)
+    with SessionStore.open(out, writable=True) as store:  # a finished simulation
+        store.mark_complete()
+    run_calibrate(session=out, method="full", out=None, store_result=True)
     with SessionStore.open(out) as store:
         poses, _ = resolve_poses(store, None, False)
         sensors = load_sensors(store, poses)

@@ -254,8 +254,8 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
         )
         say(format_evaluate(report, METHODS))
     say(f"\noutputs in {out_dir}/: session.sqlite, inspect.json, calibration.toml, "
-        "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, evaluation/ (tables I-III, "
-        "trajectories.png, evaluate.json)")  # fmt: skip
+        "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, evaluation/ (report.html, "
+        "tables I-III, trajectories.png, evaluate.json)")  # fmt: skip
     return 0
 
 
@@ -391,6 +391,11 @@ def run_evaluate(
         from kinefuse.report.plausibility_eval import plausibility_vs_errors
 
         report["plausibility"] = plausibility_vs_errors(store, results, truth)
+        facts = None
+        if out_dir is not None:
+            from kinefuse.report.html_facts import session_facts
+
+            facts = session_facts(store, sensors, poses, source)
     report["calibration"] = source
     if truth2world is not None:
         report["calibration_alignment"] = {
@@ -403,6 +408,12 @@ def run_evaluate(
     if out_dir is not None:
         with atomic_dir(out_dir, what="evaluation folder") as tmp:
             written = write_tables(tmp, report, results, sensors, truth, methods)
+            if facts is not None:
+                from kinefuse.report.html import write_html_report
+
+                written.append(
+                    write_html_report(tmp / "report.html", facts, report, results, truth, methods)
+                )
             report["written"] = [str(out_dir / p.name) for p in written] + [
                 str(out_dir / "evaluate.json")
             ]

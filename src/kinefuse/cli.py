@@ -286,6 +286,12 @@ def _cmd_realdata(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from kinefuse.viewer_app import run_view
+
+    return run_view(args.session, host=args.host, port=args.port)
+
+
 def _phase(text: str) -> tuple[float, float]:
     try:
         a, b = (float(x) for x in text.split(":"))
@@ -477,6 +483,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_realdata)
 
     _add_analyze_parser(sub)
+
+    p = sub.add_parser("view", help="replay a session in the web viewer (docs/viewer.md)")
+    p.add_argument("session", type=Path)
+    p.add_argument("--host", default="127.0.0.1", help="interface to serve on (127.0.0.1)")
+    p.add_argument("--port", type=int, default=0, help="TCP port (0: a free one)")
+    p.set_defaults(func=_cmd_view)
 
     p = sub.add_parser("inspect", help="summarize a session store")
     p.add_argument("session", type=Path)

@@ -1,0 +1,206 @@
+"""The viewer's web server: the page, its static files and one WebSocket, over aiohttp.
+
+Two data sources sit behind one small interface (:class:`Source`): :class:`LiveSource` follows a
+:class:`~kinefuse.net.publish.Publisher` (the live server), :class:`~kinefuse.viewer.replay.
+ReplaySource` plays a recorded session. Each WebSocket connection gets its own
+``Source.serve`` call; the server only moves bytes.
+
+The live path never slows the publisher: each page has a lossy subscription of ``maxsize``
+items, so a page (or a network) that falls behind skips frames instead of queueing them, and
+``Publisher.publish`` stays a few appends.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import weakref
+from collections.abc import AsyncIterator
+from importlib import resources
+from typing import Any, Protocol
+
+from aiohttp import WSMsgType, web
+
+from kinefuse.net.publish import FusedFrame, Publisher, ServerStatus
+from kinefuse.viewer.wire import fused_frame_bytes, hello_message, status_message
+
+#: Default host: loopback only (a viewer shows a lab's capture; exposing it is a choice).
+DEFAULT_HOST = "127.0.0.1"
+
+_STATIC = ("index.html", "viewer.css", "viewer.js")
+_TYPES = {".html": "text/html", ".css": "text/css", ".js": "text/javascript"}
+
+
+class Source(Protocol):
+    """What the server needs of a data source."""
+
+    def hello(self) -> dict[str, Any]:
+        """The ``hello`` message sent first on every connection."""
+        ...
+
+    async def serve(self, ws: web.WebSocketResponse) -> None:
+        """Send to ``ws`` (and read its commands) until it closes or the source ends."""
+        ...
+
+
+class LiveSource:
+    """Frames and status from a live :class:`Publisher`, one lossy subscription per page.
+
+    Parameters
+    ----------
+    publisher : Publisher
+    maxsize : int
+        Items a page's subscription keeps while the page is busy (older ones are dropped).
+    method : str
+        Name shown for the fused layer.
+    """
+
+    def __init__(self, publisher: Publisher, *, maxsize: int = 2, method: str = "fused") -> None:
+        if maxsize < 1:
+            raise ValueError(f"maxsize must be >= 1, got {maxsize}")
+        self.publisher = publisher
+        self.maxsize = maxsize
+        self.method = method
+        #: frames the pages skipped because they fell behind (sum over closed connections)
+        self.dropped = 0
+
+    def hello(self) -> dict[str, Any]:
+        return hello_message("live")
+
+    async def serve(self, ws: web.WebSocketResponse) -> None:
+        sub = self.publisher.subscribe(maxsize=self.maxsize)
+
+        async def read() -> None:
+            async for _msg in ws:  # commands mean nothing live; reading notices the close
+                pass
+            sub.close()
+
+        async def send() -> None:
+            sent: ServerStatus | None = None
+            async for item in sub:
+                if isinstance(item, ServerStatus):
+                    if item is not sent:  # not already sent ahead of a frame
+                        await ws.send_str(json.dumps(status_message(item)))
+                        sent = item
+                    continue
+                assert isinstance(item, FusedFrame)
+                last = self.publisher.last_status  # a lagging page may have lost it in the queue
+                if last is not None and last is not sent:
+                    await ws.send_str(json.dumps(status_message(last)))
+                    sent = last
+                await ws.send_bytes(fused_frame_bytes(item, method=self.method))
+            await ws.close()  # the publisher closed
+
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(read())
+                tg.create_task(send())
+        except* (ConnectionResetError, ConnectionError):
+            pass  # the page went away mid-send
+        finally:
+            sub.close()
+            self.dropped += sub.dropped
+
+
+def make_app(source: Source) -> web.Application:
+    """The aiohttp application: ``/`` (the page), ``/static/*``, ``/ws``."""
+    app = web.Application()
+    sockets: weakref.WeakSet[web.WebSocketResponse] = weakref.WeakSet()
+    files = {name: (resources.files("kinefuse.viewer") / "static" / name) for name in _STATIC}
+
+    async def page(_request: web.Request) -> web.Response:
+        return _file_response(files["index.html"].read_bytes(), "index.html")
+
+    async def static(request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        if name not in files:
+            raise web.HTTPNotFound()
+        return _file_response(files[name].read_bytes(), name)
+
+    async def websocket(request: web.Request) -> web.WebSocketResponse:
+        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=1 << 16)
+        await ws.prepare(request)
+        sockets.add(ws)
+        try:
+            await ws.send_str(json.dumps(source.hello()))
+            await source.serve(ws)
+        except (ConnectionResetError, ConnectionError):
+            pass
+        finally:
+            sockets.discard(ws)
+        return ws
+
+    async def close_sockets(_app: web.Application) -> None:
+        for ws in list(sockets):
+            await ws.close(code=1001, message=b"server stopping")
+
+    app.router.add_get("/", page)
+    app.router.add_get("/static/{name}", static)
+    app.router.add_get("/ws", websocket)
+    app.on_shutdown.append(close_sockets)
+    return app
+
+
+def _file_response(body: bytes, name: str) -> web.Response:
+    ext = name[name.rfind(".") :]
+    return web.Response(body=body, content_type=_TYPES[ext], headers={"Cache-Control": "no-store"})
+
+
+@contextlib.asynccontextmanager
+async def serve(source: Source, *, host: str = DEFAULT_HOST, port: int = 0) -> AsyncIterator[int]:
+    """Serve ``source`` on the running loop; yields the bound port; stops on exit."""
+    runner = web.AppRunner(make_app(source), handle_signals=False, access_log=None)
+    await runner.setup()
+    try:
+        site = web.TCPSite(runner, host, port, reuse_address=True)
+        await site.start()
+        addresses = runner.addresses
+        if not addresses:
+            raise OSError(f"the viewer could not bind {host}:{port}")
+        yield int(addresses[0][1])
+    finally:
+        await runner.cleanup()
+
+
+@contextlib.asynccontextmanager
+async def live_viewer(
+    publisher: Publisher, host: str = DEFAULT_HOST, port: int = 0, *, maxsize: int = 2
+) -> AsyncIterator[int]:
+    """Serve the live viewer of ``publisher`` on the running loop.
+
+    ::
+
+        async with live_viewer(publisher, host="127.0.0.1", port=0) as bound_port:
+            ...  # the page is at http://127.0.0.1:{bound_port}/
+
+    Parameters
+    ----------
+    publisher : Publisher
+        The live server's publisher; every open page subscribes to it (lossy, ``maxsize``).
+    host : str
+        Interface to bind (loopback by default).
+    port : int
+        TCP port; 0 picks a free one.
+    maxsize : int
+        Items a page keeps queued while it is busy; older ones are skipped.
+
+    Yields
+    ------
+    bound_port : int
+    """
+    async with serve(LiveSource(publisher, maxsize=maxsize), host=host, port=port) as p:
+        yield p
+
+
+async def read_commands(ws: web.WebSocketResponse) -> AsyncIterator[dict[str, Any]]:
+    """The JSON objects a page sends (anything else is ignored)."""
+    async for msg in ws:
+        if msg.type != WSMsgType.TEXT:
+            continue
+        try:
+            cmd = json.loads(msg.data)
+        except ValueError:
+            continue
+        if isinstance(cmd, dict):
+            yield cmd
