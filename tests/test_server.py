@@ -18,13 +18,14 @@ import numpy as np
 import pytest
 
 from kinefuse.calibration.calib_file import loads_calibration
-from kinefuse.calibration.session import calibrate, gather
+from kinefuse.calibration.session import calibrate
 from kinefuse.cli import main
 from kinefuse.io import store_live
 from kinefuse.io.store import SessionStore
 from kinefuse.net.live_calibration import LiveCalibrationOptions
 from kinefuse.net.publish import FusedFrame
 from kinefuse.net.server import Server, ServerOptions
+from kinefuse.pipeline import gather_calibration as gather
 from kinefuse.protocol import (
     AuthReply,
     BodyFrame,
@@ -437,7 +438,7 @@ def test_the_recording_reopens_and_offline_commands_work_on_it(live_run, tmp_pat
 
 def test_offline_best_live_agrees_with_the_live_frames(live_run) -> None:
     from kinefuse.app import resolve_poses
-    from kinefuse.fusion.session import load_sensors, run_method
+    from kinefuse.pipeline import load_sensors, run_method
 
     with SessionStore.open(live_run["record"]) as st:
         poses, _ = resolve_poses(st, None, False)
