@@ -42,14 +42,14 @@ class CalibratedSensor:
     intrinsics : Intrinsics
     sensor2world : (4, 4) float
         Its calibrated pose.
-    timebase : SensorTimebase or None
+    timebase : SensorTimebase
         Device -> host -> server clock mapping (from the clock probes).
     """
 
     observations: BodyFrames
     intrinsics: Intrinsics
     sensor2world: Array
-    timebase: SensorTimebase | None = None
+    timebase: SensorTimebase
 
     def __post_init__(self) -> None:
         o = self.observations
@@ -64,9 +64,9 @@ class CalibratedSensor:
         return self.observations.sensor_id
 
     @property
-    def clock(self) -> ClockEstimate | None:
+    def clock(self) -> ClockEstimate:
         """The client PC's clock against the server's (from the probes)."""
-        return None if self.timebase is None else self.timebase.host
+        return self.timebase.host
 
     @property
     def t_server_s(self) -> Array:
@@ -84,6 +84,10 @@ class CalibratedSensor:
         """``(N,)`` the client's bone-crossing counts."""
         assert self.observations.n_crossings is not None  # checked in __post_init__
         return self.observations.n_crossings
+
+
+#: The name branches written before the one observation type (issue 10) import; the same class.
+SensorData = CalibratedSensor
 
 
 @dataclass(frozen=True)
