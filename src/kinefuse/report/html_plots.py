@@ -167,7 +167,7 @@ def accuracy_figure(
     lo = np.array([100 * ci_m[m][0] for m in methods])
     hi = np.array([100 * ci_m[m][1] for m in methods])
     ax.barh(y, vals, color=[_colour(m, k) for k, m in enumerate(methods)], height=0.6)
-    ax.errorbar(vals, y, xerr=[vals - lo, hi - vals], fmt="none", ecolor="black", capsize=3)
+    ax.errorbar(vals, y, xerr=_xerr(vals, lo, hi), fmt="none", ecolor="black", capsize=3)
     for k, v in enumerate(vals):
         ax.annotate(
             f"{v:.1f}", (hi[k], y[k]), xytext=(4, -3), textcoords="offset points", fontsize=8
@@ -177,6 +177,12 @@ def accuracy_figure(
     ax.set_xlabel("mean absolute joint error (cm), 95 % interval", fontsize=9)
     _style(ax)
     return fig
+
+
+def _xerr(v: Array, lo: Array, hi: Array) -> Array:
+    """Error-bar lengths ``(2, n)``: a bootstrap percentile interval need not contain the
+    estimate (a skewed error distribution), so a side that would be negative is drawn as 0."""
+    return np.nan_to_num(np.clip(np.stack([v - lo, hi - v]), 0.0, None))
 
 
 def per_joint_figure(
@@ -195,7 +201,7 @@ def per_joint_figure(
         ax.errorbar(
             v,
             y + off[k],
-            xerr=[v - lo, hi - v],
+            xerr=_xerr(v, lo, hi),
             fmt="o",
             ms=4,
             capsize=2,

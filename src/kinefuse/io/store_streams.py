@@ -1,0 +1,462 @@
+"""What the sensors delivered, in the session store: body-tracker observations, calibration
+depth frames and clock probes (a part of :class:`~kinefuse.io.store.SessionStore`, which
+inherits :class:`SensorStreams`; split from :mod:`kinefuse.io.store` by what each part is).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import math
+import sqlite3
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kinefuse.errors import InputError, StoreError
+from kinefuse.io.store_codec import (
+    _F8,
+    _I1,
+    _U1,
+    _U2,
+    _blobs,
+    _check_shape,
+    _column,
+    _float_array,
+    _int_array,
+    _require_finite,
+    _require_no_inf,
+    _require_same_length,
+    _require_unique,
+    _unblob,
+    decode_depth,
+    encode_depth,
+)
+from kinefuse.observations import BodyFrames
+from kinefuse.skeleton import N_JOINTS, TrackingState
+
+if TYPE_CHECKING:
+    from kinefuse.io.store import SensorInfo
+
+Array = NDArray[np.float64]
+
+
+class SensorStreams:
+    """Observations, depth frames and clock probes of each sensor (a part of SessionStore)."""
+
+    if TYPE_CHECKING:  # provided by SessionStore
+        path: Path
+        _sensor_keys: dict[str, int]
+        _has_host_time: bool
+        _has_client_occlusion: bool
+
+        def sensors(self) -> list[SensorInfo]: ...
+
+        def sensor(self, sensor_id: str) -> SensorInfo: ...
+
+        @property
+        def _db(self) -> sqlite3.Connection: ...
+
+        def _writer(self, what: str) -> sqlite3.Connection: ...
+
+        def _transaction(
+            self, what: str
+        ) -> contextlib.AbstractContextManager[sqlite3.Connection]: ...
+
+        def _key(self, sensor_id: str, what: str) -> int: ...
+
+        def _existing_seqs(self, table: str, key: int, seq: NDArray[Any]) -> NDArray[np.int64]: ...
+
+        def _insert_frames(
+            self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
+        ) -> None: ...
+
+    # -- observations -------------------------------------------------------------------------
+
+    def append_observations(
+        self,
+        sensor_id: str,
+        seq: ArrayLike,
+        t_sensor_s: ArrayLike,
+        joints_m: ArrayLike,
+        states: ArrayLike,
+        *,
+        t_receive_server_s: ArrayLike | None = None,
+        t_receive_host_s: ArrayLike | None = None,
+        occluded: ArrayLike | None = None,
+        n_crossings: ArrayLike | None = None,
+    ) -> None:
+        """Append body-tracker frames of one sensor (one transaction).
+
+        Parameters
+        ----------
+        sensor_id : str
+            A sensor registered with :meth:`add_sensor`.
+        seq : (N,) int
+            Sequence numbers, unique per sensor (also against frames stored before).
+        t_sensor_s : (N,) float
+            Capture times on the sensor's clock, seconds, finite.
+        joints_m : (N, 25, 3) float
+            Joints in the sensor frame, metres; NaN exactly where the state is ``NOT_TRACKED``.
+        states : (N, 25) int
+            :class:`~kinefuse.skeleton.TrackingState` values (0, 1, 2).
+        t_receive_server_s : (N,) float, optional
+            Arrival times on the server's clock, seconds; NaN (or omitted) where unknown.
+        t_receive_host_s : (N,) float, optional
+            Arrival times at the sensor's client PC, on its clock, seconds; NaN (or omitted)
+            where unknown. A store written before this column existed cannot take them.
+        occluded : (N, 25) bool, optional
+            The client's occlusion flags; given together with ``n_crossings``.
+        n_crossings : (N,) int, optional
+            The client's number of bone crossings per frame (>= 0).
+        """
+        what = f"append_observations(sensor {sensor_id!r})"
+        key = self._key(sensor_id, what)
+        s = _int_array(seq, "seq", (None,), what)
+        t = _float_array(t_sensor_s, "t_sensor_s", (None,), what)
+        j = _float_array(joints_m, "joints_m", (None, N_JOINTS, 3), what)
+        st = _int_array(states, "states", (None, N_JOINTS), what)
+        tr = (
+            np.full(t.shape, np.nan)
+            if t_receive_server_s is None
+            else _float_array(t_receive_server_s, "t_receive_server_s", (None,), what)
+        )
+        th = (
+            np.full(t.shape, np.nan)
+            if t_receive_host_s is None
+            else _float_array(t_receive_host_s, "t_receive_host_s", (None,), what)
+        )
+        n = _require_same_length(
+            what,
+            seq=s,
+            t_sensor_s=t,
+            joints_m=j,
+            states=st,
+            t_receive_server_s=tr,
+            t_receive_host_s=th,
+        )
+        if n == 0:
+            return
+        _require_finite(t, "t_sensor_s", what)
+        _require_no_inf(tr, "t_receive_server_s", what)
+        _require_no_inf(th, "t_receive_host_s", what)
+        if not self._has_host_time and not np.isnan(th).all():
+            raise InputError(
+                f"{what}: {self.path} was written by an older kinefuse without host receive "
+                "times; append to a new session store to record them"
+            )
+        _require_no_inf(j, "joints_m", what)
+        if not np.isin(st, (0, 1, 2)).all():
+            bad = np.unique(st[~np.isin(st, (0, 1, 2))])[:5].tolist()
+            raise InputError(
+                f"{what}: states must be TrackingState values 0, 1, 2 (not tracked, inferred, "
+                f"tracked), got {bad}"
+            )
+        nan = np.isnan(j)
+        not_tracked = st == TrackingState.NOT_TRACKED
+        bad_nan = (nan.any(axis=-1) != not_tracked) | (nan.all(axis=-1) != not_tracked)
+        if bad_nan.any():
+            f, jj = np.argwhere(bad_nan)[0]
+            raise InputError(
+                f"{what}: joints_m must be all-NaN exactly where states is NOT_TRACKED (0); "
+                f"frame {f}, joint {jj} has state {int(st[f, jj])} and position "
+                f"{j[f, jj].tolist()}"
+            )
+        _require_unique(s, what)
+        occ_rows = self._client_occlusion_rows(occluded, n_crossings, n, what)
+        cols: tuple[list[Any], ...] = (
+            np.full(n, key).tolist(),
+            s.astype(np.int64).tolist(),
+            t.tolist(),
+            [None if math.isnan(x) else x for x in tr.tolist()],
+            _blobs(j, _F8),
+            _blobs(st, _I1),
+        )
+        extra_cols, extra_q = "", ""
+        if self._has_host_time:
+            cols = (*cols, [None if math.isnan(x) else x for x in th.tolist()])
+            extra_cols, extra_q = ", t_receive_host_s", ", ?"
+        if self._has_client_occlusion:
+            cols = (*cols, *occ_rows)
+            extra_cols, extra_q = extra_cols + ", occluded, n_crossings", extra_q + ", ?, ?"
+        self._insert_frames(
+            "observations",
+            key,
+            sensor_id,
+            s,
+            "INSERT INTO observations (sensor_key, seq, t_sensor_s, t_receive_server_s, joints_m,"
+            f" states{extra_cols}) VALUES (?, ?, ?, ?, ?, ?{extra_q})",
+            zip(*cols, strict=True),
+        )
+
+    def _client_occlusion_rows(
+        self, occluded: ArrayLike | None, n_crossings: ArrayLike | None, n: int, what: str
+    ) -> tuple[list[bytes | None], list[int | None]]:
+        """The ``occluded`` and ``n_crossings`` column values of ``n`` rows (NULL when absent)."""
+        if occluded is None and n_crossings is None:
+            return [None] * n, [None] * n
+        if occluded is None or n_crossings is None:
+            raise InputError(f"{what}: give the client's occluded flags and n_crossings together")
+        if not self._has_client_occlusion:
+            raise InputError(
+                f"{what}: {self.path} was written by an older kinefuse without the clients' "
+                "occlusion flags; append to a new session store to record them"
+            )
+        occ = np.asarray(occluded)
+        if occ.dtype != np.bool_:
+            raise InputError(f"{what}: occluded must be bool, got dtype {occ.dtype}")
+        _check_shape(occ, "occluded", (n, N_JOINTS), what)
+        cr = _int_array(n_crossings, "n_crossings", (n,), what)
+        if (cr < 0).any():
+            raise InputError(f"{what}: n_crossings must be >= 0")
+        blobs: list[bytes | None] = list(_blobs(occ, _U1))
+        return blobs, [int(c) for c in cr.tolist()]
+
+    def observations(self, sensor_id: str, *, since_seq: int | None = None) -> BodyFrames:
+        """Observations of one sensor ordered by sequence number: all of them, or only those
+        after ``since_seq`` (a reader following a live recording asks for what is new)."""
+        what = f"observations of sensor {sensor_id!r}"
+        key = self._key(sensor_id, what)
+        host = ", t_receive_host_s" if self._has_host_time else ", NULL"
+        occ = ", occluded, n_crossings" if self._has_client_occlusion else ", NULL, NULL"
+        after = -(2**63) if since_seq is None else int(since_seq)
+        rows = self._db.execute(
+            "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
+            f"{host}{occ} FROM observations WHERE sensor_key = ? AND seq > ? ORDER BY seq",
+            (key, after),
+        ).fetchall()
+        flags = [r[6] for r in rows]
+        have = [f is not None for f in flags]
+        occluded = crossings = None
+        if rows and all(have):
+            occluded = _unblob(flags, _U1, (N_JOINTS,), what).astype(bool)
+            crossings = np.array([r[7] for r in rows], dtype=np.int64)
+        elif any(have):  # some frames without flags: NULL rows count as not occluded
+            blank = bytes(N_JOINTS)
+            occluded = _unblob([f or blank for f in flags], _U1, (N_JOINTS,), what).astype(bool)
+            crossings = np.array([r[7] or 0 for r in rows], dtype=np.int64)
+        return BodyFrames(
+            sensor_id=sensor_id,
+            seq=np.array([r[0] for r in rows], dtype=np.int64),
+            t_device_s=_column(rows, 1),
+            joints_m=_unblob([r[3] for r in rows], _F8, (N_JOINTS, 3), what),
+            states=_unblob([r[4] for r in rows], _I1, (N_JOINTS,), what),
+            t_receive_server_s=_column(rows, 2),
+            t_host_s=_column(rows, 5),
+            occluded=occluded,
+            n_crossings=crossings,
+        )
+
+    def observation_count(self, sensor_id: str) -> int:
+        """Number of observation frames stored for one sensor."""
+        key = self._key(sensor_id, "observation_count")
+        row = self._db.execute(
+            "SELECT count(*) FROM observations WHERE sensor_key = ?", (key,)
+        ).fetchone()
+        return int(row[0])
+
+    def observations_digest(self) -> str:
+        """SHA-256 (hex) over every sensor's observation rows, for reproducibility checks.
+
+        Two sessions made by the same calls have the same digest, whatever their creation date.
+        """
+        h = hashlib.sha256()
+        for info in self.sensors():
+            h.update(info.id.encode() + b"\x00")
+            host = ", t_receive_host_s" if self._has_host_time else ", NULL"
+            rows = self._db.execute(
+                "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
+                f"{host} FROM observations WHERE sensor_key = ? ORDER BY seq",
+                (self._sensor_keys[info.id],),
+            )
+            for seq, t, tr, j, st, th in rows:
+                h.update(np.array([seq], "<i8").tobytes())
+                h.update(np.array([t, np.nan if tr is None else tr], _F8).tobytes())
+                h.update(j)
+                h.update(st)
+                if th is not None:  # rows without a host time hash as before
+                    h.update(np.array([th], _F8).tobytes())
+        return h.hexdigest()
+
+    # -- depth frames -------------------------------------------------------------------------
+
+    def append_depth_frames(
+        self, sensor_id: str, seq: ArrayLike, t_sensor_s: ArrayLike, depth_mm: ArrayLike
+    ) -> None:
+        """Append calibration-phase depth frames of one sensor (zlib-compressed, one transaction).
+
+        Parameters
+        ----------
+        sensor_id : str
+        seq : (N,) int
+            Sequence numbers, unique per sensor.
+        t_sensor_s : (N,) float
+            Capture times on the sensor's clock, seconds.
+        depth_mm : (N, H, W) uint16
+            Depth images in millimetres (0 = no reading); ``H, W`` must be the sensor's image size.
+        """
+        what = f"append_depth_frames(sensor {sensor_id!r})"
+        key = self._key(sensor_id, what)
+        intr = self.sensor(sensor_id).intrinsics
+        s = _int_array(seq, "seq", (None,), what)
+        t = _float_array(t_sensor_s, "t_sensor_s", (None,), what)
+        d = np.asarray(depth_mm)
+        if d.dtype != np.uint16:
+            raise InputError(
+                f"{what}: depth_mm must be uint16 millimetres, got dtype {d.dtype}; convert "
+                f"with np.round(depth_m * 1000).astype(np.uint16)"
+            )
+        _check_shape(d, "depth_mm", (None, intr.height, intr.width), what)
+        n = _require_same_length(what, seq=s, t_sensor_s=t, depth_mm=d)
+        if n == 0:
+            return
+        _require_finite(t, "t_sensor_s", what)
+        _require_unique(s, what)
+        d = np.ascontiguousarray(d, dtype=_U2)
+        blobs = [encode_depth(f) for f in d]
+        rows = zip(
+            np.full(n, key).tolist(),
+            s.astype(np.int64).tolist(),
+            t.tolist(),
+            [intr.height] * n,
+            [intr.width] * n,
+            blobs,
+            strict=True,
+        )
+        self._insert_frames(
+            "depth_frames",
+            key,
+            sensor_id,
+            s,
+            "INSERT INTO depth_frames (sensor_key, seq, t_sensor_s, height, width, depth_mm) "
+            "VALUES (?, ?, ?, ?, ?, ?)",
+            rows,
+        )
+
+    def depth_frame_count(self, sensor_id: str) -> int:
+        """Number of depth frames stored for one sensor."""
+        key = self._key(sensor_id, "depth_frame_count")
+        row = self._db.execute(
+            "SELECT count(*) FROM depth_frames WHERE sensor_key = ?", (key,)
+        ).fetchone()
+        return int(row[0])
+
+    def storage_bytes(self) -> dict[str, int]:
+        """Bytes on disk: the whole file (``file``) and the BLOBs of depth frames
+        (``depth_frames``, compressed) and body observations (``observations``)."""
+        depth = self._db.execute("SELECT coalesce(sum(length(depth_mm)), 0) FROM depth_frames")
+        obs = self._db.execute(
+            "SELECT coalesce(sum(length(joints_m) + length(states)), 0) FROM observations"
+        )
+        return {
+            "file": self.path.stat().st_size,
+            "depth_frames": int(depth.fetchone()[0]),
+            "observations": int(obs.fetchone()[0]),
+        }
+
+    def iter_depth_frames(
+        self, sensor_id: str, *, batch: int = 32
+    ) -> Iterator[tuple[NDArray[np.int64], Array, NDArray[np.uint16]]]:
+        """Depth frames of one sensor in seq order, ``batch`` at a time.
+
+        Yields
+        ------
+        seq : (n,) int64
+        t_sensor_s : (n,) float
+        depth_mm : (n, H, W) uint16
+        """
+        what = f"depth frames of sensor {sensor_id!r}"
+        key = self._key(sensor_id, what)
+        if not (isinstance(batch, int) and batch > 0):
+            raise InputError(f"iter_depth_frames: batch must be a positive int, got {batch!r}")
+        cur = self._db.execute(
+            "SELECT seq, t_sensor_s, height, width, depth_mm FROM depth_frames "
+            "WHERE sensor_key = ? ORDER BY seq",
+            (key,),
+        )
+        try:
+            while rows := cur.fetchmany(batch):
+                shapes = {(int(r[2]), int(r[3])) for r in rows}
+                if len(shapes) != 1:
+                    raise StoreError(f"{what}: frames of different sizes {sorted(shapes)}")
+                (h, w) = shapes.pop()
+                frames = np.empty((len(rows), h, w), dtype=np.uint16)
+                for i, r in enumerate(rows):
+                    try:
+                        frames[i] = decode_depth(r[4], h, w)
+                    except (zlib.error, ValueError) as e:
+                        raise StoreError(f"{what}: frame seq {r[0]} is corrupt ({e})") from None
+                yield (
+                    np.array([r[0] for r in rows], dtype=np.int64),
+                    _column(rows, 1),
+                    frames,
+                )
+        finally:
+            cur.close()
+
+    # -- clock probes -------------------------------------------------------------------------
+
+    def append_clock_probes(
+        self,
+        sensor_id: str,
+        t1_server_s: ArrayLike,
+        t2_client_s: ArrayLike,
+        t3_client_s: ArrayLike,
+        t4_server_s: ArrayLike,
+    ) -> None:
+        """Append NTP-style clock probes between the server and one sensor's client.
+
+        Parameters
+        ----------
+        sensor_id : str
+        t1_server_s, t4_server_s : (N,) float
+            Request sent and reply received, server clock, seconds (``t4 >= t1``).
+        t2_client_s, t3_client_s : (N,) float
+            Request received and reply sent, client clock, seconds (``t3 >= t2``).
+        """
+        what = f"append_clock_probes(sensor {sensor_id!r})"
+        key = self._key(sensor_id, what)
+        names = ("t1_server_s", "t2_client_s", "t3_client_s", "t4_server_s")
+        cols = [
+            _float_array(a, nm, (None,), what)
+            for a, nm in zip(
+                (t1_server_s, t2_client_s, t3_client_s, t4_server_s), names, strict=True
+            )
+        ]
+        n = _require_same_length(what, **dict(zip(names, cols, strict=True)))
+        if n == 0:
+            return
+        t = np.stack(cols, axis=-1)
+        _require_finite(t, "clock probe times", what)
+        if (t[:, 3] < t[:, 0]).any():
+            i = int(np.flatnonzero(t[:, 3] < t[:, 0])[0])
+            raise InputError(f"{what}: probe {i} has t4_server_s < t1_server_s (reply before send)")
+        if (t[:, 2] < t[:, 1]).any():
+            i = int(np.flatnonzero(t[:, 2] < t[:, 1])[0])
+            raise InputError(
+                f"{what}: probe {i} has t3_client_s < t2_client_s (reply before receipt)"
+            )
+        with self._transaction(what) as conn:
+            row = conn.execute(
+                "SELECT coalesce(max(idx) + 1, 0) FROM clock_probes WHERE sensor_key = ?", (key,)
+            ).fetchone()
+            start = int(row[0])
+            conn.executemany(
+                "INSERT INTO clock_probes (sensor_key, idx, t1_server_s, t2_client_s, "
+                "t3_client_s, t4_server_s) VALUES (?, ?, ?, ?, ?, ?)",
+                [(key, start + i, *r) for i, r in enumerate(t.tolist())],
+            )
+
+    def clock_probes(self, sensor_id: str) -> Array:
+        """``(N, 4)`` clock probes ``t1_server_s, t2_client_s, t3_client_s, t4_server_s``."""
+        key = self._key(sensor_id, f"clock probes of sensor {sensor_id!r}")
+        rows = self._db.execute(
+            "SELECT t1_server_s, t2_client_s, t3_client_s, t4_server_s FROM clock_probes "
+            "WHERE sensor_key = ? ORDER BY idx",
+            (key,),
+        ).fetchall()
+        return np.array(rows, dtype=np.float64).reshape(len(rows), 4)

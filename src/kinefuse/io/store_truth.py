@@ -1,0 +1,335 @@
+"""The ground truth of a simulated session: its writers (the simulator's) and the read-only
+accessor :class:`Truth` that only evaluation code (``report/``) uses.
+
+The truth lives in the ``truth_*`` tables of the same SQLite file; :class:`TruthTables` adds
+their writers to :class:`~kinefuse.io.store.SessionStore`, which inherits it. The system under
+test never reads them (the truth-firewall test empties them and makes :meth:`truth` raise).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import sqlite3
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kinefuse.errors import InputError, StoreError
+from kinefuse.geometry.transforms import check_rigid
+from kinefuse.io.store_codec import (
+    _F8,
+    _U1,
+    _blobs,
+    _check_shape,
+    _column,
+    _float_array,
+    _int_array,
+    _json_dumps,
+    _require_finite,
+    _require_increasing,
+    _require_same_length,
+    _require_unique,
+    _unblob,
+)
+from kinefuse.skeleton import N_JOINTS
+
+if TYPE_CHECKING:
+    from kinefuse.io.store import SessionStore
+
+Array = NDArray[np.float64]
+
+
+class TruthTables:
+    """The simulator's writers of the ``truth_*`` tables (a part of ``SessionStore``)."""
+
+    if TYPE_CHECKING:  # provided by SessionStore
+        path: Path
+
+        @property
+        def _db(self) -> sqlite3.Connection: ...
+
+        def _writer(self, what: str) -> sqlite3.Connection: ...
+
+        def _transaction(
+            self, what: str
+        ) -> contextlib.AbstractContextManager[sqlite3.Connection]: ...
+
+        def _key(self, sensor_id: str, what: str) -> int: ...
+
+        def _insert_frames(
+            self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
+        ) -> None: ...
+
+    def write_truth_motion(
+        self, t_s: ArrayLike, joints_world: ArrayLike, synthesized: ArrayLike
+    ) -> None:
+        """Store (replace) the true motion.
+
+        Parameters
+        ----------
+        t_s : (T,) float
+            Times on the true (simulation) clock, seconds, strictly increasing.
+        joints_world : (T, 25, 3) float
+            True joints in the world frame, metres, finite.
+        synthesized : (25,) bool
+            True for joints the motion source lacked and that were synthesized.
+        """
+        what = "write_truth_motion"
+        t = _float_array(t_s, "t_s", (None,), what)
+        j = _float_array(joints_world, "joints_world", (None, N_JOINTS, 3), what)
+        syn = np.asarray(synthesized)
+        if syn.dtype != np.bool_:
+            raise InputError(f"{what}: synthesized must be bool, got dtype {syn.dtype}")
+        _check_shape(syn, "synthesized", (N_JOINTS,), what)
+        n = _require_same_length(what, t_s=t, joints_world=j)
+        if n == 0:
+            raise InputError(f"{what}: the motion has no frames")
+        _require_finite(t, "t_s", what)
+        _require_finite(j, "joints_world", what)
+        _require_increasing(t, "t_s", what)
+        with self._transaction(what) as conn:
+            conn.execute("DELETE FROM truth_motion")
+            conn.executemany(
+                "INSERT INTO truth_motion (frame, t_s, joints_m) VALUES (?, ?, ?)",
+                zip(range(n), t.tolist(), _blobs(j, _F8), strict=True),
+            )
+            conn.execute(
+                "INSERT OR REPLACE INTO truth_info (key, value) VALUES ('synthesized', ?)",
+                (json.dumps(syn.tolist()),),
+            )
+
+    def write_truth_sensor(
+        self, sensor_id: str, sensor2world: ArrayLike, clock: dict[str, float]
+    ) -> None:
+        """Store (replace) a sensor's true pose and true clock parameters.
+
+        Parameters
+        ----------
+        sensor_id : str
+        sensor2world : (4, 4) float
+            Rigid transform from the sensor frame to the world frame.
+        clock : dict of str to float
+            The true clock (offset, drift, jitter, latency... as the simulator defines them).
+        """
+        what = f"write_truth_sensor(sensor {sensor_id!r})"
+        key = self._key(sensor_id, what)
+        m = check_rigid(_float_array(sensor2world, "sensor2world", (4, 4), what),
+                        f"{what}: sensor2world")  # fmt: skip
+        if not isinstance(clock, dict) or not all(
+            isinstance(k, str) and isinstance(v, int | float) and math.isfinite(v)
+            for k, v in clock.items()
+        ):
+            raise InputError(
+                f"{what}: clock must be a dict of str to finite numbers, got {clock!r}"
+            )
+        text = _json_dumps({k: float(v) for k, v in clock.items()}, what)
+        with self._transaction(what) as conn:
+            conn.execute(
+                "INSERT OR REPLACE INTO truth_sensors (sensor_key, sensor2world, clock) "
+                "VALUES (?, ?, ?)",
+                (key, np.ascontiguousarray(m, _F8).tobytes(), text),
+            )
+
+    def append_truth_observations(
+        self,
+        sensor_id: str,
+        seq: ArrayLike,
+        t_true_s: ArrayLike,
+        joints_sensor: ArrayLike,
+        visible: ArrayLike,
+        swapped: ArrayLike,
+    ) -> None:
+        """Append the truth behind a sensor's observation frames (same ``seq`` numbers).
+
+        Parameters
+        ----------
+        sensor_id : str
+        seq : (N,) int
+            Sequence numbers of the observation frames described.
+        t_true_s : (N,) float
+            True capture instants (simulation clock), seconds.
+        joints_sensor : (N, 25, 3) float
+            True joints in the sensor frame at the capture instant, metres, finite.
+        visible : (N, 25) bool
+            True where the joint is in view and not hidden by the body.
+        swapped : (N,) bool
+            True for frames the tracker reported left/right swapped.
+        """
+        what = f"append_truth_observations(sensor {sensor_id!r})"
+        key = self._key(sensor_id, what)
+        s = _int_array(seq, "seq", (None,), what)
+        t = _float_array(t_true_s, "t_true_s", (None,), what)
+        j = _float_array(joints_sensor, "joints_sensor", (None, N_JOINTS, 3), what)
+        v = np.asarray(visible)
+        w = np.asarray(swapped)
+        for a, nm in ((v, "visible"), (w, "swapped")):
+            if a.dtype != np.bool_:
+                raise InputError(f"{what}: {nm} must be bool, got dtype {a.dtype}")
+        _check_shape(v, "visible", (None, N_JOINTS), what)
+        _check_shape(w, "swapped", (None,), what)
+        n = _require_same_length(what, seq=s, t_true_s=t, joints_sensor=j, visible=v, swapped=w)
+        if n == 0:
+            return
+        _require_finite(t, "t_true_s", what)
+        _require_finite(j, "joints_sensor", what)
+        _require_unique(s, what)
+        rows = zip(
+            np.full(n, key).tolist(),
+            s.astype(np.int64).tolist(),
+            t.tolist(),
+            _blobs(j, _F8),
+            _blobs(v, _U1),
+            w.astype(np.int64).tolist(),
+            strict=True,
+        )
+        self._insert_frames(
+            "truth_observations",
+            key,
+            sensor_id,
+            s,
+            "INSERT INTO truth_observations (sensor_key, seq, t_true_s, joints_m, visible, "
+            "swapped) VALUES (?, ?, ?, ?, ?, ?)",
+            rows,
+        )
+
+    def append_truth_wand(self, t_s: ArrayLike, centre_world: ArrayLike) -> None:
+        """Append the true wand centre over time.
+
+        Parameters
+        ----------
+        t_s : (T,) float
+            Times on the simulation clock, seconds, strictly increasing and after those stored.
+        centre_world : (T, 3) float
+            Wand (sphere) centre in the world frame, metres, finite.
+        """
+        what = "append_truth_wand"
+        t = _float_array(t_s, "t_s", (None,), what)
+        c = _float_array(centre_world, "centre_world", (None, 3), what)
+        n = _require_same_length(what, t_s=t, centre_world=c)
+        if n == 0:
+            return
+        _require_finite(t, "t_s", what)
+        _require_finite(c, "centre_world", what)
+        _require_increasing(t, "t_s", what)
+        with self._transaction(what) as conn:
+            last = conn.execute("SELECT max(frame), max(t_s) FROM truth_wand").fetchone()
+            start = 0 if last[0] is None else int(last[0]) + 1
+            if last[1] is not None and t[0] <= last[1]:
+                raise InputError(
+                    f"{what}: t_s[0]={float(t[0])!r} is not after the last stored time {last[1]!r}"
+                )
+            conn.executemany(
+                "INSERT INTO truth_wand (frame, t_s, x_m, y_m, z_m) VALUES (?, ?, ?, ?, ?)",
+                [
+                    (start + i, ti, *ci)
+                    for i, (ti, ci) in enumerate(zip(t.tolist(), c.tolist(), strict=True))
+                ],
+            )
+
+    def write_truth_info(self, key: str, value: object) -> None:
+        """Store (replace) a JSON-able piece of truth under ``key`` (e.g. the true movement axes
+        of a range-of-motion phase); read back only by evaluation code, via :meth:`Truth.info`."""
+        what = f"write_truth_info({key!r})"
+        if not isinstance(key, str) or not key or key == "synthesized":
+            raise InputError(f"{what}: key must be a non-empty string other than 'synthesized'")
+        text = _json_dumps(value, what)
+        with self._transaction(what) as conn:
+            conn.execute(
+                "INSERT OR REPLACE INTO truth_info (key, value) VALUES (?, ?)", (key, text)
+            )
+
+    def has_truth(self) -> bool:
+        """True if the session holds any ground truth (a simulated session)."""
+        for table in ("truth_motion", "truth_sensors", "truth_observations", "truth_wand"):
+            if self._db.execute(f"SELECT 1 FROM {table} LIMIT 1").fetchone():
+                return True
+        return False
+
+    def truth(self) -> Truth:
+        """Read-only access to the ground truth; for evaluation code only.
+
+        Raises
+        ------
+        StoreError
+            The session has no ground truth (a live recording).
+        """
+        if not self.has_truth():
+            raise StoreError(
+                f"{self.path.name} holds no ground truth (a live recording?); only simulated "
+                f"sessions can be evaluated against the truth"
+            )
+        return Truth(cast("SessionStore", self))  # only SessionStore inherits this
+
+
+class Truth:
+    """Read-only accessor to a session's ground truth (the ``truth_*`` tables).
+
+    Only evaluation code uses it; the system under test never reads the truth.
+    """
+
+    def __init__(self, store: SessionStore) -> None:
+        self._store = store
+
+    def motion(self) -> tuple[Array, Array, NDArray[np.bool_]]:
+        """``(t_s (T,), joints_world (T, 25, 3), synthesized (25,) bool)``."""
+        db = self._store._db
+        rows = db.execute("SELECT t_s, joints_m FROM truth_motion ORDER BY frame").fetchall()
+        info = db.execute("SELECT value FROM truth_info WHERE key = 'synthesized'").fetchone()
+        if not rows or info is None:
+            raise StoreError(f"{self._store.path.name} holds no true motion")
+        syn = np.array(json.loads(info[0]), dtype=bool)
+        joints = _unblob([r[1] for r in rows], _F8, (N_JOINTS, 3), "truth motion")
+        return _column(rows, 0), joints, syn
+
+    def info(self, key: str) -> object | None:
+        """The truth stored under ``key`` by :meth:`SessionStore.write_truth_info`, or None."""
+        row = self._store._db.execute(
+            "SELECT value FROM truth_info WHERE key = ?", (key,)
+        ).fetchone()
+        return None if row is None else json.loads(row[0])
+
+    def sensor(self, sensor_id: str) -> tuple[Array, dict[str, float]]:
+        """``(sensor2world (4, 4), clock dict)`` of one sensor."""
+        key = self._store._key(sensor_id, "truth sensor")
+        row = self._store._db.execute(
+            "SELECT sensor2world, clock FROM truth_sensors WHERE sensor_key = ?", (key,)
+        ).fetchone()
+        if row is None:
+            raise StoreError(f"no true pose stored for sensor {sensor_id!r}")
+        m = _unblob([row[0]], _F8, (4, 4), f"true pose of sensor {sensor_id!r}")[0]
+        return m, {str(k): float(v) for k, v in json.loads(row[1]).items()}
+
+    def observations(
+        self, sensor_id: str
+    ) -> tuple[NDArray[np.int64], Array, Array, NDArray[np.bool_], NDArray[np.bool_]]:
+        """``(seq (N,), t_true_s (N,), joints_sensor (N, 25, 3), visible (N, 25), swapped (N,))``.
+
+        Ordered by seq; empty arrays if the simulator wrote none for this sensor.
+        """
+        what = f"truth observations of sensor {sensor_id!r}"
+        key = self._store._key(sensor_id, what)
+        rows = self._store._db.execute(
+            "SELECT seq, t_true_s, joints_m, visible, swapped FROM truth_observations "
+            "WHERE sensor_key = ? ORDER BY seq",
+            (key,),
+        ).fetchall()
+        vis = _unblob([r[3] for r in rows], _U1, (N_JOINTS,), what)
+        return (
+            np.array([r[0] for r in rows], dtype=np.int64),
+            _column(rows, 1),
+            _unblob([r[2] for r in rows], _F8, (N_JOINTS, 3), what),
+            vis.astype(bool),
+            np.array([r[4] for r in rows], dtype=bool).reshape(len(rows)),
+        )
+
+    def wand(self) -> tuple[Array, Array]:
+        """``(t_s (T,), centre_world (T, 3))``; empty arrays if no wand was simulated."""
+        rows = self._store._db.execute(
+            "SELECT t_s, x_m, y_m, z_m FROM truth_wand ORDER BY frame"
+        ).fetchall()
+        a = np.array(rows, dtype=np.float64).reshape(len(rows), 4)
+        return a[:, 0].copy(), a[:, 1:].copy()
