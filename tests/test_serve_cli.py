@@ -88,3 +88,19 @@ def test_calibrate_live_without_a_server_says_so(capsys) -> None:
     assert "cannot reach the server" in capsys.readouterr().err
     assert main(["calibrate"]) == 2
     assert "give a session" in capsys.readouterr().err
+
+
+def test_serve_runs_the_live_viewer_on_its_publisher(serve) -> None:
+    import urllib.request
+
+    p, first = serve("--viewer-port", "0")
+    assert first.startswith("kinefuse serve: listening on 127.0.0.1:")
+    assert p.stdout is not None
+    second = p.stdout.readline().strip()
+    assert second.startswith("kinefuse serve: viewer at http://127.0.0.1:"), second
+    url = second.split(" at ", 1)[1]
+    with urllib.request.urlopen(url, timeout=10) as r:
+        assert r.status == 200 and b"<html" in r.read().lower()
+    p.send_signal(signal.SIGINT)
+    _out, err = p.communicate(timeout=20)
+    assert p.returncode == 0, err

@@ -229,7 +229,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from kinefuse.app import format_calibrate, run_calibrate
 
     if args.live is not None or args.session is None:
-        return _cmd_calibrate_live(args)
+        from kinefuse.serve_app import cmd_calibrate_live
+
+        return cmd_calibrate_live(args)
     r = run_calibrate(
         session=args.session,
         method=args.method,
@@ -384,7 +386,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="find every sensor's pose from the wand phase")
     p.add_argument("session", type=Path, nargs="?", help="session store (or --live HOST:PORT)")
-    _add_calibrate_live_args(p)
+    from kinefuse.serve_app import add_calibrate_live_args
+    from kinefuse.serve_app import add_parser as add_serve_parser
+
+    add_calibrate_live_args(p)
     p.add_argument(
         "--method", choices=["paper", "full"], default="full", help="registration (full)"
     )
@@ -412,7 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_calibrate)
-    _add_serve_parser(sub)
+    add_serve_parser(sub)
     from kinefuse.proxy_app import add_parser as add_proxy_parser
 
     add_proxy_parser(sub)  # kinefuse proxy: a fault-injecting TCP proxy (docs/live.md)
@@ -499,87 +504,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_sensor_parser(sub)  # kinefuse sensor: one live sensor client (docs/live.md)
     return parser
-
-
-def _add_calibrate_live_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--live",
-        metavar="HOST:PORT",
-        help="calibrate through a running `kinefuse serve` instead of a session",
-    )
-    p.add_argument(
-        "--seconds",
-        type=_positive_float,
-        help="(--live) stop the wand phase after this long (default: when the wand is put away)",
-    )
-    p.add_argument("--token", help="(--live) the server's token (default: KINEFUSE_TOKEN)")
-
-
-def _cmd_calibrate_live(args: argparse.Namespace) -> int:
-    from kinefuse.serve_app import format_calibrate_live, run_calibrate_live, token_from
-
-    if args.live is None:
-        raise KinefuseError("give a session to calibrate, or --live HOST:PORT of a server")
-    if args.session is not None:
-        raise KinefuseError("give either a session or --live HOST:PORT, not both")
-    r = run_calibrate_live(
-        address=args.live, method=args.method, seconds=args.seconds, token=token_from(args.token)
-    )
-    print(json.dumps(r, indent=2) if args.json else format_calibrate_live(r))
-    return 0 if r["accepted"] else 3
-
-
-def _cmd_serve(args: argparse.Namespace) -> int:
-    from kinefuse.serve_app import run_serve, token_from
-
-    return run_serve(
-        host=args.host,
-        port=args.port,
-        token=token_from(args.token),
-        record=args.record,
-        calibration=args.calibration,
-        method=args.method,
-        latency_budget_ms=args.latency_budget_ms,
-        auto_calibrate=args.auto_calibrate,
-        calibration_method=args.calibration_method,
-        wand_axis_m=args.wand_axis_m,
-        verbose=args.verbose,
-    )
-
-
-def _add_serve_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("serve", help="run the live server: sensor clients in, fused frames out")
-    p.add_argument("--host", default="127.0.0.1", help="bind address (127.0.0.1: this PC only)")
-    p.add_argument("--port", type=int, default=7400, help="TCP port (7400; 0: a free one)")
-    p.add_argument("--token", help="shared secret clients must prove (default: KINEFUSE_TOKEN)")
-    p.add_argument("--record", type=Path, help="record everything into this NEW session file")
-    p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
-    p.add_argument(
-        "--method", choices=["best-live", "paper"], default="best-live", help="live fusion"
-    )
-    p.add_argument(
-        "--latency-budget-ms",
-        type=_nonneg_float,
-        default=10.0,
-        metavar="MS",
-        help="wait this long for late frames before predicting (10 ms)",
-    )
-    p.add_argument(
-        "--auto-calibrate",
-        action="store_true",
-        help="start the wand calibration as soon as a sensor without a pose joins",
-    )
-    p.add_argument(
-        "--calibration-method", choices=["full", "paper"], default="full", help="registration"
-    )
-    p.add_argument(
-        "--wand-axis-m",
-        type=_positive_float,
-        metavar="M",
-        help="the wand protocol's move between its two holds (m), to fix the scale",
-    )
-    p.add_argument("--verbose", action="store_true", help="log debug messages")
-    p.set_defaults(func=_cmd_serve)
 
 
 def _exit_cleanly_on_sigterm() -> None:

@@ -6,8 +6,10 @@ their outcome into exit codes and printed lines.
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
+import json
 import logging
 import math
 import os
@@ -89,6 +91,7 @@ def run_serve(
     auto_calibrate: bool,
     calibration_method: str = "full",
     wand_axis_m: float | None = None,
+    viewer_port: int | None = None,
     verbose: bool = False,
 ) -> int:
     """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop."""
@@ -111,6 +114,7 @@ def run_serve(
         latency_budget_s=latency_budget_ms / 1e3,
         auto_calibrate=auto_calibrate,
         calibration=LiveCalibrationOptions(method=calibration_method, axis_length_m=wand_axis_m),
+        viewer_port=viewer_port,
     )
     server = Server(options)
     if calibration is not None:
@@ -120,6 +124,8 @@ def run_serve(
 
     def ready(h: str, p: int) -> None:
         print(f"kinefuse serve: listening on {h}:{p}", flush=True)
+        if server.viewer_port is not None:
+            print(f"kinefuse serve: viewer at http://{h}:{server.viewer_port}/", flush=True)
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -266,3 +272,100 @@ def format_calibrate_live(r: dict[str, Any]) -> str:
     if not r["accepted"]:
         lines.append("the server keeps its previous poses (this calibration failed)")
     return "\n".join(lines)
+
+
+# -- command line ----------------------------------------------------------------------------------
+
+
+def add_calibrate_live_args(p: argparse.ArgumentParser) -> None:
+    """The ``--live`` options of ``kinefuse calibrate``."""
+    from kinefuse.cli import _positive_float
+
+    p.add_argument(
+        "--live",
+        metavar="HOST:PORT",
+        help="calibrate through a running `kinefuse serve` instead of a session",
+    )
+    p.add_argument(
+        "--seconds",
+        type=_positive_float,
+        help="(--live) stop the wand phase after this long (default: when the wand is put away)",
+    )
+    p.add_argument("--token", help="(--live) the server's token (default: KINEFUSE_TOKEN)")
+
+
+def cmd_calibrate_live(args: argparse.Namespace) -> int:
+    """``kinefuse calibrate --live HOST:PORT``."""
+
+    if args.live is None:
+        raise KinefuseError("give a session to calibrate, or --live HOST:PORT of a server")
+    if args.session is not None:
+        raise KinefuseError("give either a session or --live HOST:PORT, not both")
+    r = run_calibrate_live(
+        address=args.live, method=args.method, seconds=args.seconds, token=token_from(args.token)
+    )
+    print(json.dumps(r, indent=2) if args.json else format_calibrate_live(r))
+    return 0 if r["accepted"] else 3
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """``kinefuse serve``."""
+
+    return run_serve(
+        host=args.host,
+        port=args.port,
+        token=token_from(args.token),
+        record=args.record,
+        calibration=args.calibration,
+        method=args.method,
+        latency_budget_ms=args.latency_budget_ms,
+        auto_calibrate=args.auto_calibrate,
+        calibration_method=args.calibration_method,
+        wand_axis_m=args.wand_axis_m,
+        viewer_port=args.viewer_port,
+        verbose=args.verbose,
+    )
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse serve``."""
+    from kinefuse.cli import _nonneg_float, _positive_float
+
+    p = sub.add_parser("serve", help="run the live server: sensor clients in, fused frames out")
+    p.add_argument("--host", default="127.0.0.1", help="bind address (127.0.0.1: this PC only)")
+    p.add_argument("--port", type=int, default=7400, help="TCP port (7400; 0: a free one)")
+    p.add_argument("--token", help="shared secret clients must prove (default: KINEFUSE_TOKEN)")
+    p.add_argument("--record", type=Path, help="record everything into this NEW session file")
+    p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
+    p.add_argument(
+        "--method", choices=["best-live", "paper"], default="best-live", help="live fusion"
+    )
+    p.add_argument(
+        "--latency-budget-ms",
+        type=_nonneg_float,
+        default=10.0,
+        metavar="MS",
+        help="wait this long for late frames before predicting (10 ms)",
+    )
+    p.add_argument(
+        "--auto-calibrate",
+        action="store_true",
+        help="start the wand calibration as soon as a sensor without a pose joins",
+    )
+    p.add_argument(
+        "--calibration-method", choices=["full", "paper"], default="full", help="registration"
+    )
+    p.add_argument(
+        "--wand-axis-m",
+        type=_positive_float,
+        metavar="M",
+        help="the wand protocol's move between its two holds (m), to fix the scale",
+    )
+    p.add_argument(
+        "--viewer-port",
+        type=int,
+        metavar="PORT",
+        help="serve the live web viewer on this port (0: a free one; on --host)",
+    )
+    p.add_argument("--verbose", action="store_true", help="log debug messages")
+    p.set_defaults(func=cmd_serve)

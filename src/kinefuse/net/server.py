@@ -103,6 +103,9 @@ class ServerOptions:
     status_interval_s: float = 1.0
     max_frame_bytes: int = MAX_FRAME_BYTES
     max_sensors: int = 64
+    #: the live web viewer's port (None: no viewer; 0: a free one) and host (default: ``host``)
+    viewer_port: int | None = None
+    viewer_host: str | None = None
     session: str = "kinefuse-live"
 
 
@@ -140,6 +143,7 @@ class Server:
         )
         self.recorder: Recorder | None = None
         self.port: int | None = None
+        self.viewer_port: int | None = None
         self._stop = asyncio.Event()
         self._stop_reason = ""
         self._conns: set[Connection] = set()
@@ -188,12 +192,20 @@ class Server:
                 self.recorder.add_calibration(cal.method, dumps_calibration(cal))
         clean = False
         try:
-            async with asyncio.TaskGroup() as tg:
+            async with contextlib.AsyncExitStack() as stack, asyncio.TaskGroup() as tg:
                 self._tg = tg
                 srv = await asyncio.start_server(
                     self._accept, o.host, o.port, limit=o.max_frame_bytes + 8
                 )
                 self.port = int(srv.sockets[0].getsockname()[1])
+                if o.viewer_port is not None:  # the live web viewer, on this publisher
+                    from kinefuse.viewer import live_viewer
+
+                    self.viewer_port = await stack.enter_async_context(
+                        live_viewer(
+                            self.publisher, host=o.viewer_host or o.host, port=o.viewer_port
+                        )
+                    )
                 if ready is not None:
                     ready(o.host, self.port)
                 if self.recorder is not None:
