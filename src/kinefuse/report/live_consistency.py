@@ -7,7 +7,7 @@ the figures ``kinefuse realdata`` reports for the KinectMultiTrack logs). This m
 them from the recording alone, with what the live system recorded:
 
 1. **Clocks**: each sensor's capture times on the server clock from its own recorded stamps, as
-   every offline command does (:func:`kinefuse.fusion.session.load_sensors`: device -> host from
+   every offline command does (:func:`kinefuse.pipeline.load_sensors`: device -> host from
    the frames' two stamps, host -> server from the clock probes);
 2. **Registration**: the sensors' poses from the recording's calibration when it has one (a wand
    calibration), else the body as the calibration object: the other sensors re-registered rigidly
@@ -48,8 +48,7 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
     """
     from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
     from kinefuse.calibration.calib_file import loads_calibration
-    from kinefuse.fusion.best import SensorStream
-    from kinefuse.fusion.session import load_sensors
+    from kinefuse.pipeline import load_sensors
     from kinefuse.report.consistency import consistency
 
     if not (math.isfinite(grid_hz) and grid_hz > 0):
@@ -71,11 +70,13 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
         loaded = [s for s in load_sensors(store, poses) if s.id in with_body]
     # a frame sent twice (a log that repeats a sensor's latest skeleton) counts once, and
     # frames go in capture order
-    frames = {s.id: _distinct_frames(s.t_server_s, s.observations.t_device_s) for s in loaded}
     sensors = loaded
-    times = {s.id: s.t_server_s[frames[s.id]] for s in sensors}
-    joints = {s.id: s.observations.joints_m[frames[s.id]] for s in sensors}
-    states = {s.id: s.observations.states[frames[s.id]] for s in sensors}
+    streams = {
+        s.id: s.observations.take(_distinct_frames(s.t_server_s, s.observations.t_device_s))
+        for s in sensors
+    }
+    times = {k: v.t_server_s for k, v in streams.items()}
+    joints = {k: v.joints_m for k, v in streams.items()}
     ref = sensors[0]
     t_ref, j_ref = times[ref.id], joints[ref.id]
     reg_info: dict[str, Any] = {"kind": "calibration" if cal_name else "body"}
@@ -95,21 +96,13 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
         reg_info["floor_samples"] = floor.n_samples
     else:
         s2w = {s.id: s.sensor2world for s in sensors}
-    streams = [
-        SensorStream(
-            t_server_s=times[s.id],
-            joints_sensor=joints[s.id],
-            states=states[s.id],
-            sensor2world=s2w[s.id],
-        )
-        for s in sensors
-    ]
     lo = max(float(t.min()) for t in times.values())
     hi = min(float(t.max()) for t in times.values())
     if not hi > lo:
         raise InputError(f"{path}: the sensors' body frames do not overlap in time")
     grid = lo + np.arange(math.floor((hi - lo) * grid_hz) + 1) / grid_hz
-    c = consistency(streams, grid, names=[s.id for s in sensors])
+    ids = [s.id for s in sensors]
+    c = consistency([streams[i] for i in ids], np.stack([s2w[i] for i in ids]), grid, names=ids)
     out = {k: v for k, v in c.items() if not k.startswith("_")}
     out.update(
         {
@@ -120,12 +113,12 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
             "clocks": {
                 s.id: {
                     "frames_received": s.observations.n_frames,
-                    "frames": int(frames[s.id].size),
+                    "frames": streams[s.id].n_frames,
                     "device_drift_ppm": s.timebase.device.drift_ppm if s.timebase else None,
                     "device_residual_ms": 1e3 * s.timebase.device.residual_s
                     if s.timebase
                     else None,
-                    "host_drift_ppm": s.clock.drift_ppm,
+                    "host_drift_ppm": s.clock.drift_ppm if s.clock else None,
                 }
                 for s in sensors
             },

@@ -361,9 +361,9 @@ def live_vs_offline(store: SessionStore) -> dict[str, Any]:
     the same frame times, against the truth (in the calibration's world, as ``evaluate`` does);
     both over the frames x joints that both solved (``common``) and each over its own."""
     from kinefuse.app import resolve_poses
-    from kinefuse.fusion.session import load_sensors, run_method
     from kinefuse.geometry.transforms import apply_transform
     from kinefuse.io.store_live import live_fused
+    from kinefuse.pipeline import load_sensors, run_method
     from kinefuse.report.evaluate import calibration_alignment, truth_at
 
     lf = live_fused(store)
