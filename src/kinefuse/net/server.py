@@ -12,7 +12,13 @@ the whole server loudly instead of leaving half of it running):
 - the fusion loop (:class:`~kinefuse.net.fusion_loop.FusionLoop`, 30 Hz on the server clock);
 - housekeeping: ``ServerStatus`` about once a second and on every change, the end of a
   calibration (:mod:`kinefuse.net.live_calibration`);
-- the recorder (:class:`~kinefuse.net.recorder.Recorder`), when recording.
+- the recorder (:class:`~kinefuse.net.recorder.Recorder`), when recording;
+- the live web viewer (:func:`kinefuse.viewer.live_viewer`) on the same publisher, when asked.
+
+The parts live beside it: ``server_conn`` (one connection's bytes and messages),
+``server_client`` (a sensor's state across connections), ``server_control`` (a control peer),
+``server_report`` (status snapshots, calibration outcomes, run figures), ``fusion_loop``,
+``live_calibration`` and ``recorder``.
 
 Per sensor the server keeps a :class:`~kinefuse.net.server_client.SensorClient` across
 connections (pose, clocks, statistics): a client that dies is marked offline and fusion goes on
@@ -35,8 +41,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.errors import CalibrationError, SyncError
 from kinefuse.fusion.live import LiveOptions
@@ -47,15 +51,16 @@ from kinefuse.net.live_calibration import (
     LiveCalibration,
     LiveCalibrationOptions,
 )
-from kinefuse.net.publish import Publisher, SensorStatus, ServerStatus
+from kinefuse.net.publish import Publisher, ServerStatus
 from kinefuse.net.recorder import Recorder
 from kinefuse.net.server_client import Observation, SensorClient, sanitize_joints
 from kinefuse.net.server_conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
+from kinefuse.net.server_control import serve_control
+from kinefuse.net.server_report import outcome_meta, result_message, run_stats, server_status
 from kinefuse.protocol import (
     MAX_FRAME_BYTES,
     AuthReply,
     BodyFrame,
-    CalibrationResult,
     CalibrationStart,
     CalibrationStop,
     Challenge,
@@ -64,10 +69,6 @@ from kinefuse.protocol import (
     Goodbye,
     Heartbeat,
     Hello,
-    SensorInfo,
-    Shutdown,
-    Status,
-    StatusRequest,
     WandSighting,
     Welcome,
     WireError,
@@ -230,22 +231,7 @@ class Server:
 
     def run_stats(self) -> dict[str, object]:
         """Figures of the run so far (also stored as the meta ``live_run`` at a clean stop)."""
-        lp = self.loop
-        return {
-            "frames_fused": lp.frames,
-            "frames_skipped": lp.skipped,
-            "fusion_ms_per_frame": 1e3 * lp.fuse_seconds / lp.frames if lp.frames else None,
-            "stop_reason": self._stop_reason,
-            "refused": [{"code": c, "reason": r} for c, r in self.refused],
-            "sensors": {
-                sid: {
-                    "connections": c.connections,
-                    "queue_dropped": c.dropped,
-                    "stale_frames": c.stale,
-                }
-                for sid, c in self.clients.items()
-            },
-        }
+        return run_stats(self)
 
     def _meta(self) -> dict[str, object]:
         o = self.options
@@ -525,62 +511,7 @@ class Server:
     # -- a control peer ----------------------------------------------------------------------------
 
     async def _serve_control(self, conn: Connection) -> None:
-        conn.send(
-            Welcome(
-                session=self.options.session,
-                t_server_s=self.clock(),
-                heartbeat_s=self.options.heartbeat_s,
-                timeout_s=self.options.timeout_s,
-                calibrating=self.calibration.collecting,
-                calibration_id=self.calibration.calibration_id,
-            )
-        )
-        self._controls.add(conn)
-        log.info("control peer connected from %s", conn.peer)
-        beat = asyncio.ensure_future(self._heartbeat_loop(conn))
-        try:
-            while True:
-                msg, _ = await conn.recv(self.options.timeout_s)
-                conn.check_sender(msg)
-                if isinstance(msg, CalibrationStart):
-                    try:
-                        self._start_calibration(
-                            method=msg.method, sensor_ids=msg.sensor_ids, seconds=msg.seconds
-                        )
-                    except CalibrationError as e:
-                        conn.send(
-                            CalibrationResult(
-                                calibration_id=msg.calibration_id,
-                                ok=False,
-                                grade="failed",
-                                message=str(e)[:1024],
-                            )
-                        )
-                elif isinstance(msg, CalibrationStop):
-                    if self.calibration.collecting:
-                        self._finish_calibration(abort=msg.abort, why="stopped by the control peer")
-                elif isinstance(msg, StatusRequest):
-                    conn.send(self._status_message(msg.request_id))
-                elif isinstance(msg, Shutdown):
-                    conn.send(Goodbye(reason="shutting down"))
-                    self.request_stop(f"shutdown asked by {conn.peer}: {msg.reason}")
-                    return
-                elif isinstance(msg, Goodbye):
-                    return
-                elif isinstance(msg, Heartbeat):
-                    pass
-                else:
-                    raise OutOfOrder(f"a control peer may not send {msg.TYPE} after the handshake")
-        finally:
-            beat.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await beat
-
-    async def _heartbeat_loop(self, conn: Connection) -> None:
-        while not conn.closed:
-            await asyncio.sleep(self.options.heartbeat_s / 2)
-            if self.clock() - conn.last_sent >= self.options.heartbeat_s:
-                conn.send(Heartbeat(t_s=self.clock()))
+        await serve_control(self, conn)
 
     # -- calibration -------------------------------------------------------------------------------
 
@@ -650,9 +581,9 @@ class Server:
             self.loop.set_poses(out.calibration.sensor2world)
             if self.recorder is not None and out.text is not None:
                 self.recorder.add_calibration(out.method, out.text)
-                self.recorder.add_meta("live_calibration", _outcome_meta(out))
-        self._event("calibration_result", None, **_outcome_meta(out))
-        res = _result_message(out)
+                self.recorder.add_meta("live_calibration", outcome_meta(out))
+        self._event("calibration_result", None, **outcome_meta(out))
+        res = result_message(out)
         for c in list(self._controls):
             c.send(res)
         self._status_dirty = True
@@ -674,103 +605,5 @@ class Server:
                     self.publisher.publish(self.status())
 
     def status(self) -> ServerStatus:
-        now = self.clock()
-        poses = self.calibration.poses
-        sensors = []
-        for sid, c in self.clients.items():
-            off, sd = c.clock_ms(now)
-            p = poses.get(sid)
-            sensors.append(
-                SensorStatus(
-                    sensor_id=sid,
-                    connected=c.connected,
-                    rtt_ms=c.rtt_s * 1e3,
-                    clock_offset_ms=off,
-                    clock_offset_sd_ms=sd,
-                    fps=c.fps(now),
-                    latency_ms=c.latency_s * 1e3,
-                    tracked_fraction=c.tracked_fraction(),
-                    pose=None if p is None else tuple(float(v) for v in np.asarray(p).ravel()),
-                )
-            )
-        return ServerStatus(
-            t_server_s=now,
-            sensors=tuple(sensors),
-            calibration_state="collecting"
-            if self.calibration.state == "solving"
-            else self.calibration.state,
-            calibration_grade=self.calibration.grade,
-            fused_fps=self.loop.fps(),
-            method=self.options.method,
-            recording=str(self.options.record) if self.options.record else None,
-        )
-
-    def _status_message(self, request_id: int) -> Status:
-        s = self.status()
-        return Status(
-            request_id=request_id,
-            t_server_s=s.t_server_s,
-            sensors=tuple(
-                SensorInfo(
-                    x.sensor_id,
-                    x.connected,
-                    x.rtt_ms,
-                    x.clock_offset_ms,
-                    x.clock_offset_sd_ms,
-                    x.fps,
-                    x.latency_ms,
-                    x.tracked_fraction,
-                    None if x.pose is None else np.array(x.pose).reshape(4, 4),
-                )
-                for x in s.sensors
-            ),
-            calibration_state=s.calibration_state,
-            calibration_grade=s.calibration_grade,
-            fused_fps=s.fused_fps,
-            frames_fused=self.loop.frames,
-            method=s.method,
-            recording=s.recording,
-        )
-
-
-def _outcome_meta(out: CalibrationOutcome) -> dict[str, object]:
-    reg = out.registration
-    d: dict[str, object] = {
-        "calibration_id": out.calibration_id,
-        "ok": out.ok,
-        "method": out.method,
-        "grade": out.grade.grade,
-        "reasons": list(out.grade.reasons),
-        "message": out.message,
-        "targets": list(out.targets),
-    }
-    if reg is not None:
-        d["rms_m"] = float(reg.rms_m)
-        d["sensors"] = [
-            {
-                "id": sid,
-                "residual_m": float(reg.residual_m[k]),
-                "sightings": int(reg.n_sightings[k]),
-            }
-            for k, sid in enumerate(reg.sensor_ids)
-        ]
-    return d
-
-
-def _result_message(out: CalibrationOutcome) -> CalibrationResult:
-    cal = out.calibration
-    sensors = cal.sensors if cal is not None else ()
-    text = out.message + "".join(f"; {r}" for r in out.grade.reasons)
-    return CalibrationResult(
-        calibration_id=out.calibration_id,
-        ok=out.ok,
-        grade=out.grade.grade,
-        method=out.method,
-        sensor_ids=tuple(s.id for s in sensors),
-        sensor2world=np.array([s.sensor2world for s in sensors]).reshape(-1, 4, 4),
-        residual_m=np.array(
-            [s.residual_m if np.isfinite(s.residual_m) else np.nan for s in sensors]
-        ).reshape(-1),
-        n_sightings=np.array([s.n_sightings for s in sensors], dtype=np.int64).reshape(-1),
-        message=text[:1024],
-    )
+        """The status snapshot (:func:`kinefuse.net.server_report.server_status`)."""
+        return server_status(self)
