@@ -59,6 +59,7 @@ STOP_TIMEOUT_S = 20.0
 KILL_TIMEOUT_S = 5.0
 
 _LISTENING = re.compile(r"listening on (?P<host>[0-9.]+):(?P<port>\d+)")
+_VIEWER = re.compile(r"viewer at (?P<url>http://\S+)")
 
 
 class ProcessError(KinefuseError):
@@ -266,11 +267,16 @@ def parse_listening(line: str) -> tuple[str, int]:
 # the command lines of the processes
 
 
-def serve_args(recording: Path, wand_axis_m: float | None = None) -> list[str]:
-    """``kinefuse serve`` as the demo runs it: loopback, a free port, recording, auto-calibrated;
-    ``wand_axis_m``: the wand protocol's move between its holds (what the operator was told)."""
+def serve_args(
+    recording: Path, wand_axis_m: float | None = None, viewer_port: int | None = None
+) -> list[str]:
+    """``kinefuse serve`` as the demo runs it: loopback, a free port, recording, auto-calibrated,
+    with the live viewer (``viewer_port``; 0: a free port, None: none); ``wand_axis_m``: the
+    wand protocol's move between its holds (what the operator was told)."""
     args = ["serve", "--host", "127.0.0.1", "--port", "0", "--record", str(recording),
             "--auto-calibrate"]  # fmt: skip
+    if viewer_port is not None:
+        args += ["--viewer-port", str(viewer_port)]
     if wand_axis_m is not None:
         args += ["--wand-axis-m", f"{wand_axis_m:g}"]
     return args
@@ -307,6 +313,7 @@ def run_live(
     *,
     net_jitter_ms: float | None = None,
     seed: int = 0,
+    viewer_port: int | None = None,
     say: Callable[[str], None] = print,
     on_started: Callable[[ChildProcesses, list[Child]], None] | None = None,
 ) -> LiveRun:
@@ -330,9 +337,13 @@ def run_live(
     sidecars = {sid: truth_dir / f"{sid}.json" for sid in ids}
     t_start = time.monotonic()
     with ChildProcesses(work / "logs") as procs, ProxyThread() as proxies:
-        server = procs.start("server", serve_args(recording, axis), announce=True)
+        server = procs.start("server", serve_args(recording, axis, viewer_port), announce=True)
         _host, port = parse_listening(procs.wait_first_line(server, SERVER_START_TIMEOUT_S))
         say(f"   server listening on 127.0.0.1:{port}, recording to {recording.name}")
+        if viewer_port is not None:
+            m = server.wait_line(_VIEWER, 10.0)
+            if m is not None:
+                say(f"   live view while it runs: {m['url']} (open it in a browser)")
         links: dict[str, int] = {}
         for k, sid in enumerate(ids):
             if net_jitter_ms is None:
@@ -432,6 +443,7 @@ def run_live_demo(
     net_jitter_ms: float | None = None,
     seed: int = 0,
     as_json: bool = False,
+    viewer_port: int | None = None,
 ) -> int:
     """``kinefuse demo``: simulate, run the live system, evaluate; see the module docstring."""
     from kinefuse.app import demo_clip_path, run_evaluate, run_fuse, run_simulate
@@ -464,7 +476,9 @@ def run_live_demo(
             say(f"   warning: {w}")
         say("\n== 2/4 live: a server and one client process per sensor on 127.0.0.1; the "
             "sensors calibrate from the wand, then the body is fused at 30 Hz")  # fmt: skip
-        live = run_live(sim, tmp, net_jitter_ms=net_jitter_ms, seed=seed, say=say)
+        live = run_live(
+            sim, tmp, net_jitter_ms=net_jitter_ms, seed=seed, viewer_port=viewer_port, say=say
+        )
         t_live = time.monotonic()
 
         say("\n== 3/4 offline: the recording re-fused with best, exported")
@@ -563,6 +577,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.add_argument(
+        "--viewer-port",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="serve the live web viewer on 127.0.0.1:PORT while the demo runs (0: a free port; "
+        "the URL is printed); default: no viewer",
+    )
+    p.add_argument(
         "--offline",
         action="store_true",
         help="the offline pipeline instead (no processes: simulate, calibrate, fuse, compare "
@@ -584,4 +606,5 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         net_jitter_ms=args.net_jitter_ms,
         seed=args.seed,
         as_json=args.json,
+        viewer_port=args.viewer_port,
     )
