@@ -63,6 +63,7 @@ _MIRROR = np.asarray(MIRROR_INDEX)
 _CHUNK = 1024
 #: hips and shoulders (left, right, left, right): the body's facing
 _FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]
+_PELVIS = JOINT_INDEX["SpineBase"]
 
 
 def _bone_groups() -> tuple[list[NDArray[np.intp]], NDArray[np.intp]]:
@@ -100,6 +101,11 @@ class LiveOptions:
     buffer: int = 8
     #: weight of the fused skeleton's facing so far in the swap vote (an unambiguous sensor: 1)
     facing_prior_weight: float = 1.5
+    #: when every sensor's view is ambiguous, the pelvis's walking direction joins the swap vote
+    #: with this weight (above the facing so far, so a wrong facing is re-decided while walking)
+    #: once it moves faster than ``walk_speed_m_s`` (m/s)
+    walk_weight: float = 2.0
+    walk_speed_m_s: float = 0.5
     #: samples a bone needs before the output is projected onto its running length
     bone_min_samples: int = 15
     #: relative deviation from a bone's running length beyond which a joint is ``BONE_LENGTH``
@@ -346,6 +352,15 @@ class LiveFusion:
         flips = None
         if evidence is not None:
             f, amb, vote = evidence
+            has = np.isfinite(f).all(-1)
+            if has.any() and amb[has].all():
+                # only ambiguous sensors (e.g. two, one seeing the back): their vote is a tie that
+                # the facing so far would freeze; a walking body faces where it goes
+                kf = self._kf
+                vx, vy = float(kf.m[1, _PELVIS, 0]), float(kf.m[1, _PELVIS, 1])
+                speed = math.hypot(vx, vy)
+                if speed > opt.walk_speed_m_s and kf.started[_PELVIS].all():
+                    vote = vote + opt.walk_weight * np.array([vx / speed, vy / speed, 0.0])
             flips = decide_flips(f, amb, vote, self._facing, opt.facing_prior_weight)
         if flips is not None and not flips.any():
             flips = None
