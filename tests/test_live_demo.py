@@ -62,6 +62,8 @@ def test_live_demo_runs_the_whole_system_and_reports(tmp_path, capsys) -> None:
     for name in ("recording.sqlite", "sim.sqlite", "calibration.toml", "fused.c3d", "fused.trc",
                  "fused.csv", "live_eval.json", "evaluation/evaluate.json"):  # fmt: skip
         assert (out / name).stat().st_size > 0, name
+    # the HTML report shows the latencies the live server recorded
+    assert "latency distribution" in (out / "evaluation" / "report.html").read_text()
     # the recording is an ordinary session: the offline commands read it
     assert main(["evaluate", str(out / "recording.sqlite"), "--methods", "best"]) == 0
     # the exports open in the readers their users have

@@ -53,6 +53,24 @@ class SessionFacts:
     rom_phase_s: tuple[float, float] | None = None
 
 
+def _latencies(store: SessionStore) -> tuple[Array | None, str]:
+    """The fused frames' latencies (ms) a live recording holds, and a note on what they are."""
+    from kinefuse.io.store_live import has_live_tables, live_fused
+
+    if has_live_tables(store):
+        lat = live_fused(store).latency_s
+        lat = 1e3 * lat[np.isfinite(lat)]
+        if lat.size:
+            return lat, (
+                f"{lat.size} fused frames published by the live server: client host receive "
+                "(mapped onto the server clock) -> fused frame published, on the server clock"
+            )
+    return None, (
+        "not recorded: this session holds no fused-frame latencies (a simulated session "
+        "has no live server; a live recording stores them with its fused frames)"
+    )
+
+
 def _calibration_rows(
     store: SessionStore, poses: dict[str, Array], source: str
 ) -> tuple[list[dict[str, Any]] | None, str]:
@@ -132,6 +150,7 @@ def session_facts(
             }
         )
     cal_rows, cal_note = _calibration_rows(store, poses, source)
+    latency, latency_note = _latencies(store)
     clip = meta.get("clip")
     rom = meta.get("rom_phase_server_s")
     rom_phase = (float(rom[0]), float(rom[1])) if isinstance(rom, list) and len(rom) == 2 else None
@@ -145,11 +164,8 @@ def session_facts(
         calibration=cal_rows,
         calibration_note=cal_note,
         clocks=[_clock(store, s) for s in sensors if len(store.clock_probes(s.id))],
-        latency_ms=None,
-        latency_note=(
-            "not recorded: this session holds no fused-frame latencies (a simulated session "
-            "has no live server; a live recording stores them with its fused frames)"
-        ),
+        latency_ms=latency,
+        latency_note=latency_note,
         has_truth=store.has_truth(),
         rom_phase_s=rom_phase,
     )
