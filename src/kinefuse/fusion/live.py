@@ -12,7 +12,10 @@ ahead:
 - **Left/right swaps**: the body's facing is agreed from this frame's unambiguous sensors (a
   sensor whose reported facing points away from it cannot be swapped), the ambiguous ones at half
   weight, and the filter's facing so far; an ambiguous sensor that contradicts it is mirrored
-  back. (Offline ``best`` votes over a centred 1 s window instead.)
+  back. When every view is ambiguous (two sensors, one seeing the back: a tie the facing so far
+  would freeze) the pelvis's walking direction joins the vote (``walk_weight``; a body walking
+  backwards in front of only such sensors is mirrored while it does). (Offline ``best`` votes
+  over a centred 1 s window instead.)
 - **Kalman filter**: one constant-velocity filter per joint and axis keeps its state between
   calls; a frame without measurements is a prediction; a joint unseen for ``max_predict_s``
   becomes missing.
