@@ -225,6 +225,13 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
     t = lf.t_server_s
     during = t[(t > t_bad - t0 - 1.0) & (t < t_done - t0 + 1.0)]
     assert during.size > 45 and np.diff(during).max() < 0.1  # and fused frames kept coming
+    # and what was fused is right, with two sensors (best-live's facing is no tie any more)
+    from kinefuse.report.live_eval import live_vs_offline, write_live_truth
+
+    write_live_truth(rec, session, {sid: tmp_path / f"{sid}.json" for sid in ("k0", "k1")})
+    with SessionStore.open(rec) as st:
+        mae = live_vs_offline(st)
+    assert mae["live"] < 0.10 and mae["ratio"] < 1.5  # 10 cm; mirrored limbs gave 32 cm
 
 
 def test_a_real_log_replayed_by_two_sensor_processes(tmp_path, shared_data) -> None:
