@@ -43,6 +43,7 @@ def test_live_demo_runs_the_whole_system_and_reports(tmp_path, capsys) -> None:
     r = json.loads(captured.out)  # stdout is the JSON alone; progress went to stderr
     for step in ("1/4 simulate", "2/4 live", "3/4 offline", "4/4 evaluate"):
         assert step in captured.err
+    assert "live view while it runs: http://127.0.0.1:" in captured.err  # the server's viewer
     assert r["frames_fused"] > 0
     # the live frames against offline best on the same recording and frames (3 sensors, 4 s:
     # 1.00 here; the benchmark holds the 15 % on 4 sensors and 20 s)

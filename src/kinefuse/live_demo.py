@@ -579,11 +579,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--viewer-port",
         type=int,
-        default=None,
+        default=0,
         metavar="PORT",
-        help="serve the live web viewer on 127.0.0.1:PORT while the demo runs (0: a free port; "
-        "the URL is printed); default: no viewer",
+        help="port of the live web viewer the server serves on 127.0.0.1 while the demo runs "
+        "(0: a free one; the URL is printed)",
     )
+    p.add_argument("--no-viewer", action="store_true", help="run the server without the viewer")
     p.add_argument(
         "--offline",
         action="store_true",
@@ -606,5 +607,5 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         net_jitter_ms=args.net_jitter_ms,
         seed=args.seed,
         as_json=args.json,
-        viewer_port=args.viewer_port,
+        viewer_port=None if args.no_viewer else args.viewer_port,
     )
