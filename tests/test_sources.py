@@ -47,9 +47,24 @@ def test_a_session_replays_every_frame_in_order(session) -> None:
             np.testing.assert_array_equal(np.stack([f.states for f in body]), o.states)
             assert len(depth) == st.depth_frame_count(sid) > 0
             assert src.intrinsics(sid) == st.sensor(sid).intrinsics
-    # across sensors: arrival order on the clients' clocks
-    keys = [f.t_host_s if np.isfinite(f.t_host_s) else f.t_device_s for f in frames]
+        # a sensor's depth and body frames in capture order although their stamps are on two
+        # clocks (host for body frames, device for depth): each depth frame comes before the
+        # body frames captured after it (their device times are on the same clock)
+        order = {id(f): k for k, f in enumerate(frames)}
+        for d in depth:
+            later = [order[id(b)] for b in body if b.t_device_s > d.t_device_s + 0.05]
+            assert not later or order[id(d)] < min(later)
+    # across sensors: arrival order on the clients' clocks (a depth frame: its device time plus
+    # the sensor's device -> host offset seen in its body frames)
+    offset = {}
+    with SessionStore.open(session) as st:
+        for sid in src.sensor_ids:
+            o = st.observations(sid)
+            offset[sid] = float(np.median(o.t_host_s - o.t_device_s))
+    keys = [f.t_host_s if isinstance(f, BodyFrame) else f.t_device_s + offset[f.sensor_id]
+            for f in frames]  # fmt: skip
     assert keys == sorted(keys)
+    assert max(abs(v) for v in offset.values()) > 1.0  # the two clocks are far apart here
 
 
 def test_one_sensor_of_a_session_and_bad_names(session) -> None:

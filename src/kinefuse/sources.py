@@ -115,22 +115,31 @@ class SessionReplay:
     def intrinsics(self, sensor_id: str) -> Intrinsics:
         return self._store.sensor(sensor_id).intrinsics
 
-    def _body(self, sid: str) -> Iterator[BodyFrame]:
-        yield from self._store.observations(sid)
+    def _body(self, sid: str) -> Iterator[tuple[float, Frame]]:
+        for f in self._store.observations(sid):
+            yield _arrival_key(f), f
 
-    def _depth_frames(self, sid: str) -> Iterator[DepthFrame]:
+    def _depth_frames(self, sid: str) -> Iterator[tuple[float, Frame]]:
+        # depth frames carry no host time in the store (it stays NaN), and their device clock can
+        # be far from the host clock: they are merged at their device time plus the sensor's
+        # typical device -> host arrival offset, taken from its body frames (same device clock)
+        obs = self._store.observations(sid)
+        lag = obs.t_host_s - obs.t_device_s
+        lag = lag[np.isfinite(lag)]
+        offset = float(np.median(lag)) if lag.size else 0.0
         for seq, t, frames in self._store.iter_depth_frames(sid):
             for k in range(len(seq)):
-                # depth frames carry no host time in the store: their device time stands in
-                yield DepthFrame(sid, int(seq[k]), float(t[k]), float("nan"), frames[k])
+                f = DepthFrame(sid, int(seq[k]), float(t[k]), float("nan"), frames[k])
+                yield float(t[k]) + offset, f
 
     def __iter__(self) -> Iterator[Frame]:
-        streams: list[Iterator[Frame]] = []
+        streams: list[Iterator[tuple[float, Frame]]] = []
         for sid in self._ids:
             streams.append(self._body(sid))
             if self._depth:
                 streams.append(self._depth_frames(sid))
-        yield from heapq.merge(*streams, key=_arrival_key)
+        for _key, f in heapq.merge(*streams, key=lambda item: item[0]):
+            yield f
 
 
 class MultitrackReplay:
