@@ -62,7 +62,8 @@ def _kabsch_rot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def simulate_take(rig, combined, out: Path, seed: int, cal_s: float):  # type: ignore[no-untyped-def]
     """Simulate, calibrate (full), fuse (best); return fused and true sequences, placement."""
-    from kinefuse.app import place_actor, resolve_poses, run_calibrate
+    from kinefuse.app import place_actor, resolve_poses
+    from kinefuse.calibrate_app import run_calibrate
     from kinefuse.io.store import SessionStore
     from kinefuse.pipeline import frame_grid, load_sensors, run_method
     from kinefuse.report.evaluate import calibration_alignment

@@ -226,7 +226,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from kinefuse.app import format_calibrate, run_calibrate
+    from kinefuse.calibrate_app import format_calibrate, run_calibrate
 
     if args.live is not None or args.session is None:
         from kinefuse.serve_app import cmd_calibrate_live
