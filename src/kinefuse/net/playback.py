@@ -22,6 +22,7 @@ from __future__ import annotations
 import heapq
 import importlib
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib.metadata import entry_points
@@ -48,7 +49,7 @@ class Timed:
     frame: Frame
 
 
-class Timeline:
+class Timeline(ABC):
     """One sensor's frames in play order.
 
     Attributes
@@ -75,11 +76,12 @@ class Timeline:
     truth: SimClockTruth | None = None
     live: bool = False
 
+    @abstractmethod
     def frames(self) -> Iterator[Timed]:
-        raise NotImplementedError
+        """The frames with the instants to send them, in order."""
 
-    def close(self) -> None:
-        """Release the source (a store, a device)."""
+    def close(self) -> None:  # noqa: B027 (a timeline with nothing to release keeps it)
+        """Release the source (a store, a device); nothing by default."""
 
 
 class SimTimeline(Timeline):

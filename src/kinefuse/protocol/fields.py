@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import re
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -29,7 +30,7 @@ INT64_MAX = 2**63 - 1
 _ID_RE = re.compile(r"^[A-Za-z0-9_.:\-]+$")
 
 
-class Kind:
+class Kind(ABC):
     """One field kind: ``encode(value)`` -> msgpack value, ``decode(raw, msg, name)`` -> value."""
 
     doc = ""
@@ -37,8 +38,10 @@ class Kind:
     def encode(self, value: Any) -> Any:
         return value
 
+    @abstractmethod
     def decode(self, raw: Any, msg: str, name: str) -> Any:
-        raise NotImplementedError
+        """The value of field ``name`` of message ``msg`` from its wire form (raises a
+        field error naming both when it is not one)."""
 
 
 @dataclass(frozen=True)
