@@ -7,9 +7,12 @@ keeps the schema and the :class:`~kinefuse.io.store.SessionStore` class.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sqlite3
 import zlib
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -188,3 +191,29 @@ def _json_dumps(value: object, what: str) -> str:
 
 # --------------------------------------------------------------------------------------------
 # The store
+
+
+class StorePart:
+    """Base of the parts of :class:`~kinefuse.io.store.SessionStore` kept in other modules
+    (:mod:`~kinefuse.io.store_streams`, :mod:`~kinefuse.io.store_truth`): declares, for the type
+    checker, the connection helpers that SessionStore provides."""
+
+    if TYPE_CHECKING:  # provided by SessionStore
+        path: Path
+
+        @property
+        def _db(self) -> sqlite3.Connection: ...
+
+        def _writer(self, what: str) -> sqlite3.Connection: ...
+
+        def _transaction(
+            self, what: str
+        ) -> contextlib.AbstractContextManager[sqlite3.Connection]: ...
+
+        def _key(self, sensor_id: str, what: str) -> int: ...
+
+        def _existing_seqs(self, table: str, key: int, seq: NDArray[Any]) -> NDArray[np.int64]: ...
+
+        def _insert_frames(
+            self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
+        ) -> None: ...

@@ -5,13 +5,10 @@ inherits :class:`SensorStreams`; split from :mod:`kinefuse.io.store` by what eac
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import math
-import sqlite3
 import zlib
 from collections.abc import Iterator
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,6 +20,7 @@ from kinefuse.io.store_codec import (
     _I1,
     _U1,
     _U2,
+    StorePart,
     _blobs,
     _check_shape,
     _column,
@@ -45,11 +43,10 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 
 
-class SensorStreams:
+class SensorStreams(StorePart):
     """Observations, depth frames and clock probes of each sensor (a part of SessionStore)."""
 
     if TYPE_CHECKING:  # provided by SessionStore
-        path: Path
         _sensor_keys: dict[str, int]
         _has_host_time: bool
         _has_client_occlusion: bool
@@ -57,23 +54,6 @@ class SensorStreams:
         def sensors(self) -> list[SensorInfo]: ...
 
         def sensor(self, sensor_id: str) -> SensorInfo: ...
-
-        @property
-        def _db(self) -> sqlite3.Connection: ...
-
-        def _writer(self, what: str) -> sqlite3.Connection: ...
-
-        def _transaction(
-            self, what: str
-        ) -> contextlib.AbstractContextManager[sqlite3.Connection]: ...
-
-        def _key(self, sensor_id: str, what: str) -> int: ...
-
-        def _existing_seqs(self, table: str, key: int, seq: NDArray[Any]) -> NDArray[np.int64]: ...
-
-        def _insert_frames(
-            self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
-        ) -> None: ...
 
     # -- observations -------------------------------------------------------------------------
 

@@ -8,12 +8,9 @@ test never reads them (the truth-firewall test empties them and makes :meth:`tru
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
-import sqlite3
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -23,6 +20,7 @@ from kinefuse.geometry.transforms import check_rigid
 from kinefuse.io.store_codec import (
     _F8,
     _U1,
+    StorePart,
     _blobs,
     _check_shape,
     _column,
@@ -43,26 +41,8 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 
 
-class TruthTables:
+class TruthTables(StorePart):
     """The simulator's writers of the ``truth_*`` tables (a part of ``SessionStore``)."""
-
-    if TYPE_CHECKING:  # provided by SessionStore
-        path: Path
-
-        @property
-        def _db(self) -> sqlite3.Connection: ...
-
-        def _writer(self, what: str) -> sqlite3.Connection: ...
-
-        def _transaction(
-            self, what: str
-        ) -> contextlib.AbstractContextManager[sqlite3.Connection]: ...
-
-        def _key(self, sensor_id: str, what: str) -> int: ...
-
-        def _insert_frames(
-            self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
-        ) -> None: ...
 
     def write_truth_motion(
         self, t_s: ArrayLike, joints_world: ArrayLike, synthesized: ArrayLike
