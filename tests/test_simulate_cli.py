@@ -87,6 +87,22 @@ def test_same_seed_same_observation_bytes(tmp_path, shared_data) -> None:
     assert digests[0] != digests[2]
 
 
+def test_subject_seed_is_kept_with_the_truth(tmp_path, shared_data) -> None:
+    """``--subject-seed`` changes the observations (other joint offsets) and is stored with the
+    truth, where only evaluation reads it; without it nothing is stored."""
+    clip = str(shared_data / "motion" / "cmu" / "02_walk_b.amc")
+    digests, seeds = [], []
+    for name, extra in (("plain", []), ("subject", ["--subject-seed", "5"])):
+        out = tmp_path / f"{name}.sqlite"
+        assert main(["simulate", "--clip", clip, "--seconds", "1", "--calibration-seconds", "0.5",
+                     "--seed", "7", "--out", str(out), *extra]) == 0  # fmt: skip
+        with SessionStore.open(out) as st:
+            digests.append(st.observations_digest())
+            seeds.append(st.truth().info("subject_seed"))
+    assert digests[0] != digests[1]
+    assert seeds == [None, 5]
+
+
 def test_bad_inputs_fail_clearly(tmp_path, shared_data, capsys) -> None:
     bad = tmp_path / "broken.bvh"
     bad.write_text("HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition\n")

@@ -504,3 +504,25 @@ def test_subject_bias_validates() -> None:
         draw_subject_bias(None)  # type: ignore[arg-type]
     assert SubjectBias.zero().offsets_body_m.shape == (25, 3)
     assert len(JOINTS) == 25
+
+
+def test_subject_seed_makes_takes_of_one_subject() -> None:
+    """Sessions with one ``subject_seed`` share the subject's joint offsets and nothing else;
+    without it (the default) the draws are those of the session seed alone, as before."""
+    from dataclasses import replace
+
+    from kinefuse.sensors.lab import LabConfig, _seeds
+
+    base = LabConfig(seed=3, calibration_s=0.0)
+    plain = _seeds(3, 2, base).subject
+    again = _seeds(3, 2, replace(base)).subject
+    np.testing.assert_array_equal(plain.offsets_body_m, again.offsets_body_m)
+    a = _seeds(3, 2, replace(base, subject_seed=11)).subject
+    b = _seeds(4, 2, replace(base, seed=4, subject_seed=11)).subject
+    other = _seeds(4, 2, replace(base, seed=4)).subject
+    np.testing.assert_array_equal(a.offsets_body_m, b.offsets_body_m)  # one person
+    assert np.abs(a.offsets_body_m - plain.offsets_body_m).max() > 0.01  # m: not the session's
+    assert np.abs(other.offsets_body_m - b.offsets_body_m).max() > 0.01  # m: another person
+    # the latents stay the session's: the same with or without the subject seed
+    assert a.swap_latent is not None and plain.swap_latent is not None
+    np.testing.assert_array_equal(a.swap_latent.phase_rad, plain.swap_latent.phase_rad)

@@ -127,6 +127,7 @@ def run_simulate(
     force: bool = False,
     progress: Callable[[str], None] | None = None,
     rom_s: float | None = None,
+    subject_seed: int | None = None,
 ) -> dict[str, Any]:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
@@ -171,7 +172,11 @@ def run_simulate(
             )
         motion = rom.motion
     config = LabConfig(
-        seed=seed, calibration_s=calibration_s, depth_rate_hz=depth_rate_hz, motion_s=seconds
+        seed=seed,
+        calibration_s=calibration_s,
+        depth_rate_hz=depth_rate_hz,
+        motion_s=seconds,
+        subject_seed=subject_seed,
     )
     with atomic_file(
         out, what="session", recognizer=is_replaceable_simulation, suffix=".partial.sqlite"

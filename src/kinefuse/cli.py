@@ -64,6 +64,12 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=_positive_float, help="length of the motion (default: all)")
     p.add_argument("--seed", type=int, default=0, help="random seed (0)")
     p.add_argument(
+        "--subject-seed",
+        type=int,
+        help="seed of the subject's own tracker joint offsets: sessions with the same one are "
+        "takes of the same person (default: drawn from --seed, a new person every session)",
+    )
+    p.add_argument(
         "--calibration-seconds",
         type=_nonneg_float,
         default=20.0,
@@ -109,6 +115,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         force=args.force,
         progress=lambda m: print(m, file=sys.stderr),
         rom_s=args.rom,
+        subject_seed=args.subject_seed,
     )
     for w in r["warnings"]:
         print(f"kinefuse: warning: {w}", file=sys.stderr)

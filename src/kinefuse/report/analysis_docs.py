@@ -90,12 +90,14 @@ def part_files(work: Path, img: Path) -> list[dict[str, Any]]:
 
 
 def _session(work: Path, name: str, clip: str, rom_s: float, seed: int, rig: str | None,
-             true_calibration: bool) -> Path:  # fmt: skip
+             true_calibration: bool, subject_seed: int | None = None) -> Path:  # fmt: skip
     s = work / f"{name}.sqlite"
     argv = ["simulate", "--clip", str(SHARED / "motion" / "cmu" / clip), "--rom", str(rom_s),
             "--seed", str(seed), "--out", str(s), "--force"]  # fmt: skip
     if rig is not None:
         argv += ["--rig", rig]
+    if subject_seed is not None:
+        argv += ["--subject-seed", str(subject_seed)]
     if true_calibration:
         argv += ["--calibration-seconds", "0"]
     _run(*argv)
@@ -128,7 +130,9 @@ def part_consistency(work: Path, rom_s: float, true_calibration: bool) -> dict[s
         text = (ROOT / "rigs" / f"{rig}.toml").read_text()
         rig_file.write_text(text + f"\n[actor]\nheading_deg = {heading}\n")
         takes.append(
-            _session(work, f"take{k}", clip, rom_s, 10 + k, str(rig_file), true_calibration)
+            # takes of one subject: one subject seed, so the tracker's joint offsets on this
+            # body are the same in every take (docs/error_model_tracker.md)
+            _session(work, f"take{k}", clip, rom_s, 10 + k, str(rig_file), true_calibration, 10)
         )
     extra = ["--true-calibration"] if true_calibration else []
     r = _analyze(takes, work / "consistency", *extra)

@@ -83,6 +83,10 @@ class LabConfig:
 
     seed: int = 0
     calibration_s: float = 20.0
+    # the subject's own joint offsets (``SubjectBias.offsets_body_m``, the tracker's joint
+    # definitions on this body) are drawn from this seed when given, so that several sessions
+    # of one subject share them; None: from ``seed`` (every session a new subject)
+    subject_seed: int | None = None
     depth_rate_hz: float = 10.0
     motion_s: float | None = None  # None: the whole clip
     wand: Wand = field(default_factory=Wand)
@@ -149,6 +153,13 @@ def _seeds(seed: int, n_sensors: int, config: LabConfig) -> _Seeds:
     root = np.random.SeedSequence(seed)
     seq_subject, seq_wand, *seq_sensors = root.spawn(2 + n_sensors)
     subject = draw_subject_bias(np.random.default_rng(seq_subject), config.errors.tracker)
+    if config.subject_seed is not None:
+        # the same person in another session: own joint offsets, this session's latents
+        own = draw_subject_bias(
+            np.random.default_rng(np.random.SeedSequence([int(config.subject_seed), 1])),
+            config.errors.tracker,
+        )
+        subject = replace(subject, offsets_body_m=own.offsets_body_m)
     wand = make_wand_path(
         float(config.calibration_s), np.random.default_rng(seq_wand), config.protocol
     )
@@ -284,6 +295,8 @@ def simulate_session(
         store.set_meta("clip", motion.source)
         # what only the simulator knows goes with the truth, where only evaluation reads it
         store.write_truth_info("seed", int(config.seed))
+        if config.subject_seed is not None:
+            store.write_truth_info("subject_seed", int(config.subject_seed))
         store.write_truth_info("rig", rig.description)
         store.write_truth_info("subject_height_m", height)
         store.set_meta("calibration_phase_server_s", [0.0, t_cal])
