@@ -49,6 +49,7 @@ from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
 from kinefuse.motion.types import Motion  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+METHODS = ("dj", "pca", "em")
 CLIP = ROOT.parent / "shared" / "data" / "motion" / "cmu" / "131_01_scaled_metres.bvh"
 
 
@@ -60,18 +61,22 @@ def _kabsch_rot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return u @ np.diag([1, 1, d]) @ vt
 
 
-def simulate_take(rig, combined, out: Path, seed: int, cal_s: float):  # type: ignore[no-untyped-def]
-    """Simulate, calibrate (full), fuse (best); return fused and true sequences, placement."""
+def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_seed: int):  # type: ignore[no-untyped-def]
+    """Simulate, calibrate (full), fuse (best); return the fused and true sequences, the
+    placement, and the truth plus the subject-level tracker bias only (what every sensor shares,
+    so no fusion can remove it: the floor of a perfect fusion)."""
     from kinefuse.app import place_actor, resolve_poses
     from kinefuse.calibrate_app import run_calibrate
     from kinefuse.io.store import SessionStore
     from kinefuse.pipeline import frame_grid, load_sensors, run_method
     from kinefuse.report.evaluate import calibration_alignment
-    from kinefuse.sensors.lab import LabConfig, simulate_session
+    from kinefuse.sensors.lab import LabConfig, _seeds, simulate_session
+    from kinefuse.sensors.tracker_body import _body_axes
 
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])
-    simulate_session(placed, rig, out, LabConfig(seed=seed, calibration_s=cal_s), overwrite=True)
+    config = LabConfig(seed=seed, calibration_s=cal_s, subject_seed=subject_seed)
+    simulate_session(placed, rig, out, config, overwrite=True)
     with SessionStore.open(out, writable=True) as store:  # a finished simulation
         store.mark_complete()
     run_calibrate(session=out, method="full", out=None, store_result=True)
@@ -83,9 +88,13 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float):  # type: i
         truth2world, _ = calibration_alignment(store, poses)
     # the truth in the calibration's world (the calibration sets its own origin and heading)
     joints = joints @ truth2world[:3, :3].T + truth2world[:3, 3]
+    offsets = _seeds(seed, len(rig.sensors), config).subject.offsets_body_m
+    up = truth2world[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    floor = joints + np.einsum("tik,jk->tji", _body_axes(joints, up), offsets)
     fused = an.SkeletonSequence.from_kinect(res.positions, t_s=res.t_server_s, source="fused")
     truth = an.SkeletonSequence.from_kinect(joints, t_s=t_true, source="truth")
-    return fused, truth, truth2world[:3, :3] @ rot
+    floor_seq = an.SkeletonSequence.from_kinect(floor, t_s=t_true, source="truth + subject bias")
+    return fused, truth, floor_seq, truth2world[:3, :3] @ rot
 
 
 def world_axis_errors(model, norm, true_world, frame):  # type: ignore[no-untyped-def]
@@ -139,69 +148,92 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
         "rom_s": rom.duration_s,
         "default_pose_frame_of_clip": d,
     }
-    norms = []
+    norms: dict[str, list[an.Normalization]] = {"fused": [], "floor": []}
     with tempfile.TemporaryDirectory() as tmp:
         for k, (rig_name, rig) in enumerate(rigs):
             t0 = time.perf_counter()
-            fused, true_seq, rot = simulate_take(
-                rig, combined, Path(tmp) / f"take{k}.sqlite", args.seed + k, cal_s
+            fused, true_seq, floor_seq, rot = simulate_take(
+                rig, combined, Path(tmp) / f"take{k}.sqlite", args.seed + k, cal_s, args.seed
             )
             sim_s = time.perf_counter() - t0
             true_seq = _resample(true_seq, fused.t_s)
+            floor_seq = _resample(floor_seq, fused.t_s)
             if args.save is not None:
                 np.savez(args.save / f"take{k}.npz", fused=fused.positions, t_s=fused.t_s,
-                         truth=true_seq.positions, rot=rot)  # fmt: skip
-            norm_f = an.normalize(fused)
+                         truth=true_seq.positions, floor=floor_seq.positions, rot=rot)  # fmt: skip
             norm_t = an.normalize(true_seq)
-            norms.append(norm_f)
-            rom_frames = np.flatnonzero((fused.t_s >= phase[0]) & (fused.t_s <= phase[1]))
+            model_t = learn_axes(true_seq, norm_t, phase, method="dj")
+            ang_t = joint_angles(true_seq, norm_t, model_t)
             # frames where the fusion lost the person (mean joint error over 20 cm: the last
             # second of this clip) say nothing about the analysis; counted and left out
             err = np.nanmean(np.linalg.norm(fused.positions - true_seq.positions, axis=-1), 1)
             in_walk = (fused.t_s >= walk[0]) & (fused.t_s <= walk[1])
             walk_frames = np.flatnonzero(in_walk & (err < 0.2))
             lost = int((in_walk & ~(err < 0.2)).sum())
+            rom_frames = np.flatnonzero((fused.t_s >= phase[0]) & (fused.t_s <= phase[1]))
             # the generator's true limb frames at the fused frames of the ROM, in this world
             gi = np.clip(np.round((fused.t_s[rom_frames] - cal_s) * truth.rate_hz), 0, None)
             g = np.einsum("ij,tljk->tlik", rot, truth.frames[gi.astype(int)])
-            true_axes = true_axes_in_normalization(truth.axes, g, norm_f.frames[rom_frames])
             true_world = {k: (rot @ v.T).T for k, v in truth.axes_world.items()}
+            frames = (rom_frames, walk_frames)
             take: dict[str, object] = {"rig": rig_name, "heading_deg": rig.actor_heading_deg,
                                        "simulate_fuse_s": sim_s}  # fmt: skip
-            models = {}
-            for method in ("dj", "pca", "em"):
-                models[method] = learn_axes(fused, norm_f, phase, method=method)
-                take[f"axis_error_deg_{method}"] = axis_errors_deg(models[method], true_axes)
-                take[f"axis_error_world_deg_{method}"] = world_axis_errors(
-                    models[method], norm_f, true_world, rom_frames[0]
-                )
-            model = models["dj"]
-            ang_f = joint_angles(fused, norm_f, model)
-            model_t = learn_axes(true_seq, norm_t, phase, method="dj")
-            ang_t = joint_angles(true_seq, norm_t, model_t)
-            rec_full = reconstruction_error(fused, ang_f, model)
-            rec_min = reconstruction_error(fused, ang_f, model, off_axis=False)
-            take["reconstruction_error_m"] = {"full": rec_full, "minimal": rec_min}
-            take["twist_error_deg"] = twist_errors_deg(
-                ang_f.twist, ang_t.twist, ang_f.twist_weight, frames=rom_frames
-            )
-            an_f, an_t = ang_f.anatomical(), ang_t.anatomical()
-            take["angle_rmse_deg_walk"] = angle_rmse_deg(an_f, an_t, frames=walk_frames)
+            norm_f = an.normalize(fused)
+            norms["fused"].append(norm_f)
+            take.update(analyse_take(fused, norm_f, ang_t, truth, g, true_world, phase, frames))
             take["walk_frames"] = {"used": int(walk_frames.size), "fusion_lost": lost}
-            for m in ("dj", "pca", "em"):
-                e = take[f"axis_error_deg_{m}"]
-                two = [x for lb, v in e["by_limb"].items() if len(v) == 2 for x in v]  # type: ignore[attr-defined]
-                e["two_axis_median"] = float(np.median(two)) if two else float("nan")  # type: ignore[index]
-            take["angle_rmse_deg_rom"] = angle_rmse_deg(an_f, an_t, frames=rom_frames)
-            take["status"] = {k2: v for k2, v in model.status.items() if v != "ok"}
+            norm_b = an.normalize(floor_seq)
+            norms["floor"].append(norm_b)
+            floor = analyse_take(floor_seq, norm_b, ang_t, truth, g, true_world, phase, frames,
+                                 methods=("dj",))  # fmt: skip
+            take["floor_subject_bias"] = {
+                k2: floor[k2]
+                for k2 in ("axis_error_deg_dj", "twist_error_deg", "angle_rmse_deg_walk")
+            }
             report[f"take{k}"] = take
             print(_take_text(k, take), flush=True)
-    if len(norms) >= 2:
-        cons = normalization_consistency(norms)
+    if len(norms["fused"]) >= 2:
+        cons = normalization_consistency(norms["fused"])
         report["normalization_consistency_deg"] = cons
-        print(f"normalization consistency over {len(norms)} takes: median "
-              f"{cons['median']:.2f}°, mean {cons['mean']:.2f}°")  # fmt: skip
+        floor_cons = normalization_consistency(norms["floor"])
+        report["floor_subject_bias"] = {"normalization_consistency_deg": floor_cons}
+        print(f"normalization consistency over {len(norms['fused'])} takes: median "
+              f"{cons['median']:.2f}°, mean {cons['mean']:.2f}° (floor, the truth plus the "
+              f"subject's bias: median {floor_cons['median']:.2f}°, mean "
+              f"{floor_cons['mean']:.2f}°)")  # fmt: skip
     return report
+
+
+def analyse_take(seq, norm, ang_t, truth, g, true_world, phase, frames, methods=METHODS):  # type: ignore[no-untyped-def]
+    """The analysis of one input of a take (the fused skeleton, or the floor input) against the
+    truth: axis errors per method, reconstruction, twist, the walk's and the ROM's angles."""
+    rom_frames, walk_frames = frames
+    true_axes = true_axes_in_normalization(truth.axes, g, norm.frames[rom_frames])
+    take: dict[str, object] = {}
+    models = {}
+    for method in methods:
+        models[method] = learn_axes(seq, norm, phase, method=method)
+        e = axis_errors_deg(models[method], true_axes)
+        two = [x for v in e["by_limb"].values() if len(v) == 2 for x in v]  # type: ignore[attr-defined]
+        e["two_axis_median"] = float(np.median(two)) if two else float("nan")
+        take[f"axis_error_deg_{method}"] = e
+        take[f"axis_error_world_deg_{method}"] = world_axis_errors(
+            models[method], norm, true_world, rom_frames[0]
+        )
+    model = models["dj"]
+    ang = joint_angles(seq, norm, model)
+    take["reconstruction_error_m"] = {
+        "full": reconstruction_error(seq, ang, model),
+        "minimal": reconstruction_error(seq, ang, model, off_axis=False),
+    }
+    take["twist_error_deg"] = twist_errors_deg(
+        ang.twist, ang_t.twist, ang.twist_weight, frames=rom_frames
+    )
+    an_f, an_t = ang.anatomical(), ang_t.anatomical()
+    take["angle_rmse_deg_walk"] = angle_rmse_deg(an_f, an_t, frames=walk_frames)
+    take["angle_rmse_deg_rom"] = angle_rmse_deg(an_f, an_t, frames=rom_frames)
+    take["status"] = {k: v for k, v in model.status.items() if v != "ok"}
+    return take
 
 
 def _take_text(k: int, t: dict) -> str:  # type: ignore[type-arg]
@@ -228,6 +260,15 @@ def _take_text(k: int, t: dict) -> str:  # type: ignore[type-arg]
     lines.append("  walk RMSE: " + ", ".join(f"{k2} {v:.1f}°" for k2, v in sorted(w.items())))
     if t["status"]:
         lines.append(f"  status: {t['status']}")
+    f = t["floor_subject_bias"]
+    fw = f["angle_rmse_deg_walk"]
+    lines.append(
+        f"  floor (the truth plus the subject-level bias every sensor shares): axis error dj "
+        f"median {f['axis_error_deg_dj']['median']:.2f}°, twist median "
+        f"{f['twist_error_deg']['median']:.2f}°, walk RMSE knee "
+        f"{fw.get('knee_flexion_left', np.nan):.1f}/{fw.get('knee_flexion_right', np.nan):.1f}°,"
+        f" hip {fw.get('hip_flexion_left', np.nan):.1f}/{fw.get('hip_flexion_right', np.nan):.1f}°"
+    )
     return "\n".join(lines)
 
 
