@@ -2,6 +2,7 @@
 
     python benchmarks/bench_analysis.py speed [--frames 24000]
     python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
+        [--no-subject-bias]
 
 ``speed``: a full body (13 limbs) normalized and parameterized (angles and twist) for 24,000
 frames on one core, against a straightforward per-frame implementation of the same math
@@ -15,7 +16,13 @@ Kinect v2 sensors (``kinefuse.sensors.lab``), the sensors are calibrated from th
 Joining, PCA and EM side by side (against the generator's true axes), the reconstruction error
 from the parameters, the twist error and the joint angles of the walk against the same analysis
 of the true motion, and the normalization consistency over ``--takes`` takes with different rigs
-and headings. Simulated sessions go to a temporary folder.
+and headings (takes of one subject: one ``subject_seed``). Simulated sessions go to a temporary
+folder.
+
+Each take is also analysed from its *floor* input: the truth plus the subject-level tracker bias
+alone (the joint-definition offsets every sensor shares, so no fusion can remove them), which is
+what a perfect fusion would deliver. ``--no-subject-bias`` simulates a tracker without that bias
+instead: what the rest of the error model leaves to the chain.
 """
 
 from __future__ import annotations
@@ -61,7 +68,8 @@ def _kabsch_rot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return u @ np.diag([1, 1, d]) @ vt
 
 
-def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_seed: int):  # type: ignore[no-untyped-def]
+def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_seed: int,  # type: ignore[no-untyped-def]
+                  subject_bias: bool = True):  # fmt: skip
     """Simulate, calibrate (full), fuse (best); return the fused and true sequences, the
     placement, and the truth plus the subject-level tracker bias only (what every sensor shares,
     so no fusion can remove it: the floor of a perfect fusion)."""
@@ -76,6 +84,11 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])
     config = LabConfig(seed=seed, calibration_s=cal_s, subject_seed=subject_seed)
+    if not subject_bias:  # a tracker whose joint definitions are the truth's
+        zero = tuple((0.0, 0.0, 0.0) for _ in range(25))
+        tracker = replace(config.errors.tracker, subject_bias_mean_m=zero,
+                          subject_bias_sigma_m=tuple(0.0 for _ in range(25)))  # fmt: skip
+        config = replace(config, errors=replace(config.errors, tracker=tracker))
     simulate_session(placed, rig, out, config, overwrite=True)
     with SessionStore.open(out, writable=True) as store:  # a finished simulation
         store.mark_complete()
@@ -153,7 +166,13 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
         for k, (rig_name, rig) in enumerate(rigs):
             t0 = time.perf_counter()
             fused, true_seq, floor_seq, rot = simulate_take(
-                rig, combined, Path(tmp) / f"take{k}.sqlite", args.seed + k, cal_s, args.seed
+                rig,
+                combined,
+                Path(tmp) / f"take{k}.sqlite",
+                args.seed + k,
+                cal_s,
+                args.seed,
+                not args.no_subject_bias,
             )
             sim_s = time.perf_counter() - t0
             true_seq = _resample(true_seq, fused.t_s)
@@ -364,6 +383,9 @@ def main(argv: list[str] | None = None) -> int:
     ac.add_argument("--seed", type=int, default=0)
     ac.add_argument("--takes", type=int, default=3)
     ac.add_argument("--save", type=Path, default=None, help="folder for the takes' arrays")
+    ac.add_argument("--no-subject-bias", action="store_true",
+                    help="simulate a tracker whose joint definitions are the truth's (no "
+                    "subject-level bias): what the rest of the error model leaves")  # fmt: skip
     for p in (sp, ac):
         p.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
