@@ -9,7 +9,7 @@ the limb's long axis. The twist comes in closed form from the swing-twist decomp
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,7 +18,13 @@ from kinefuse.analysis import anatomy
 from kinefuse.analysis._vec import mv, rodrigues, tmm, twist_angle, unit
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS
 from kinefuse.analysis.normalize import Normalization
-from kinefuse.analysis.parameterize import AxisModel, _swing_matrices, limb_samples, swing_angles
+from kinefuse.analysis.parameterize import (
+    AxisModel,
+    _swing_matrices,
+    gimbal_lock,
+    limb_samples,
+    swing_angles,
+)
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
@@ -52,6 +58,13 @@ class Angles:
         SpineBase, metres, world.
     root_frame : (T, 3, 3) float
         The pelvis' normalized frame (pelvis -> world).
+    axis_names : dict limb -> tuple of str
+    gimbal : dict limb -> (T,) bool
+        Frames in gimbal lock (the limb within
+        :data:`~kinefuse.analysis.parameterize.GIMBAL_RAD` of its fixed axis), where the angle
+        about the fixed axis and the twist are not separable; :meth:`anatomical` gives NaN for
+        both there. The raw values in :attr:`angles` and :attr:`twist` are kept (together they
+        still give the limb's frame back exactly).
     """
 
     t_s: Array
@@ -64,19 +77,25 @@ class Angles:
     root_position: Array
     root_frame: Array
     axis_names: dict[str, tuple[str, ...]]
+    gimbal: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
 
     def anatomical(self, *, degrees: bool = True) -> dict[str, Array]:
         """Every named angle ``(T,)``: the learned-axis angles, the twists with their ISB sign,
         and the shoulder's ISB elevation and plane of elevation (see
-        :mod:`kinefuse.analysis.anatomy`). Degrees unless ``degrees=False``."""
+        :mod:`kinefuse.analysis.anatomy`). Degrees unless ``degrees=False``. NaN where an angle
+        is not defined: missing joints, an unobservable twist, and in gimbal lock (see
+        :attr:`gimbal`) the fixed-axis angle and the twist."""
         f = np.degrees if degrees else (lambda x: x)
         out: dict[str, Array] = {}
         for limb, ang in self.angles.items():
+            lock = self.gimbal.get(limb)
             for j, name in enumerate(self.axis_names[limb]):
-                out[name] = f(ang[:, j])
+                a_j = ang[:, j] if lock is None or j > 0 else np.where(lock, np.nan, ang[:, j])
+                out[name] = f(a_j)
             tw = anatomy.twist_name(limb)
             if tw is not None and limb in self.twist and np.isfinite(self.twist[limb]).any():
-                out[tw[0]] = f(tw[1] * self.twist[limb])
+                t_l = self.twist[limb] if lock is None else np.where(lock, np.nan, self.twist[limb])
+                out[tw[0]] = f(tw[1] * t_l)
         for side in ("left", "right"):
             d = self.direction.get(f"upper_arm_{side}")
             if d is not None:
@@ -95,6 +114,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         )
     p = seq.kinect_positions()
     angles, off, twist, weight, length, direction, names = {}, {}, {}, {}, {}, {}, {}
+    gimbal = {}
     for name, lm in model.limbs.items():
         i = LIMB_INDEX[name]
         vec = limb_samples(seq, norm, name)
@@ -105,6 +125,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
             continue
         ang, o = swing_angles(lm, u)
         angles[name], off[name], names[name] = ang, o, lm.axis_names
+        gimbal[name] = gimbal_lock(lm, u)
         w = norm.twist_weight[:, i]
         weight[name] = w
         if LIMBS[i].twist_observable or seq.orientation(name) is not None:
@@ -125,6 +146,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         root_position=p[:, JOINT_INDEX["SpineBase"]].copy(),
         root_frame=norm.frames[:, 0].copy(),
         axis_names=names,
+        gimbal=gimbal,
     )
 
 
@@ -274,4 +296,5 @@ def _take(angles: Angles, frame: int) -> Angles:
         root_position=angles.root_position[sl],
         root_frame=angles.root_frame[sl],
         axis_names=angles.axis_names,
+        gimbal={k: v[sl] for k, v in angles.gimbal.items()},
     )

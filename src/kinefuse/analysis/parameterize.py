@@ -27,6 +27,7 @@ from kinefuse.analysis._vec import (
     tmm,
     tmv,
     unit,
+    wrap,
 )
 from kinefuse.analysis.axes import (
     DELTA_RAD,
@@ -55,6 +56,10 @@ ONE_PLANE_RAD = np.radians(8.0)
 REST_RADIUS_RAD = np.radians(3.0)
 #: Window of the moving average applied to the calibration samples, seconds.
 SMOOTH_S = 0.2
+#: A two-axis limb within this angle of its fixed axis is in gimbal lock (see
+#: :func:`gimbal_lock`): its fixed-axis angle and twist are reported as not defined there
+#: (rad; at 20° a direction error is magnified at most 1 / sin 20° = 2.9 times).
+GIMBAL_RAD = np.radians(20.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -343,9 +348,13 @@ def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:
     the change of elevation from the axis plane. Two axes (``u = R(a0, t0) R(a1, t1) r``): the
     intermediate ``x`` lies on the circle about ``a1`` through ``r`` and on the circle about
     ``a0`` through ``u``; their planes meet in a line that meets the sphere in two candidates;
-    the one on the rest's side of the plane spanned by the axes is taken, switching side only
-    where the trajectory crosses that plane (the smooth choice). The off-axis angle is the
-    remaining angle when no candidate exists (``u`` out of reach of the two circles).
+    the one on the rest's side of the plane spanned by the axes is taken (the floating angle
+    within +-90°), switching to the other only where the trajectory passes over the fixed
+    axis (the smooth choice, see :func:`_branch`). The off-axis angle is the remaining angle
+    when no candidate exists (``u`` out of reach of the two circles). Near the fixed axis
+    (:func:`gimbal_lock`) ``t0`` is ill-conditioned; it is returned all the same (with the twist
+    it gives back the limb's frame), and :meth:`~kinefuse.analysis.kinematics.Angles.anatomical`
+    reports it as not defined there.
     """
     r = model.rest
     a = model.axes
@@ -379,33 +388,79 @@ def _intermediate(a0: Array, a1: Array, r: Array, u: Array) -> tuple[Array, Arra
     g = np.sqrt(np.maximum(g2, 0.0))
     off = np.where(g2 < 0, np.sqrt(np.maximum(-g2, 0.0)), 0.0)
     rest_side = 1.0 if float(r @ n) >= 0 else -1.0
-    sign = _smooth_sides(g, np.full(u.shape[0], rest_side))
-    # within 60° of the rest the candidate on the rest's side is the valid one: a wrong switch
-    # (noise near the axes' plane) cannot outlive the limb's return toward its rest
-    sign[u @ r > np.cos(np.radians(60.0))] = rest_side
+    sign = _branch(u, a0, r, unit(m + (rest_side * g)[:, None] * n), rest_side)
     x = m + (sign * g)[:, None] * n
     return unit(x), off
 
 
-def _smooth_sides(g: Array, sign: Array, near: float = np.sin(np.radians(3.0))) -> Array:
-    """Switch candidates where the trajectory crosses the axes' plane.
+def gimbal_lock(model: LimbModel, u: Array) -> NDArray[np.bool_]:
+    """Frames ``(T,)`` where the limb's direction ``u (T, 3)`` lies within :data:`GIMBAL_RAD`
+    of its fixed (first) axis, either end: there the angle about that axis is not defined (it
+    turns ``u`` about itself) and cannot be told apart from the twist (only their sum is
+    defined), and a direction error ``e`` moves each of them by ``e / sin(angle to the axis)``.
+    A two-axis limb gets there in gimbal lock (the arm abducted 90°), a hinge only when it left
+    its plane by 70° or more. All False for limbs without axes."""
+    if model.axes.shape[0] == 0:
+        return np.zeros(u.shape[0], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.abs(u @ model.axes[0]) > np.cos(GIMBAL_RAD), dtype=bool)
 
-    ``g`` is the candidates' distance from that plane (0 where they coincide or where no
-    candidate reaches, clamped). A trajectory that comes within ``near`` of the plane is taken
-    to cross it (the smooth continuation; the reflection would turn back with a kink): each run
-    of frames below ``near`` switches the side once, at its closest frame.
+
+def _branch(u: Array, a0: Array, r: Array, x_p: Array, rest_side: float) -> Array:
+    """The candidate per frame ``(T,)``: ``rest_side`` (the principal one, floating angle within
+    +-90°) or its opposite, the smooth choice through the fixed axis' poles.
+
+    The two candidates are two charts of the sphere with their poles at +-``a0`` (gimbal
+    lock); in the other chart the fixed-axis angle is the principal one + 180°. The principal
+    chart is continuous everywhere but at the poles; a trajectory that passes *over* a pole
+    (the arm abducted beyond 90°) continues smoothly in the other chart, one that passes beside
+    it stays. Near a pole the fixed-axis angle is ill-conditioned, far from it well; so within
+    each run of frames nearer than :data:`GIMBAL_RAD` to a pole, and at the first frame after
+    it, the chart is the one whose fixed-axis angle is nearer to that angle at the last frame
+    before the run (the fixed-axis angle cannot have turned by more than 90° while the limb
+    was near the pole); the chart of the first frame after the run holds until the next run.
+    Deciding from the distance to the pole (a switch where the trajectory came within a few
+    degrees, as before) made the choice a coin flip under noise, and a wrong choice turned the
+    fixed-axis angle and the twist by 180° for seconds. Within 60° of the rest the principal
+    chart is taken (the rest is its origin), which also ends any wrong choice.
     """
-    low = (g < near) & np.isfinite(g)
-    if not low.any():
-        return sign
-    s = sign.copy()
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):  # run [a, b)
-        if a == 0:
-            continue  # starting on the plane: nothing to continue from
-        flip_at = a + int(np.argmin(g[a:b])) + 1
-        s[flip_at:] = -s[flip_at:]
-    return s
+    t = u.shape[0]
+    with np.errstate(invalid="ignore"):
+        near = np.abs(u @ a0) > np.cos(GIMBAL_RAD)
+        at_rest = u @ r > np.cos(np.radians(60.0))
+    t0 = signed_angle(x_p, u, np.broadcast_to(a0, u.shape))
+    valid = np.flatnonzero(np.isfinite(t0) & ~near)
+    sign = np.full(t, rest_side)
+    state = rest_side
+
+    def hold(lo: int, hi: int) -> None:  # frames [lo, hi) away from the poles
+        nonlocal state
+        sign[lo:hi] = state
+        rest = np.flatnonzero(at_rest[lo:hi])
+        if rest.size:
+            sign[lo + rest[0] : hi] = rest_side
+            state = rest_side
+
+    pos = 0
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], near.astype(np.int8), [0]])))
+    for a, b in zip(edges[::2], edges[1::2], strict=True):  # run [a, b) near a pole
+        hold(pos, a)
+        k = np.searchsorted(valid, a)
+        if k == 0:  # the take starts near a pole: nothing to continue from
+            sign[a:b] = state
+            pos = b
+            continue
+        before = valid[k - 1]
+        ref = t0[before] + (0.0 if sign[before] == rest_side else np.pi)
+        stop = valid[k] + 1 if k < valid.size else b
+        keep = np.abs(wrap(t0[a:stop] - ref)) <= 0.5 * np.pi
+        sign[a:stop] = np.where(keep | ~np.isfinite(t0[a:stop]), rest_side, -rest_side)
+        state = float(sign[stop - 1])
+        if at_rest[b:stop].any():
+            state = rest_side
+        pos = b if stop <= b else stop
+    hold(pos, t)
+    return sign
 
 
 def _swing_matrices(model: LimbModel, ang: Array, off: Array | None, u: Array | None) -> Array:
