@@ -21,9 +21,9 @@ from kinefuse.analysis.normalize import Normalization
 from kinefuse.analysis.parameterize import (
     AxisModel,
     _swing_matrices,
-    gimbal_lock,
     limb_samples,
     swing_angles,
+    undefined_angles,
 )
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
@@ -59,12 +59,12 @@ class Angles:
     root_frame : (T, 3, 3) float
         The pelvis' normalized frame (pelvis -> world).
     axis_names : dict limb -> tuple of str
-    gimbal : dict limb -> (T,) bool
-        Frames in gimbal lock (the limb within
-        :data:`~kinefuse.analysis.parameterize.GIMBAL_RAD` of its fixed axis), where the angle
-        about the fixed axis and the twist are not separable; :meth:`anatomical` gives NaN for
-        both there. The raw values in :attr:`angles` and :attr:`twist` are kept (together they
-        still give the limb's frame back exactly).
+    undefined : dict limb -> (T, k + 1) bool
+        Where each angle about the learned axes (columns) and the twist (last column) is not
+        defined (:func:`~kinefuse.analysis.parameterize.undefined_angles`: gimbal lock, and
+        for two axes the frames where its two representations are equally near the rest);
+        :meth:`anatomical` gives NaN there. The raw values in :attr:`angles` and :attr:`twist`
+        are kept (together they still give the limb's frame back exactly).
     """
 
     t_s: Array
@@ -77,25 +77,24 @@ class Angles:
     root_position: Array
     root_frame: Array
     axis_names: dict[str, tuple[str, ...]]
-    gimbal: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
+    undefined: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
 
     def anatomical(self, *, degrees: bool = True) -> dict[str, Array]:
         """Every named angle ``(T,)``: the learned-axis angles, the twists with their ISB sign,
         and the shoulder's ISB elevation and plane of elevation (see
         :mod:`kinefuse.analysis.anatomy`). Degrees unless ``degrees=False``. NaN where an angle
-        is not defined: missing joints, an unobservable twist, and in gimbal lock (see
-        :attr:`gimbal`) the fixed-axis angle and the twist."""
+        is not defined: missing joints, an unobservable twist, and :attr:`undefined`."""
         f = np.degrees if degrees else (lambda x: x)
         out: dict[str, Array] = {}
         for limb, ang in self.angles.items():
-            lock = self.gimbal.get(limb)
+            bad = self.undefined.get(limb)
+            if bad is None:
+                bad = np.zeros((ang.shape[0], ang.shape[1] + 1), dtype=bool)
             for j, name in enumerate(self.axis_names[limb]):
-                a_j = ang[:, j] if lock is None or j > 0 else np.where(lock, np.nan, ang[:, j])
-                out[name] = f(a_j)
+                out[name] = f(np.where(bad[:, j], np.nan, ang[:, j]))
             tw = anatomy.twist_name(limb)
             if tw is not None and limb in self.twist and np.isfinite(self.twist[limb]).any():
-                t_l = self.twist[limb] if lock is None else np.where(lock, np.nan, self.twist[limb])
-                out[tw[0]] = f(tw[1] * t_l)
+                out[tw[0]] = f(tw[1] * np.where(bad[:, -1], np.nan, self.twist[limb]))
         for side in ("left", "right"):
             d = self.direction.get(f"upper_arm_{side}")
             if d is not None:
@@ -114,7 +113,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         )
     p = seq.kinect_positions()
     angles, off, twist, weight, length, direction, names = {}, {}, {}, {}, {}, {}, {}
-    gimbal = {}
+    undefined = {}
     for name, lm in model.limbs.items():
         i = LIMB_INDEX[name]
         vec = limb_samples(seq, norm, name)
@@ -125,7 +124,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
             continue
         ang, o = swing_angles(lm, u)
         angles[name], off[name], names[name] = ang, o, lm.axis_names
-        gimbal[name] = gimbal_lock(lm, u)
+        undefined[name] = undefined_angles(lm, u)
         w = norm.twist_weight[:, i]
         weight[name] = w
         if LIMBS[i].twist_observable or seq.orientation(name) is not None:
@@ -146,7 +145,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         root_position=p[:, JOINT_INDEX["SpineBase"]].copy(),
         root_frame=norm.frames[:, 0].copy(),
         axis_names=names,
-        gimbal=gimbal,
+        undefined=undefined,
     )
 
 
@@ -296,5 +295,5 @@ def _take(angles: Angles, frame: int) -> Angles:
         root_position=angles.root_position[sl],
         root_frame=angles.root_frame[sl],
         axis_names=angles.axis_names,
-        gimbal={k: v[sl] for k, v in angles.gimbal.items()},
+        undefined={k: v[sl] for k, v in angles.undefined.items()},
     )

@@ -57,9 +57,13 @@ REST_RADIUS_RAD = np.radians(3.0)
 #: Window of the moving average applied to the calibration samples, seconds.
 SMOOTH_S = 0.2
 #: A two-axis limb within this angle of its fixed axis is in gimbal lock (see
-#: :func:`gimbal_lock`): its fixed-axis angle and twist are reported as not defined there
+#: :func:`undefined_angles`): its fixed-axis angle and twist are reported as not defined there
 #: (rad; at 20° a direction error is magnified at most 1 / sin 20° = 2.9 times).
 GIMBAL_RAD = np.radians(20.0)
+#: A two-axis limb changes between the two representations of its direction (see
+#: :func:`_branch`) only where the other is nearer to the rest by more than this (summed
+#: ``|angle|`` about the two axes, rad).
+CHART_MARGIN_RAD = np.radians(25.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -352,9 +356,9 @@ def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:
     within +-90°), switching to the other only where the trajectory passes over the fixed
     axis (the smooth choice, see :func:`_branch`). The off-axis angle is the remaining angle
     when no candidate exists (``u`` out of reach of the two circles). Near the fixed axis
-    (:func:`gimbal_lock`) ``t0`` is ill-conditioned; it is returned all the same (with the twist
-    it gives back the limb's frame), and :meth:`~kinefuse.analysis.kinematics.Angles.anatomical`
-    reports it as not defined there.
+    ``t0`` is ill-conditioned (:func:`undefined_angles`); it is returned all the same (with the
+    twist it gives back the limb's frame), and
+    :meth:`~kinefuse.analysis.kinematics.Angles.anatomical` reports it as not defined there.
     """
     r = model.rest
     a = model.axes
@@ -366,7 +370,7 @@ def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:
         th = signed_angle(np.broadcast_to(r, u.shape), u, a0)
         off = np.arcsin(np.clip(u @ a[0], -1, 1)) - np.arcsin(np.clip(r @ a[0], -1, 1))
         return th[:, None], off
-    x, off = _intermediate(a[0], a[1], r, u)
+    x, off, _ = _intermediate(a[0], a[1], r, u)
     a0 = np.broadcast_to(a[0], u.shape)
     a1 = np.broadcast_to(a[1], u.shape)
     t1 = signed_angle(np.broadcast_to(r, u.shape), x, a1)
@@ -374,7 +378,9 @@ def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:
     return np.stack([t0, t1], axis=-1), off
 
 
-def _intermediate(a0: Array, a1: Array, r: Array, u: Array) -> tuple[Array, Array]:
+def _intermediate(
+    a0: Array, a1: Array, r: Array, u: Array
+) -> tuple[Array, Array, NDArray[np.bool_]]:
     c = float(a0 @ a1)
     n = np.cross(a0, a1)
     n /= np.linalg.norm(n)
@@ -388,79 +394,94 @@ def _intermediate(a0: Array, a1: Array, r: Array, u: Array) -> tuple[Array, Arra
     g = np.sqrt(np.maximum(g2, 0.0))
     off = np.where(g2 < 0, np.sqrt(np.maximum(-g2, 0.0)), 0.0)
     rest_side = 1.0 if float(r @ n) >= 0 else -1.0
-    sign = _branch(u, a0, r, unit(m + (rest_side * g)[:, None] * n), rest_side)
+    x_p = unit(m + (rest_side * g)[:, None] * n)  # the principal candidate and the other
+    x_o = unit(m - (rest_side * g)[:, None] * n)
+    sign, ambiguous = _branch(u, a0, a1, r, x_p, x_o, rest_side)
     x = m + (sign * g)[:, None] * n
-    return unit(x), off
+    return unit(x), off, ambiguous
 
 
-def gimbal_lock(model: LimbModel, u: Array) -> NDArray[np.bool_]:
-    """Frames ``(T,)`` where the limb's direction ``u (T, 3)`` lies within :data:`GIMBAL_RAD`
-    of its fixed (first) axis, either end: there the angle about that axis is not defined (it
-    turns ``u`` about itself) and cannot be told apart from the twist (only their sum is
-    defined), and a direction error ``e`` moves each of them by ``e / sin(angle to the axis)``.
-    A two-axis limb gets there in gimbal lock (the arm abducted 90°), a hinge only when it left
-    its plane by 70° or more. All False for limbs without axes."""
-    if model.axes.shape[0] == 0:
-        return np.zeros(u.shape[0], dtype=bool)
+def undefined_angles(model: LimbModel, u: Array) -> NDArray[np.bool_]:
+    """Where the angles of directions ``u (T, 3)`` are not defined: ``(T, k + 1)`` bool, one
+    column per learned axis and the last for the twist.
+
+    * Within :data:`GIMBAL_RAD` of the fixed (first) axis, either end (gimbal lock for two
+      axes, e.g. the arm abducted 70-110°; a hinge gets there only 70° out of its plane): the
+      angle about that axis turns ``u`` about itself and cannot be told apart from the twist
+      (only their sum is defined); a direction error ``e`` moves each by
+      ``e / sin(angle to the axis)``. Both are not defined there.
+    * Two axes, where the two representations of the direction (see :func:`_branch`) are about
+      equally near the rest (within :data:`CHART_MARGIN_RAD`; high elevations between the
+      pole and overhead): which one a frame gets is decided by its noise, and they differ by
+      180° in the fixed angle and the twist. All angles are not defined there.
+    """
+    k = model.axes.shape[0]
+    out = np.zeros((u.shape[0], k + 1), dtype=bool)
+    if k == 0:
+        return out
     with np.errstate(invalid="ignore"):
-        return np.asarray(np.abs(u @ model.axes[0]) > np.cos(GIMBAL_RAD), dtype=bool)
+        near = np.abs(u @ model.axes[0]) > np.cos(GIMBAL_RAD)
+    out[:, 0] = out[:, -1] = near
+    if k == 2:
+        _, _, ambiguous = _intermediate(model.axes[0], model.axes[1], model.rest, u)
+        out |= ambiguous[:, None]
+    return out
 
 
-def _branch(u: Array, a0: Array, r: Array, x_p: Array, rest_side: float) -> Array:
-    """The candidate per frame ``(T,)``: ``rest_side`` (the principal one, floating angle within
-    +-90°) or its opposite, the smooth choice through the fixed axis' poles.
+def _branch(
+    u: Array, a0: Array, a1: Array, r: Array, x_p: Array, x_o: Array, rest_side: float
+) -> tuple[Array, NDArray[np.bool_]]:
+    """The candidate per frame ``(T,)``: ``rest_side`` (the principal one ``x_p``, floating
+    angle within +-90°) or its opposite (``x_o``); and the frames ``(T,)`` where the choice is
+    ambiguous (ours).
 
-    The two candidates are two charts of the sphere with their poles at +-``a0`` (gimbal
-    lock); in the other chart the fixed-axis angle is the principal one + 180°. The principal
-    chart is continuous everywhere but at the poles; a trajectory that passes *over* a pole
-    (the arm abducted beyond 90°) continues smoothly in the other chart, one that passes beside
-    it stays. Near a pole the fixed-axis angle is ill-conditioned, far from it well; so within
-    each run of frames nearer than :data:`GIMBAL_RAD` to a pole, and at the first frame after
-    it, the chart is the one whose fixed-axis angle is nearer to that angle at the last frame
-    before the run (the fixed-axis angle cannot have turned by more than 90° while the limb
-    was near the pole); the chart of the first frame after the run holds until the next run.
-    Deciding from the distance to the pole (a switch where the trajectory came within a few
-    degrees, as before) made the choice a coin flip under noise, and a wrong choice turned the
-    fixed-axis angle and the twist by 180° for seconds. Within 60° of the rest the principal
-    chart is taken (the rest is its origin), which also ends any wrong choice.
+    The two candidates are two charts of the sphere (``t0' = t0 + 180°``,
+    ``t1' ~ 180° - t1``) with their poles at +-``a0`` (gimbal lock); each is continuous but at
+    the poles and they agree only there. Hence:
+
+    * away from the poles a frame takes the chart whose angles are nearer to the rest (smaller
+      ``|t0| + |t1|``): an arm lifted sideways over 90° reads abduction 120°, flexion 0°, not
+      flexion 180°, abduction 60°; an arm forward-up reads flexion 100°, abduction 60°, not
+      flexion -80°, abduction 120°. Where the two are nearer than :data:`CHART_MARGIN_RAD`
+      the frame is *ambiguous* (a few degrees of noise decide; the angles are reported as not
+      defined there, :func:`undefined_angles`);
+    * within a run of frames nearer than :data:`GIMBAL_RAD` to a pole (where ``t0`` is
+      ill-conditioned and not defined) the chart switches at the frame closest to the pole,
+      the only place where the two agree: before it each frame takes the chart whose ``t0``
+      is nearer to ``t0`` at the last frame before the run, after it the one nearer to ``t0``
+      at the first frame after the run (an arm lifted to 100° and lowered again inside the run
+      reads abduction 100°, not 80°).
+
+    The paper's smooth choice was made along the trajectory before (switch where it came
+    within 3° of the axes' plane, back to the principal chart within 60° of the rest): under
+    1 cm of noise a few degrees decided, and a wrong choice turned flexion and the twist by
+    180° for seconds.
     """
     t = u.shape[0]
+    a0b, a1b = np.broadcast_to(a0, u.shape), np.broadcast_to(a1, u.shape)
+    rb = np.broadcast_to(r, u.shape)
+    t0 = {1.0: signed_angle(x_p, u, a0b), -1.0: signed_angle(x_o, u, a0b)}
+    diff = np.abs(t0[1.0]) + np.abs(signed_angle(rb, x_p, a1b))
+    diff -= np.abs(t0[-1.0]) + np.abs(signed_angle(rb, x_o, a1b))
     with np.errstate(invalid="ignore"):
         near = np.abs(u @ a0) > np.cos(GIMBAL_RAD)
-        at_rest = u @ r > np.cos(np.radians(60.0))
-    t0 = signed_angle(x_p, u, np.broadcast_to(a0, u.shape))
-    valid = np.flatnonzero(np.isfinite(t0) & ~near)
-    sign = np.full(t, rest_side)
-    state = rest_side
-
-    def hold(lo: int, hi: int) -> None:  # frames [lo, hi) away from the poles
-        nonlocal state
-        sign[lo:hi] = state
-        rest = np.flatnonzero(at_rest[lo:hi])
-        if rest.size:
-            sign[lo + rest[0] : hi] = rest_side
-            state = rest_side
-
-    pos = 0
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], near.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):  # run [a, b) near a pole
-        hold(pos, a)
-        k = np.searchsorted(valid, a)
-        if k == 0:  # the take starts near a pole: nothing to continue from
-            sign[a:b] = state
-            pos = b
-            continue
-        before = valid[k - 1]
-        ref = t0[before] + (0.0 if sign[before] == rest_side else np.pi)
-        stop = valid[k] + 1 if k < valid.size else b
-        keep = np.abs(wrap(t0[a:stop] - ref)) <= 0.5 * np.pi
-        sign[a:stop] = np.where(keep | ~np.isfinite(t0[a:stop]), rest_side, -rest_side)
-        state = float(sign[stop - 1])
-        if at_rest[b:stop].any():
-            state = rest_side
-        pos = b if stop <= b else stop
-    hold(pos, t)
-    return sign
+        rel = np.where(diff > 0, -1.0, 1.0)  # +1 the principal chart, -1 the other
+        ambiguous = (np.abs(diff) < CHART_MARGIN_RAD) & ~near
+    runs = np.flatnonzero(np.diff(np.concatenate([[0], near.astype(np.int8), [0]])))
+    for a, b in zip(runs[::2], runs[1::2], strict=True):  # run [a, b) near a pole
+        ref_in = t0[rel[a - 1]][a - 1] if a > 0 else np.nan
+        ref_out = t0[rel[b]][b] if b < t else np.nan
+        ref_in = ref_out if not np.isfinite(ref_in) else ref_in
+        ref_out = ref_in if not np.isfinite(ref_out) else ref_out
+        if not np.isfinite(ref_in):
+            continue  # nothing to continue from: the principal chart
+        closest = np.abs(u[a:b] @ a0)
+        split = a + (int(np.nanargmax(closest)) if np.isfinite(closest).any() else 0)
+        ref = np.where(np.arange(a, b) < split, ref_in, ref_out)
+        d_p = np.abs(wrap(t0[1.0][a:b] - ref))
+        d_o = np.abs(wrap(t0[-1.0][a:b] - ref))
+        rel[a:b] = np.where(d_o < d_p, -1.0, 1.0)
+    return rest_side * rel, np.asarray(ambiguous, dtype=bool)
 
 
 def _swing_matrices(model: LimbModel, ang: Array, off: Array | None, u: Array | None) -> Array:
