@@ -22,8 +22,7 @@ from kinefuse.analysis.parameterize import (
     AxisModel,
     _swing_matrices,
     limb_samples,
-    swing_angles,
-    undefined_angles,
+    swing_and_undefined,
 )
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
@@ -122,9 +121,8 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         direction[name] = u
         if not lm.usable:
             continue
-        ang, o = swing_angles(lm, u)
+        ang, o, undefined[name] = swing_and_undefined(lm, u)
         angles[name], off[name], names[name] = ang, o, lm.axis_names
-        undefined[name] = undefined_angles(lm, u)
         w = norm.twist_weight[:, i]
         weight[name] = w
         if LIMBS[i].twist_observable or seq.orientation(name) is not None:

@@ -323,9 +323,11 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
             src = None
             k_i, carried = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
         noise = float("nan")
+        ref = None
         if k_i.kind == "twist":
             assert carried is not None
-            noise, across = _twist_noise(lb, k_i, p, carried)
+            ref = _reference_twist(lb, k_i, p, carried)
+            noise, across = _twist_noise(lb, p, *ref)
             if noise > np.radians(TWIST_NOISE_MAX_DEG):  # not observable: carry the frame
                 k_i = LimbConstants("carried", np.eye(3), k_i.l0, k_i.d0, k_i.axis)
                 noisy[lb.name] = (
@@ -336,7 +338,7 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         constants[lb.name] = k_i
         par = LIMB_PARENTS[i]
         frames[:, i], weight[:, i] = _limb_frames(
-            lb, k_i, p, frames[:, par] if par >= 0 else None, src, carried
+            lb, k_i, p, frames[:, par] if par >= 0 else None, src, carried, ref
         )
         if k_i.kind == "carried":
             tw_kind = "not observable"
@@ -399,9 +401,11 @@ def _limb_frames(
     fp: Array | None,
     src: Array | None,
     carried: Array | None = None,
+    ref: tuple[Array, Array] | None = None,
 ) -> tuple[Array, Array]:
     """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``
-    (``carried``: the carried frames when already computed with the same constants)."""
+    (``carried``: the carried frames when already computed with the same constants; ``ref``:
+    :func:`_reference_twist` of them)."""
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if k.kind == "orientation":
         assert src is not None
@@ -416,7 +420,7 @@ def _limb_frames(
         carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
     if k.kind == "carried":
         return carried, np.zeros(u.shape[0])
-    psi, w = _reference_twist(lb, k, p, carried)
+    psi, w = _reference_twist(lb, k, p, carried) if ref is None else ref
     ax = np.broadcast_to(k.axis, u.shape)
     return carried @ rodrigues(ax, w * np.where(np.isfinite(psi), psi, 0.0)), w
 
@@ -431,9 +435,10 @@ def _reference_twist(lb: Limb, k: LimbConstants, p: Array, carried: Array) -> tu
     return twist_angle(tmm(carried, g), np.broadcast_to(k.axis, u.shape)), w
 
 
-def _twist_noise(lb: Limb, k: LimbConstants, p: Array, carried: Array) -> tuple[float, float]:
-    """How uncertain a position-derived twist is (rad, per frame) and the reference's median
-    length across the limb (metres), from the data alone.
+def _twist_noise(lb: Limb, p: Array, psi: Array, w: Array) -> tuple[float, float]:
+    """How uncertain a position-derived twist ``psi (T,)`` (weights ``w``, from
+    :func:`_reference_twist`) is (rad, per frame), and the reference's median length across the
+    limb (metres), from the data alone.
 
     The larger of two estimates, over the frames with full weight: the frame-to-frame noise
     of the twist (:func:`twist_jitter`; white noise), and the spread of the reference's length
@@ -441,7 +446,6 @@ def _twist_noise(lb: Limb, k: LimbConstants, p: Array, carried: Array) -> tuple[
     (an error of the joints moves the reference across as much as along; this also sees slow
     errors that a smoothing filter leaves, unless the filter holds the length itself).
     """
-    psi, w = _reference_twist(lb, k, p, carried)
     u = unit(p[:, lb.distal_index] - p[:, lb.proximal_index])
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
     full = (w >= 1.0) & np.isfinite(r).all(axis=-1) & np.isfinite(u).all(axis=-1)

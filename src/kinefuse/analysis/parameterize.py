@@ -360,27 +360,36 @@ def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:
     twist it gives back the limb's frame), and
     :meth:`~kinefuse.analysis.kinematics.Angles.anatomical` reports it as not defined there.
     """
+    ang, off, _ = swing_and_undefined(model, u)
+    return ang, off
+
+
+def swing_and_undefined(model: LimbModel, u: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """:func:`swing_angles` and :func:`undefined_angles` in one pass (the candidate choice is
+    computed once)."""
     r = model.rest
     a = model.axes
     t = u.shape[0]
     if a.shape[0] == 0:
-        return np.full((t, 0), np.nan), np.full(t, np.nan)
+        return np.full((t, 0), np.nan), np.full(t, np.nan), np.zeros((t, 1), dtype=bool)
+    bad = np.zeros((t, a.shape[0] + 1), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        bad[:, 0] = bad[:, -1] = np.abs(u @ a[0]) > np.cos(GIMBAL_RAD)
     if a.shape[0] == 1:
         a0 = np.broadcast_to(a[0], u.shape)
         th = signed_angle(np.broadcast_to(r, u.shape), u, a0)
         off = np.arcsin(np.clip(u @ a[0], -1, 1)) - np.arcsin(np.clip(r @ a[0], -1, 1))
-        return th[:, None], off
-    x, off, _ = _intermediate(a[0], a[1], r, u)
-    a0 = np.broadcast_to(a[0], u.shape)
-    a1 = np.broadcast_to(a[1], u.shape)
-    t1 = signed_angle(np.broadcast_to(r, u.shape), x, a1)
-    t0 = signed_angle(x, u, a0)
-    return np.stack([t0, t1], axis=-1), off
+        return th[:, None], off, bad
+    t0, t1, off, ambiguous = _intermediate(a[0], a[1], r, u)
+    bad |= ambiguous[:, None]
+    return np.stack([t0, t1], axis=-1), off, bad
 
 
 def _intermediate(
     a0: Array, a1: Array, r: Array, u: Array
-) -> tuple[Array, Array, NDArray[np.bool_]]:
+) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
+    """``t0, t1`` (rad) of the chosen candidate (see :func:`swing_angles`), the off-axis angle
+    and the ambiguous frames, all ``(T,)``."""
     c = float(a0 @ a1)
     n = np.cross(a0, a1)
     n /= np.linalg.norm(n)
@@ -396,9 +405,8 @@ def _intermediate(
     rest_side = 1.0 if float(r @ n) >= 0 else -1.0
     x_p = unit(m + (rest_side * g)[:, None] * n)  # the principal candidate and the other
     x_o = unit(m - (rest_side * g)[:, None] * n)
-    sign, ambiguous = _branch(u, a0, a1, r, x_p, x_o, rest_side)
-    x = m + (sign * g)[:, None] * n
-    return unit(x), off, ambiguous
+    rel, ambiguous, t0, t1 = _branch(u, a0, a1, r, x_p, x_o)
+    return np.where(rel > 0, t0[0], t0[1]), np.where(rel > 0, t1[0], t1[1]), off, ambiguous
 
 
 def undefined_angles(model: LimbModel, u: Array) -> NDArray[np.bool_]:
@@ -415,25 +423,15 @@ def undefined_angles(model: LimbModel, u: Array) -> NDArray[np.bool_]:
       pole and overhead): which one a frame gets is decided by its noise, and they differ by
       180° in the fixed angle and the twist. All angles are not defined there.
     """
-    k = model.axes.shape[0]
-    out = np.zeros((u.shape[0], k + 1), dtype=bool)
-    if k == 0:
-        return out
-    with np.errstate(invalid="ignore"):
-        near = np.abs(u @ model.axes[0]) > np.cos(GIMBAL_RAD)
-    out[:, 0] = out[:, -1] = near
-    if k == 2:
-        _, _, ambiguous = _intermediate(model.axes[0], model.axes[1], model.rest, u)
-        out |= ambiguous[:, None]
-    return out
+    return swing_and_undefined(model, u)[2]
 
 
 def _branch(
-    u: Array, a0: Array, a1: Array, r: Array, x_p: Array, x_o: Array, rest_side: float
-) -> tuple[Array, NDArray[np.bool_]]:
-    """The candidate per frame ``(T,)``: ``rest_side`` (the principal one ``x_p``, floating
-    angle within +-90°) or its opposite (``x_o``); and the frames ``(T,)`` where the choice is
-    ambiguous (ours).
+    u: Array, a0: Array, a1: Array, r: Array, x_p: Array, x_o: Array
+) -> tuple[Array, NDArray[np.bool_], tuple[Array, Array], tuple[Array, Array]]:
+    """The candidate per frame ``(T,)``: ``+1`` the principal one ``x_p`` (the floating angle
+    within +-90°), ``-1`` the other (``x_o``); the frames ``(T,)`` where the choice is
+    ambiguous; and ``t0``, ``t1`` of both candidates (ours).
 
     The two candidates are two charts of the sphere (``t0' = t0 + 180°``,
     ``t1' ~ 180° - t1``) with their poles at +-``a0`` (gimbal lock); each is continuous but at
@@ -461,8 +459,8 @@ def _branch(
     a0b, a1b = np.broadcast_to(a0, u.shape), np.broadcast_to(a1, u.shape)
     rb = np.broadcast_to(r, u.shape)
     t0 = {1.0: signed_angle(x_p, u, a0b), -1.0: signed_angle(x_o, u, a0b)}
-    diff = np.abs(t0[1.0]) + np.abs(signed_angle(rb, x_p, a1b))
-    diff -= np.abs(t0[-1.0]) + np.abs(signed_angle(rb, x_o, a1b))
+    t1 = (signed_angle(rb, x_p, a1b), signed_angle(rb, x_o, a1b))
+    diff = np.abs(t0[1.0]) + np.abs(t1[0]) - np.abs(t0[-1.0]) - np.abs(t1[1])
     with np.errstate(invalid="ignore"):
         near = np.abs(u @ a0) > np.cos(GIMBAL_RAD)
         rel = np.where(diff > 0, -1.0, 1.0)  # +1 the principal chart, -1 the other
@@ -481,7 +479,7 @@ def _branch(
         d_p = np.abs(wrap(t0[1.0][a:b] - ref))
         d_o = np.abs(wrap(t0[-1.0][a:b] - ref))
         rel[a:b] = np.where(d_o < d_p, -1.0, 1.0)
-    return rest_side * rel, np.asarray(ambiguous, dtype=bool)
+    return rel, np.asarray(ambiguous, dtype=bool), (t0[1.0], t0[-1.0]), t1
 
 
 def _swing_matrices(model: LimbModel, ang: Array, off: Array | None, u: Array | None) -> Array:
