@@ -46,10 +46,14 @@ def test_angles_and_twist_match_the_truth(rom) -> None:  # type: ignore[no-untyp
     ang = joint_angles(seq, norm, model)
     for limb, true in truth.angles.items():
         if true.shape[1]:
-            rmse = np.degrees(np.sqrt(np.nanmean((ang.angles[limb] - true) ** 2)))
+            # in gimbal lock (the arm abducted 70-110°) the angles are not defined (NaN in the
+            # anatomical output): the ROM's abduction to 100° passes it, a few % of the frames
+            lock = ang.undefined[limb].any(axis=1)
+            assert lock.mean() < (0.05 if limb.startswith("upper_arm") else 1e-9), limb
+            rmse = np.degrees(np.sqrt(np.nanmean((ang.angles[limb][~lock] - true[~lock]) ** 2)))
             assert rmse < 1.0, (limb, rmse)  # degrees
     for limb in ("upper_arm_left", "forearm_right", "thigh_left", "shank_right", "trunk"):
-        d = np.degrees(ang.twist[limb] - truth.twist[limb])
+        d = np.degrees(ang.twist[limb] - truth.twist[limb])[~ang.undefined[limb][:, -1]]
         assert np.sqrt(np.nanmean(d**2)) < 1.0, limb  # degrees
 
 

@@ -40,7 +40,18 @@ Twists are about the limb's proximal-to-distal axis, negated on the right side f
 that ISB defines per side (internal rotation, pronation), so that both sides read the same way.
 The shoulder's elevation and plane of elevation are computed directly from the upper arm's
 direction in the trunk frame (ISB's Y-X-Y sequence without the gimbal-prone third angle); the
-plane is NaN below 10° of elevation, where it is undefined.
+plane is NaN below :data:`PLANE_MIN_ELEVATION_DEG` (10°) of elevation: it is the arm's
+longitude about the hanging direction, undefined at it and ill-conditioned near it (a direction
+error ``e`` moves it by ``e / sin(elevation)``: 5.8 e at 10°, 2.9 e at 20°; a hanging arm is
+at 10-20° most of a walk, so the threshold stays where ISB's definition allows it).
+
+Angles that small input errors would throw about are NaN rather than noise
+(:attr:`~kinefuse.analysis.kinematics.Angles.undefined`): in gimbal lock (a limb within 20° of
+its fixed axis, e.g. the arm abducted 70-110°) the angle about the fixed axis and the twist; for
+a two-axis limb where its two representations are about equally near the rest (high elevations
+between abduction 90° and overhead) all its angles; and a position-derived twist more uncertain
+than 10° per frame throughout, with the limb's status saying so
+(:data:`~kinefuse.analysis.normalize.TWIST_NOISE_MAX_DEG`).
 """
 
 from __future__ import annotations
@@ -56,6 +67,8 @@ from kinefuse.analysis._vec import unit
 Array = NDArray[np.float64]
 
 X, Y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+#: Below this elevation (degrees) the shoulder's plane of elevation is not defined (NaN).
+PLANE_MIN_ELEVATION_DEG = 10.0
 
 
 def _side_sign(limb: str) -> float:
@@ -149,12 +162,13 @@ def assign_axes(limb: str, axes: Array) -> tuple[Array, tuple[str, ...], Array, 
 
 def shoulder_elevation(direction_trunk: Array, side: str) -> tuple[Array, Array]:
     """ISB elevation and plane of elevation ``(T,)`` rad from the upper arm's direction in the
-    trunk's normalized frame ``(T, 3)``. The plane is NaN below 10° of elevation."""
+    trunk's normalized frame ``(T, 3)``. The plane is NaN below
+    :data:`PLANE_MIN_ELEVATION_DEG` of elevation."""
     v = unit(direction_trunk)
     elev = np.arccos(np.clip(-v[..., 2], -1.0, 1.0))
     lateral = v[..., 1] * (1.0 if side == "left" else -1.0)
     plane = np.arctan2(v[..., 0], lateral)
-    plane = np.where(elev > np.radians(10.0), plane, np.nan)
+    plane = np.where(elev > np.radians(PLANE_MIN_ELEVATION_DEG), plane, np.nan)
     return elev, plane
 
 

@@ -230,7 +230,8 @@ def dj_axes(
     Returns
     -------
     axes : (k, 3) float
-        ``k <= n_axes`` axes, largest cluster first, each refitted to its cluster's samples.
+        ``k <= n_axes`` axes, largest cluster first, each refitted to its cluster's samples;
+        a cluster within ``2 delta`` of a larger one is passed over (the same direction).
     weights : (k,) float
         The clusters' sizes (summed step arc length, radians), same order.
     """
@@ -272,15 +273,24 @@ def dj_axes(
     cluster = _merge(sums, weight, cos_d)
     n_cl = int(cluster.max()) + 1
     cw = np.bincount(cluster, weights=weight, minlength=n_cl)
-    order = np.argsort(-cw)[:n_axes]
-    axes, ws = [], []
+    order = np.argsort(-cw)
+    axes: list[Array] = []
+    ws = []
     for k in order:
+        if len(axes) == n_axes:
+            break
         steps = np.flatnonzero((group >= 0) & (cluster[np.maximum(group, 0)] == k))
         members = np.unique(np.concatenate([steps, steps + 1]))  # representatives of the steps
         pts = u[np.isin(run, members)]
         if pts.shape[0] < 3:
             continue
-        axes.append(plane_fit(pts))
+        a = plane_fit(pts)
+        # a cluster within 2 delta of a heavier one is that main direction split in two (a
+        # distorted swing whose halves differ by just over delta; seen in fused data), not a
+        # second main direction: skip it (ours)
+        if any(abs(float(a @ b)) > np.cos(2.0 * delta) for b in axes):
+            continue
+        axes.append(a)
         ws.append(cw[k])
     if not axes:
         return np.zeros((0, 3)), np.zeros(0)

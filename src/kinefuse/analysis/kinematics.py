@@ -9,7 +9,7 @@ the limb's long axis. The twist comes in closed form from the swing-twist decomp
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,7 +18,12 @@ from kinefuse.analysis import anatomy
 from kinefuse.analysis._vec import mv, rodrigues, tmm, twist_angle, unit
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS
 from kinefuse.analysis.normalize import Normalization
-from kinefuse.analysis.parameterize import AxisModel, _swing_matrices, limb_samples, swing_angles
+from kinefuse.analysis.parameterize import (
+    AxisModel,
+    _swing_matrices,
+    limb_samples,
+    swing_and_undefined,
+)
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
@@ -52,6 +57,13 @@ class Angles:
         SpineBase, metres, world.
     root_frame : (T, 3, 3) float
         The pelvis' normalized frame (pelvis -> world).
+    axis_names : dict limb -> tuple of str
+    undefined : dict limb -> (T, k + 1) bool
+        Where each angle about the learned axes (columns) and the twist (last column) is not
+        defined (:func:`~kinefuse.analysis.parameterize.undefined_angles`: gimbal lock, and
+        for two axes the frames where its two representations are equally near the rest);
+        :meth:`anatomical` gives NaN there. The raw values in :attr:`angles` and :attr:`twist`
+        are kept (together they still give the limb's frame back exactly).
     """
 
     t_s: Array
@@ -64,19 +76,24 @@ class Angles:
     root_position: Array
     root_frame: Array
     axis_names: dict[str, tuple[str, ...]]
+    undefined: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
 
     def anatomical(self, *, degrees: bool = True) -> dict[str, Array]:
         """Every named angle ``(T,)``: the learned-axis angles, the twists with their ISB sign,
         and the shoulder's ISB elevation and plane of elevation (see
-        :mod:`kinefuse.analysis.anatomy`). Degrees unless ``degrees=False``."""
+        :mod:`kinefuse.analysis.anatomy`). Degrees unless ``degrees=False``. NaN where an angle
+        is not defined: missing joints, an unobservable twist, and :attr:`undefined`."""
         f = np.degrees if degrees else (lambda x: x)
         out: dict[str, Array] = {}
         for limb, ang in self.angles.items():
+            bad = self.undefined.get(limb)
+            if bad is None:
+                bad = np.zeros((ang.shape[0], ang.shape[1] + 1), dtype=bool)
             for j, name in enumerate(self.axis_names[limb]):
-                out[name] = f(ang[:, j])
+                out[name] = f(np.where(bad[:, j], np.nan, ang[:, j]))
             tw = anatomy.twist_name(limb)
             if tw is not None and limb in self.twist and np.isfinite(self.twist[limb]).any():
-                out[tw[0]] = f(tw[1] * self.twist[limb])
+                out[tw[0]] = f(tw[1] * np.where(bad[:, -1], np.nan, self.twist[limb]))
         for side in ("left", "right"):
             d = self.direction.get(f"upper_arm_{side}")
             if d is not None:
@@ -95,6 +112,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         )
     p = seq.kinect_positions()
     angles, off, twist, weight, length, direction, names = {}, {}, {}, {}, {}, {}, {}
+    undefined = {}
     for name, lm in model.limbs.items():
         i = LIMB_INDEX[name]
         vec = limb_samples(seq, norm, name)
@@ -103,7 +121,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         direction[name] = u
         if not lm.usable:
             continue
-        ang, o = swing_angles(lm, u)
+        ang, o, undefined[name] = swing_and_undefined(lm, u)
         angles[name], off[name], names[name] = ang, o, lm.axis_names
         w = norm.twist_weight[:, i]
         weight[name] = w
@@ -125,6 +143,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         root_position=p[:, JOINT_INDEX["SpineBase"]].copy(),
         root_frame=norm.frames[:, 0].copy(),
         axis_names=names,
+        undefined=undefined,
     )
 
 
@@ -274,4 +293,5 @@ def _take(angles: Angles, frame: int) -> Angles:
         root_position=angles.root_position[sl],
         root_frame=angles.root_frame[sl],
         axis_names=angles.axis_names,
+        undefined={k: v[sl] for k, v in angles.undefined.items()},
     )

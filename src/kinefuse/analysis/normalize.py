@@ -41,6 +41,7 @@ from kinefuse.analysis._vec import (
     tmv,
     twist_angle,
     unit,
+    wrap,
 )
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS, Limb
 from kinefuse.analysis.sequence import SkeletonSequence
@@ -68,6 +69,11 @@ TWIST_WEIGHT_DEG = (15.0, 35.0)
 #: Frames whose limb direction is within this angle of the default pose's give the constant of
 #: a position-only twist (degrees).
 NEAR_DEFAULT_DEG = 25.0
+#: A position-derived twist more uncertain than this per frame (see :func:`_twist_noise`) is
+#: not observable: the limb's frame is carried from its parent and its twist is NaN (degrees;
+#: 1 cm of joint noise gives the forearm's twist from hand and thumb, 3 cm apart, about 25°,
+#: the shank's from the foot, 12 cm, about 7°).
+TWIST_NOISE_MAX_DEG = 10.0
 #: The frames within this span around the default-pose frame are averaged (seconds).
 DEFAULT_WINDOW_S = 0.5
 
@@ -291,6 +297,7 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
     status: dict[str, str] = {}
     observable: dict[str, dict[str, object]] = {}
     constants: dict[str, LimbConstants] = {}
+    noisy: dict[str, str] = {}
     for i, lb in enumerate(LIMBS):
         u = p[:, lb.distal_index] - p[:, lb.proximal_index]
         origins[:, i] = 0.5 * (p[:, lb.distal_index] + p[:, lb.proximal_index])
@@ -315,10 +322,23 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         else:
             src = None
             k_i, carried = _position_constants(p, lb, i, d, win, n0, long_axis[i], frames)
+        noise = float("nan")
+        ref = None
+        if k_i.kind == "twist":
+            assert carried is not None
+            ref = _reference_twist(lb, k_i, p, carried)
+            noise, across = _twist_noise(lb, p, *ref)
+            if noise > np.radians(TWIST_NOISE_MAX_DEG):  # not observable: carry the frame
+                k_i = LimbConstants("carried", np.eye(3), k_i.l0, k_i.d0, k_i.axis)
+                noisy[lb.name] = (
+                    f"twist not observable: its reference {lb.twist_ref[0]}->{lb.twist_ref[1]} "
+                    f"({100 * across:.0f} cm across the limb) is uncertain by "
+                    f"{np.degrees(noise):.0f}° per frame (over {TWIST_NOISE_MAX_DEG:g}°)"
+                )
         constants[lb.name] = k_i
         par = LIMB_PARENTS[i]
         frames[:, i], weight[:, i] = _limb_frames(
-            lb, k_i, p, frames[:, par] if par >= 0 else None, src, carried
+            lb, k_i, p, frames[:, par] if par >= 0 else None, src, carried, ref
         )
         if k_i.kind == "carried":
             tw_kind = "not observable"
@@ -333,10 +353,14 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
             "twist": tw_kind,
             "twist_frames": twist_frames,
         }
+        if np.isfinite(noise):
+            observable[lb.name]["twist_noise_deg"] = float(np.degrees(noise))
         msg = []
         if frac_missing > 0:
             msg.append(f"joints missing in {int((~present).sum())} of {t} frames")
-        if tw_kind == "not observable":
+        if lb.name in noisy:
+            msg.append(noisy[lb.name])
+        elif tw_kind == "not observable":
             msg.append("twist not observable from positions")
         status[lb.name] = "ok" if not msg else "; ".join(msg)
     return Normalization(
@@ -377,9 +401,11 @@ def _limb_frames(
     fp: Array | None,
     src: Array | None,
     carried: Array | None = None,
+    ref: tuple[Array, Array] | None = None,
 ) -> tuple[Array, Array]:
     """Normalized frames ``(T, 3, 3)`` and twist weight ``(T,)`` of one limb, any ``T``
-    (``carried``: the carried frames when already computed with the same constants)."""
+    (``carried``: the carried frames when already computed with the same constants; ``ref``:
+    :func:`_reference_twist` of them)."""
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if k.kind == "orientation":
         assert src is not None
@@ -394,13 +420,59 @@ def _limb_frames(
         carried = fp @ minimal_rotation(np.broadcast_to(k.d0, d_loc.shape), d_loc) @ k.l0
     if k.kind == "carried":
         return carried, np.zeros(u.shape[0])
+    psi, w = _reference_twist(lb, k, p, carried) if ref is None else ref
+    ax = np.broadcast_to(k.axis, u.shape)
+    return carried @ rodrigues(ax, w * np.where(np.isfinite(psi), psi, 0.0)), w
+
+
+def _reference_twist(lb: Limb, k: LimbConstants, p: Array, carried: Array) -> tuple[Array, Array]:
+    """The twist ``(T,)`` rad (NaN where undefined) from the carried frames to the reference's
+    frames (times ``k.c``) about the limb's long axis, and the reference's weight ``(T,)``."""
+    u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
     w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
     g = frame_from(u, r) @ k.c  # the reference's frame, equal to carried where c was taken
-    ax = np.broadcast_to(k.axis, u.shape)
-    psi = twist_angle(tmm(carried, g), ax)
-    psi = np.where(np.isfinite(psi), psi, 0.0)
-    return carried @ rodrigues(ax, w * psi), w
+    return twist_angle(tmm(carried, g), np.broadcast_to(k.axis, u.shape)), w
+
+
+def _twist_noise(lb: Limb, p: Array, psi: Array, w: Array) -> tuple[float, float]:
+    """How uncertain a position-derived twist ``psi (T,)`` (weights ``w``, from
+    :func:`_reference_twist`) is (rad, per frame), and the reference's median length across the
+    limb (metres), from the data alone.
+
+    The larger of two estimates, over the frames with full weight: the frame-to-frame noise
+    of the twist (:func:`twist_jitter`; white noise), and the spread of the reference's length
+    (a rigid pair of joints keeps it; 1.4826 MAD) over its length across the limb, as an angle
+    (an error of the joints moves the reference across as much as along; this also sees slow
+    errors that a smoothing filter leaves, unless the filter holds the length itself).
+    """
+    u = unit(p[:, lb.distal_index] - p[:, lb.proximal_index])
+    r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
+    full = (w >= 1.0) & np.isfinite(r).all(axis=-1) & np.isfinite(u).all(axis=-1)
+    if full.sum() < 10:
+        return float("nan"), float("nan")
+    length = np.linalg.norm(r[full], axis=-1)
+    across = float(np.median(np.linalg.norm(np.cross(u[full], r[full]), axis=-1)))
+    spread = 1.4826 * float(np.median(np.abs(length - np.median(length))))
+    jitter = twist_jitter(psi, w)
+    return float(np.nanmax([jitter, np.arctan2(spread, across)])), across
+
+
+def twist_jitter(psi: Array, w: Array) -> float:
+    """Frame-to-frame noise (SD, rad) of a position-derived twist ``psi (T,)`` over the runs of
+    three frames with full weight ``w (T,)``; NaN when there are fewer than 10 such runs.
+
+    White noise of SD ``s`` per frame gives second differences of SD ``sqrt(6) s``; the
+    motion's own second difference (its acceleration times the frame interval squared) is a
+    degree or less for a forearm turning at 1000 °/s² seen at 30 Hz, so a robust SD of the
+    wrapped second differences (1.4826 MAD) over ``sqrt(6)`` measures the noise.
+    """
+    ok = np.isfinite(psi) & (w >= 1.0)
+    trip = ok[:-2] & ok[1:-1] & ok[2:]
+    if trip.sum() < 10:
+        return float("nan")
+    d2 = wrap(wrap(psi[2:] - psi[1:-1]) - wrap(psi[1:-1] - psi[:-2]))[trip]
+    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
 
 
 def propagate(

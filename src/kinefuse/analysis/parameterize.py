@@ -27,6 +27,7 @@ from kinefuse.analysis._vec import (
     tmm,
     tmv,
     unit,
+    wrap,
 )
 from kinefuse.analysis.axes import (
     DELTA_RAD,
@@ -55,6 +56,14 @@ ONE_PLANE_RAD = np.radians(8.0)
 REST_RADIUS_RAD = np.radians(3.0)
 #: Window of the moving average applied to the calibration samples, seconds.
 SMOOTH_S = 0.2
+#: A two-axis limb within this angle of its fixed axis is in gimbal lock (see
+#: :func:`undefined_angles`): its fixed-axis angle and twist are reported as not defined there
+#: (rad; at 20° a direction error is magnified at most 1 / sin 20° = 2.9 times).
+GIMBAL_RAD = np.radians(20.0)
+#: A two-axis limb changes between the two representations of its direction (see
+#: :func:`_branch`) only where the other is nearer to the rest by more than this (summed
+#: ``|angle|`` about the two axes, rad).
+CHART_MARGIN_RAD = np.radians(25.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -343,29 +352,44 @@ def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:
     the change of elevation from the axis plane. Two axes (``u = R(a0, t0) R(a1, t1) r``): the
     intermediate ``x`` lies on the circle about ``a1`` through ``r`` and on the circle about
     ``a0`` through ``u``; their planes meet in a line that meets the sphere in two candidates;
-    the one on the rest's side of the plane spanned by the axes is taken, switching side only
-    where the trajectory crosses that plane (the smooth choice). The off-axis angle is the
-    remaining angle when no candidate exists (``u`` out of reach of the two circles).
+    the one on the rest's side of the plane spanned by the axes is taken (the floating angle
+    within +-90°), switching to the other only where the trajectory passes over the fixed
+    axis (the smooth choice, see :func:`_branch`). The off-axis angle is the remaining angle
+    when no candidate exists (``u`` out of reach of the two circles). Near the fixed axis
+    ``t0`` is ill-conditioned (:func:`undefined_angles`); it is returned all the same (with the
+    twist it gives back the limb's frame), and
+    :meth:`~kinefuse.analysis.kinematics.Angles.anatomical` reports it as not defined there.
     """
+    ang, off, _ = swing_and_undefined(model, u)
+    return ang, off
+
+
+def swing_and_undefined(model: LimbModel, u: Array) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """:func:`swing_angles` and :func:`undefined_angles` in one pass (the candidate choice is
+    computed once)."""
     r = model.rest
     a = model.axes
     t = u.shape[0]
     if a.shape[0] == 0:
-        return np.full((t, 0), np.nan), np.full(t, np.nan)
+        return np.full((t, 0), np.nan), np.full(t, np.nan), np.zeros((t, 1), dtype=bool)
+    bad = np.zeros((t, a.shape[0] + 1), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        bad[:, 0] = bad[:, -1] = np.abs(u @ a[0]) > np.cos(GIMBAL_RAD)
     if a.shape[0] == 1:
         a0 = np.broadcast_to(a[0], u.shape)
         th = signed_angle(np.broadcast_to(r, u.shape), u, a0)
         off = np.arcsin(np.clip(u @ a[0], -1, 1)) - np.arcsin(np.clip(r @ a[0], -1, 1))
-        return th[:, None], off
-    x, off = _intermediate(a[0], a[1], r, u)
-    a0 = np.broadcast_to(a[0], u.shape)
-    a1 = np.broadcast_to(a[1], u.shape)
-    t1 = signed_angle(np.broadcast_to(r, u.shape), x, a1)
-    t0 = signed_angle(x, u, a0)
-    return np.stack([t0, t1], axis=-1), off
+        return th[:, None], off, bad
+    t0, t1, off, ambiguous = _intermediate(a[0], a[1], r, u)
+    bad |= ambiguous[:, None]
+    return np.stack([t0, t1], axis=-1), off, bad
 
 
-def _intermediate(a0: Array, a1: Array, r: Array, u: Array) -> tuple[Array, Array]:
+def _intermediate(
+    a0: Array, a1: Array, r: Array, u: Array
+) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
+    """``t0, t1`` (rad) of the chosen candidate (see :func:`swing_angles`), the off-axis angle
+    and the ambiguous frames, all ``(T,)``."""
     c = float(a0 @ a1)
     n = np.cross(a0, a1)
     n /= np.linalg.norm(n)
@@ -379,33 +403,83 @@ def _intermediate(a0: Array, a1: Array, r: Array, u: Array) -> tuple[Array, Arra
     g = np.sqrt(np.maximum(g2, 0.0))
     off = np.where(g2 < 0, np.sqrt(np.maximum(-g2, 0.0)), 0.0)
     rest_side = 1.0 if float(r @ n) >= 0 else -1.0
-    sign = _smooth_sides(g, np.full(u.shape[0], rest_side))
-    # within 60° of the rest the candidate on the rest's side is the valid one: a wrong switch
-    # (noise near the axes' plane) cannot outlive the limb's return toward its rest
-    sign[u @ r > np.cos(np.radians(60.0))] = rest_side
-    x = m + (sign * g)[:, None] * n
-    return unit(x), off
+    x_p = unit(m + (rest_side * g)[:, None] * n)  # the principal candidate and the other
+    x_o = unit(m - (rest_side * g)[:, None] * n)
+    rel, ambiguous, t0, t1 = _branch(u, a0, a1, r, x_p, x_o)
+    return np.where(rel > 0, t0[0], t0[1]), np.where(rel > 0, t1[0], t1[1]), off, ambiguous
 
 
-def _smooth_sides(g: Array, sign: Array, near: float = np.sin(np.radians(3.0))) -> Array:
-    """Switch candidates where the trajectory crosses the axes' plane.
+def undefined_angles(model: LimbModel, u: Array) -> NDArray[np.bool_]:
+    """Where the angles of directions ``u (T, 3)`` are not defined: ``(T, k + 1)`` bool, one
+    column per learned axis and the last for the twist.
 
-    ``g`` is the candidates' distance from that plane (0 where they coincide or where no
-    candidate reaches, clamped). A trajectory that comes within ``near`` of the plane is taken
-    to cross it (the smooth continuation; the reflection would turn back with a kink): each run
-    of frames below ``near`` switches the side once, at its closest frame.
+    * Within :data:`GIMBAL_RAD` of the fixed (first) axis, either end (gimbal lock for two
+      axes, e.g. the arm abducted 70-110°; a hinge gets there only 70° out of its plane): the
+      angle about that axis turns ``u`` about itself and cannot be told apart from the twist
+      (only their sum is defined); a direction error ``e`` moves each by
+      ``e / sin(angle to the axis)``. Both are not defined there.
+    * Two axes, where the two representations of the direction (see :func:`_branch`) are about
+      equally near the rest (within :data:`CHART_MARGIN_RAD`; high elevations between the
+      pole and overhead): which one a frame gets is decided by its noise, and they differ by
+      180° in the fixed angle and the twist. All angles are not defined there.
     """
-    low = (g < near) & np.isfinite(g)
-    if not low.any():
-        return sign
-    s = sign.copy()
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):  # run [a, b)
-        if a == 0:
-            continue  # starting on the plane: nothing to continue from
-        flip_at = a + int(np.argmin(g[a:b])) + 1
-        s[flip_at:] = -s[flip_at:]
-    return s
+    return swing_and_undefined(model, u)[2]
+
+
+def _branch(
+    u: Array, a0: Array, a1: Array, r: Array, x_p: Array, x_o: Array
+) -> tuple[Array, NDArray[np.bool_], tuple[Array, Array], tuple[Array, Array]]:
+    """The candidate per frame ``(T,)``: ``+1`` the principal one ``x_p`` (the floating angle
+    within +-90°), ``-1`` the other (``x_o``); the frames ``(T,)`` where the choice is
+    ambiguous; and ``t0``, ``t1`` of both candidates (ours).
+
+    The two candidates are two charts of the sphere (``t0' = t0 + 180°``,
+    ``t1' ~ 180° - t1``) with their poles at +-``a0`` (gimbal lock); each is continuous but at
+    the poles and they agree only there. Hence:
+
+    * away from the poles a frame takes the chart whose angles are nearer to the rest (smaller
+      ``|t0| + |t1|``): an arm lifted sideways over 90° reads abduction 120°, flexion 0°, not
+      flexion 180°, abduction 60°; an arm forward-up reads flexion 100°, abduction 60°, not
+      flexion -80°, abduction 120°. Where the two are nearer than :data:`CHART_MARGIN_RAD`
+      the frame is *ambiguous* (a few degrees of noise decide; the angles are reported as not
+      defined there, :func:`undefined_angles`);
+    * within a run of frames nearer than :data:`GIMBAL_RAD` to a pole (where ``t0`` is
+      ill-conditioned and not defined) the chart switches at the frame closest to the pole,
+      the only place where the two agree: before it each frame takes the chart whose ``t0``
+      is nearer to ``t0`` at the last frame before the run, after it the one nearer to ``t0``
+      at the first frame after the run (an arm lifted to 100° and lowered again inside the run
+      reads abduction 100°, not 80°).
+
+    The paper's smooth choice was made along the trajectory before (switch where it came
+    within 3° of the axes' plane, back to the principal chart within 60° of the rest): under
+    1 cm of noise a few degrees decided, and a wrong choice turned flexion and the twist by
+    180° for seconds.
+    """
+    t = u.shape[0]
+    a0b, a1b = np.broadcast_to(a0, u.shape), np.broadcast_to(a1, u.shape)
+    rb = np.broadcast_to(r, u.shape)
+    t0 = {1.0: signed_angle(x_p, u, a0b), -1.0: signed_angle(x_o, u, a0b)}
+    t1 = (signed_angle(rb, x_p, a1b), signed_angle(rb, x_o, a1b))
+    diff = np.abs(t0[1.0]) + np.abs(t1[0]) - np.abs(t0[-1.0]) - np.abs(t1[1])
+    with np.errstate(invalid="ignore"):
+        near = np.abs(u @ a0) > np.cos(GIMBAL_RAD)
+        rel = np.where(diff > 0, -1.0, 1.0)  # +1 the principal chart, -1 the other
+        ambiguous = (np.abs(diff) < CHART_MARGIN_RAD) & ~near
+    runs = np.flatnonzero(np.diff(np.concatenate([[0], near.astype(np.int8), [0]])))
+    for a, b in zip(runs[::2], runs[1::2], strict=True):  # run [a, b) near a pole
+        ref_in = t0[rel[a - 1]][a - 1] if a > 0 else np.nan
+        ref_out = t0[rel[b]][b] if b < t else np.nan
+        ref_in = ref_out if not np.isfinite(ref_in) else ref_in
+        ref_out = ref_in if not np.isfinite(ref_out) else ref_out
+        if not np.isfinite(ref_in):
+            continue  # nothing to continue from: the principal chart
+        closest = np.abs(u[a:b] @ a0)
+        split = a + (int(np.nanargmax(closest)) if np.isfinite(closest).any() else 0)
+        ref = np.where(np.arange(a, b) < split, ref_in, ref_out)
+        d_p = np.abs(wrap(t0[1.0][a:b] - ref))
+        d_o = np.abs(wrap(t0[-1.0][a:b] - ref))
+        rel[a:b] = np.where(d_o < d_p, -1.0, 1.0)
+    return rel, np.asarray(ambiguous, dtype=bool), (t0[1.0], t0[-1.0]), t1
 
 
 def _swing_matrices(model: LimbModel, ang: Array, off: Array | None, u: Array | None) -> Array:
