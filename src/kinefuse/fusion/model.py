@@ -258,34 +258,45 @@ def inv3(m: Array) -> Array:
     return co
 
 
+#: A symmetric 3x3 matrix packed, entries first: ``(6, ...)`` = xx, xy, xz, yy, yz, zz (entries
+#: first, so that one numpy call does one entry of every matrix of a batch, and a frame of 25
+#: joints costs few calls)
+_PACK = np.array([0, 1, 2, 4, 5, 8])  # the packed entries among the nine, row by row
+_UNPACK = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])  # the packed entry of each of the nine
+_COLUMNS = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])  # column j's packed entries
+#: the six cofactors (00, 01, 02, 11, 12, 22) as ``p q - r s`` of packed entries (rows p, q, r, s)
+_COFACTORS = np.array([[3, 2, 1, 0, 2, 0], [5, 4, 4, 5, 1, 3], [4, 1, 2, 2, 0, 1],
+                       [4, 5, 3, 2, 4, 1]])  # fmt: skip
+_EYE_PACKED = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
+
+
 def inv3_sym(m: Array) -> Array:
-    """Inverses of symmetric ``(..., 3, 3)`` matrices (covariances, information matrices) by the
-    adjugate, from their upper triangle."""
-    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    e, f, i = m[..., 1, 1], m[..., 1, 2], m[..., 2, 2]
-    c00 = e * i - f * f
-    c01 = c * f - b * i
-    c02 = b * f - c * e
-    inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
-    co = np.empty(m.shape)
-    co[..., 0, 0] = c00 * inv_det
-    co[..., 0, 1] = co[..., 1, 0] = c01 * inv_det
-    co[..., 0, 2] = co[..., 2, 0] = c02 * inv_det
-    co[..., 1, 1] = (a * i - c * c) * inv_det
-    co[..., 1, 2] = co[..., 2, 1] = (c * b - a * f) * inv_det
-    co[..., 2, 2] = (a * e - b * b) * inv_det
-    return co
+    """Inverses of symmetric 3x3 matrices (covariances, information matrices) packed entries
+    first ``(6, ...)`` (see ``_PACK``), by the adjugate; packed the same way."""
+    p, q, r, s = m[_COFACTORS]
+    co = p * q - r * s  # c00 c01 c02 c11 c12 c22
+    t = m[:3] * co[:3]
+    return co * (1.0 / (t[0] + t[1] + t[2]))
 
 
 def _matvec(m: Array, v: Array) -> Array:
-    return m[..., 0] * v[..., 0, None] + m[..., 1] * v[..., 1, None] + m[..., 2] * v[..., 2, None]
+    """``(3, ...)`` products of packed symmetric matrices ``(6, ...)`` and vectors ``(3, ...)``,
+    entries first (the columns weighted and added in order)."""
+    p = m[_COLUMNS] * v[:, None]
+    return p[0] + p[1] + p[2]
 
 
-def _sum_sensors(a: Array) -> Array:
-    """Sum over axis 1 (sensors). Not the innermost axis, so numpy adds the sensors one after
+def _dot(a: Array, b: Array) -> Array:
+    """``(...)`` dot products of vectors ``(3, ...)``, entries first (added in order)."""
+    p = a * b
+    return p[0] + p[1] + p[2]
+
+
+def _sum_sensors(a: Array, axis: int = 1) -> Array:
+    """Sum over the sensors' axis. Not the innermost axis, so numpy adds the sensors one after
     the other whatever the batch size (no pairwise blocking): a frame sums the same alone and
     in a batch (``tests/test_live_fusion.py`` checks it bit for bit)."""
-    return np.add.reduce(a, axis=1)
+    return np.add.reduce(a, axis=axis)
 
 
 def robust_combine(
@@ -300,35 +311,37 @@ def robust_combine(
     Returns the fused ``(T, J, 3)`` (NaN where nothing), its covariance ``(T, J, 3, 3)`` and the
     number of sensors used (weight above 0.2) ``(T, J)``.
     """
-    valid = np.asarray(np.isfinite(z).all(-1) & np.isfinite(cov).all((-1, -2)))
-    eye = np.eye(3)
-    w_mat = inv3_sym(np.where(valid[..., None, None], cov, eye))
-    w_mat[~valid] = 0.0
-    zz = np.where(valid[..., None], z, 0.0)
+    n_t, n_s, n_j = z.shape[:3]
+    all_, any_ = np.logical_and.reduce, np.logical_or.reduce
+    valid = all_(np.isfinite(z), axis=-1) & all_(np.isfinite(cov), axis=(-1, -2))  # (T, S, J)
+    # entries first: vectors (3, T, S, J), symmetric matrices packed (6, T, S, J)
+    zz = np.where(valid, z.transpose(3, 0, 1, 2), 0.0)
+    packed = cov.reshape(-1, 9).T[_PACK].reshape(6, n_t, n_s, n_j)
+    w_mat = inv3_sym(np.where(valid, packed, _EYE_PACKED[:, None, None, None]))
+    w_mat[:, ~valid] = 0.0
     wz = _matvec(w_mat, zz)
     rw: Array = valid.astype(np.float64)
     n_iter = 4 if robust else 1
     x: Array = np.zeros(0)
-    has = np.asarray(valid.any(axis=1))
+    has = any_(valid, axis=1)
     cov_x: Array = np.zeros(0)
     for it in range(n_iter):
-        info = _sum_sensors(w_mat * rw[..., None, None])
-        rhs = _sum_sensors(wz * rw[..., None])
+        info = _sum_sensors(w_mat * rw, axis=2)
+        rhs = _sum_sensors(wz * rw, axis=2)
         has = _sum_sensors(rw) > 0
-        cov_x = inv3_sym(np.where(has[..., None, None], info, eye))
+        cov_x = inv3_sym(np.where(has, info, _EYE_PACKED[:, None, None]))
         x = _matvec(cov_x, rhs)
         if not robust or it == n_iter - 1:
             break
-        r = zz - x[:, None]
-        wr = _matvec(w_mat, r)
-        d2 = r[..., 0] * wr[..., 0] + r[..., 1] * wr[..., 1] + r[..., 2] * wr[..., 2]
-        rw = np.asarray(valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12))))
+        r = zz - x[:, :, None]
+        d2 = _dot(r, _matvec(w_mat, r))
+        rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
         far = d2 > 4 * gate_chi2
-        keep_some = np.asarray((valid & ~far).any(axis=1, keepdims=True))
+        keep_some = any_(valid & ~far, axis=1, keepdims=True)
         rw = np.where(far & keep_some, 0.0, rw)
-    used = (rw > 0.2).sum(axis=1).astype(np.intp)
-    x = np.where(has[..., None], x, np.nan)
-    cov_x = np.where(has[..., None, None], cov_x, np.nan)
+    used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
+    x = np.where(has, x, np.nan).transpose(1, 2, 0)
+    cov_x = np.where(has, cov_x, np.nan)[_UNPACK].transpose(1, 2, 0).reshape(n_t, n_j, 3, 3)
     return x, cov_x, used
 
 
