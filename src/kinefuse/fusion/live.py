@@ -69,9 +69,10 @@ _FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft"
 _PELVIS = JOINT_INDEX["SpineBase"]
 
 
-def _bone_groups() -> tuple[list[NDArray[np.intp]], NDArray[np.intp]]:
-    """The bones in groups that share no joint (greedy, from the root out), and per joint the
-    indices of its bones ``(25, 4)`` padded with ``len(bones)``."""
+def _bone_groups() -> tuple[NDArray[np.intp], list[slice], NDArray[np.intp]]:
+    """The bones in groups that share no joint (greedy, from the root out): the bones' order
+    group after group, each group's slice of that order; and per joint the indices of its bones
+    ``(25, 4)`` padded with ``len(bones)``."""
     groups: list[list[int]] = []
     for b, (pa, ch) in enumerate(_BONES.tolist()):
         for g in groups:
@@ -83,10 +84,14 @@ def _bone_groups() -> tuple[list[NDArray[np.intp]], NDArray[np.intp]]:
     inc = [[b for b in range(len(_BONES)) if j in _BONES[b]] for j in range(N_JOINTS)]
     width = max(len(i) for i in inc)
     table = np.array([i + [len(_BONES)] * (width - len(i)) for i in inc], dtype=np.intp)
-    return [np.array(g, dtype=np.intp) for g in groups], table
+    ends = np.cumsum([len(g) for g in groups]).tolist()
+    slices = [slice(e - len(g), e) for g, e in zip(groups, ends, strict=True)]
+    return np.array([b for g in groups for b in g], dtype=np.intp), slices, table
 
 
-_BONE_GROUPS, _JOINT_BONES = _bone_groups()
+_GROUP_ORDER, _GROUP_SLICES, _JOINT_BONES = _bone_groups()
+#: each group's parent and child joints (in the group order)
+_GROUP_JOINTS = [(_BONES[_GROUP_ORDER[g], 0], _BONES[_GROUP_ORDER[g], 1]) for g in _GROUP_SLICES]
 
 
 @dataclass(frozen=True)
@@ -445,16 +450,19 @@ class LiveFusion:
         """
         pa, ch = _BONES[:, 0], _BONES[:, 1]
         seg = pos[:, ch] - pos[:, pa]
-        length = np.sqrt(seg[..., 0] ** 2 + seg[..., 1] ** 2 + seg[..., 2] ** 2)  # (T, 24)
+        sq = seg * seg
+        length = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # (T, 24)
         ok = good[:, pa] & good[:, ch] & np.isfinite(length)
+        n_t, n_b = length.shape
         lengths = np.empty(length.shape)
         counts = np.empty(length.shape, dtype=np.int64)
-        for k in range(length.shape[0]):
+        for k in range(n_t):
             # robust running mean: innovations clipped at 3 sigma once a bone has a few samples
             n = self._bone_n
             innov = length[k] - self._bone_len
             sigma = np.sqrt(self._bone_var / np.maximum(n, 1)) + 0.01
-            innov = np.where(n >= 5, np.clip(innov, -3 * sigma, 3 * sigma), innov)
+            clipped = np.minimum(np.maximum(innov, -3 * sigma), 3 * sigma)
+            innov = np.where(n >= 5, clipped, innov)
             upd = ok[k] & np.isfinite(innov)
             n_new = n + upd
             step = np.where(upd, innov / np.maximum(n_new, 1), 0.0)
@@ -464,33 +472,36 @@ class LiveFusion:
             lengths[k], counts[k] = self._bone_len, n_new
         known = counts >= self.options.bone_min_samples
         # deviation relative to the tolerance: > 1 breaks the bone (short bones, the hands' and
-        # feet's, get an absolute floor of 3 cm, about their trackers' noise)
+        # feet's, get an absolute floor of 3 cm, about their trackers' noise); a last NaN column
+        # for the padding of a joint's bones
         allowed = np.maximum(self.options.bone_tolerance * lengths, 0.03)
-        dev_bone = np.where(known, np.abs(length - lengths) / allowed, np.nan)
-        padded = np.concatenate([dev_bone, np.full((len(dev_bone), 1), np.nan)], axis=1)
-        dev = np.fmax.reduce(padded[:, _JOINT_BONES], axis=-1)  # (T, 25)
+        dev_bone = np.full((n_t, n_b + 1), np.nan)
+        np.divide(np.abs(length - lengths), allowed, out=dev_bone[:, :n_b], where=known)
+        dev = np.fmax.reduce(dev_bone[:, _JOINT_BONES], axis=-1)  # (T, 25)
         # one sweep over the bones, in groups that share no joint (so each group moves at
         # once), each end moving in proportion to its variance (the variances do not change
-        # during the sweep: each bone's share is known before it)
+        # during the sweep: each bone's share is known before it); bones in the group order
+        order = _GROUP_ORDER
         out = pos.copy()
         vv = np.where(np.isfinite(var), var, np.inf)
-        va, vc = vv[:, pa], vv[:, ch]
+        va, vc = vv[:, pa[order]], vv[:, ch[order]]
         inf_a, inf_c = np.isinf(va), np.isinf(vc)
         tot = va + vc
+        wc_all = np.full(tot.shape, 0.5)
+        np.divide(vc, tot, out=wc_all, where=np.isfinite(tot) & (tot > 0))
+        wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
+        wa_all = 1.0 - wc_all
+        movable = (known & np.isfinite(length) & (length > 1e-9))[:, order]
+        target = lengths[:, order]
         with np.errstate(invalid="ignore", divide="ignore"):
-            wc_all = np.where(np.isfinite(tot) & (tot > 0), vc / tot, 0.5)
-            wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
-            movable = known & np.isfinite(length) & (length > 1e-9)
-            for group in _BONE_GROUPS:
-                a, c = pa[group], ch[group]
-                d = out[:, c] - out[:, a]
-                norm = np.sqrt((d * d).sum(-1))
-                move = movable[:, group] & (norm > 1e-9)
-                shrink = np.where(move, 1.0 - lengths[:, group] / norm, 0.0)[..., None]
-                corr = np.where(move[..., None], d * shrink, 0.0)
-                wc = wc_all[:, group, None]
-                out[:, c] -= wc * corr
-                out[:, a] += (1.0 - wc) * corr
+            for g, (a, c) in zip(_GROUP_SLICES, _GROUP_JOINTS, strict=True):
+                oa, oc = out[:, a], out[:, c]
+                d = oc - oa
+                norm = np.sqrt(np.add.reduce(d * d, axis=-1))
+                move = movable[:, g] & (norm > 1e-9)
+                corr = np.where(move[..., None], d * (1.0 - target[:, g] / norm)[..., None], 0.0)
+                out[:, c] = oc - wc_all[:, g, None] * corr
+                out[:, a] = oa + wa_all[:, g, None] * corr
         return out, dev
 
 
