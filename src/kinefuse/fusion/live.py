@@ -67,6 +67,7 @@ _CHUNK = 1024
 #: hips and shoulders (left, right, left, right): the body's facing
 _FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]
 _PELVIS = JOINT_INDEX["SpineBase"]
+_TRACKED = int(TrackingState.TRACKED)
 
 
 def _bone_groups() -> tuple[NDArray[np.intp], list[slice], NDArray[np.intp]]:
@@ -360,8 +361,8 @@ class LiveFusion:
         flips = None
         if evidence is not None:
             f, amb, vote = evidence
-            has = np.isfinite(f).all(-1)
-            if has.any() and amb[has].all():
+            # (``f`` is 0, not NaN, where a sensor has no facing: every sensor must be ambiguous)
+            if amb.all():
                 # only ambiguous sensors (e.g. two, one seeing the back): their vote is a tie that
                 # the facing so far would freeze; a walking body faces where it goes
                 kf = self._kf
@@ -390,8 +391,10 @@ class LiveFusion:
             x, cov_x, used = xx[0], cc[0], uu[0]
         self.last_measurement = (x, cov_x)
         pos, var, alive = self._filter(t, x, cov_x)
-        measured = np.asarray(np.isfinite(x).all(-1))
-        tracked = np.asarray((np.isfinite(z).all(-1) & (states == TrackingState.TRACKED)).sum(0))
+        all_ = np.logical_and.reduce
+        measured = all_(np.isfinite(x), axis=-1)
+        tracked = np.add.reduce(all_(np.isfinite(z), axis=-1) & (states == _TRACKED), axis=0,
+                                dtype=np.intp)  # fmt: skip
         # the body's facing so far, from the filter (hips and shoulders alive)
         h = pos[_FACING_JOINTS, :2].tolist()
         lr0 = h[0][0] - h[1][0] + h[2][0] - h[3][0]

@@ -34,6 +34,10 @@ _HIP_L, _HIP_R = JOINT_INDEX["HipLeft"], JOINT_INDEX["HipRight"]
 _SH_L, _SH_R = JOINT_INDEX["ShoulderLeft"], JOINT_INDEX["ShoulderRight"]
 #: the first observation of a stream stands for a frame time up to half a frame before it
 _FIRST_LEAD_S = 0.5 / 30
+_INFERRED = int(TrackingState.INFERRED)
+_FLOAT_MAX = float(np.finfo(np.float64).max)
+_EYE = np.eye(3)
+_EYE.flags.writeable = False
 
 
 def sensor_at(
@@ -152,27 +156,26 @@ def world_measurements(
         ``lat^2 I + (ax^2 - lat^2) u u^T`` with ``u`` the world ray (``R`` is a rotation, so
         this is ``R (lat^2 (I - r r^T) + ax^2 r r^T) R^T``), plus ``age^2 I``.
     """
-    r = sensor2world[:, :3, :3]  # (S, 3, 3)
+    r = sensor2world[:, None, :3, :3]  # (S, 1, 3, 3)
     o = sensor2world[:, :3, 3]
 
-    def rotate(v: Array) -> Array:
-        return (r[:, None, :, 0] * v[..., 0, None] + r[:, None, :, 1] * v[..., 1, None]
-                + r[:, None, :, 2] * v[..., 2, None])  # fmt: skip
+    def rotate(v: Array) -> Array:  # R v per sensor, the columns weighted and added in order
+        p = r * v[..., None, :]
+        return p[..., 0] + p[..., 1] + p[..., 2]
 
     z = rotate(joints) + o[:, None, :]
-    eye = np.eye(3)
-    grow = (age_s * age_s)[..., None, None, None] * eye
+    grow = (age_s * age_s)[..., None, None, None] * _EYE
     if not covariance:
-        return z, np.broadcast_to(eye * 0.03**2, (*joints.shape[:3], 3, 3)) + grow
+        return z, np.broadcast_to(_EYE * 0.03**2, (*joints.shape[:3], 3, 3)) + grow
+    sq = joints * joints
     with np.errstate(invalid="ignore", divide="ignore"):
-        norm = np.sqrt(joints[..., 0] ** 2 + joints[..., 1] ** 2 + joints[..., 2] ** 2)
-        ray = np.nan_to_num(joints / norm[..., None])
+        ray = _nan_to_num(joints / np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None])
     u = rotate(ray)
-    inflate = np.where(states == TrackingState.INFERRED, inferred_inflation, 1.0)
+    inflate = np.where(states == _INFERRED, inferred_inflation, 1.0)
     inflate = inflate * np.where(occluded, occluded_inflation, 1.0)
     lat2 = lateral_m**2 * inflate**2
     ax2 = axial_m**2 * inflate**2
-    cov = lat2[..., None, None] * eye + (ax2 - lat2)[..., None, None] * (
+    cov = lat2[..., None, None] * _EYE + (ax2 - lat2)[..., None, None] * (
         u[..., :, None] * u[..., None, :]
     )
     return z, cov + grow
@@ -182,7 +185,8 @@ def facing(p: Array) -> Array:
     """Horizontal unit facing direction ``(..., 3)`` of skeletons ``(..., 25, 3)``: the normal to
     the left-right axis of hips and shoulders (NaN: none)."""
     lr = (p[..., _HIP_L, :] - p[..., _HIP_R, :]) + (p[..., _SH_L, :] - p[..., _SH_R, :])
-    f = np.stack([lr[..., 1], -lr[..., 0], np.zeros_like(lr[..., 0])], axis=-1)
+    f = np.empty(lr.shape)
+    f[..., 0], f[..., 1], f[..., 2] = lr[..., 1], -lr[..., 0], 0.0
     n = np.sqrt(f[..., 0] ** 2 + f[..., 1] ** 2)[..., None]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 1e-6, f / n, np.nan)
@@ -202,21 +206,35 @@ def swap_evidence(z: Array, sensor_pos: Array) -> tuple[Array, NDArray[np.bool_]
     weight : (T, S) float
         The sensor's vote weight (0 when it has no facing or no trunk).
     """
+    all_ = np.logical_and.reduce
     f = facing(z)
     trunk = z[..., _TRUNK, :]  # (T, S, 2, 3)
-    fin = np.asarray(np.isfinite(trunk).all(-1))
-    n_ok = fin[..., 0].astype(np.float64) + fin[..., 1]
+    fin = all_(np.isfinite(trunk), axis=-1)
+    n_ok = np.add.reduce(fin, axis=-1, dtype=np.float64)
+    t01 = np.where(fin[..., None], trunk, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        t0 = np.where(fin[..., 0, None], trunk[..., 0, :], 0.0)
-        t1 = np.where(fin[..., 1, None], trunk[..., 1, :], 0.0)
-        centre = (t0 + t1) / n_ok[..., None]
+        centre = (t01[..., 0, :] + t01[..., 1, :]) / n_ok[..., None]
         toward = sensor_pos - centre
         toward[..., 2] = 0.0
         toward = toward / np.sqrt(toward[..., 0] ** 2 + toward[..., 1] ** 2)[..., None]
-    ok = np.isfinite(f).all(-1) & np.isfinite(toward).all(-1)
-    f0, u0 = np.nan_to_num(f), np.nan_to_num(toward)
-    amb = (f0[..., 0] * u0[..., 0] + f0[..., 1] * u0[..., 1] + f0[..., 2] * u0[..., 2]) > 0
+    ok = all_(np.isfinite(f), axis=-1) & all_(np.isfinite(toward), axis=-1)
+    f0, u0 = _nan_to_num(f), _nan_to_num(toward)
+    amb = _dot3(f0, u0) > 0
     return f0, amb & ok, np.where(amb, 0.5, 1.0) * ok
+
+
+def _nan_to_num(a: Array) -> Array:
+    """``np.nan_to_num`` of a float array, in place (NaN -> 0, +-inf -> the largest floats) and
+    in three numpy calls instead of its dozen."""
+    np.copyto(a, 0.0, where=np.isnan(a))
+    np.minimum(a, _FLOAT_MAX, out=a)
+    return np.maximum(a, -_FLOAT_MAX, out=a)
+
+
+def _dot3(a: Array, b: Array) -> Array:
+    """``(...)`` dot products of ``(..., 3)`` vectors (added in order)."""
+    p = a * b
+    return p[..., 0] + p[..., 1] + p[..., 2]
 
 
 def swap_vote(facing_: Array, weight: Array) -> Array:
@@ -279,10 +297,11 @@ def inv3_sym(m: Array) -> Array:
     return co * (1.0 / (t[0] + t[1] + t[2]))
 
 
-def _matvec(m: Array, v: Array) -> Array:
-    """``(3, ...)`` products of packed symmetric matrices ``(6, ...)`` and vectors ``(3, ...)``,
-    entries first (the columns weighted and added in order)."""
-    p = m[_COLUMNS] * v[:, None]
+def _matvec(columns: Array, v: Array) -> Array:
+    """``(3, ...)`` products of matrices given by their columns ``(3, 3, ...)`` (a packed
+    symmetric matrix's: ``m[_COLUMNS]``) and vectors ``(3, ...)``, entries first (the columns
+    weighted and added in order)."""
+    p = columns * v[:, None]
     return p[0] + p[1] + p[2]
 
 
@@ -312,32 +331,35 @@ def robust_combine(
     number of sensors used (weight above 0.2) ``(T, J)``.
     """
     n_t, n_s, n_j = z.shape[:3]
-    all_, any_ = np.logical_and.reduce, np.logical_or.reduce
+    all_ = np.logical_and.reduce
     valid = all_(np.isfinite(z), axis=-1) & all_(np.isfinite(cov), axis=(-1, -2))  # (T, S, J)
     # entries first: vectors (3, T, S, J), symmetric matrices packed (6, T, S, J)
     zz = np.where(valid, z.transpose(3, 0, 1, 2), 0.0)
     packed = cov.reshape(-1, 9).T[_PACK].reshape(6, n_t, n_s, n_j)
     w_mat = inv3_sym(np.where(valid, packed, _EYE_PACKED[:, None, None, None]))
     w_mat[:, ~valid] = 0.0
-    wz = _matvec(w_mat, zz)
+    w_cols = w_mat[_COLUMNS]
+    wz = _matvec(w_cols, zz)
     rw: Array = valid.astype(np.float64)
     n_iter = 4 if robust else 1
     x: Array = np.zeros(0)
-    has = any_(valid, axis=1)
+    has = np.logical_or.reduce(valid, axis=1)
     cov_x: Array = np.zeros(0)
     for it in range(n_iter):
-        info = _sum_sensors(w_mat * rw, axis=2)
-        rhs = _sum_sensors(wz * rw, axis=2)
-        has = _sum_sensors(rw) > 0
+        if it == 0:  # the weights are 1 where valid; w_mat and wz are 0 elsewhere
+            info, rhs = _sum_sensors(w_mat, axis=2), _sum_sensors(wz, axis=2)
+        else:
+            info, rhs = _sum_sensors(w_mat * rw, axis=2), _sum_sensors(wz * rw, axis=2)
+            has = _sum_sensors(rw) > 0
         cov_x = inv3_sym(np.where(has, info, _EYE_PACKED[:, None, None]))
-        x = _matvec(cov_x, rhs)
+        x = _matvec(cov_x[_COLUMNS], rhs)
         if not robust or it == n_iter - 1:
             break
         r = zz - x[:, :, None]
-        d2 = _dot(r, _matvec(w_mat, r))
+        d2 = _dot(r, _matvec(w_cols, r))
         rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
         far = d2 > 4 * gate_chi2
-        keep_some = any_(valid & ~far, axis=1, keepdims=True)
+        keep_some = np.logical_or.reduce(valid & ~far, axis=1, keepdims=True)
         rw = np.where(far & keep_some, 0.0, rw)
     used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
     x = np.where(has, x, np.nan).transpose(1, 2, 0)
