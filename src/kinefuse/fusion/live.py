@@ -68,6 +68,11 @@ _CHUNK = 1024
 _FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]
 _PELVIS = JOINT_INDEX["SpineBase"]
 _TRACKED = int(TrackingState.TRACKED)
+#: the statuses as plain ints (numpy converts an enum member slowly)
+_S_OK, _S_SINGLE, _S_INFERRED, _S_BONE, _S_PREDICTED, _S_NO_DATA = (
+    int(v) for v in (FusionStatus.OK, FusionStatus.SINGLE_SENSOR, FusionStatus.INFERRED_ONLY,
+                     FusionStatus.BONE_LENGTH, FusionStatus.PREDICTED, FusionStatus.NO_DATA)
+)  # fmt: skip
 
 
 def _bone_groups() -> tuple[NDArray[np.intp], list[slice], NDArray[np.intp]]:
@@ -166,17 +171,19 @@ class _Buffers:
     def add(self, i: int, t: float, j: Array, st: NDArray[np.int8], occ: NDArray[np.bool_]) -> None:
         n = int(self.count[i])
         row = self.t[i]
-        k = int(np.searchsorted(row[:n], t, side="right"))  # a late one goes in capture order
+        # the usual case is the newest; a late one goes in capture order
+        late = n > 0 and t < row[n - 1]
+        k = int(np.searchsorted(row[:n], t, side="right")) if late else n
         width = row.shape[0]
         if n == width:  # full: the oldest goes
             if k == 0:
                 return  # older than everything kept
             for a in (self.t, self.joints, self.states, self.occ):
-                a[i, : k - 1] = a[i, 1:k].copy()
+                a[i, : k - 1] = a[i, 1:k]  # (numpy copies overlapping ranges first)
             k -= 1
         else:
             for a in (self.t, self.joints, self.states, self.occ):
-                a[i, k + 1 : n + 1] = a[i, k:n].copy()
+                a[i, k + 1 : n + 1] = a[i, k:n]
             self.count[i] = n + 1
         self.t[i, k], self.joints[i, k], self.states[i, k], self.occ[i, k] = t, j, st, occ
 
@@ -416,16 +423,15 @@ class LiveFusion:
         """Frames ``(T, 25, ...)`` of :meth:`_step` results -> positions, variances, status and
         sensors used: statuses, the running bone lengths (updated frame by frame, in order) and
         the projection onto them."""
-        status = np.full(pos.shape[:2], FusionStatus.OK, dtype=np.int8)
-        status[measured & (used <= 1)] = FusionStatus.SINGLE_SENSOR
-        status[measured & (tracked == 0)] = FusionStatus.INFERRED_ONLY
+        status = np.full(pos.shape[:2], _S_OK, dtype=np.int8)
+        status[measured & (used <= 1)] = _S_SINGLE
+        status[measured & (tracked == 0)] = _S_INFERRED
         good = alive & measured & (used >= 2) & (tracked >= 1)
         if self.options.best.bones:
             pos, dev = self._bones(pos, var, good)
-            broken = measured & (dev > 1.0)
-            status[broken] = np.maximum(status[broken], FusionStatus.BONE_LENGTH)
-        status[~measured] = FusionStatus.PREDICTED
-        status[~alive] = FusionStatus.NO_DATA
+            np.maximum(status, _S_BONE, out=status, where=measured & (dev > 1.0))
+        status[~measured] = _S_PREDICTED
+        status[~alive] = _S_NO_DATA
         pos = np.where(alive[..., None], pos, np.nan)
         var = np.where(alive, var, np.nan)
         return pos, var, status, np.asarray(used, dtype=np.intp)

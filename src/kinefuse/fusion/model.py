@@ -34,7 +34,7 @@ _HIP_L, _HIP_R = JOINT_INDEX["HipLeft"], JOINT_INDEX["HipRight"]
 _SH_L, _SH_R = JOINT_INDEX["ShoulderLeft"], JOINT_INDEX["ShoulderRight"]
 #: the first observation of a stream stands for a frame time up to half a frame before it
 _FIRST_LEAD_S = 0.5 / 30
-_INFERRED = int(TrackingState.INFERRED)
+_INFERRED, _NOT_TRACKED = int(TrackingState.INFERRED), int(TrackingState.NOT_TRACKED)
 _FLOAT_MAX = float(np.finfo(np.float64).max)
 _EYE = np.eye(3)
 _EYE.flags.writeable = False
@@ -85,25 +85,28 @@ def sensor_at(
     tt = t[:, None]
     if width <= 32:  # a live buffer: count the arrived observations up to t (padding excluded)
         valid = np.arange(width)[None, :] < n.T  # (S, N)
-        k = ((times[None] <= tt[..., None]) & valid[None]).sum(-1)  # (T, S)
+        k = np.add.reduce((times[None] <= tt[..., None]) & valid[None], axis=-1)  # (T, S)
     else:
         k = np.stack([np.searchsorted(times[i, : int(n[0, i])], t, side="right")
                       for i in range(n_s)], axis=1)  # fmt: skip
     si = np.arange(n_s)[None, :]
     ka, kb = np.maximum(k - 1, 0), np.maximum(np.minimum(k, n - 1), 0)
     ta, tb = times[si, ka], times[si, kb]
-    t0 = times[:, 0][None, :]
+    since_a = tt - ta
+    some = k > 0
     if timestamp:
+        t0 = times[:, 0][None, :]
         avail = available_s[:, None]
-        interp = (k > 0) & (k < n) & (tb <= avail) & (tb - ta <= max_gap_s)
-        hold = ~interp & (k > 0) & (tt - ta <= max_hold_s)
+        interp = some & (k < n) & (tb <= avail) & (tb - ta <= max_gap_s)
+        hold = ~interp & some & (since_a <= max_hold_s)
         first = ~interp & (k == 0) & (n > 0) & (t0 - tt <= _FIRST_LEAD_S) & (t0 <= avail)
     else:
         interp = np.zeros(k.shape, bool)
-        hold = (k > 0) & (tt - ta < 1.0 / 30)
+        hold = some & (since_a < 1.0 / 30)
         first = interp
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(tb > ta, (tt - ta) / (tb - ta), 0.0)[..., None, None]
+    w = np.zeros(k.shape)
+    np.divide(since_a, tb - ta, out=w, where=tb > ta)
+    w = w[..., None, None]
     ja, jb = joints[si, ka], joints[si, kb]
     out = np.where(interp[..., None, None], ja * (1.0 - w) + jb * w, ja)
     sa = states[si, ka]
@@ -113,11 +116,11 @@ def sensor_at(
     else:
         oa = occluded[si, ka]
         occ = np.where(interp[..., None], oa | occluded[si, kb], oa)
-    age = np.where(interp, 0.0, np.abs(tt - ta)) if timestamp else np.zeros(k.shape)
+    age = np.where(interp, 0.0, np.abs(since_a)) if timestamp else np.zeros(k.shape)
     none = ~(interp | hold | first)
     if none.any():
         out[none] = np.nan
-        st[none] = TrackingState.NOT_TRACKED
+        st[none] = _NOT_TRACKED
         occ[none] = False
         age[none] = 0.0
     return out, st.astype(np.int8, copy=False), occ, age
