@@ -44,9 +44,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import FusionError
 from kinefuse.fusion.model import (
+    BONE_ORDER,
+    BONES,
+    JOINT_BONES,
     KalmanState,
     decide_flips,
     kalman_step,
+    project_bones,
     robust_combine,
     sensor_at,
     swap_evidence,
@@ -56,11 +60,10 @@ from kinefuse.fusion.model import (
 from kinefuse.fusion.options import BestOptions
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.observations import BodyFrames
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
+from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
-_BONES = bone_index_array()
 _MIRROR = np.asarray(MIRROR_INDEX)
 #: frames whose measurements a replay prepares at once (bounds its memory)
 _CHUNK = 1024
@@ -73,31 +76,6 @@ _S_OK, _S_SINGLE, _S_INFERRED, _S_BONE, _S_PREDICTED, _S_NO_DATA = (
     int(v) for v in (FusionStatus.OK, FusionStatus.SINGLE_SENSOR, FusionStatus.INFERRED_ONLY,
                      FusionStatus.BONE_LENGTH, FusionStatus.PREDICTED, FusionStatus.NO_DATA)
 )  # fmt: skip
-
-
-def _bone_groups() -> tuple[NDArray[np.intp], list[slice], NDArray[np.intp]]:
-    """The bones in groups that share no joint (greedy, from the root out): the bones' order
-    group after group, each group's slice of that order; and per joint the indices of its bones
-    ``(25, 4)`` padded with ``len(bones)``."""
-    groups: list[list[int]] = []
-    for b, (pa, ch) in enumerate(_BONES.tolist()):
-        for g in groups:
-            if all(pa not in _BONES[o] and ch not in _BONES[o] for o in g):
-                g.append(b)
-                break
-        else:
-            groups.append([b])
-    inc = [[b for b in range(len(_BONES)) if j in _BONES[b]] for j in range(N_JOINTS)]
-    width = max(len(i) for i in inc)
-    table = np.array([i + [len(_BONES)] * (width - len(i)) for i in inc], dtype=np.intp)
-    ends = np.cumsum([len(g) for g in groups]).tolist()
-    slices = [slice(e - len(g), e) for g, e in zip(groups, ends, strict=True)]
-    return np.array([b for g in groups for b in g], dtype=np.intp), slices, table
-
-
-_GROUP_ORDER, _GROUP_SLICES, _JOINT_BONES = _bone_groups()
-#: each group's parent and child joints (in the group order)
-_GROUP_JOINTS = [(_BONES[_GROUP_ORDER[g], 0], _BONES[_GROUP_ORDER[g], 1]) for g in _GROUP_SLICES]
 
 
 @dataclass(frozen=True)
@@ -228,7 +206,7 @@ class LiveFusion:
         self._kf = KalmanState.empty()
         self._t: float | None = None
         self._facing: Array | None = None
-        n_b = len(_BONES)
+        n_b = len(BONES)
         self._bone_n = np.zeros(n_b, dtype=np.int64)
         self._bone_len = np.zeros(n_b)
         self._bone_var = np.zeros(n_b)
@@ -457,7 +435,7 @@ class LiveFusion:
         Returns the projected positions and each joint's largest bone deviation before the
         projection, in units of the allowed one (NaN where no bone of the joint is known yet).
         """
-        pa, ch = _BONES[:, 0], _BONES[:, 1]
+        pa, ch = BONES[:, 0], BONES[:, 1]
         seg = pos[:, ch] - pos[:, pa]
         sq = seg * seg
         length = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # (T, 24)
@@ -486,12 +464,11 @@ class LiveFusion:
         allowed = np.maximum(self.options.bone_tolerance * lengths, 0.03)
         dev_bone = np.full((n_t, n_b + 1), np.nan)
         np.divide(np.abs(length - lengths), allowed, out=dev_bone[:, :n_b], where=known)
-        dev = np.fmax.reduce(dev_bone[:, _JOINT_BONES], axis=-1)  # (T, 25)
+        dev = np.fmax.reduce(dev_bone[:, JOINT_BONES], axis=-1)  # (T, 25)
         # one sweep over the bones, in groups that share no joint (so each group moves at
         # once), each end moving in proportion to its variance (the variances do not change
         # during the sweep: each bone's share is known before it); bones in the group order
-        order = _GROUP_ORDER
-        out = pos.copy()
+        order = BONE_ORDER
         vv = np.where(np.isfinite(var), var, np.inf)
         va, vc = vv[:, pa[order]], vv[:, ch[order]]
         inf_a, inf_c = np.isinf(va), np.isinf(vc)
@@ -501,16 +478,7 @@ class LiveFusion:
         wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
         wa_all = 1.0 - wc_all
         movable = (known & np.isfinite(length) & (length > 1e-9))[:, order]
-        target = lengths[:, order]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for g, (a, c) in zip(_GROUP_SLICES, _GROUP_JOINTS, strict=True):
-                oa, oc = out[:, a], out[:, c]
-                d = oc - oa
-                norm = np.sqrt(np.add.reduce(d * d, axis=-1))
-                move = movable[:, g] & (norm > 1e-9)
-                corr = np.where(move[..., None], d * (1.0 - target[:, g] / norm)[..., None], 0.0)
-                out[:, c] = oc - wc_all[:, g, None] * corr
-                out[:, a] = oa + wa_all[:, g, None] * corr
+        out = project_bones(pos, movable, lengths[:, order], wc_all, wa_all)
         return out, dev
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState, bone_index_array
 
 Array = NDArray[np.float64]
 
@@ -38,6 +38,85 @@ _INFERRED, _NOT_TRACKED = int(TrackingState.INFERRED), int(TrackingState.NOT_TRA
 _FLOAT_MAX = float(np.finfo(np.float64).max)
 _EYE = np.eye(3)
 _EYE.flags.writeable = False
+
+
+#: the skeleton's bones (parent, child) ``(24, 2)``
+BONES = bone_index_array()
+
+
+def _bone_groups() -> tuple[NDArray[np.intp], list[slice], NDArray[np.intp]]:
+    """The bones in groups that share no joint (greedy, from the root out): the bones' order
+    group after group, each group's slice of that order; and per joint the indices of its bones
+    ``(25, 4)`` padded with ``len(bones)``."""
+    groups: list[list[int]] = []
+    for b, (pa, ch) in enumerate(BONES.tolist()):
+        for g in groups:
+            if all(pa not in BONES[o] and ch not in BONES[o] for o in g):
+                g.append(b)
+                break
+        else:
+            groups.append([b])
+    inc = [[b for b in range(len(BONES)) if j in BONES[b]] for j in range(N_JOINTS)]
+    width = max(len(i) for i in inc)
+    table = np.array([i + [len(BONES)] * (width - len(i)) for i in inc], dtype=np.intp)
+    ends = np.cumsum([len(g) for g in groups]).tolist()
+    slices = [slice(e - len(g), e) for g, e in zip(groups, ends, strict=True)]
+    return np.array([b for g in groups for b in g], dtype=np.intp), slices, table
+
+
+#: the bones group after group, each group's slice of that order, and each joint's bones (25, 4)
+BONE_ORDER, _GROUP_SLICES, JOINT_BONES = _bone_groups()
+#: each group's parent and child joints (in the group order)
+_GROUP_JOINTS = [(BONES[BONE_ORDER[g], 0], BONES[BONE_ORDER[g], 1]) for g in _GROUP_SLICES]
+#: the bones in the group order as (parent, child) ints, for the sweep over one frame
+_SWEEP = [(int(a), int(c)) for a, c in BONES[BONE_ORDER].tolist()]
+
+
+def project_bones(
+    pos: Array, movable: NDArray[np.bool_], target: Array, w_child: Array, w_parent: Array
+) -> Array:
+    """Frames' joints ``(T, 25, 3)`` projected onto bone lengths by one sweep over the bones, in
+    groups that share no joint (so each group moves at once), each end moving by its share.
+
+    ``movable``, ``target`` (m), ``w_child`` and ``w_parent`` (the ends' shares) are ``(T, 24)``,
+    the bones in :data:`BONE_ORDER`. A bone that is not movable or is shorter than 1e-9 m does
+    not move. One frame (the live case) is swept with plain floats (numpy's per-call cost on 24
+    bones is most of the work); the same operations in the same order, so both forms give the
+    same bits (``tests/test_live_fusion.py`` checks them against each other).
+    """
+    if pos.shape[0] == 1:
+        return np.array(_sweep_frame(pos[0].tolist(), movable[0].tolist(), target[0].tolist(),
+                                     w_child[0].tolist(), w_parent[0].tolist()))[None]  # fmt: skip
+    out = pos.copy()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for g, (a, c) in zip(_GROUP_SLICES, _GROUP_JOINTS, strict=True):
+            oa, oc = out[:, a], out[:, c]
+            d = oc - oa
+            norm = np.sqrt(np.add.reduce(d * d, axis=-1))
+            move = movable[:, g] & (norm > 1e-9)
+            corr = np.where(move[..., None], d * (1.0 - target[:, g] / norm)[..., None], 0.0)
+            out[:, c] = oc - w_child[:, g, None] * corr
+            out[:, a] = oa + w_parent[:, g, None] * corr
+    return out
+
+
+def _sweep_frame(
+    out: list[list[float]], movable: list[bool], target: list[float], wc: list[float],
+    wa: list[float],
+) -> list[list[float]]:  # fmt: skip
+    """:func:`project_bones` of one frame, on lists (in place)."""
+    for b, (a, c) in enumerate(_SWEEP):
+        pa, pc = out[a], out[c]
+        dx, dy, dz = pc[0] - pa[0], pc[1] - pa[1], pc[2] - pa[2]
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        kx = ky = kz = 0.0
+        if movable[b] and norm > 1e-9:
+            s = 1.0 - target[b] / norm
+            kx, ky, kz = dx * s, dy * s, dz * s
+        w1, w2 = wc[b], wa[b]
+        out[c] = [pc[0] - w1 * kx, pc[1] - w1 * ky, pc[2] - w1 * kz]
+        out[a] = [pa[0] + w2 * kx, pa[1] + w2 * ky, pa[2] + w2 * kz]
+    return out
 
 
 def sensor_at(
@@ -342,20 +421,23 @@ def robust_combine(
     w_mat = inv3_sym(np.where(valid, packed, _EYE_PACKED[:, None, None, None]))
     w_mat[:, ~valid] = 0.0
     w_cols = w_mat[_COLUMNS]
-    wz = _matvec(w_cols, zz)
+    # the terms summed over the sensors, in one array: information (6), its product with the
+    # measurement (3) and 1 (the weights' sum)
+    terms = np.empty((10, n_t, n_s, n_j))
+    terms[:6], terms[6:9], terms[9] = w_mat, _matvec(w_cols, zz), 1.0
     rw: Array = valid.astype(np.float64)
     n_iter = 4 if robust else 1
     x: Array = np.zeros(0)
-    has = np.logical_or.reduce(valid, axis=1)
     cov_x: Array = np.zeros(0)
+    has = np.logical_or.reduce(valid, axis=1)
     for it in range(n_iter):
-        if it == 0:  # the weights are 1 where valid; w_mat and wz are 0 elsewhere
-            info, rhs = _sum_sensors(w_mat, axis=2), _sum_sensors(wz, axis=2)
+        if it == 0:  # the weights are 1 where valid, and the terms 0 elsewhere
+            sums = _sum_sensors(terms[:9], axis=2)
         else:
-            info, rhs = _sum_sensors(w_mat * rw, axis=2), _sum_sensors(wz * rw, axis=2)
-            has = _sum_sensors(rw) > 0
-        cov_x = inv3_sym(np.where(has, info, _EYE_PACKED[:, None, None]))
-        x = _matvec(cov_x[_COLUMNS], rhs)
+            sums = _sum_sensors(terms * rw, axis=2)
+            has = sums[9] > 0
+        cov_x = inv3_sym(np.where(has, sums[:6], _EYE_PACKED[:, None, None]))
+        x = _matvec(cov_x[_COLUMNS], sums[6:9])
         if not robust or it == n_iter - 1:
             break
         r = zz - x[:, :, None]
