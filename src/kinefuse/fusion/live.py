@@ -68,7 +68,8 @@ _MIRROR = np.asarray(MIRROR_INDEX)
 #: frames whose measurements a replay prepares at once (bounds its memory)
 _CHUNK = 1024
 #: hips and shoulders (left, right, left, right): the body's facing
-_FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]
+_FACING_JOINTS = np.array([JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft",
+                                                     "ShoulderRight")])  # fmt: skip
 _PELVIS = JOINT_INDEX["SpineBase"]
 _TRACKED = int(TrackingState.TRACKED)
 #: the statuses as plain ints (numpy converts an enum member slowly)
@@ -420,13 +421,14 @@ class LiveFusion:
         alive (seen within ``max_predict_s``)."""
         d = 0.0 if self._t is None else max(t - self._t, 0.0)
         self._t = t if self._t is None else max(t, self._t)
-        r = np.diagonal(cov_x, axis1=-2, axis2=-1)
+        r = cov_x.diagonal(0, -2, -1)
         pred, alive = kalman_step(self._kf, t, d, x, r, self._q, self.options.best.max_predict_s,
                                   predicted=self.record)  # fmt: skip
         if pred is not None:
             self.last_moments = (pred, self._kf.moments())
         p = self._kf.pxx
-        return self._kf.x.copy(), (p[:, 0] + p[:, 1] + p[:, 2]) / 3, np.asarray(alive.all(-1))
+        var = (p[:, 0] + p[:, 1] + p[:, 2]) / 3
+        return self._kf.x.copy(), var, np.logical_and.reduce(alive, axis=-1)
 
     def _bones(self, pos: Array, var: Array, good: NDArray[np.bool_]) -> tuple[Array, Array]:
         """Frames ``(T, 25, 3)``: update the running bone lengths from well-observed joints,

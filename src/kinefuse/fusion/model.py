@@ -331,11 +331,11 @@ def decide_flips(
     contradicts the consensus of ``vote (3,)`` and the fused facing so far (``prior``, weight
     ``w_prior``)."""
     v = vote if prior is None else vote + w_prior * prior
-    n = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+    v0, v1, v2 = v.tolist()  # three numbers: plain floats (the same arithmetic, no numpy calls)
+    n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     if n < 1e-9:
         return np.zeros(ambiguous.shape, bool)
-    c = v / n
-    return ambiguous & ((facing_[:, 0] * c[0] + facing_[:, 1] * c[1] + facing_[:, 2] * c[2]) < 0)
+    return ambiguous & (_dot3(facing_, np.array([v0 / n, v1 / n, v2 / n])) < 0)
 
 
 def inv3(m: Array) -> Array:
@@ -358,32 +358,28 @@ def inv3(m: Array) -> Array:
     return co
 
 
-#: A symmetric 3x3 matrix packed, entries first: ``(6, ...)`` = xx, xy, xz, yy, yz, zz (entries
-#: first, so that one numpy call does one entry of every matrix of a batch, and a frame of 25
-#: joints costs few calls)
-_PACK = np.array([0, 1, 2, 4, 5, 8])  # the packed entries among the nine, row by row
-_UNPACK = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])  # the packed entry of each of the nine
-_COLUMNS = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])  # column j's packed entries
-#: the six cofactors (00, 01, 02, 11, 12, 22) as ``p q - r s`` of packed entries (rows p, q, r, s)
-_COFACTORS = np.array([[3, 2, 1, 0, 2, 0], [5, 4, 4, 5, 1, 3], [4, 1, 2, 2, 0, 1],
-                       [4, 5, 3, 2, 4, 1]])  # fmt: skip
-_EYE_PACKED = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0])
+#: 3x3 matrices entries first, ``(9, ...)`` row by row (so that one numpy call does one entry
+#: of every matrix of a batch, and a frame of 25 joints costs few calls). A symmetric matrix's
+#: six cofactors (00, 01, 02, 11, 12, 22) as ``p q - r s`` of its upper triangle (rows p, q, r,
+#: s; entries 0-8), repeated into the nine entries (an inverse comes out in the same layout)
+_COFACTORS = np.array([[4, 2, 1, 0, 2, 0], [8, 5, 5, 8, 1, 4], [5, 1, 2, 2, 0, 1],
+                       [5, 8, 4, 2, 5, 1]])[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]]  # fmt: skip
+_EYE_ENTRIES = np.eye(3).ravel()
 
 
 def inv3_sym(m: Array) -> Array:
-    """Inverses of symmetric 3x3 matrices (covariances, information matrices) packed entries
-    first ``(6, ...)`` (see ``_PACK``), by the adjugate; packed the same way."""
+    """Inverses of symmetric 3x3 matrices (covariances, information matrices) entries first
+    ``(9, ...)``, by the adjugate from their upper triangle; entries first, exactly symmetric."""
     p, q, r, s = m[_COFACTORS]
-    co = p * q - r * s  # c00 c01 c02 c11 c12 c22
-    t = m[:3] * co[:3]
+    co = p * q - r * s
+    t = m[:3] * co[:3]  # a c00, b c01, c c02
     return co * (1.0 / (t[0] + t[1] + t[2]))
 
 
-def _matvec(columns: Array, v: Array) -> Array:
-    """``(3, ...)`` products of matrices given by their columns ``(3, 3, ...)`` (a packed
-    symmetric matrix's: ``m[_COLUMNS]``) and vectors ``(3, ...)``, entries first (the columns
-    weighted and added in order)."""
-    p = columns * v[:, None]
+def _matvec(m: Array, v: Array) -> Array:
+    """``(3, ...)`` products of symmetric matrices ``(3, 3, ...)`` and vectors ``(3, ...)``,
+    entries first (the columns weighted and added in order)."""
+    p = m * v[:, None]  # row j of a symmetric matrix is its column j
     return p[0] + p[1] + p[2]
 
 
@@ -415,16 +411,16 @@ def robust_combine(
     n_t, n_s, n_j = z.shape[:3]
     all_ = np.logical_and.reduce
     valid = all_(np.isfinite(z), axis=-1) & all_(np.isfinite(cov), axis=(-1, -2))  # (T, S, J)
-    # entries first: vectors (3, T, S, J), symmetric matrices packed (6, T, S, J)
+    # entries first: vectors (3, T, S, J), matrices (9, T, S, J)
     zz = np.where(valid, z.transpose(3, 0, 1, 2), 0.0)
-    packed = cov.reshape(-1, 9).T[_PACK].reshape(6, n_t, n_s, n_j)
-    w_mat = inv3_sym(np.where(valid, packed, _EYE_PACKED[:, None, None, None]))
+    entries = cov.reshape(n_t, n_s, n_j, 9).transpose(3, 0, 1, 2)
+    w_mat = inv3_sym(np.where(valid, entries, _EYE_ENTRIES[:, None, None, None]))
     w_mat[:, ~valid] = 0.0
-    w_cols = w_mat[_COLUMNS]
-    # the terms summed over the sensors, in one array: information (6), its product with the
+    w_rows = w_mat.reshape(3, 3, n_t, n_s, n_j)
+    # the terms summed over the sensors, in one array: information (9), its product with the
     # measurement (3) and 1 (the weights' sum)
-    terms = np.empty((10, n_t, n_s, n_j))
-    terms[:6], terms[6:9], terms[9] = w_mat, _matvec(w_cols, zz), 1.0
+    terms = np.empty((13, n_t, n_s, n_j))
+    terms[:9], terms[9:12], terms[12] = w_mat, _matvec(w_rows, zz), 1.0
     rw: Array = valid.astype(np.float64)
     n_iter = 4 if robust else 1
     x: Array = np.zeros(0)
@@ -432,23 +428,23 @@ def robust_combine(
     has = np.logical_or.reduce(valid, axis=1)
     for it in range(n_iter):
         if it == 0:  # the weights are 1 where valid, and the terms 0 elsewhere
-            sums = _sum_sensors(terms[:9], axis=2)
+            sums = _sum_sensors(terms[:12], axis=2)
         else:
             sums = _sum_sensors(terms * rw, axis=2)
-            has = sums[9] > 0
-        cov_x = inv3_sym(np.where(has, sums[:6], _EYE_PACKED[:, None, None]))
-        x = _matvec(cov_x[_COLUMNS], sums[6:9])
+            has = sums[12] > 0
+        cov_x = inv3_sym(np.where(has, sums[:9], _EYE_ENTRIES[:, None, None]))
+        x = _matvec(cov_x.reshape(3, 3, n_t, n_j), sums[9:12])
         if not robust or it == n_iter - 1:
             break
         r = zz - x[:, :, None]
-        d2 = _dot(r, _matvec(w_cols, r))
+        d2 = _dot(r, _matvec(w_rows, r))
         rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
         far = d2 > 4 * gate_chi2
         keep_some = np.logical_or.reduce(valid & ~far, axis=1, keepdims=True)
         rw = np.where(far & keep_some, 0.0, rw)
     used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
     x = np.where(has, x, np.nan).transpose(1, 2, 0)
-    cov_x = np.where(has, cov_x, np.nan)[_UNPACK].transpose(1, 2, 0).reshape(n_t, n_j, 3, 3)
+    cov_x = np.where(has, cov_x, np.nan).transpose(1, 2, 0).reshape(n_t, n_j, 3, 3)
     return x, cov_x, used
 
 
@@ -511,7 +507,7 @@ def kalman_step(
     m[4] -= gain[1] * m[3]
     m[2:4] *= 1.0 - gain[0]
     init = has & ~s.started
-    if init.any():
+    if np.logical_or.reduce(init, axis=None):
         s.started |= has
         m[0] = np.where(init, z0, m[0])
         m[1:5] = np.where(init, np.array([0.0, 0.0, 0.0, 1.0])[:, None, None], m[1:5])
