@@ -440,7 +440,7 @@ def robust_combine(
         d2 = _dot(r, _matvec(w_rows, r))
         rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
         far = d2 > 4 * gate_chi2
-        keep_some = np.logical_or.reduce(valid & ~far, axis=1, keepdims=True)
+        keep_some = np.logical_or.reduce(valid > far, axis=1, keepdims=True)  # valid, not far
         rw = np.where(far & keep_some, 0.0, rw)
     used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
     x = np.where(has, x, np.nan).transpose(1, 2, 0)
