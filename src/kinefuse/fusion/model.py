@@ -255,8 +255,9 @@ def world_measurements(
     u = rotate(ray)
     inflate = np.where(states == _INFERRED, inferred_inflation, 1.0)
     inflate = inflate * np.where(occluded, occluded_inflation, 1.0)
-    lat2 = lateral_m**2 * inflate**2
-    ax2 = axial_m**2 * inflate**2
+    inflate2 = inflate**2
+    lat2 = lateral_m**2 * inflate2
+    ax2 = axial_m**2 * inflate2
     cov = lat2[..., None, None] * _EYE + (ax2 - lat2)[..., None, None] * (
         u[..., :, None] * u[..., None, :]
     )
@@ -299,9 +300,9 @@ def swap_evidence(z: Array, sensor_pos: Array) -> tuple[Array, NDArray[np.bool_]
         toward = sensor_pos - centre
         toward[..., 2] = 0.0
         toward = toward / np.sqrt(toward[..., 0] ** 2 + toward[..., 1] ** 2)[..., None]
-    ok = all_(np.isfinite(f), axis=-1) & all_(np.isfinite(toward), axis=-1)
-    f0, u0 = _nan_to_num(f), _nan_to_num(toward)
-    amb = _dot3(f0, u0) > 0
+        ok = all_(np.isfinite(f), axis=-1) & all_(np.isfinite(toward), axis=-1)
+        f0 = _nan_to_num(f)
+        amb = _dot3(f0, toward) > 0  # (only where ok counts: a NaN direction is not ok)
     return f0, amb & ok, np.where(amb, 0.5, 1.0) * ok
 
 
@@ -438,10 +439,12 @@ def robust_combine(
             break
         r = zz - x[:, :, None]
         d2 = _dot(r, _matvec(w_rows, r))
-        rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
+        new_rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
         far = d2 > 4 * gate_chi2
         keep_some = np.logical_or.reduce(valid > far, axis=1, keepdims=True)  # valid, not far
-        rw = np.where(far & keep_some, 0.0, rw)
+        rw, previous = np.where(far & keep_some, 0.0, new_rw), rw
+        if not np.logical_or.reduce(rw != previous, axis=None):
+            break  # a fixed point: the iterations left would repeat this one, bit for bit
     used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
     x = np.where(has, x, np.nan).transpose(1, 2, 0)
     cov_x = np.where(has, cov_x, np.nan).transpose(1, 2, 0).reshape(n_t, n_j, 3, 3)
