@@ -71,6 +71,8 @@ _CHUNK = 1024
 _FACING_JOINTS = np.array([JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft",
                                                      "ShoulderRight")])  # fmt: skip
 _PELVIS = JOINT_INDEX["SpineBase"]
+#: the bones' parent and child joints in the group order of the projection
+_PARENTS, _CHILDREN = BONES[BONE_ORDER, 0], BONES[BONE_ORDER, 1]
 _TRACKED = int(TrackingState.TRACKED)
 #: the statuses as plain ints (numpy converts an enum member slowly)
 _S_OK, _S_SINGLE, _S_INFERRED, _S_BONE, _S_PREDICTED, _S_NO_DATA = (
@@ -262,7 +264,7 @@ class LiveFusion:
         if not 0 <= sensor < self.n_sensors:
             raise FusionError(f"unknown sensor index {sensor}; there are {self.n_sensors}")
         t = float(t_server_s)
-        if not np.isfinite(t):
+        if not math.isfinite(t):
             raise FusionError(f"sensor {sensor}: capture time must be finite, got {t_server_s!r}")
         j = np.asarray(joints_sensor, dtype=np.float64).reshape(N_JOINTS, 3)
         st = np.asarray(states, dtype=np.int8).reshape(N_JOINTS)
@@ -441,7 +443,8 @@ class LiveFusion:
         seg = pos[:, ch] - pos[:, pa]
         sq = seg * seg
         length = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # (T, 24)
-        ok = good[:, pa] & good[:, ch] & np.isfinite(length)
+        finite = np.isfinite(length)
+        ok = good[:, pa] & good[:, ch] & finite
         n_t, n_b = length.shape
         lengths = np.empty(length.shape)
         counts = np.empty(length.shape, dtype=np.int64)
@@ -454,7 +457,8 @@ class LiveFusion:
             innov = np.where(n >= 5, clipped, innov)
             upd = ok[k] & np.isfinite(innov)
             n_new = n + upd
-            step = np.where(upd, innov / np.maximum(n_new, 1), 0.0)
+            step = np.zeros(n_b)
+            np.divide(innov, n_new, out=step, where=upd)
             self._bone_len = self._bone_len + step
             self._bone_var = self._bone_var + np.where(upd, innov * (innov - step), 0.0)
             self._bone_n = n_new
@@ -472,14 +476,14 @@ class LiveFusion:
         # during the sweep: each bone's share is known before it); bones in the group order
         order = BONE_ORDER
         vv = np.where(np.isfinite(var), var, np.inf)
-        va, vc = vv[:, pa[order]], vv[:, ch[order]]
+        va, vc = vv[:, _PARENTS], vv[:, _CHILDREN]
         inf_a, inf_c = np.isinf(va), np.isinf(vc)
         tot = va + vc
         wc_all = np.full(tot.shape, 0.5)
         np.divide(vc, tot, out=wc_all, where=np.isfinite(tot) & (tot > 0))
-        wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
+        wc_all = np.where(inf_c > inf_a, 1.0, np.where(inf_a > inf_c, 0.0, wc_all))  # one inf
         wa_all = 1.0 - wc_all
-        movable = (known & np.isfinite(length) & (length > 1e-9))[:, order]
+        movable = (known & finite & (length > 1e-9))[:, order]
         out = project_bones(pos, movable, lengths[:, order], wc_all, wa_all)
         return out, dev
 

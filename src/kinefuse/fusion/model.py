@@ -178,7 +178,9 @@ def sensor_at(
         avail = available_s[:, None]
         interp = some & (k < n) & (tb <= avail) & (tb - ta <= max_gap_s)
         hold = ~interp & some & (since_a <= max_hold_s)
-        first = ~interp & (k == 0) & (n > 0) & (t0 - tt <= _FIRST_LEAD_S) & (t0 <= avail)
+        first = k == 0  # before a stream's first observation (rare: tested only then)
+        if np.logical_or.reduce(first, axis=None):
+            first = ~interp & first & (n > 0) & (t0 - tt <= _FIRST_LEAD_S) & (t0 <= avail)
     else:
         interp = np.zeros(k.shape, bool)
         hold = some & (since_a < 1.0 / 30)
