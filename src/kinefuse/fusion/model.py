@@ -171,12 +171,14 @@ def sensor_at(
     si = np.arange(n_s)[None, :]
     ka, kb = np.maximum(k - 1, 0), np.maximum(np.minimum(k, n - 1), 0)
     ta, tb = times[si, ka], times[si, kb]
+    with np.errstate(invalid="ignore"):  # a sensor without observations: inf - inf
+        gap = tb - ta
     since_a = tt - ta
     some = k > 0
     if timestamp:
         t0 = times[:, 0][None, :]
         avail = available_s[:, None]
-        interp = some & (k < n) & (tb <= avail) & (tb - ta <= max_gap_s)
+        interp = some & (k < n) & (tb <= avail) & (gap <= max_gap_s)
         hold = ~interp & some & (since_a <= max_hold_s)
         first = k == 0  # before a stream's first observation (rare: tested only then)
         if np.logical_or.reduce(first, axis=None):
@@ -186,7 +188,7 @@ def sensor_at(
         hold = some & (since_a < 1.0 / 30)
         first = interp
     w = np.zeros(k.shape)
-    np.divide(since_a, tb - ta, out=w, where=tb > ta)
+    np.divide(since_a, gap, out=w, where=tb > ta)
     w = w[..., None, None]
     ja, jb = joints[si, ka], joints[si, kb]
     out = np.where(interp[..., None, None], ja * (1.0 - w) + jb * w, ja)
