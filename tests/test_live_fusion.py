@@ -95,6 +95,30 @@ def test_replay_equals_pushing_and_fusing_frame_by_frame(sensors) -> None:
         np.testing.assert_array_equal(fr.n_sensors, used[f])
 
 
+def test_one_frame_bone_sweep_equals_the_batched_one() -> None:
+    """A live frame is projected onto the bone lengths with plain floats, a replay's frames in
+    numpy batches: the same bits (random skeletons, with bones that may not move, coincident
+    joints, missing joints, signed zeros and lopsided shares)."""
+    from kinefuse.fusion.model import project_bones
+
+    rng = np.random.default_rng(11)
+    n_t, n_b = 400, 24
+    pos = standing_pose() + rng.normal(0, 0.05, (n_t, N_JOINTS, 3))
+    pos[rng.random((n_t, N_JOINTS)) < 0.05] = np.nan
+    pos[rng.random((n_t, N_JOINTS, 3)) < 0.05] = -0.0
+    pos[::7, J["ElbowLeft"]] = pos[::7, J["ShoulderLeft"]]  # a bone of length 0
+    movable = rng.random((n_t, n_b)) < 0.8
+    target = rng.uniform(0.02, 0.5, (n_t, n_b))
+    w_child = np.where(rng.random((n_t, n_b)) < 0.1, rng.choice([0.0, 1.0], (n_t, n_b)),
+                       rng.random((n_t, n_b)))  # fmt: skip
+    batch = project_bones(pos, movable, target, w_child, 1.0 - w_child)
+    assert not np.allclose(batch, pos, equal_nan=True)  # the sweep moved joints
+    for k in range(n_t):
+        one = project_bones(pos[k : k + 1], movable[k : k + 1], target[k : k + 1],
+                            w_child[k : k + 1], 1.0 - w_child[k : k + 1])  # fmt: skip
+        assert one.tobytes() == batch[k : k + 1].tobytes(), k  # bit for bit, signed zeros too
+
+
 def test_best_live_is_close_to_offline_best_and_far_below_paper(session, sensors) -> None:
     from kinefuse.report.evaluate import truth_at
     from kinefuse.report.metrics import position_errors

@@ -44,9 +44,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import FusionError
 from kinefuse.fusion.model import (
+    BONE_ORDER,
+    BONES,
+    JOINT_BONES,
     KalmanState,
     decide_flips,
     kalman_step,
+    project_bones,
     robust_combine,
     sensor_at,
     swap_evidence,
@@ -56,37 +60,25 @@ from kinefuse.fusion.model import (
 from kinefuse.fusion.options import BestOptions
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.observations import BodyFrames
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, bone_index_array
+from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
-_BONES = bone_index_array()
 _MIRROR = np.asarray(MIRROR_INDEX)
 #: frames whose measurements a replay prepares at once (bounds its memory)
 _CHUNK = 1024
 #: hips and shoulders (left, right, left, right): the body's facing
-_FACING_JOINTS = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]
+_FACING_JOINTS = np.array([JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft",
+                                                     "ShoulderRight")])  # fmt: skip
 _PELVIS = JOINT_INDEX["SpineBase"]
-
-
-def _bone_groups() -> tuple[list[NDArray[np.intp]], NDArray[np.intp]]:
-    """The bones in groups that share no joint (greedy, from the root out), and per joint the
-    indices of its bones ``(25, 4)`` padded with ``len(bones)``."""
-    groups: list[list[int]] = []
-    for b, (pa, ch) in enumerate(_BONES.tolist()):
-        for g in groups:
-            if all(pa not in _BONES[o] and ch not in _BONES[o] for o in g):
-                g.append(b)
-                break
-        else:
-            groups.append([b])
-    inc = [[b for b in range(len(_BONES)) if j in _BONES[b]] for j in range(N_JOINTS)]
-    width = max(len(i) for i in inc)
-    table = np.array([i + [len(_BONES)] * (width - len(i)) for i in inc], dtype=np.intp)
-    return [np.array(g, dtype=np.intp) for g in groups], table
-
-
-_BONE_GROUPS, _JOINT_BONES = _bone_groups()
+#: the bones' parent and child joints in the group order of the projection
+_PARENTS, _CHILDREN = BONES[BONE_ORDER, 0], BONES[BONE_ORDER, 1]
+_TRACKED = int(TrackingState.TRACKED)
+#: the statuses as plain ints (numpy converts an enum member slowly)
+_S_OK, _S_SINGLE, _S_INFERRED, _S_BONE, _S_PREDICTED, _S_NO_DATA = (
+    int(v) for v in (FusionStatus.OK, FusionStatus.SINGLE_SENSOR, FusionStatus.INFERRED_ONLY,
+                     FusionStatus.BONE_LENGTH, FusionStatus.PREDICTED, FusionStatus.NO_DATA)
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -160,17 +152,19 @@ class _Buffers:
     def add(self, i: int, t: float, j: Array, st: NDArray[np.int8], occ: NDArray[np.bool_]) -> None:
         n = int(self.count[i])
         row = self.t[i]
-        k = int(np.searchsorted(row[:n], t, side="right"))  # a late one goes in capture order
+        # the usual case is the newest; a late one goes in capture order
+        late = n > 0 and t < row[n - 1]
+        k = int(np.searchsorted(row[:n], t, side="right")) if late else n
         width = row.shape[0]
         if n == width:  # full: the oldest goes
             if k == 0:
                 return  # older than everything kept
             for a in (self.t, self.joints, self.states, self.occ):
-                a[i, : k - 1] = a[i, 1:k].copy()
+                a[i, : k - 1] = a[i, 1:k]  # (numpy copies overlapping ranges first)
             k -= 1
         else:
             for a in (self.t, self.joints, self.states, self.occ):
-                a[i, k + 1 : n + 1] = a[i, k:n].copy()
+                a[i, k + 1 : n + 1] = a[i, k:n]
             self.count[i] = n + 1
         self.t[i, k], self.joints[i, k], self.states[i, k], self.occ[i, k] = t, j, st, occ
 
@@ -215,7 +209,7 @@ class LiveFusion:
         self._kf = KalmanState.empty()
         self._t: float | None = None
         self._facing: Array | None = None
-        n_b = len(_BONES)
+        n_b = len(BONES)
         self._bone_n = np.zeros(n_b, dtype=np.int64)
         self._bone_len = np.zeros(n_b)
         self._bone_var = np.zeros(n_b)
@@ -270,7 +264,7 @@ class LiveFusion:
         if not 0 <= sensor < self.n_sensors:
             raise FusionError(f"unknown sensor index {sensor}; there are {self.n_sensors}")
         t = float(t_server_s)
-        if not np.isfinite(t):
+        if not math.isfinite(t):
             raise FusionError(f"sensor {sensor}: capture time must be finite, got {t_server_s!r}")
         j = np.asarray(joints_sensor, dtype=np.float64).reshape(N_JOINTS, 3)
         st = np.asarray(states, dtype=np.int8).reshape(N_JOINTS)
@@ -355,8 +349,8 @@ class LiveFusion:
         flips = None
         if evidence is not None:
             f, amb, vote = evidence
-            has = np.isfinite(f).all(-1)
-            if has.any() and amb[has].all():
+            # (``f`` is 0, not NaN, where a sensor has no facing: every sensor must be ambiguous)
+            if amb.all():
                 # only ambiguous sensors (e.g. two, one seeing the back): their vote is a tie that
                 # the facing so far would freeze; a walking body faces where it goes
                 kf = self._kf
@@ -385,8 +379,10 @@ class LiveFusion:
             x, cov_x, used = xx[0], cc[0], uu[0]
         self.last_measurement = (x, cov_x)
         pos, var, alive = self._filter(t, x, cov_x)
-        measured = np.asarray(np.isfinite(x).all(-1))
-        tracked = np.asarray((np.isfinite(z).all(-1) & (states == TrackingState.TRACKED)).sum(0))
+        all_ = np.logical_and.reduce
+        measured = all_(np.isfinite(x), axis=-1)
+        tracked = np.add.reduce(all_(np.isfinite(z), axis=-1) & (states == _TRACKED), axis=0,
+                                dtype=np.intp)  # fmt: skip
         # the body's facing so far, from the filter (hips and shoulders alive)
         h = pos[_FACING_JOINTS, :2].tolist()
         lr0 = h[0][0] - h[1][0] + h[2][0] - h[3][0]
@@ -408,16 +404,15 @@ class LiveFusion:
         """Frames ``(T, 25, ...)`` of :meth:`_step` results -> positions, variances, status and
         sensors used: statuses, the running bone lengths (updated frame by frame, in order) and
         the projection onto them."""
-        status = np.full(pos.shape[:2], FusionStatus.OK, dtype=np.int8)
-        status[measured & (used <= 1)] = FusionStatus.SINGLE_SENSOR
-        status[measured & (tracked == 0)] = FusionStatus.INFERRED_ONLY
+        status = np.full(pos.shape[:2], _S_OK, dtype=np.int8)
+        status[measured & (used <= 1)] = _S_SINGLE
+        status[measured & (tracked == 0)] = _S_INFERRED
         good = alive & measured & (used >= 2) & (tracked >= 1)
         if self.options.best.bones:
             pos, dev = self._bones(pos, var, good)
-            broken = measured & (dev > 1.0)
-            status[broken] = np.maximum(status[broken], FusionStatus.BONE_LENGTH)
-        status[~measured] = FusionStatus.PREDICTED
-        status[~alive] = FusionStatus.NO_DATA
+            np.maximum(status, _S_BONE, out=status, where=measured & (dev > 1.0))
+        status[~measured] = _S_PREDICTED
+        status[~alive] = _S_NO_DATA
         pos = np.where(alive[..., None], pos, np.nan)
         var = np.where(alive, var, np.nan)
         return pos, var, status, np.asarray(used, dtype=np.intp)
@@ -428,13 +423,14 @@ class LiveFusion:
         alive (seen within ``max_predict_s``)."""
         d = 0.0 if self._t is None else max(t - self._t, 0.0)
         self._t = t if self._t is None else max(t, self._t)
-        r = np.diagonal(cov_x, axis1=-2, axis2=-1)
+        r = cov_x.diagonal(0, -2, -1)
         pred, alive = kalman_step(self._kf, t, d, x, r, self._q, self.options.best.max_predict_s,
                                   predicted=self.record)  # fmt: skip
         if pred is not None:
             self.last_moments = (pred, self._kf.moments())
         p = self._kf.pxx
-        return self._kf.x.copy(), (p[:, 0] + p[:, 1] + p[:, 2]) / 3, np.asarray(alive.all(-1))
+        var = (p[:, 0] + p[:, 1] + p[:, 2]) / 3
+        return self._kf.x.copy(), var, np.logical_and.reduce(alive, axis=-1)
 
     def _bones(self, pos: Array, var: Array, good: NDArray[np.bool_]) -> tuple[Array, Array]:
         """Frames ``(T, 25, 3)``: update the running bone lengths from well-observed joints,
@@ -443,54 +439,52 @@ class LiveFusion:
         Returns the projected positions and each joint's largest bone deviation before the
         projection, in units of the allowed one (NaN where no bone of the joint is known yet).
         """
-        pa, ch = _BONES[:, 0], _BONES[:, 1]
+        pa, ch = BONES[:, 0], BONES[:, 1]
         seg = pos[:, ch] - pos[:, pa]
-        length = np.sqrt(seg[..., 0] ** 2 + seg[..., 1] ** 2 + seg[..., 2] ** 2)  # (T, 24)
-        ok = good[:, pa] & good[:, ch] & np.isfinite(length)
+        sq = seg * seg
+        length = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])  # (T, 24)
+        finite = np.isfinite(length)
+        ok = good[:, pa] & good[:, ch] & finite
+        n_t, n_b = length.shape
         lengths = np.empty(length.shape)
         counts = np.empty(length.shape, dtype=np.int64)
-        for k in range(length.shape[0]):
+        for k in range(n_t):
             # robust running mean: innovations clipped at 3 sigma once a bone has a few samples
             n = self._bone_n
             innov = length[k] - self._bone_len
             sigma = np.sqrt(self._bone_var / np.maximum(n, 1)) + 0.01
-            innov = np.where(n >= 5, np.clip(innov, -3 * sigma, 3 * sigma), innov)
+            clipped = np.minimum(np.maximum(innov, -3 * sigma), 3 * sigma)
+            innov = np.where(n >= 5, clipped, innov)
             upd = ok[k] & np.isfinite(innov)
             n_new = n + upd
-            step = np.where(upd, innov / np.maximum(n_new, 1), 0.0)
+            step = np.zeros(n_b)
+            np.divide(innov, n_new, out=step, where=upd)
             self._bone_len = self._bone_len + step
             self._bone_var = self._bone_var + np.where(upd, innov * (innov - step), 0.0)
             self._bone_n = n_new
             lengths[k], counts[k] = self._bone_len, n_new
         known = counts >= self.options.bone_min_samples
         # deviation relative to the tolerance: > 1 breaks the bone (short bones, the hands' and
-        # feet's, get an absolute floor of 3 cm, about their trackers' noise)
+        # feet's, get an absolute floor of 3 cm, about their trackers' noise); a last NaN column
+        # for the padding of a joint's bones
         allowed = np.maximum(self.options.bone_tolerance * lengths, 0.03)
-        dev_bone = np.where(known, np.abs(length - lengths) / allowed, np.nan)
-        padded = np.concatenate([dev_bone, np.full((len(dev_bone), 1), np.nan)], axis=1)
-        dev = np.fmax.reduce(padded[:, _JOINT_BONES], axis=-1)  # (T, 25)
+        dev_bone = np.full((n_t, n_b + 1), np.nan)
+        np.divide(np.abs(length - lengths), allowed, out=dev_bone[:, :n_b], where=known)
+        dev = np.fmax.reduce(dev_bone[:, JOINT_BONES], axis=-1)  # (T, 25)
         # one sweep over the bones, in groups that share no joint (so each group moves at
         # once), each end moving in proportion to its variance (the variances do not change
-        # during the sweep: each bone's share is known before it)
-        out = pos.copy()
+        # during the sweep: each bone's share is known before it); bones in the group order
+        order = BONE_ORDER
         vv = np.where(np.isfinite(var), var, np.inf)
-        va, vc = vv[:, pa], vv[:, ch]
+        va, vc = vv[:, _PARENTS], vv[:, _CHILDREN]
         inf_a, inf_c = np.isinf(va), np.isinf(vc)
         tot = va + vc
-        with np.errstate(invalid="ignore", divide="ignore"):
-            wc_all = np.where(np.isfinite(tot) & (tot > 0), vc / tot, 0.5)
-            wc_all = np.where(inf_c & ~inf_a, 1.0, np.where(inf_a & ~inf_c, 0.0, wc_all))
-            movable = known & np.isfinite(length) & (length > 1e-9)
-            for group in _BONE_GROUPS:
-                a, c = pa[group], ch[group]
-                d = out[:, c] - out[:, a]
-                norm = np.sqrt((d * d).sum(-1))
-                move = movable[:, group] & (norm > 1e-9)
-                shrink = np.where(move, 1.0 - lengths[:, group] / norm, 0.0)[..., None]
-                corr = np.where(move[..., None], d * shrink, 0.0)
-                wc = wc_all[:, group, None]
-                out[:, c] -= wc * corr
-                out[:, a] += (1.0 - wc) * corr
+        wc_all = np.full(tot.shape, 0.5)
+        np.divide(vc, tot, out=wc_all, where=np.isfinite(tot) & (tot > 0))
+        wc_all = np.where(inf_c > inf_a, 1.0, np.where(inf_a > inf_c, 0.0, wc_all))  # one inf
+        wa_all = 1.0 - wc_all
+        movable = (known & finite & (length > 1e-9))[:, order]
+        out = project_bones(pos, movable, lengths[:, order], wc_all, wa_all)
         return out, dev
 
 

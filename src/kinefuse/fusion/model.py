@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState, bone_index_array
 
 Array = NDArray[np.float64]
 
@@ -34,6 +34,89 @@ _HIP_L, _HIP_R = JOINT_INDEX["HipLeft"], JOINT_INDEX["HipRight"]
 _SH_L, _SH_R = JOINT_INDEX["ShoulderLeft"], JOINT_INDEX["ShoulderRight"]
 #: the first observation of a stream stands for a frame time up to half a frame before it
 _FIRST_LEAD_S = 0.5 / 30
+_INFERRED, _NOT_TRACKED = int(TrackingState.INFERRED), int(TrackingState.NOT_TRACKED)
+_FLOAT_MAX = float(np.finfo(np.float64).max)
+_EYE = np.eye(3)
+_EYE.flags.writeable = False
+
+
+#: the skeleton's bones (parent, child) ``(24, 2)``
+BONES = bone_index_array()
+
+
+def _bone_groups() -> tuple[NDArray[np.intp], list[slice], NDArray[np.intp]]:
+    """The bones in groups that share no joint (greedy, from the root out): the bones' order
+    group after group, each group's slice of that order; and per joint the indices of its bones
+    ``(25, 4)`` padded with ``len(bones)``."""
+    groups: list[list[int]] = []
+    for b, (pa, ch) in enumerate(BONES.tolist()):
+        for g in groups:
+            if all(pa not in BONES[o] and ch not in BONES[o] for o in g):
+                g.append(b)
+                break
+        else:
+            groups.append([b])
+    inc = [[b for b in range(len(BONES)) if j in BONES[b]] for j in range(N_JOINTS)]
+    width = max(len(i) for i in inc)
+    table = np.array([i + [len(BONES)] * (width - len(i)) for i in inc], dtype=np.intp)
+    ends = np.cumsum([len(g) for g in groups]).tolist()
+    slices = [slice(e - len(g), e) for g, e in zip(groups, ends, strict=True)]
+    return np.array([b for g in groups for b in g], dtype=np.intp), slices, table
+
+
+#: the bones group after group, each group's slice of that order, and each joint's bones (25, 4)
+BONE_ORDER, _GROUP_SLICES, JOINT_BONES = _bone_groups()
+#: each group's parent and child joints (in the group order)
+_GROUP_JOINTS = [(BONES[BONE_ORDER[g], 0], BONES[BONE_ORDER[g], 1]) for g in _GROUP_SLICES]
+#: the bones in the group order as (parent, child) ints, for the sweep over one frame
+_SWEEP = [(int(a), int(c)) for a, c in BONES[BONE_ORDER].tolist()]
+
+
+def project_bones(
+    pos: Array, movable: NDArray[np.bool_], target: Array, w_child: Array, w_parent: Array
+) -> Array:
+    """Frames' joints ``(T, 25, 3)`` projected onto bone lengths by one sweep over the bones, in
+    groups that share no joint (so each group moves at once), each end moving by its share.
+
+    ``movable``, ``target`` (m), ``w_child`` and ``w_parent`` (the ends' shares) are ``(T, 24)``,
+    the bones in :data:`BONE_ORDER`. A bone that is not movable or is shorter than 1e-9 m does
+    not move. One frame (the live case) is swept with plain floats (numpy's per-call cost on 24
+    bones is most of the work); the same operations in the same order, so both forms give the
+    same bits (``tests/test_live_fusion.py`` checks them against each other).
+    """
+    if pos.shape[0] == 1:
+        return np.array(_sweep_frame(pos[0].tolist(), movable[0].tolist(), target[0].tolist(),
+                                     w_child[0].tolist(), w_parent[0].tolist()))[None]  # fmt: skip
+    out = pos.copy()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for g, (a, c) in zip(_GROUP_SLICES, _GROUP_JOINTS, strict=True):
+            oa, oc = out[:, a], out[:, c]
+            d = oc - oa
+            norm = np.sqrt(np.add.reduce(d * d, axis=-1))
+            move = movable[:, g] & (norm > 1e-9)
+            corr = np.where(move[..., None], d * (1.0 - target[:, g] / norm)[..., None], 0.0)
+            out[:, c] = oc - w_child[:, g, None] * corr
+            out[:, a] = oa + w_parent[:, g, None] * corr
+    return out
+
+
+def _sweep_frame(
+    out: list[list[float]], movable: list[bool], target: list[float], wc: list[float],
+    wa: list[float],
+) -> list[list[float]]:  # fmt: skip
+    """:func:`project_bones` of one frame, on lists (in place)."""
+    for b, (a, c) in enumerate(_SWEEP):
+        pa, pc = out[a], out[c]
+        dx, dy, dz = pc[0] - pa[0], pc[1] - pa[1], pc[2] - pa[2]
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        kx = ky = kz = 0.0
+        if movable[b] and norm > 1e-9:
+            s = 1.0 - target[b] / norm
+            kx, ky, kz = dx * s, dy * s, dz * s
+        w1, w2 = wc[b], wa[b]
+        out[c] = [pc[0] - w1 * kx, pc[1] - w1 * ky, pc[2] - w1 * kz]
+        out[a] = [pa[0] + w2 * kx, pa[1] + w2 * ky, pa[2] + w2 * kz]
+    return out
 
 
 def sensor_at(
@@ -81,25 +164,32 @@ def sensor_at(
     tt = t[:, None]
     if width <= 32:  # a live buffer: count the arrived observations up to t (padding excluded)
         valid = np.arange(width)[None, :] < n.T  # (S, N)
-        k = ((times[None] <= tt[..., None]) & valid[None]).sum(-1)  # (T, S)
+        k = np.add.reduce((times[None] <= tt[..., None]) & valid[None], axis=-1)  # (T, S)
     else:
         k = np.stack([np.searchsorted(times[i, : int(n[0, i])], t, side="right")
                       for i in range(n_s)], axis=1)  # fmt: skip
     si = np.arange(n_s)[None, :]
     ka, kb = np.maximum(k - 1, 0), np.maximum(np.minimum(k, n - 1), 0)
     ta, tb = times[si, ka], times[si, kb]
-    t0 = times[:, 0][None, :]
+    with np.errstate(invalid="ignore"):  # a sensor without observations: inf - inf
+        gap = tb - ta
+    since_a = tt - ta
+    some = k > 0
     if timestamp:
+        t0 = times[:, 0][None, :]
         avail = available_s[:, None]
-        interp = (k > 0) & (k < n) & (tb <= avail) & (tb - ta <= max_gap_s)
-        hold = ~interp & (k > 0) & (tt - ta <= max_hold_s)
-        first = ~interp & (k == 0) & (n > 0) & (t0 - tt <= _FIRST_LEAD_S) & (t0 <= avail)
+        interp = some & (k < n) & (tb <= avail) & (gap <= max_gap_s)
+        hold = ~interp & some & (since_a <= max_hold_s)
+        first = k == 0  # before a stream's first observation (rare: tested only then)
+        if np.logical_or.reduce(first, axis=None):
+            first = ~interp & first & (n > 0) & (t0 - tt <= _FIRST_LEAD_S) & (t0 <= avail)
     else:
         interp = np.zeros(k.shape, bool)
-        hold = (k > 0) & (tt - ta < 1.0 / 30)
+        hold = some & (since_a < 1.0 / 30)
         first = interp
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w = np.where(tb > ta, (tt - ta) / (tb - ta), 0.0)[..., None, None]
+    w = np.zeros(k.shape)
+    np.divide(since_a, gap, out=w, where=tb > ta)
+    w = w[..., None, None]
     ja, jb = joints[si, ka], joints[si, kb]
     out = np.where(interp[..., None, None], ja * (1.0 - w) + jb * w, ja)
     sa = states[si, ka]
@@ -109,11 +199,11 @@ def sensor_at(
     else:
         oa = occluded[si, ka]
         occ = np.where(interp[..., None], oa | occluded[si, kb], oa)
-    age = np.where(interp, 0.0, np.abs(tt - ta)) if timestamp else np.zeros(k.shape)
+    age = np.where(interp, 0.0, np.abs(since_a)) if timestamp else np.zeros(k.shape)
     none = ~(interp | hold | first)
     if none.any():
         out[none] = np.nan
-        st[none] = TrackingState.NOT_TRACKED
+        st[none] = _NOT_TRACKED
         occ[none] = False
         age[none] = 0.0
     return out, st.astype(np.int8, copy=False), occ, age
@@ -152,27 +242,27 @@ def world_measurements(
         ``lat^2 I + (ax^2 - lat^2) u u^T`` with ``u`` the world ray (``R`` is a rotation, so
         this is ``R (lat^2 (I - r r^T) + ax^2 r r^T) R^T``), plus ``age^2 I``.
     """
-    r = sensor2world[:, :3, :3]  # (S, 3, 3)
+    r = sensor2world[:, None, :3, :3]  # (S, 1, 3, 3)
     o = sensor2world[:, :3, 3]
 
-    def rotate(v: Array) -> Array:
-        return (r[:, None, :, 0] * v[..., 0, None] + r[:, None, :, 1] * v[..., 1, None]
-                + r[:, None, :, 2] * v[..., 2, None])  # fmt: skip
+    def rotate(v: Array) -> Array:  # R v per sensor, the columns weighted and added in order
+        p = r * v[..., None, :]
+        return p[..., 0] + p[..., 1] + p[..., 2]
 
     z = rotate(joints) + o[:, None, :]
-    eye = np.eye(3)
-    grow = (age_s * age_s)[..., None, None, None] * eye
+    grow = (age_s * age_s)[..., None, None, None] * _EYE
     if not covariance:
-        return z, np.broadcast_to(eye * 0.03**2, (*joints.shape[:3], 3, 3)) + grow
+        return z, np.broadcast_to(_EYE * 0.03**2, (*joints.shape[:3], 3, 3)) + grow
+    sq = joints * joints
     with np.errstate(invalid="ignore", divide="ignore"):
-        norm = np.sqrt(joints[..., 0] ** 2 + joints[..., 1] ** 2 + joints[..., 2] ** 2)
-        ray = np.nan_to_num(joints / norm[..., None])
+        ray = _nan_to_num(joints / np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None])
     u = rotate(ray)
-    inflate = np.where(states == TrackingState.INFERRED, inferred_inflation, 1.0)
+    inflate = np.where(states == _INFERRED, inferred_inflation, 1.0)
     inflate = inflate * np.where(occluded, occluded_inflation, 1.0)
-    lat2 = lateral_m**2 * inflate**2
-    ax2 = axial_m**2 * inflate**2
-    cov = lat2[..., None, None] * eye + (ax2 - lat2)[..., None, None] * (
+    inflate2 = inflate**2
+    lat2 = lateral_m**2 * inflate2
+    ax2 = axial_m**2 * inflate2
+    cov = lat2[..., None, None] * _EYE + (ax2 - lat2)[..., None, None] * (
         u[..., :, None] * u[..., None, :]
     )
     return z, cov + grow
@@ -182,7 +272,8 @@ def facing(p: Array) -> Array:
     """Horizontal unit facing direction ``(..., 3)`` of skeletons ``(..., 25, 3)``: the normal to
     the left-right axis of hips and shoulders (NaN: none)."""
     lr = (p[..., _HIP_L, :] - p[..., _HIP_R, :]) + (p[..., _SH_L, :] - p[..., _SH_R, :])
-    f = np.stack([lr[..., 1], -lr[..., 0], np.zeros_like(lr[..., 0])], axis=-1)
+    f = np.empty(lr.shape)
+    f[..., 0], f[..., 1], f[..., 2] = lr[..., 1], -lr[..., 0], 0.0
     n = np.sqrt(f[..., 0] ** 2 + f[..., 1] ** 2)[..., None]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 1e-6, f / n, np.nan)
@@ -202,21 +293,35 @@ def swap_evidence(z: Array, sensor_pos: Array) -> tuple[Array, NDArray[np.bool_]
     weight : (T, S) float
         The sensor's vote weight (0 when it has no facing or no trunk).
     """
+    all_ = np.logical_and.reduce
     f = facing(z)
     trunk = z[..., _TRUNK, :]  # (T, S, 2, 3)
-    fin = np.asarray(np.isfinite(trunk).all(-1))
-    n_ok = fin[..., 0].astype(np.float64) + fin[..., 1]
+    fin = all_(np.isfinite(trunk), axis=-1)
+    n_ok = np.add.reduce(fin, axis=-1, dtype=np.float64)
+    t01 = np.where(fin[..., None], trunk, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        t0 = np.where(fin[..., 0, None], trunk[..., 0, :], 0.0)
-        t1 = np.where(fin[..., 1, None], trunk[..., 1, :], 0.0)
-        centre = (t0 + t1) / n_ok[..., None]
+        centre = (t01[..., 0, :] + t01[..., 1, :]) / n_ok[..., None]
         toward = sensor_pos - centre
         toward[..., 2] = 0.0
         toward = toward / np.sqrt(toward[..., 0] ** 2 + toward[..., 1] ** 2)[..., None]
-    ok = np.isfinite(f).all(-1) & np.isfinite(toward).all(-1)
-    f0, u0 = np.nan_to_num(f), np.nan_to_num(toward)
-    amb = (f0[..., 0] * u0[..., 0] + f0[..., 1] * u0[..., 1] + f0[..., 2] * u0[..., 2]) > 0
+        ok = all_(np.isfinite(f), axis=-1) & all_(np.isfinite(toward), axis=-1)
+        f0 = _nan_to_num(f)
+        amb = _dot3(f0, toward) > 0  # (only where ok counts: a NaN direction is not ok)
     return f0, amb & ok, np.where(amb, 0.5, 1.0) * ok
+
+
+def _nan_to_num(a: Array) -> Array:
+    """``np.nan_to_num`` of a float array, in place (NaN -> 0, +-inf -> the largest floats) and
+    in three numpy calls instead of its dozen."""
+    np.copyto(a, 0.0, where=np.isnan(a))
+    np.minimum(a, _FLOAT_MAX, out=a)
+    return np.maximum(a, -_FLOAT_MAX, out=a)
+
+
+def _dot3(a: Array, b: Array) -> Array:
+    """``(...)`` dot products of ``(..., 3)`` vectors (added in order)."""
+    p = a * b
+    return p[..., 0] + p[..., 1] + p[..., 2]
 
 
 def swap_vote(facing_: Array, weight: Array) -> Array:
@@ -231,11 +336,11 @@ def decide_flips(
     contradicts the consensus of ``vote (3,)`` and the fused facing so far (``prior``, weight
     ``w_prior``)."""
     v = vote if prior is None else vote + w_prior * prior
-    n = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+    v0, v1, v2 = v.tolist()  # three numbers: plain floats (the same arithmetic, no numpy calls)
+    n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     if n < 1e-9:
         return np.zeros(ambiguous.shape, bool)
-    c = v / n
-    return ambiguous & ((facing_[:, 0] * c[0] + facing_[:, 1] * c[1] + facing_[:, 2] * c[2]) < 0)
+    return ambiguous & (_dot3(facing_, np.array([v0 / n, v1 / n, v2 / n])) < 0)
 
 
 def inv3(m: Array) -> Array:
@@ -258,34 +363,42 @@ def inv3(m: Array) -> Array:
     return co
 
 
+#: 3x3 matrices entries first, ``(9, ...)`` row by row (so that one numpy call does one entry
+#: of every matrix of a batch, and a frame of 25 joints costs few calls). A symmetric matrix's
+#: six cofactors (00, 01, 02, 11, 12, 22) as ``p q - r s`` of its upper triangle (rows p, q, r,
+#: s; entries 0-8), repeated into the nine entries (an inverse comes out in the same layout)
+_COFACTORS = np.array([[4, 2, 1, 0, 2, 0], [8, 5, 5, 8, 1, 4], [5, 1, 2, 2, 0, 1],
+                       [5, 8, 4, 2, 5, 1]])[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]]  # fmt: skip
+_EYE_ENTRIES = np.eye(3).ravel()
+
+
 def inv3_sym(m: Array) -> Array:
-    """Inverses of symmetric ``(..., 3, 3)`` matrices (covariances, information matrices) by the
-    adjugate, from their upper triangle."""
-    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    e, f, i = m[..., 1, 1], m[..., 1, 2], m[..., 2, 2]
-    c00 = e * i - f * f
-    c01 = c * f - b * i
-    c02 = b * f - c * e
-    inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
-    co = np.empty(m.shape)
-    co[..., 0, 0] = c00 * inv_det
-    co[..., 0, 1] = co[..., 1, 0] = c01 * inv_det
-    co[..., 0, 2] = co[..., 2, 0] = c02 * inv_det
-    co[..., 1, 1] = (a * i - c * c) * inv_det
-    co[..., 1, 2] = co[..., 2, 1] = (c * b - a * f) * inv_det
-    co[..., 2, 2] = (a * e - b * b) * inv_det
-    return co
+    """Inverses of symmetric 3x3 matrices (covariances, information matrices) entries first
+    ``(9, ...)``, by the adjugate from their upper triangle; entries first, exactly symmetric."""
+    p, q, r, s = m[_COFACTORS]
+    co = p * q - r * s
+    t = m[:3] * co[:3]  # a c00, b c01, c c02
+    return co * (1.0 / (t[0] + t[1] + t[2]))
 
 
 def _matvec(m: Array, v: Array) -> Array:
-    return m[..., 0] * v[..., 0, None] + m[..., 1] * v[..., 1, None] + m[..., 2] * v[..., 2, None]
+    """``(3, ...)`` products of symmetric matrices ``(3, 3, ...)`` and vectors ``(3, ...)``,
+    entries first (the columns weighted and added in order)."""
+    p = m * v[:, None]  # row j of a symmetric matrix is its column j
+    return p[0] + p[1] + p[2]
 
 
-def _sum_sensors(a: Array) -> Array:
-    """Sum over axis 1 (sensors). Not the innermost axis, so numpy adds the sensors one after
+def _dot(a: Array, b: Array) -> Array:
+    """``(...)`` dot products of vectors ``(3, ...)``, entries first (added in order)."""
+    p = a * b
+    return p[0] + p[1] + p[2]
+
+
+def _sum_sensors(a: Array, axis: int = 1) -> Array:
+    """Sum over the sensors' axis. Not the innermost axis, so numpy adds the sensors one after
     the other whatever the batch size (no pairwise blocking): a frame sums the same alone and
     in a batch (``tests/test_live_fusion.py`` checks it bit for bit)."""
-    return np.add.reduce(a, axis=1)
+    return np.add.reduce(a, axis=axis)
 
 
 def robust_combine(
@@ -300,35 +413,45 @@ def robust_combine(
     Returns the fused ``(T, J, 3)`` (NaN where nothing), its covariance ``(T, J, 3, 3)`` and the
     number of sensors used (weight above 0.2) ``(T, J)``.
     """
-    valid = np.asarray(np.isfinite(z).all(-1) & np.isfinite(cov).all((-1, -2)))
-    eye = np.eye(3)
-    w_mat = inv3_sym(np.where(valid[..., None, None], cov, eye))
-    w_mat[~valid] = 0.0
-    zz = np.where(valid[..., None], z, 0.0)
-    wz = _matvec(w_mat, zz)
+    n_t, n_s, n_j = z.shape[:3]
+    all_ = np.logical_and.reduce
+    valid = all_(np.isfinite(z), axis=-1) & all_(np.isfinite(cov), axis=(-1, -2))  # (T, S, J)
+    # entries first: vectors (3, T, S, J), matrices (9, T, S, J)
+    zz = np.where(valid, z.transpose(3, 0, 1, 2), 0.0)
+    entries = cov.reshape(n_t, n_s, n_j, 9).transpose(3, 0, 1, 2)
+    w_mat = inv3_sym(np.where(valid, entries, _EYE_ENTRIES[:, None, None, None]))
+    w_mat[:, ~valid] = 0.0
+    w_rows = w_mat.reshape(3, 3, n_t, n_s, n_j)
+    # the terms summed over the sensors, in one array: information (9), its product with the
+    # measurement (3) and 1 (the weights' sum)
+    terms = np.empty((13, n_t, n_s, n_j))
+    terms[:9], terms[9:12], terms[12] = w_mat, _matvec(w_rows, zz), 1.0
     rw: Array = valid.astype(np.float64)
     n_iter = 4 if robust else 1
     x: Array = np.zeros(0)
-    has = np.asarray(valid.any(axis=1))
     cov_x: Array = np.zeros(0)
+    has = np.logical_or.reduce(valid, axis=1)
     for it in range(n_iter):
-        info = _sum_sensors(w_mat * rw[..., None, None])
-        rhs = _sum_sensors(wz * rw[..., None])
-        has = _sum_sensors(rw) > 0
-        cov_x = inv3_sym(np.where(has[..., None, None], info, eye))
-        x = _matvec(cov_x, rhs)
+        if it == 0:  # the weights are 1 where valid, and the terms 0 elsewhere
+            sums = _sum_sensors(terms[:12], axis=2)
+        else:
+            sums = _sum_sensors(terms * rw, axis=2)
+            has = sums[12] > 0
+        cov_x = inv3_sym(np.where(has, sums[:9], _EYE_ENTRIES[:, None, None]))
+        x = _matvec(cov_x.reshape(3, 3, n_t, n_j), sums[9:12])
         if not robust or it == n_iter - 1:
             break
-        r = zz - x[:, None]
-        wr = _matvec(w_mat, r)
-        d2 = r[..., 0] * wr[..., 0] + r[..., 1] * wr[..., 1] + r[..., 2] * wr[..., 2]
-        rw = np.asarray(valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12))))
+        r = zz - x[:, :, None]
+        d2 = _dot(r, _matvec(w_rows, r))
+        new_rw = valid * np.minimum(1.0, np.sqrt(gate_chi2 / np.maximum(d2, 1e-12)))
         far = d2 > 4 * gate_chi2
-        keep_some = np.asarray((valid & ~far).any(axis=1, keepdims=True))
-        rw = np.where(far & keep_some, 0.0, rw)
-    used = (rw > 0.2).sum(axis=1).astype(np.intp)
-    x = np.where(has[..., None], x, np.nan)
-    cov_x = np.where(has[..., None, None], cov_x, np.nan)
+        keep_some = np.logical_or.reduce(valid > far, axis=1, keepdims=True)  # valid, not far
+        rw, previous = np.where(far & keep_some, 0.0, new_rw), rw
+        if not np.logical_or.reduce(rw != previous, axis=None):
+            break  # a fixed point: the iterations left would repeat this one, bit for bit
+    used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
+    x = np.where(has, x, np.nan).transpose(1, 2, 0)
+    cov_x = np.where(has, cov_x, np.nan).transpose(1, 2, 0).reshape(n_t, n_j, 3, 3)
     return x, cov_x, used
 
 
@@ -391,7 +514,7 @@ def kalman_step(
     m[4] -= gain[1] * m[3]
     m[2:4] *= 1.0 - gain[0]
     init = has & ~s.started
-    if init.any():
+    if np.logical_or.reduce(init, axis=None):
         s.started |= has
         m[0] = np.where(init, z0, m[0])
         m[1:5] = np.where(init, np.array([0.0, 0.0, 0.0, 1.0])[:, None, None], m[1:5])
