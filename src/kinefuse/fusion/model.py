@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.fusion.view import view_variance
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
@@ -131,6 +132,7 @@ def world_measurements(
     inferred_inflation: float,
     occluded_inflation: float,
     covariance: bool = True,
+    view: tuple[float, float, float, float] = (0.0, 2.0, 0.0, 2.0),
 ) -> tuple[Array, Array]:
     """Sensors' joints in the world and their covariances.
 
@@ -144,13 +146,16 @@ def world_measurements(
     sensor2world : (S, 4, 4) float
     lateral_m, axial_m : (25,) float
         Noise across and along the sensor's ray of a TRACKED, unoccluded joint.
+    view : (view_sigma_m, view_exponent, far_sigma_m, far_exponent)
+        The view-dependent variance of :func:`kinefuse.fusion.view.view_variance` (zero
+        sigmas: none).
 
     Returns
     -------
     z : (T, S, 25, 3) float
     cov : (T, S, 25, 3, 3) float
         ``lat^2 I + (ax^2 - lat^2) u u^T`` with ``u`` the world ray (``R`` is a rotation, so
-        this is ``R (lat^2 (I - r r^T) + ax^2 r r^T) R^T``), plus ``age^2 I``.
+        this is ``R (lat^2 (I - r r^T) + ax^2 r r^T) R^T``), plus ``age^2 I`` and the view term.
     """
     r = sensor2world[:, :3, :3]  # (S, 3, 3)
     o = sensor2world[:, :3, 3]
@@ -175,6 +180,8 @@ def world_measurements(
     cov = lat2[..., None, None] * eye + (ax2 - lat2)[..., None, None] * (
         u[..., :, None] * u[..., None, :]
     )
+    if view[0] > 0.0 or view[2] > 0.0:
+        grow = grow + view_variance(z, o, *view)[..., None, None] * eye
     return z, cov + grow
 
 
