@@ -91,9 +91,9 @@ class BestOptions:
     #: the side, growing as ``|sin view|^view_exponent`` (1); and (m) added to a limb joint on
     #: the far side of the body seen from the side, growing as ``far^far_exponent`` (1). 0 m:
     #: off. Chosen on one simulated take (docs/fusion.md section 9)
-    view_sigma_m: float = 0.0
+    view_sigma_m: float = 0.1
     view_exponent: float = 4.0
-    far_sigma_m: float = 0.0
+    far_sigma_m: float = 0.05
     far_exponent: float = 4.0
 
     def __post_init__(self) -> None:
