@@ -177,11 +177,12 @@ def world_measurements(
     inflate = inflate * np.where(occluded, occluded_inflation, 1.0)
     lat2 = lateral_m**2 * inflate**2
     ax2 = axial_m**2 * inflate**2
+    if view[0] > 0.0 or view[2] > 0.0:  # isotropic: on both
+        extra = view_variance(z, o, *view)
+        lat2, ax2 = lat2 + extra, ax2 + extra
     cov = lat2[..., None, None] * eye + (ax2 - lat2)[..., None, None] * (
         u[..., :, None] * u[..., None, :]
     )
-    if view[0] > 0.0 or view[2] > 0.0:
-        grow = grow + view_variance(z, o, *view)[..., None, None] * eye
     return z, cov + grow
 
 

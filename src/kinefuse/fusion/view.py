@@ -50,12 +50,23 @@ _VIEW_MASK = np.zeros(N_JOINTS)
 _VIEW_MASK[[JOINT_INDEX[n] for n in VIEW_JOINTS]] = 1.0
 
 
-def _horizontal_unit(v: Array) -> Array:
-    n = np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)[..., None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.where(n > 1e-9, v / n, np.nan)
-    u[..., 2] = 0.0
-    return u
+def _geometry(z: Array, sensor_pos: Array) -> tuple[Array, Array, Array, Array]:
+    """``sin v (T, S)``, trunk centre ``(T, S, 2)`` and unit left-right axis ``x, y (T, S)``
+    (horizontal components only; call under ``np.errstate``: NaN where undefined)."""
+    zx, zy = z[..., 0], z[..., 1]
+    lx = (zx[..., _HIP_L] - zx[..., _HIP_R]) + (zx[..., _SH_L] - zx[..., _SH_R])
+    ly = (zy[..., _HIP_L] - zy[..., _HIP_R]) + (zy[..., _SH_L] - zy[..., _SH_R])
+    nl = np.sqrt(lx * lx + ly * ly)
+    inv = np.where(nl > 1e-6, 1.0 / nl, np.nan)
+    ux, uy = lx * inv, ly * inv
+    a, b = z[..., _SB, :2], z[..., _SS, :2]
+    c = 0.5 * (a + b)
+    c = np.where(np.isnan(c), np.fmax(a, b), c)  # either one alone if the other is missing
+    dx = sensor_pos[:, 0] - c[..., 0]
+    dy = sensor_pos[:, 1] - c[..., 1]
+    # facing = (u_y, -u_x): sin(facing -> d) = facing x d (z) = u . d
+    sin_v = (ux * dx + uy * dy) / np.sqrt(dx * dx + dy * dy)
+    return sin_v, c, ux, uy
 
 
 def side_view(z: Array, sensor_pos: Array) -> tuple[Array, Array, Array]:
@@ -74,23 +85,15 @@ def side_view(z: Array, sensor_pos: Array) -> tuple[Array, Array, Array]:
         ``sin`` of the angle from the reported facing to the horizontal direction body ->
         sensor (positive: the sensor on the body's left as reported), NaN when the skeleton
         has no facing or no trunk.
-    centre : (T, S, 3) float
-        The trunk centre (mean of SpineBase and SpineShoulder, either alone if one is missing).
-    lr : (T, S, 3) float
+    centre : (T, S, 2) float
+        Horizontal position of the trunk centre (mean of SpineBase and SpineShoulder, either
+        alone if one is missing).
+    lr : (T, S, 2) float
         Horizontal unit left-right axis (pointing to the reported left), NaN when none.
     """
-    lr = _horizontal_unit(
-        (z[..., _HIP_L, :] - z[..., _HIP_R, :]) + (z[..., _SH_L, :] - z[..., _SH_R, :])
-    )
-    a, b = z[..., _SB, :], z[..., _SS, :]
-    fa = np.isfinite(a).all(-1, keepdims=True)
-    fb = np.isfinite(b).all(-1, keepdims=True)
-    with np.errstate(invalid="ignore"):
-        centre = np.where(fa & fb, 0.5 * (a + b), np.where(fa, a, b))
-    d = _horizontal_unit(sensor_pos - centre)
-    # facing = (lr_y, -lr_x): sin(facing -> d) = facing x d (z) = lr . d
-    sin_v = lr[..., 0] * d[..., 0] + lr[..., 1] * d[..., 1]
-    return sin_v, centre, lr
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin_v, c, ux, uy = _geometry(z, sensor_pos)
+    return sin_v, c, np.stack([ux, uy], axis=-1)
 
 
 def view_variance(
@@ -120,15 +123,19 @@ def view_variance(
 
     A skeleton without a facing or a trunk counts as seen from the side (the worst case).
     """
-    sin_v, centre, lr = side_view(z, sensor_pos)
-    s = np.abs(np.nan_to_num(sin_v, nan=1.0))
-    sd = view_sigma_m * s**view_exponent
-    extra = np.broadcast_to((sd * sd)[..., None] * _VIEW_MASK, z.shape[:-1])
-    if far_sigma_m <= 0.0:
-        return np.array(extra)
-    rel = z - centre[..., None, :]
-    lat = rel[..., 0] * lr[..., None, 0] + rel[..., 1] * lr[..., None, 1]  # (T, S, 25), + left
-    side = np.clip(np.nan_to_num(lat) / SIDE_SCALE_M, -1.0, 1.0)
-    far = np.clip(-side * np.nan_to_num(sin_v)[..., None], 0.0, 1.0)
-    fd = far_sigma_m * far**far_exponent
-    return extra + fd * fd
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin_v, c, ux, uy = _geometry(z, sensor_pos)
+        s = np.abs(sin_v)
+        s = np.where(np.isnan(s), 1.0, s)
+        sd = view_sigma_m * s**view_exponent
+        extra = (sd * sd)[..., None] * _VIEW_MASK
+        if far_sigma_m <= 0.0:
+            return extra
+        lat = (z[..., 0] - c[..., 0, None]) * ux[..., None] + (z[..., 1] - c[..., 1, None]) * uy[
+            ..., None
+        ]  # (T, S, 25), + left
+        side = np.minimum(np.maximum(lat * (1.0 / SIDE_SCALE_M), -1.0), 1.0)
+        p = -side * sin_v[..., None]
+        far = np.where(p > 0.0, p, 0.0)  # NaN (no joint, no facing): 0
+        fd = far_sigma_m * far**far_exponent
+        return extra + fd * fd
