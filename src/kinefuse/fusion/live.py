@@ -306,6 +306,7 @@ class LiveFusion:
             joints, states, occ, age, self._poses, lateral_m=self._lateral, axial_m=self._axial,
             inferred_inflation=b.inferred_inflation, occluded_inflation=b.occluded_inflation,
             covariance=b.covariance,
+            view=(b.view_sigma_m, b.view_exponent, b.far_sigma_m, b.far_exponent),
         )  # fmt: skip
         if not (b.lr_swap and self.n_sensors > 1):
             return z, cov, None

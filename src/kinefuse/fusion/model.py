@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.fusion.view import view_variance
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState, bone_index_array
 
 Array = NDArray[np.float64]
@@ -221,6 +222,7 @@ def world_measurements(
     inferred_inflation: float,
     occluded_inflation: float,
     covariance: bool = True,
+    view: tuple[float, float, float, float] = (0.0, 2.0, 0.0, 2.0),
 ) -> tuple[Array, Array]:
     """Sensors' joints in the world and their covariances.
 
@@ -234,13 +236,16 @@ def world_measurements(
     sensor2world : (S, 4, 4) float
     lateral_m, axial_m : (25,) float
         Noise across and along the sensor's ray of a TRACKED, unoccluded joint.
+    view : (view_sigma_m, view_exponent, far_sigma_m, far_exponent)
+        The view-dependent variance of :func:`kinefuse.fusion.view.view_variance` (zero
+        sigmas: none).
 
     Returns
     -------
     z : (T, S, 25, 3) float
     cov : (T, S, 25, 3, 3) float
         ``lat^2 I + (ax^2 - lat^2) u u^T`` with ``u`` the world ray (``R`` is a rotation, so
-        this is ``R (lat^2 (I - r r^T) + ax^2 r r^T) R^T``), plus ``age^2 I``.
+        this is ``R (lat^2 (I - r r^T) + ax^2 r r^T) R^T``), plus ``age^2 I`` and the view term.
     """
     r = sensor2world[:, None, :3, :3]  # (S, 1, 3, 3)
     o = sensor2world[:, :3, 3]
@@ -262,6 +267,9 @@ def world_measurements(
     inflate2 = inflate**2
     lat2 = lateral_m**2 * inflate2
     ax2 = axial_m**2 * inflate2
+    if view[0] > 0.0 or view[2] > 0.0:  # isotropic: on both
+        extra = view_variance(z, o, *view)
+        lat2, ax2 = lat2 + extra, ax2 + extra
     cov = lat2[..., None, None] * _EYE + (ax2 - lat2)[..., None, None] * (
         u[..., :, None] * u[..., None, :]
     )
@@ -341,26 +349,6 @@ def decide_flips(
     if n < 1e-9:
         return np.zeros(ambiguous.shape, bool)
     return ambiguous & (_dot3(facing_, np.array([v0 / n, v1 / n, v2 / n])) < 0)
-
-
-def inv3(m: Array) -> Array:
-    """Inverses of ``(..., 3, 3)`` matrices by the adjugate (much faster than LAPACK per call)."""
-    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    d, e, f = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    g, h, i = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    co = np.empty(m.shape)
-    co[..., 0, 0] = e * i - f * h
-    co[..., 0, 1] = c * h - b * i
-    co[..., 0, 2] = b * f - c * e
-    co[..., 1, 0] = f * g - d * i
-    co[..., 1, 1] = a * i - c * g
-    co[..., 1, 2] = c * d - a * f
-    co[..., 2, 0] = d * h - e * g
-    co[..., 2, 1] = b * g - a * h
-    co[..., 2, 2] = a * e - b * d
-    det = a * co[..., 0, 0] + b * co[..., 1, 0] + c * co[..., 2, 0]
-    co /= det[..., None, None]
-    return co
 
 
 #: 3x3 matrices entries first, ``(9, ...)`` row by row (so that one numpy call does one entry

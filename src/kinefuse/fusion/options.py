@@ -86,6 +86,15 @@ class BestOptions:
     lateral_m: tuple[float, ...] = tuple(_LATERAL_M.tolist())
     axial_m: tuple[float, ...] = tuple(_AXIAL_M.tolist())
     accel_psd: tuple[float, ...] = tuple(_ACCEL_PSD.tolist())
+    #: view-dependent measurement noise (:mod:`kinefuse.fusion.view`): standard deviation (m)
+    #: added to the trunk, head, shoulders and hips of a sensor that sees the body straight from
+    #: the side, growing as ``|sin view|^view_exponent`` (1); and (m) added to a limb joint on
+    #: the far side of the body seen from the side, growing as ``far^far_exponent`` (1). 0 m:
+    #: off. Chosen on one simulated take (docs/fusion.md section 9)
+    view_sigma_m: float = 0.1
+    view_exponent: float = 4.0
+    far_sigma_m: float = 0.05
+    far_exponent: float = 4.0
 
     def __post_init__(self) -> None:
         if self.temporal not in (None, "smoother", "filter"):
@@ -97,3 +106,7 @@ class BestOptions:
             if len(v) != N_JOINTS or not all(x > 0 for x in v):
                 raise ValueError(f"{name} must be {N_JOINTS} positive numbers, one per joint")
             object.__setattr__(self, name, v)
+        if not (self.view_sigma_m >= 0 and self.far_sigma_m >= 0):
+            raise ValueError("view_sigma_m and far_sigma_m must be >= 0 m (0: off)")
+        if not (self.view_exponent > 0 and self.far_exponent > 0):
+            raise ValueError("view_exponent and far_exponent must be > 0")
