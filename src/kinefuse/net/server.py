@@ -211,10 +211,13 @@ class Server:
                     ready(o.host, self.port)
                 if self.recorder is not None:
                     tg.create_task(self.recorder.run(self.publisher.subscribe(None)))
-                tg.create_task(self.loop.run(self._stop))
+                fusing = tg.create_task(self.loop.run(self._stop))
                 tg.create_task(self._housekeeping())
                 await self._stop.wait()
                 srv.close()
+                # the loop sees the stop before its next frame; a frame being fused (in a worker
+                # thread) is published first, so the publisher is closed after the last one
+                await fusing
                 for c in list(self._conns):
                     with contextlib.suppress(Exception):
                         c.send(Goodbye(reason=f"server stopping: {self._stop_reason}"[:1024]))
