@@ -17,6 +17,9 @@
 
 Outputs go to a folder built beside ``--out`` and swapped in only when the run is complete
 (:func:`kinefuse.io.outputs.atomic_dir`), so an interrupted demo leaves the previous one as it was.
+
+Why about 610 lines: the demo is one workflow (processes, their supervision, the evaluation and
+the report of one run); its parts are already library calls, and what remains is their order.
 """
 
 from __future__ import annotations

@@ -25,6 +25,10 @@ Goodbye), on the server's Goodbye, or at the end of the source (or ``max_seconds
 Threads: the asyncio loop does the networking; one worker thread reads the source and runs
 occlusion ahead of the frames' times; one runs wand detection, one the floor fit. The client
 owns them and joins them when :meth:`SensorClient.run` returns.
+
+Why about 630 lines: :class:`SensorClient` is one state machine (connect, sync, stream, rejoin)
+whose states share the connection and the threads; its connection, depth and helper parts
+live in ``client_parts`` and ``client_depth``.
 """
 
 from __future__ import annotations
