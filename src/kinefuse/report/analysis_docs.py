@@ -64,6 +64,7 @@ def shared_files() -> list[Path]:
 
 def part_files(work: Path, img: Path) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
+    (work / "files").mkdir(exist_ok=True)
     for f in shared_files():
         tag = f"{f.stem}_{f.suffix[1:]}"
         out = work / "files" / tag
@@ -102,7 +103,7 @@ def _session(work: Path, name: str, clip: str, rom_s: float, seed: int, rig: str
         argv += ["--calibration-seconds", "0"]
     _run(*argv)
     if not true_calibration:
-        _run("calibrate", str(s), "--method", "full")
+        _run("calibrate", str(s), "--method", "full", "--store")
     return s
 
 
