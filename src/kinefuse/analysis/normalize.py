@@ -286,7 +286,11 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
     half = max(round(DEFAULT_WINDOW_S * seq.rate_hz / 2), 0)
     win = np.arange(max(d - half, 0), min(d + half + 1, t))
     win = win[np.isfinite(costs[win])] if np.isfinite(costs[win]).any() else np.array([d])
-    body = body_frame(np.nanmean(p[win], axis=0))
+    # the mean over the window of each joint seen in it (NaN, without a warning, for a joint
+    # missing in all of it: the marker sets without some Kinect joints)
+    seen = np.isfinite(p[win]).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        body = body_frame(np.where(seen > 0, np.nansum(p[win], axis=0) / seen, np.nan))
     if not np.isfinite(body).all():
         raise InputError(f"the default-pose frame {d} lacks body joints; choose another frame")
     n = len(LIMBS)
