@@ -13,9 +13,9 @@ ahead:
   sensor whose reported facing points away from it cannot be swapped), the ambiguous ones at half
   weight, and the filter's facing so far; an ambiguous sensor that contradicts it is mirrored
   back. When every view is ambiguous (two sensors, one seeing the back: a tie the facing so far
-  would freeze) the pelvis's walking direction joins the vote (``walk_weight``; a body walking
-  backwards in front of only such sensors is mirrored while it does). (Offline ``best`` votes
-  over a centred 1 s window instead.)
+  would freeze; a sensor that sees no trunk has no view) the pelvis's walking direction joins
+  the vote (``walk_weight``; a body walking backwards in front of only such sensors is mirrored
+  while it does). (Offline ``best`` votes over a centred 1 s window instead.)
 - **Kalman filter**: one constant-velocity filter per joint and axis keeps its state between
   calls; a frame without measurements is a prediction; a joint unseen for ``max_predict_s``
   becomes missing.
@@ -354,8 +354,9 @@ class LiveFusion:
         flips = None
         if evidence is not None:
             f, amb, vote = evidence
-            # (``f`` is 0, not NaN, where a sensor has no facing: every sensor must be ambiguous)
-            if amb.all():
+            # ``f`` is 0 where a sensor has no facing (it sees no trunk): it has no vote, so it
+            # does not make the others' tie decided
+            if amb.all() or (amb.any() and (amb | ~f.any(axis=-1)).all()):
                 # only ambiguous sensors (e.g. two, one seeing the back): their vote is a tie that
                 # the facing so far would freeze; a walking body faces where it goes
                 kf = self._kf
