@@ -3,6 +3,7 @@
     python benchmarks/bench_analysis.py speed [--frames 24000]
     python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
         [--no-subject-bias]
+    python benchmarks/bench_analysis.py floor [--subjects 10] [--segment-fixed] [--json F]
 
 ``speed``: a full body (13 limbs) normalized and parameterized (angles and twist) for 24,000
 frames on one core, against a straightforward per-frame implementation of the same math
@@ -23,6 +24,14 @@ Each take is also analysed from its *floor* input: the truth plus the subject-le
 alone (the joint-definition offsets every sensor shares, so no fusion can remove them), which is
 what a perfect fusion would deliver. ``--no-subject-bias`` simulates a tracker without that bias
 instead: what the rest of the error model leaves to the chain.
+
+``floor``: no sensors, no fusion: the same calibration phase and walk, the truth plus the
+subject-level tracker bias of ``--subjects`` simulated subjects (``subject_seed`` 0, 1, ...,
+drawn as the lab draws them), analysed as a fused take is. This is what a perfect fusion would
+deliver for each subject: the axis errors of DJ, PCA and EM, the twist error and the walk's
+knee and hip flexion RMSE. ``--segment-fixed`` holds each joint's offset in the frame of the
+limb it ends instead of the body frame (the lab's model), to see how much the conclusion
+depends on that assumption.
 """
 
 from __future__ import annotations
@@ -132,22 +141,29 @@ def _resample(seq: an.SkeletonSequence, t_s: np.ndarray) -> an.SkeletonSequence:
     return an.SkeletonSequence.from_kinect(out.reshape(-1, 25, 3), t_s=t_s, source=seq.source)
 
 
-def accuracy(args: argparse.Namespace) -> dict[str, object]:
+def calibration_motion(rom_s: float, seed: int):  # type: ignore[no-untyped-def]
+    """The clip's default-pose frame, the ROM phase and its truth, the ROM + walk + 2 s hold
+    motion and the walk's span (motion time, seconds)."""
     from kinefuse.motion import load_motion
-    from kinefuse.sensors.rig import default_rig, load_rig
 
     clip = load_motion(CLIP)
-    clip_seq = an.SkeletonSequence.from_motion(clip)
-    d = an.find_default_pose(clip_seq)
-    rng = np.random.default_rng(args.seed)
-    rom, truth = make_rom_motion(clip.positions[d], args.rom_s, rng, rate_hz=60.0)
+    d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
+    rng = np.random.default_rng(seed)
+    rom, truth = make_rom_motion(clip.positions[d], rom_s, rng, rate_hz=60.0)
     combined = prepend_rom(rom, clip, blend_s=1.0)
-    walk = (rom.duration_s + 1.0, combined.duration_s)  # motion time
+    walk = (rom.duration_s + 1.0, combined.duration_s)
     # hold the last pose 2 s so that the end of the session (where the fused skeleton of the
     # last second goes astray) is not part of the walk
     hold = np.repeat(combined.positions[-1:], int(2.0 * combined.rate_hz), axis=0)
     combined = Motion(np.concatenate([combined.positions, hold]), combined.rate_hz,
                       source=combined.source + " + 2 s hold")  # fmt: skip
+    return d, rom, truth, combined, walk
+
+
+def accuracy(args: argparse.Namespace) -> dict[str, object]:
+    from kinefuse.sensors.rig import default_rig, load_rig
+
+    d, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed)
     cal_s = 15.0
     phase = (cal_s, cal_s + rom.duration_s)
     walk = (cal_s + walk[0], cal_s + walk[1])
@@ -291,6 +307,101 @@ def _take_text(k: int, t: dict) -> str:  # type: ignore[type-arg]
     return "\n".join(lines)
 
 
+# ----------------------------------------------------------------------------- floor
+def _segment_offsets(joints: np.ndarray, norm: an.Normalization, body_offsets: np.ndarray,
+                     axes: np.ndarray) -> np.ndarray:  # fmt: skip
+    """Offsets ``(T, 25, 3)`` fixed in the frame of the limb each joint ends (the pelvis for
+    the spine base and hips, the trunk for the shoulders and neck, the forearm for the hand
+    joints), equal to the body-frame offsets at the default pose."""
+    from kinefuse.analysis.limbs import LIMBS
+    from kinefuse.skeleton import JOINT_INDEX, JOINTS
+
+    owner = {lb.distal_index: i for i, lb in reversed(list(enumerate(LIMBS)))}
+    for name in ("SpineBase", "HipLeft", "HipRight"):
+        owner[JOINT_INDEX[name]] = 0
+    for name in ("ShoulderLeft", "ShoulderRight", "Neck", "SpineShoulder"):
+        owner[JOINT_INDEX[name]] = 1
+    d = norm.default_frame
+    out = np.zeros(joints.shape)
+    for j, name in enumerate(JOINTS):
+        li = owner.get(j, an.LIMB_NAMES.index("forearm_" + ("left" if "Left" in name else "right")))
+        local = norm.frames[d, li].T @ (axes[d] @ body_offsets[j])
+        out[:, j] = np.einsum("tik,k->ti", np.nan_to_num(norm.frames[:, li]), local)
+    return out
+
+
+def floor(args: argparse.Namespace) -> dict[str, object]:
+    from kinefuse.sensors.lab import LabConfig, _seeds
+    from kinefuse.sensors.tracker_body import _body_axes
+
+    _, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed)
+    t_s = np.arange(int(combined.duration_s * 30.0)) / 30.0  # a Kinect's rate
+    joints = combined.at(t_s)
+    true_seq = an.SkeletonSequence.from_kinect(joints, t_s=t_s, source="truth")
+    norm_t = an.normalize(true_seq)
+    ang_t = joint_angles(true_seq, norm_t, learn_axes(true_seq, norm_t, (0.0, rom.duration_s)))
+    phase = (0.0, rom.duration_s)
+    rom_frames = np.flatnonzero(t_s <= rom.duration_s)
+    walk_frames = np.flatnonzero((t_s >= walk[0]) & (t_s <= walk[1]))
+    g = truth.frames[np.round(t_s[rom_frames] * truth.rate_hz).astype(int)]
+    axes = _body_axes(joints, np.array([0.0, 0.0, 1.0]))
+    rows = []
+    for subject in [None, *range(args.subjects)]:  # None: no bias, the truth itself
+        if subject is None:
+            offsets = np.zeros((25, 3))
+        else:
+            offsets = _seeds(0, 4, LabConfig(seed=0, subject_seed=subject)).subject.offsets_body_m
+        if args.segment_fixed:
+            biased = joints + _segment_offsets(joints, norm_t, offsets, axes)
+        else:
+            biased = joints + np.einsum("tik,jk->tji", axes, offsets)
+        seq = an.SkeletonSequence.from_kinect(biased, t_s=t_s, source=f"subject {subject}")
+        norm = an.normalize(seq)
+        r = analyse_take(seq, norm, ang_t, truth, g, {}, phase, (rom_frames, walk_frames))
+        w = r["angle_rmse_deg_walk"]
+        row = {
+            "subject_seed": subject,
+            **{f"axis_median_deg_{m}": r[f"axis_error_deg_{m}"]["median"] for m in METHODS},
+            "axis_mean_deg_dj": r["axis_error_deg_dj"]["mean"],
+            "twist_median_deg": r["twist_error_deg"]["median"],
+            **{k: w.get(k, float("nan")) for k in FLEXION},
+        }
+        rows.append(row)
+        who = "no bias" if subject is None else f"subject {subject}"
+        print(f"{who}: axis median dj {row['axis_median_deg_dj']:.2f}° (pca "
+              f"{row['axis_median_deg_pca']:.2f}°, em {row['axis_median_deg_em']:.2f}°), "
+              f"twist {row['twist_median_deg']:.2f}°, walk RMSE knee "
+              f"{row['knee_flexion_left']:.1f}/{row['knee_flexion_right']:.1f}°, hip "
+              f"{row['hip_flexion_left']:.1f}/{row['hip_flexion_right']:.1f}°",
+              flush=True)  # fmt: skip
+    no_bias, rows = rows[0], rows[1:]
+    dj = np.array([r["axis_median_deg_dj"] for r in rows])
+    best = np.array([min(r["axis_median_deg_pca"], r["axis_median_deg_em"]) for r in rows])
+    flex_ok = [all(r[k] < 5.0 for k in FLEXION) for r in rows]
+    summary = {
+        "subjects": len(rows),
+        "no_bias": no_bias,
+        "offsets": "segment-fixed" if args.segment_fixed else "body frame (the lab's model)",
+        "axis_median_deg_dj": {
+            "min": float(dj.min()),
+            "median": float(np.median(dj)),
+            "max": float(dj.max()),
+        },
+        "subjects_dj_under_3_deg": int((dj < 3.0).sum()),
+        "subjects_dj_beats_pca_and_em": int((dj < best).sum()),
+        "subjects_knee_and_hip_flexion_under_5_deg": int(sum(flex_ok)),
+    }
+    print(f"{summary['offsets']} offsets, {len(rows)} subjects: DJ axis median "
+          f"{dj.min():.2f}-{dj.max():.2f}° (median {np.median(dj):.2f}°); under 3° in "
+          f"{summary['subjects_dj_under_3_deg']}; DJ below PCA and EM in "
+          f"{summary['subjects_dj_beats_pca_and_em']}; knee and hip flexion both sides under 5° "
+          f"in {summary['subjects_knee_and_hip_flexion_under_5_deg']}")  # fmt: skip
+    return {"summary": summary, "subjects": rows}
+
+
+FLEXION = ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_flexion_right")
+
+
 # ----------------------------------------------------------------------------- speed
 def _speed_sequence(n_frames: int, seed: int) -> tuple[an.SkeletonSequence, float]:
     """A full body: a ROM phase on the real clip's default pose, then the clip's walk and the
@@ -386,10 +497,16 @@ def main(argv: list[str] | None = None) -> int:
     ac.add_argument("--no-subject-bias", action="store_true",
                     help="simulate a tracker whose joint definitions are the truth's (no "
                     "subject-level bias): what the rest of the error model leaves")  # fmt: skip
-    for p in (sp, ac):
+    fl = sub.add_parser("floor")
+    fl.add_argument("--rom-s", type=float, default=120.0)
+    fl.add_argument("--seed", type=int, default=0, help="the ROM phase's seed")
+    fl.add_argument("--subjects", type=int, default=10)
+    fl.add_argument("--segment-fixed", action="store_true",
+                    help="offsets fixed in the limb each joint ends")  # fmt: skip
+    for p in (sp, ac, fl):
         p.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    report = speed(args) if args.mode == "speed" else accuracy(args)
+    report = {"speed": speed, "accuracy": accuracy, "floor": floor}[args.mode](args)
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0
