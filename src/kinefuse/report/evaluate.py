@@ -40,6 +40,7 @@ ABLATION: dict[str, BestOptions] = {
     "lr_swap": BestOptions(lr_swap=False),
     "temporal": BestOptions(temporal=None),
     "bones": BestOptions(bones=False),
+    "view": BestOptions(view_sigma_m=0.0, far_sigma_m=0.0),
 }
 
 #: Method pairs whose MAE the report compares (the paper's ordering, then ours): ``(a, b)``
