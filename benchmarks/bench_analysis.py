@@ -60,6 +60,7 @@ from kinefuse.analysis.consistency import (  # noqa: E402
     twist_errors_deg,
 )
 from kinefuse.analysis.kinematics import joint_angles, reconstruction_error  # noqa: E402
+from kinefuse.analysis.normalize import BODY_JOINTS  # noqa: E402
 from kinefuse.analysis.parameterize import learn_axes  # noqa: E402
 from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
 from kinefuse.motion.types import Motion  # noqa: E402
@@ -217,6 +218,14 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
             norms["fused"].append(norm_f)
             take.update(analyse_take(fused, norm_f, ang_t, truth, g, true_world, phase, frames))
             take["walk_frames"] = {"used": int(walk_frames.size), "fusion_lost": lost}
+            # what the consistency across takes is made of: the fused joints at the default pose
+            # against the floor there (the truth plus the bias all takes of the subject share)
+            d_f = norm_f.default_frame
+            body = [fused.index(n) for n in BODY_JOINTS]
+            gap = fused.positions[d_f, body] - floor_seq.positions[d_f, body]
+            take["default_pose_fused_vs_floor_cm"] = 100.0 * float(
+                np.nanmean(np.linalg.norm(gap, axis=-1))
+            )
             norm_b = an.normalize(floor_seq)
             norms["floor"].append(norm_b)
             floor = analyse_take(floor_seq, norm_b, ang_t, truth, g, true_world, phase, frames,
@@ -292,6 +301,10 @@ def _take_text(k: int, t: dict) -> str:  # type: ignore[type-arg]
     lines.append(f"  twist error (ROM): median {tw['median']:.2f}°, mean {tw['mean']:.2f}°")
     w = t["angle_rmse_deg_walk"]
     lines.append(f"  walk frames: {t['walk_frames']}")
+    lines.append(
+        f"  default pose: fused body joints {t['default_pose_fused_vs_floor_cm']:.1f} cm from the "
+        "floor (mean; the take-dependent error the consistency across takes sees)"
+    )
     lines.append("  walk RMSE: " + ", ".join(f"{k2} {v:.1f}°" for k2, v in sorted(w.items())))
     if t["status"]:
         lines.append(f"  status: {t['status']}")
