@@ -12,11 +12,12 @@ ahead:
 - **Left/right swaps**: the body's facing is agreed from this frame's unambiguous sensors (a
   sensor whose reported facing points away from it cannot be swapped), the ambiguous ones at half
   weight, and the filter's facing so far; an ambiguous sensor that contradicts it is mirrored
-  back. When every view is ambiguous (two sensors, one seeing the back: a tie the facing so far
-  would freeze; a sensor that sees no trunk has no view) the pelvis's walking direction joins
-  the vote (``walk_weight``); against the facing so far only once the body has walked against
-  it for ``walk_against_s`` (a turn on the spot moves the pelvis backwards for a moment; a body
-  walking backwards for longer in front of only such sensors is mirrored while it does).
+  back. When every view is ambiguous and the views do not agree (two sensors, one seeing the
+  back: a tie the facing so far would freeze; a sensor that sees no trunk has no view) the
+  pelvis's walking direction joins the vote (``walk_weight``, ``walk_tie``); against the facing
+  so far only once the body has walked against it for ``walk_against_s`` (a turn on the spot
+  moves the pelvis backwards for a moment). Agreeing ambiguous views are not overruled by it
+  (two sensors in front of a person who walks backwards, in a real recording).
   (Offline ``best`` votes over a centred 1 s window instead.)
 - **Kalman filter**: one constant-velocity filter per joint and axis keeps its state between
   calls; a frame without measurements is a prediction; a joint unseen for ``max_predict_s``
@@ -112,6 +113,9 @@ class LiveOptions:
     #: frozen wrong facing lasts the whole walk, a body turning round on the spot moves against
     #: its facing for less than a step (0.4 s in CMU 131_01, mirrored for 0.5 s without this)
     walk_against_s: float = 0.6
+    #: the walking direction joins only a tie: the ambiguous sensors' vote shorter than this
+    #: fraction of its largest possible length (every facing the same way)
+    walk_tie: float = 0.5
     #: samples a bone needs before the output is projected onto its running length
     bone_min_samples: int = 15
     #: relative deviation from a bone's running length beyond which a joint is ``BONE_LENGTH``
@@ -368,9 +372,18 @@ class LiveFusion:
             self._walk_t = t
             # ``f`` is 0 where a sensor has no facing (it sees no trunk): it has no vote, so it
             # does not make the others' tie decided
-            if amb.all() or (amb.any() and (amb | ~f.any(axis=-1)).all()):
-                # only ambiguous sensors (e.g. two, one seeing the back): their vote is a tie that
-                # the facing so far would freeze; a walking body faces where it goes
+            seen = f.any(axis=-1)
+            n_seen = int(seen.sum())
+            v0, v1, v2 = vote.tolist()
+            if (
+                n_seen > 0
+                and bool((amb | ~seen).all())
+                and math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) < opt.walk_tie * 0.5 * n_seen
+            ):
+                # only ambiguous sensors that do not agree (e.g. two, one seeing the back): their
+                # vote is a tie that the facing so far would freeze; a walking body faces where
+                # it goes. Ambiguous sensors that agree (two in front of a person walking
+                # backwards, in a real recording) are not overruled by the walking direction
                 kf = self._kf
                 vx, vy = float(kf.m[1, _PELVIS, 0]), float(kf.m[1, _PELVIS, 1])
                 speed = math.hypot(vx, vy)
