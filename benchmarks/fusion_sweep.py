@@ -5,12 +5,11 @@ Run: ``python benchmarks/fusion_sweep.py [--seeds 0 1 2 3 4 5 6] [--rigs level4 
 on one rig with one seed, fused from the true sensor poses. Per session it prints the MAE of
 both methods, their ratio and the worst half second of each (a mirrored skeleton shows there as
 30-50 cm); then the summary over all sessions. ``paper_comparison.py`` and
-``live_vs_offline.py`` run seeds 0-2 on two rigs. This sweep shows a known failure of offline
-``best``: its swap consensus (a vote per second, :func:`kinefuse.fusion.best.correct_swaps`)
-has no continuity, and where every view is ambiguous (four sensors that all see the walking
-body obliquely) it mirrors whole seconds, on 15 of the 63 default sessions (docs/fusion.md).
-``best-live``'s causal vote does not fail there, but it fails on the real 45-degree walk, where
-the consensus does not: neither replaces the other yet.
+``live_vs_offline.py`` run seeds 0-2 on two rigs. This sweep found offline ``best``'s old swap
+consensus (a vote per second, :func:`kinefuse.fusion.best.correct_swaps`, which has no
+continuity) mirroring whole seconds where every view was ambiguous (four sensors that all see
+the walking body obliquely): 15 of the 63 default sessions had a half second over 15 cm.
+``best`` now uses ``best-live``'s causal vote (docs/fusion_live.md).
 """
 
 from __future__ import annotations

@@ -16,9 +16,12 @@ Each part can be switched off (:class:`BestOptions`) so that its gain can be mea
     Off: plain weighted mean.
 ``lr_swap``
     Sensors that see the person from behind report left and right swapped. The body's facing
-    direction is agreed across sensors (a sensor whose reported facing points away from it cannot
-    be swapped; one whose facing points toward it may be) and each observation that contradicts
-    it is mirrored back. Off: observations used as reported.
+    is agreed frame by frame across sensors (a sensor whose reported facing points away from it
+    cannot be swapped; one whose facing points toward it may be), with the fused facing so far
+    and, when every view is ambiguous, the walking direction (the causal vote of
+    :mod:`kinefuse.fusion.live`); a sensor that contradicts it is mirrored back. Off:
+    observations used as reported. (:func:`correct_swaps` is a vote per second without that
+    continuity, for comparing raw sensors before fusion.)
 ``temporal``
     ``"smoother"`` (offline, Rauch-Tung-Striebel over a constant-velocity model per joint),
     ``"filter"`` (causal Kalman filter, for live use) or ``None``.
@@ -39,7 +42,7 @@ from scipy.ndimage import uniform_filter1d
 from kinefuse.fusion.model import facing, rts_smooth
 from kinefuse.fusion.options import BestOptions
 from kinefuse.observations import BodyFrames
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, bone_index_array
+from kinefuse.skeleton import JOINT_INDEX, bone_index_array
 
 __all__ = [
     "BestOptions",
@@ -67,7 +70,8 @@ class FusedSkeleton:
     n_sensors : (T, 25) int
         Sensors that contributed (after gating).
     swaps : dict
-        Per sensor index, the number of observations mirrored back.
+        Per sensor index, the number of frames whose measurement of that sensor the swap vote
+        mirrored back.
     """
 
     t_server_s: Array
@@ -210,11 +214,11 @@ def fuse_best(
     """Fuse S sensor streams into one skeleton at the frame times ``t_grid_s`` ``(T,)``.
 
     The replay of the causal fusion (:func:`kinefuse.fusion.live.replay_streams`, with every
-    observation available: an offline budget of unlimited latency) followed by the non-causal
-    refinements the options ask for: the swap consensus over the whole take instead of the
-    causal vote (``lr_swap``), the Rauch-Tung-Striebel smoother over the filter's recorded
-    states (``temporal="smoother"``; ``"filter"``: the causal filter's output; ``None``: the
-    per-frame combination), session-wide bone lengths (``bones``).
+    observation available: an offline budget of unlimited latency; its swap vote when
+    ``lr_swap``) followed by the non-causal refinements the options ask for: the
+    Rauch-Tung-Striebel smoother over the filter's recorded states (``temporal="smoother"``;
+    ``"filter"``: the causal filter's output; ``None``: the per-frame combination),
+    session-wide bone lengths (``bones``).
 
     ``streams`` carry their capture times on the server clock (``t_server_s``) and are in the
     frames of their sensors, whose poses are ``sensor2world (S, 4, 4)``."""
@@ -223,18 +227,12 @@ def fuse_best(
     poses = check_streams(streams, sensor2world, "fuse_best")
     t_grid = np.asarray(t_grid_s, dtype=np.float64)
     opt = options
-    swaps: dict[int, int] = {i: 0 for i in range(len(streams))}
-    streams = list(streams)
-    if opt.lr_swap and len(streams) > 1:
-        p_world = [s.joints_m @ p[:3, :3].T + p[:3, 3] for s, p in zip(streams, poses, strict=True)]
-        flags = correct_swaps([s.t_server_s for s in streams], p_world, poses[:, :3, 3])
-        mirror = np.asarray(MIRROR_INDEX)
-        for i, fl in enumerate(flags):
-            swaps[i] = int(fl.sum())
-            if fl.any():
-                streams[i] = _mirrored(streams[i], fl, mirror)
-    live = LiveOptions(best=replace(opt, lr_swap=False, bones=False), latency_s=np.inf)
-    r = replay_streams(streams, poses, t_grid, live, record=opt.temporal != "filter")
+    # the swaps are the causal vote's (the facing so far, the walking direction): a consensus
+    # of each second's votes alone (correct_swaps) has no continuity, and where every view is
+    # ambiguous (four sensors all seeing the body obliquely) it mirrored whole seconds
+    live = LiveOptions(best=replace(opt, bones=False), latency_s=np.inf)
+    r = replay_streams(list(streams), poses, t_grid, live, record=opt.temporal != "filter")
+    swaps = {i: int(n) for i, n in enumerate(r["mirrored"].sum(axis=0))}
     if opt.temporal == "filter":
         pos, var = r["positions"], r["variance_m2"]
     elif opt.temporal == "smoother":
@@ -256,15 +254,3 @@ def fuse_best(
         n_sensors=r["n_sensors"].astype(np.intp),
         swaps=swaps,
     )
-
-
-def _mirrored(s: BodyFrames, flags: NDArray[np.bool_], mirror: NDArray[np.intp]) -> BodyFrames:
-    """``s`` with left and right exchanged in the frames ``flags (T,)``."""
-    j, st = s.joints_m.copy(), s.states.copy()
-    j[flags] = j[flags][:, mirror]
-    st[flags] = st[flags][:, mirror]
-    occ = None
-    if s.occluded is not None:
-        occ = s.occluded.copy()
-        occ[flags] = occ[flags][:, mirror]
-    return replace(s, joints_m=j, states=st, occluded=occ)

@@ -237,6 +237,8 @@ class LiveFusion:
         self.last_moments: tuple[Array, Array] | None = None
         #: the last frame's combined measurement (25, 3) and its covariance (25, 3, 3)
         self.last_measurement: tuple[Array, Array] | None = None
+        #: the last frame's swap decision: the sensors mirrored back (S,), or None for none
+        self.last_flips: NDArray[np.bool_] | None = None
 
     @property
     def n_sensors(self) -> int:
@@ -396,6 +398,7 @@ class LiveFusion:
             flips = decide_flips(f, amb, vote, self._facing, opt.facing_prior_weight)
         if flips is not None and not flips.any():
             flips = None
+        self.last_flips = flips
         if guess is not None and (
             (not guess.flips.any()) if flips is None else np.array_equal(guess.flips, flips)
         ):
@@ -555,7 +558,8 @@ def replay_streams(
     -------
     dict
         ``positions (T, 25, 3)``, ``variance_m2 (T, 25)``, ``status (T, 25) int8``,
-        ``n_sensors (T, 25)``; with ``record``: ``predicted``, ``filtered`` ``(5, T, 25, 3)``,
+        ``n_sensors (T, 25)``, ``mirrored (T, S)`` bool (the sensors whose skeleton the swap
+        vote mirrored back); with ``record``: ``predicted``, ``filtered`` ``(5, T, 25, 3)``,
         ``measurement (T, 25, 3)``, ``measurement_cov (T, 25, 3, 3)``.
     """
     fusion = LiveFusion(sensor2world, options)
@@ -575,6 +579,7 @@ def replay_streams(
         "variance_m2": np.full((n_t, N_JOINTS), np.nan),
         "status": np.full((n_t, N_JOINTS), FusionStatus.NO_DATA, dtype=np.int8),
         "n_sensors": np.zeros((n_t, N_JOINTS), dtype=np.intp),
+        "mirrored": np.zeros((n_t, n_s), dtype=bool),
     }
     if record:
         out["predicted"] = np.full((5, n_t, N_JOINTS, 3), np.nan)
@@ -617,6 +622,8 @@ def replay_streams(
             ev = None if evidence is None else (evidence[0][k], evidence[1][k], evidence[2][k])
             guess = _Guess(flips[k], x[k], cov_x[k], used[k])
             steps.append(fusion._step(float(tg[k]), z[k], cov[k], states[k], ev, guess))
+            if fusion.last_flips is not None:
+                out["mirrored"][a + k] = fusion.last_flips
             if record:
                 assert fusion.last_moments is not None and fusion.last_measurement is not None
                 g = a + k
