@@ -374,14 +374,13 @@ class LiveFusion:
             self._walk_t = t
             # ``f`` is 0 where a sensor has no facing (it sees no trunk): it has no vote, so it
             # does not make the others' tie decided
-            seen = f.any(axis=-1)
-            n_seen = int(seen.sum())
-            v0, v1, v2 = vote.tolist()
-            if (
-                n_seen > 0
-                and bool((amb | ~seen).all())
-                and math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) < opt.walk_tie * 0.5 * n_seen
-            ):
+            tie = False
+            if amb.any():
+                seen = f.any(axis=-1)
+                if (amb | ~seen).all():
+                    v0, v1, v2 = vote.tolist()
+                    tie = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) < opt.walk_tie * 0.5 * seen.sum()
+            if tie:
                 # only ambiguous sensors that do not agree (e.g. two, one seeing the back): their
                 # vote is a tie that the facing so far would freeze; a walking body faces where
                 # it goes. Ambiguous sensors that agree (two in front of a person walking
