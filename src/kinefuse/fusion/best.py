@@ -18,7 +18,7 @@ Each part can be switched off (:class:`BestOptions`) so that its gain can be mea
     Sensors that see the person from behind report left and right swapped. The body's facing
     is agreed frame by frame across sensors (a sensor whose reported facing points away from it
     cannot be swapped; one whose facing points toward it may be), with the fused facing so far
-    and, when every view is ambiguous, the walking direction (the causal vote of
+    and, when the views are all ambiguous and split, the walking direction (the causal vote of
     :mod:`kinefuse.fusion.live`); a sensor that contradicts it is mirrored back. Off:
     observations used as reported. (:func:`correct_swaps` is a vote per second without that
     continuity, for comparing raw sensors before fusion.)

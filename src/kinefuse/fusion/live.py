@@ -17,8 +17,8 @@ ahead:
   pelvis's walking direction joins the vote (``walk_weight``, ``walk_tie``); against the facing
   so far only once the body has walked against it for ``walk_against_s`` (a turn on the spot
   moves the pelvis backwards for a moment). Agreeing ambiguous views are not overruled by it
-  (two sensors in front of a person who walks backwards, in a real recording).
-  (Offline ``best`` votes over a centred 1 s window instead.)
+  (two sensors in front of a person who walks backwards, in a real recording). Offline
+  ``best`` replays this vote.
 - **Kalman filter**: one constant-velocity filter per joint and axis keeps its state between
   calls; a frame without measurements is a prediction; a joint unseen for ``max_predict_s``
   becomes missing.
