@@ -113,8 +113,9 @@ class LiveOptions:
     #: frozen wrong facing lasts the whole walk, a body turning round on the spot moves against
     #: its facing for less than a step (0.4 s in CMU 131_01, mirrored for 0.5 s without this)
     walk_against_s: float = 0.6
-    #: the walking direction joins only a tie: the ambiguous sensors' vote shorter than this
-    #: fraction of its largest possible length (every facing the same way)
+    #: the walking direction joins only a tie: one ambiguous view alone, or the ambiguous
+    #: sensors' vote shorter than this fraction of its largest possible length (every facing
+    #: the same way)
     walk_tie: float = 0.5
     #: samples a bone needs before the output is projected onto its running length
     bone_min_samples: int = 15
@@ -378,8 +379,11 @@ class LiveFusion:
             if amb.any():
                 seen = f.any(axis=-1)
                 if (amb | ~seen).all():
+                    # one ambiguous view alone cannot be checked by another: a tie too
+                    n_seen = int(seen.sum())
                     v0, v1, v2 = vote.tolist()
-                    tie = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) < opt.walk_tie * 0.5 * seen.sum()
+                    norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+                    tie = n_seen == 1 or norm < opt.walk_tie * 0.5 * n_seen
             if tie:
                 # only ambiguous sensors that do not agree (e.g. two, one seeing the back): their
                 # vote is a tie that the facing so far would freeze; a walking body faces where
