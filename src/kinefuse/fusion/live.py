@@ -34,7 +34,7 @@ a replay that pushes every observation captured up to ``T + latency_s`` before f
 replay prepares the measurements of many frames at once and equals pushing and fusing frame by
 frame, bit for bit.
 
-Why one module of about 630 lines: the state object and its batch replay are two drivers of the
+Why one module of about 680 lines: the state object and its batch replay are two drivers of the
 same steps, and that bit-for-bit identity is this module's contract; the math they share lives
 in :mod:`kinefuse.fusion.model`, what is left here is the two drivers and their bookkeeping.
 """
