@@ -12,7 +12,7 @@ the first frames and extrapolated per frame; both must give the same angles.
 
 ``accuracy``: the whole chain. A range-of-motion calibration phase is generated on the default
 pose of a real clip (CMU 131_01, start-walk-stop), put before that clip, watched by 4 simulated
-Kinect v2 sensors (``kinefuse.sensors.lab``), the sensors are calibrated from the wand
+Kinect v2 sensors (``kinefuse.sim.lab``), the sensors are calibrated from the wand
 (``full``), the skeleton is fused (``best``) and analysed. Measured: the axis error of Direction
 Joining, PCA and EM side by side (against the generator's true axes), the reconstruction error
 from the parameters, the twist error and the joint angles of the walk against the same analysis
@@ -88,8 +88,8 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     from kinefuse.io.store import SessionStore
     from kinefuse.pipeline import frame_grid, load_sensors, run_method
     from kinefuse.report.evaluate import calibration_alignment
-    from kinefuse.sensors.lab import LabConfig, _seeds, simulate_session
-    from kinefuse.sensors.tracker_body import _body_axes
+    from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
+    from kinefuse.sim.tracker_body import _body_axes
 
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])
@@ -162,7 +162,7 @@ def calibration_motion(rom_s: float, seed: int):  # type: ignore[no-untyped-def]
 
 
 def accuracy(args: argparse.Namespace) -> dict[str, object]:
-    from kinefuse.sensors.rig import default_rig, load_rig
+    from kinefuse.sim.rig import default_rig, load_rig
 
     d, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed)
     cal_s = 15.0
@@ -344,8 +344,8 @@ def _segment_offsets(joints: np.ndarray, norm: an.Normalization, body_offsets: n
 
 
 def floor(args: argparse.Namespace) -> dict[str, object]:
-    from kinefuse.sensors.lab import LabConfig, _seeds
-    from kinefuse.sensors.tracker_body import _body_axes
+    from kinefuse.sim.lab import LabConfig, _seeds
+    from kinefuse.sim.tracker_body import _body_axes
 
     _, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed)
     t_s = np.arange(int(combined.duration_s * 30.0)) / 30.0  # a Kinect's rate

@@ -31,9 +31,9 @@ from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_wa
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.geometry.transforms import invert_transform
-from kinefuse.sensors.choreography import holding_poses, make_wand_path
-from kinefuse.sensors.depth import Scene, render_depth
-from kinefuse.sensors.rig import default_rig
+from kinefuse.sim.choreography import holding_poses, make_wand_path
+from kinefuse.sim.depth import Scene, render_depth
+from kinefuse.sim.rig import default_rig
 from kinefuse.skeleton import JOINTS
 
 if hasattr(os, "sched_setaffinity"):

@@ -22,8 +22,8 @@ import numpy as np
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.geometry.raycast import ray_capsules, ray_plane
 from kinefuse.geometry.transforms import look_at
-from kinefuse.sensors import depth
-from kinefuse.sensors.depth import (
+from kinefuse.sim import depth
+from kinefuse.sim.depth import (
     Scene,
     render_depth,
     render_depth_m,

@@ -27,8 +27,8 @@ import numpy as np
 from kinefuse.app import place_actor
 from kinefuse.io.store import SessionStore
 from kinefuse.pipeline import frame_grid, load_sensors, run_method
-from kinefuse.sensors.lab import LabConfig, simulate_session
-from kinefuse.sensors.rig import default_rig
+from kinefuse.sim.lab import LabConfig, simulate_session
+from kinefuse.sim.rig import default_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_simulate import long_motion

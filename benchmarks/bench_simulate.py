@@ -23,8 +23,8 @@ import numpy as np
 from kinefuse.app import demo_clip_path, place_actor
 from kinefuse.motion import load_motion
 from kinefuse.motion.types import Motion
-from kinefuse.sensors.lab import LabConfig, simulate_session
-from kinefuse.sensors.rig import default_rig
+from kinefuse.sim.lab import LabConfig, simulate_session
+from kinefuse.sim.rig import default_rig
 
 SECONDS = 60.0
 TARGET_S = 20.0

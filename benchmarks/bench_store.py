@@ -28,7 +28,7 @@ def depth_codec() -> None:
 
     from kinefuse.geometry.transforms import look_at
     from kinefuse.io.store import decode_depth, encode_depth
-    from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
+    from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
     from kinefuse.skeleton import standing_pose
 
     rng = np.random.default_rng(1)

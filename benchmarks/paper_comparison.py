@@ -34,7 +34,7 @@ from kinefuse.motion import load_motion
 from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
 from kinefuse.report.evaluate import ABLATION, COMPARISONS, evaluate, truth_at
 from kinefuse.report.metrics import gain_ci
-from kinefuse.sensors.rig import load_rig
+from kinefuse.sim.rig import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

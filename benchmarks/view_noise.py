@@ -36,7 +36,7 @@ _ANGLES = ("hip_flexion_left", "hip_flexion_right", "knee_flexion_left", "knee_f
 
 
 def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Path):  # type: ignore[no-untyped-def]
-    from kinefuse.sensors.rig import default_rig, load_rig
+    from kinefuse.sim.rig import default_rig, load_rig
 
     clip = load_motion(CLIP)
     d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))

@@ -15,8 +15,8 @@ from kinefuse.fusion.best import (
 )
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.observations import BodyFrames
-from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
-from kinefuse.sensors.rig import default_rig
+from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
+from kinefuse.sim.rig import default_rig
 from kinefuse.skeleton import (
     JOINT_INDEX,
     MIRROR_INDEX,

@@ -1,6 +1,6 @@
 """Wand detection in depth frames: the robust detector and the paper's, on simulated and real data.
 
-Simulated frames come from the lab's renderer (``kinefuse.sensors.depth``) with its full Kinect v2
+Simulated frames come from the lab's renderer (``kinefuse.sim.depth``) with its full Kinect v2
 error model; real frames are the depth images in ``../shared/data/depth`` (no wand in them).
 """
 
@@ -29,8 +29,8 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.sensors.choreography import holding_poses
-from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
+from kinefuse.sim.choreography import holding_poses
+from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
 from kinefuse.skeleton import JOINTS
 
 INTR = Intrinsics()

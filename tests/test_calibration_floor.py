@@ -9,7 +9,7 @@ from kinefuse.calibration import FloorPlane, fit_floor_plane
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError, InputError
 from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
+from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
 
 INTR = Intrinsics()
 NO_OFFSET = DepthNoiseParams(

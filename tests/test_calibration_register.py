@@ -23,7 +23,7 @@ from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_wa
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError, InputError
 from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.sensors.depth import Scene, render_depth
+from kinefuse.sim.depth import Scene, render_depth
 
 INTR = Intrinsics()
 

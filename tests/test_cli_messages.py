@@ -10,7 +10,7 @@ import pytest
 from kinefuse.calibration.register import Sightings, register_full
 from kinefuse.cli import main
 from kinefuse.errors import CalibrationError, RigError
-from kinefuse.sensors.rig import load_rig
+from kinefuse.sim.rig import load_rig
 
 
 @pytest.mark.parametrize("command", ["realism", "realdata"])

@@ -35,7 +35,7 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.sensors.clock import ClockParams
+from kinefuse.sim.clock import ClockParams
 from kinefuse.sources import DepthFrame
 from test_client import LIMIT_S, TestServer, run
 

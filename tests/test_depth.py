@@ -15,7 +15,7 @@ from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules, ray_plane
 from kinefuse.geometry.transforms import apply_transform, look_at, make_transform
-from kinefuse.sensors.depth import (
+from kinefuse.sim.depth import (
     DEFAULT_DEPTH_NOISE,
     DepthNoiseParams,
     Scene,

@@ -14,7 +14,7 @@ from kinefuse.app import run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, SyncError
 from kinefuse.io.store import SessionStore
-from kinefuse.sensors.clock import (
+from kinefuse.sim.clock import (
     ClockParams,
     capture_times,
     clock_probes,

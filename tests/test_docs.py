@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from kinefuse.sensors.lab import describe_error_model
+from kinefuse.sim.lab import describe_error_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -14,5 +14,5 @@ def test_error_model_doc_matches_the_code() -> None:
     body = text.split("<!-- BEGIN GENERATED -->\n", 1)[1].split("<!-- END GENERATED -->", 1)[0]
     assert body.strip() == describe_error_model().strip(), (
         "docs/error_model.md is stale: regenerate its parameter section from "
-        "kinefuse.sensors.lab.describe_error_model()"
+        "kinefuse.sim.lab.describe_error_model()"
     )

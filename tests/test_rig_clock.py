@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import RigError
-from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_clock
-from kinefuse.sensors.rig import default_rig, load_rig, parse_rig, rig_to_toml
+from kinefuse.sim.clock import ClockParams, capture_times, clock_probes, draw_clock
+from kinefuse.sim.rig import default_rig, load_rig, parse_rig, rig_to_toml
 
 
 def test_default_layout_circle_heights_and_facing() -> None:
@@ -112,7 +112,7 @@ def test_ntp_probes_recover_the_offset(rng) -> None:
 
 
 def test_host_stamps_arrivals_on_its_own_clock(rng) -> None:
-    from kinefuse.sensors.clock import draw_sensor_clocks
+    from kinefuse.sim.clock import draw_sensor_clocks
 
     params = ClockParams(frame_drop_prob=0.0)
     clocks = draw_sensor_clocks(rng, params)

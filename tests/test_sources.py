@@ -124,7 +124,7 @@ def test_a_simulated_sensor_runs_live_with_the_batch_simulators_numbers(
     """``simlive:`` generates one sensor's frames as they are asked for; they are the frames the
     batch simulator stored for the same clip, rig and seed (the fixture's session: seed 0, 1 s
     of calibration at 5 Hz depth, 1 s of motion), bit for bit."""
-    from kinefuse.sensors.lab import SensorSimulation
+    from kinefuse.sim.lab import SensorSimulation
 
     clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"
     spec = f"simlive:{clip}#k1?seed=0&calibration=1&seconds=1&depth_rate=5"

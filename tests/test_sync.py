@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import SyncError
-from kinefuse.sensors.clock import ClockParams, capture_times, clock_probes, draw_clock
+from kinefuse.sim.clock import ClockParams, capture_times, clock_probes, draw_clock
 from kinefuse.sync import assemble_latest, estimate_clock, probe_offsets
 from kinefuse.sync.assembly import interp_neighbours, interpolate, latest_in_window
 

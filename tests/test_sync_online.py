@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import SyncError
-from kinefuse.sensors.clock import ClockParams, SensorClock, clock_probes, draw_clock
+from kinefuse.sim.clock import ClockParams, SensorClock, clock_probes, draw_clock
 from kinefuse.sync import OnlineClock, OnlineClockParams, ProbeStatus, estimate_clock
 
 Client = Callable[[np.ndarray], np.ndarray]

@@ -1,4 +1,4 @@
-"""The Kinect v2 body-tracker error model (kinefuse.sensors.tracker)."""
+"""The Kinect v2 body-tracker error model (kinefuse.sim.tracker)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules, ray_capsules_batched
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.sensors.tracker import (
+from kinefuse.sim.tracker import (
     JOINT_GROUPS,
     SessionLatent,
     SubjectBias,
@@ -511,7 +511,7 @@ def test_subject_seed_makes_takes_of_one_subject() -> None:
     without it (the default) the draws are those of the session seed alone, as before."""
     from dataclasses import replace
 
-    from kinefuse.sensors.lab import LabConfig, _seeds
+    from kinefuse.sim.lab import LabConfig, _seeds
 
     base = LabConfig(seed=3, calibration_s=0.0)
     plain = _seeds(3, 2, base).subject

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from kinefuse.errors import CalibrationError, InputError, KinefuseError, OutputError
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
-from kinefuse.sensors.rig import Rig
+from kinefuse.sim.rig import Rig
 from kinefuse.skeleton import JOINT_INDEX
 
 Array = NDArray[np.float64]
@@ -147,8 +147,8 @@ def run_simulate(
     from kinefuse.io.outputs import atomic_file
     from kinefuse.motion import load_motion
     from kinefuse.report.coverage import coverage_warnings, tracking_coverage
-    from kinefuse.sensors.lab import LabConfig, simulate_session
-    from kinefuse.sensors.rig import default_rig, load_rig
+    from kinefuse.sim.lab import LabConfig, simulate_session
+    from kinefuse.sim.rig import default_rig, load_rig
 
     say = progress or (lambda _m: None)
     check_session_out(out, force)

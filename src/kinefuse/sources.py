@@ -35,8 +35,8 @@ from kinefuse.skeleton import N_JOINTS
 
 if TYPE_CHECKING:
     from kinefuse.motion.types import Motion
-    from kinefuse.sensors.lab import LabConfig
-    from kinefuse.sensors.rig import Rig
+    from kinefuse.sim.lab import LabConfig
+    from kinefuse.sim.rig import Rig
 
 __all__ = [
     "BodyFrame",
@@ -236,7 +236,7 @@ class SimulatedSensorSource:
     The calibration phase's depth frames are rendered one at a time (the costly part, 26 ms a
     frame); the motion phase's body frames are drawn when the first of them is asked for (the
     tracker's error processes are smooth over the whole take), then handed out one by one.
-    The numbers are those :func:`kinefuse.sensors.lab.simulate_session` writes for the same
+    The numbers are those :func:`kinefuse.sim.lab.simulate_session` writes for the same
     ``motion``, ``rig``, sensor and seed (the same random streams in the same order).
 
     Parameters
@@ -269,7 +269,7 @@ class SimulatedSensorSource:
     ) -> None:
         from dataclasses import replace
 
-        from kinefuse.sensors.lab import LabConfig, SensorSimulation
+        from kinefuse.sim.lab import LabConfig, SensorSimulation
 
         cfg = replace(LabConfig() if config is None else config, seed=int(seed))
         self._args = (motion, rig, sensor_id, cfg)
@@ -288,7 +288,7 @@ class SimulatedSensorSource:
         return self._intrinsics
 
     def __iter__(self) -> Iterator[Frame]:
-        from kinefuse.sensors.lab import SensorSimulation
+        from kinefuse.sim.lab import SensorSimulation
 
         sim = SensorSimulation(*self._args)  # fresh random streams: every pass is the same
         if self._depth:
@@ -307,8 +307,8 @@ def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensor
 
     from kinefuse.app import place_actor
     from kinefuse.motion import load_motion
-    from kinefuse.sensors.lab import LabConfig
-    from kinefuse.sensors.rig import default_rig, load_rig
+    from kinefuse.sim.lab import LabConfig
+    from kinefuse.sim.rig import default_rig, load_rig
 
     known = {"rig", "seed", "calibration", "seconds", "sensors", "depth_rate"}
     args = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}

@@ -1,7 +1,7 @@
 """Synthetic calibration data with known truth, for tests, benchmarks and documentation.
 
 What the clients of a rig would send to the server during a calibration phase, without rendering
-depth frames (for those, use the simulator: ``kinefuse.sensors.depth.render_depth``): a rig of
+depth frames (for those, use the simulator: ``kinefuse.sim.depth.render_depth``): a rig of
 pitched and rolled sensors (:func:`make_rig`), a wand trajectory that follows the paper's protocol
 and then waves through the volume (:func:`wand_waving`), and the wand centres each sensor reports
 at its own 30 Hz frame times (unsynchronized phases, times on the server clock with a residual

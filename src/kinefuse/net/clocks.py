@@ -78,7 +78,7 @@ def real_host_clock(monotonic: Monotonic = time.monotonic) -> HostClock:
 
 @dataclass(frozen=True)
 class SimClockTruth:
-    """A simulated sensor's true clocks (``kinefuse.sensors.clock.SensorClocks.to_dict``).
+    """A simulated sensor's true clocks (``kinefuse.sim.clock.SensorClocks.to_dict``).
 
     ``device = offset_s + (1 + drift_ppm 1e-6) * t_true``; the host clock likewise with
     ``host_offset_s``/``host_drift_ppm``; ``latency_offset_s`` is the unit's extra mean

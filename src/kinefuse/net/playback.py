@@ -34,7 +34,7 @@ from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.io.store import SessionStore
 from kinefuse.net.clocks import SimClockTruth
-from kinefuse.sensors.clock import ClockParams
+from kinefuse.sim.clock import ClockParams
 from kinefuse.sources import BodyFrame, DepthFrame, Frame, FrameSource, SessionReplay, open_source
 
 #: the entry-point group a driver package registers its sources under

@@ -105,7 +105,7 @@ def playback_truth(side: dict[str, Any], sim_clock: dict[str, float]) -> Playbac
     """Read a sidecar against the sensor's true clocks in the simulated session.
 
     ``sim_clock`` is the sensor's clock dict in the simulated session's truth
-    (:meth:`kinefuse.sensors.clock.SensorClocks.to_dict`: ``offset_s``, ``drift_ppm``,
+    (:meth:`kinefuse.sim.clock.SensorClocks.to_dict`: ``offset_s``, ``drift_ppm``,
     ``host_offset_s``, ``host_drift_ppm``).
     """
 

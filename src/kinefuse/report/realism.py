@@ -8,7 +8,7 @@ Two checks (``docs/realism.md`` shows the table and how to recompute it):
    fit over all paired joints, and take the per-joint distances (:func:`disagreement`). The same
    procedure runs on a simulated copy of the layout (:func:`simulate_layout_disagreement`): the
    same two viewpoints, a real walking clip, the tracker model of
-   :mod:`kinefuse.sensors.tracker`, unsynchronized 30 Hz capture with the receiver's jitter.
+   :mod:`kinefuse.sim.tracker`, unsynchronized 30 Hz capture with the receiver's jitter.
    The subject-level bias is common to both sensors and invisible here; the view-dependent bias,
    jitter, inferred joints and swaps are what show.
 2. **One simulated sensor against the truth**
@@ -33,9 +33,9 @@ from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, kabsch, look_at
 from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
-from kinefuse.sensors.clock import ClockParams, capture_times, draw_clock
-from kinefuse.sensors.lab import subject_height
-from kinefuse.sensors.tracker import (
+from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
+from kinefuse.sim.lab import subject_height
+from kinefuse.sim.tracker import (
     SubjectBias,
     TrackerParams,
     draw_subject_bias,

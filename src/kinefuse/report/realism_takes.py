@@ -65,8 +65,8 @@ from kinefuse.report.realism import (
     walking_passes,
 )
 from kinefuse.report.realism_single import format_single, single_sensor_realism
-from kinefuse.sensors.lab import subject_height
-from kinefuse.sensors.tracker_params import TrackerParams
+from kinefuse.sim.lab import subject_height
+from kinefuse.sim.tracker_params import TrackerParams
 from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, bone_index_array, standing_pose
 
 Array = NDArray[np.float64]

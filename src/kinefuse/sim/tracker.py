@@ -54,7 +54,7 @@ from scipy.special import ndtr
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.tracker_body import (
+from kinefuse.sim.tracker_body import (
     _body_axes,
     _check_rigid,
     _default_local,
@@ -67,7 +67,7 @@ from kinefuse.sensors.tracker_body import (
     hold_to_body,
     joint_radii,
 )
-from kinefuse.sensors.tracker_params import (
+from kinefuse.sim.tracker_params import (
     JOINT_GROUPS,
     TrackerParams,
     describe_params,

@@ -1,4 +1,4 @@
-"""The parameters of the Kinect v2 body-tracker error model (:mod:`kinefuse.sensors.tracker`).
+"""The parameters of the Kinect v2 body-tracker error model (:mod:`kinefuse.sim.tracker`).
 
 Every number of the model lives in :class:`TrackerParams` with its unit, kind and source;
 ``docs/error_model_tracker.md`` explains them and ``docs/realism.md`` says what was fitted to

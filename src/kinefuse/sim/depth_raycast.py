@@ -1,7 +1,7 @@
-"""Casting a pinhole camera's rays into a :class:`~kinefuse.sensors.depth_scene.Scene`, all at
+"""Casting a pinhole camera's rays into a :class:`~kinefuse.sim.depth_scene.Scene`, all at
 once: the room analytically, capsules and spheres only on the pixels of their bounding
 rectangles (culling), z-buffered; the noise-free geometry (:func:`render_geometry`). Re-exported
-by :mod:`kinefuse.sensors.depth`, which adds the noise.
+by :mod:`kinefuse.sim.depth`, which adds the noise.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import check_rigid
-from kinefuse.sensors.depth_noise import (
+from kinefuse.sim.depth_noise import (
     DEFAULT_DEPTH_NOISE,
     DepthNoiseParams,
 )
-from kinefuse.sensors.depth_scene import Scene, SurfaceLabel
+from kinefuse.sim.depth_scene import Scene, SurfaceLabel
 
 Array = NDArray[np.float64]
 

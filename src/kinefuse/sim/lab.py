@@ -27,17 +27,17 @@ from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
-from kinefuse.sensors.choreography import WandPath, WandProtocol, holding_poses, make_wand_path
-from kinefuse.sensors.clock import (
+from kinefuse.sim.choreography import WandPath, WandProtocol, holding_poses, make_wand_path
+from kinefuse.sim.clock import (
     CaptureTimes,
     ClockParams,
     capture_times,
     clock_probes,
     draw_sensor_clocks,
 )
-from kinefuse.sensors.depth import DepthNoiseParams, Scene, render_depth
-from kinefuse.sensors.rig import Rig
-from kinefuse.sensors.tracker import (
+from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
+from kinefuse.sim.rig import Rig
+from kinefuse.sim.tracker import (
     SubjectBias,
     TrackerOutput,
     TrackerParams,

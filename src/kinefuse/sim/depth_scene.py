@@ -1,6 +1,6 @@
 """What the simulated depth camera sees: the lab room, the actor's capsule body and the wand
 (:class:`Scene`), and the surface labels of a rendered pixel. Re-exported by
-:mod:`kinefuse.sensors.depth`.
+:mod:`kinefuse.sim.depth`.
 """
 
 from __future__ import annotations

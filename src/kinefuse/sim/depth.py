@@ -37,13 +37,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.sensors.depth_noise import (
+from kinefuse.sim.depth_noise import (
     DEFAULT_DEPTH_NOISE,
     DepthNoiseParams,
     axial_sigma_m,
     systematic_offset_m,
 )
-from kinefuse.sensors.depth_raycast import (
+from kinefuse.sim.depth_raycast import (
     _RANGE_MARGIN_M,
     DepthGeometry,
     _base_rays,
@@ -53,7 +53,7 @@ from kinefuse.sensors.depth_raycast import (
     _room,
     render_geometry,
 )
-from kinefuse.sensors.depth_scene import Scene, SurfaceLabel
+from kinefuse.sim.depth_scene import Scene, SurfaceLabel
 
 Array = NDArray[np.float64]
 

@@ -1,4 +1,4 @@
-"""Geometry and noise helpers of the body-tracker model (:mod:`kinefuse.sensors.tracker`).
+"""Geometry and noise helpers of the body-tracker model (:mod:`kinefuse.sim.tracker`).
 
 Visibility of joints past the capsule body (ray casting), the body frame, default poses, the
 bone-length hold that keeps reported joints on a plausible body, and the correlated noise
@@ -15,7 +15,7 @@ from scipy.signal import lfilter
 
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules_batched
-from kinefuse.sensors.tracker_params import TrackerParams
+from kinefuse.sim.tracker_params import TrackerParams
 from kinefuse.skeleton import (
     JOINT_INDEX,
     JOINTS,

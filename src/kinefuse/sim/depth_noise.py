@@ -2,7 +2,7 @@
 (:class:`DepthNoiseParams`, every value with its unit, source and kind), and its axial noise
 and systematic offset.
 
-Split out of :mod:`kinefuse.sensors.depth` (which re-exports it): the parameters, not the
+Split out of :mod:`kinefuse.sim.depth` (which re-exports it): the parameters, not the
 renderer.
 """
 
