@@ -85,7 +85,7 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     so no fusion can remove it: the floor of a perfect fusion)."""
     from kinefuse.app import place_actor, resolve_poses
     from kinefuse.calibrate_app import run_calibrate
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline import frame_grid, load_sensors, run_method
     from kinefuse.report.evaluate import calibration_alignment
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session

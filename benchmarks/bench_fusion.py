@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.app import place_actor
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline import frame_grid, load_sensors, run_method
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig

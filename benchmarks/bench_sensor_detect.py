@@ -27,7 +27,7 @@ from kinefuse.app import run_simulate
 from kinefuse.calibration.wand_paper import detect_wand_paper
 from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client_parts import fit_floor
 from kinefuse.net.playback import SimTimeline
 from kinefuse.occlusion import detect_occlusion

@@ -20,7 +20,7 @@ import numpy as np
 from kinefuse.app import demo_clip_path, resolve_poses, run_simulate
 from kinefuse.calibrate_app import run_calibrate
 from kinefuse.fusion.session import frame_grid, load_sensors
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.fusion_loop import FrameFusion
 from kinefuse.net.server_client import Observation
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.report.inspect import inspect_session
 from kinefuse.skeleton import N_JOINTS
 
@@ -27,7 +27,7 @@ def depth_codec() -> None:
     import zlib
 
     from kinefuse.geometry.transforms import look_at
-    from kinefuse.io.store import decode_depth, encode_depth
+    from kinefuse.io.store.session import decode_depth, encode_depth
     from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
     from kinefuse.skeleton import standing_pose
 

@@ -218,8 +218,8 @@ def real_server(args: argparse.Namespace) -> dict[str, Any]:
     import time
 
     from kinefuse.app import demo_clip_path, run_simulate
-    from kinefuse.io.store import SessionStore
-    from kinefuse.io.store_live import live_fused
+    from kinefuse.io.store.session import SessionStore
+    from kinefuse.io.store.live import live_fused
     from kinefuse.live_demo import run_live
 
     cal_s = 15.0

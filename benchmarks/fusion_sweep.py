@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.app import run_simulate
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline import frame_grid, load_sensors, run_method
 from kinefuse.report.evaluate import truth_at
 

@@ -29,7 +29,7 @@ from kinefuse.app import place_actor, run_simulate
 from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
 from kinefuse.geometry.transforms import make_transform, rot_z
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.motion import load_motion
 from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
 from kinefuse.report.evaluate import ABLATION, COMPARISONS, evaluate, truth_at

@@ -58,7 +58,7 @@ def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Pat
 
 def _fuse(path: Path, options: BestOptions) -> an.SkeletonSequence:
     from kinefuse.app import resolve_poses
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline import frame_grid, load_sensors, run_method
 
     with SessionStore.open(path) as store:

@@ -10,8 +10,8 @@ import pytest
 from kinefuse.analysis_app import load_input, prepare_out
 from kinefuse.cli import main
 from kinefuse.errors import InputError, OutputError
-from kinefuse.io.sequences import sequence_from_markers, sequence_from_motion_file
-from kinefuse.io.store import SessionStore
+from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
+from kinefuse.io.store.session import SessionStore
 
 
 def _bone_in_limb_frame(seq, limb: str, a: str, b: str) -> np.ndarray:  # type: ignore[no-untyped-def]

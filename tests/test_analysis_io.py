@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError, MotionFormatError, OutputError
-from kinefuse.io.angles import read_angles_mot, write_angles_csv, write_angles_mot
-from kinefuse.io.marker_maps import (
+from kinefuse.io.formats.angles import read_angles_mot, write_angles_csv, write_angles_mot
+from kinefuse.io.formats.marker_maps import (
     apply_marker_map,
     hip_joint_centres,
     load_marker_map,
@@ -17,7 +17,7 @@ from kinefuse.io.marker_maps import (
     select_marker_map,
     shipped_marker_maps,
 )
-from kinefuse.io.markers import parse_trc, read_c3d, read_markers, read_trc, up_rotation
+from kinefuse.io.formats.markers import parse_trc, read_c3d, read_markers, read_trc, up_rotation
 from kinefuse.motion import read_amc, read_bvh
 
 WALK = "markers/opensim/Pipelines_Rajagopal_ExpData_motion_capture_walk.trc"
@@ -321,7 +321,7 @@ def test_writing_into_a_read_only_folder_fails_with_the_path_and_reason(
 
 
 def test_marker_clusters_give_limb_orientations(shared_data: Path) -> None:
-    from kinefuse.io.sequences import sequence_from_markers
+    from kinefuse.io.formats.sequences import sequence_from_markers
 
     s = sequence_from_markers(shared_data / STATIC)
     assert set(s.orientation_limbs) == {"thigh_left", "shank_left", "thigh_right", "shank_right"}
@@ -337,7 +337,7 @@ def test_marker_clusters_give_limb_orientations(shared_data: Path) -> None:
         name="t",
         origin="t.toml",
     )
-    from kinefuse.io.marker_maps import cluster_orientations
+    from kinefuse.io.formats.marker_maps import cluster_orientations
 
     with pytest.raises(InputError, match="thigh_left: A, B"):
         cluster_orientations(read_trc(shared_data / STATIC), mm)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kinefuse.cli import main
-from kinefuse.io.angles import read_angles_mot
+from kinefuse.io.formats.angles import read_angles_mot
 
 MOTION = [
     "motion/cmu/131_01_scaled_metres.bvh",

@@ -10,7 +10,7 @@ import pytest
 
 from kinefuse.calibration.calib_file import loads_calibration, read_calibration
 from kinefuse.cli import main
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -20,7 +20,7 @@ import pytest
 from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client import ClientOptions, SensorClient
 from kinefuse.net.clocks import HostClock, SimClockTruth
 from kinefuse.net.playback import SimTimeline, open_timeline

@@ -20,7 +20,7 @@ import pytest
 from kinefuse.cli import main
 from kinefuse.errors import OutputError
 from kinefuse.io.outputs import DIR_MARKER, atomic_dir, atomic_file
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -394,7 +394,7 @@ def test_demo_output_is_ignored_by_git() -> None:
 def test_depth_codec_is_lossless_and_smaller_than_zlib(session) -> None:
     import zlib
 
-    from kinefuse.io.store import decode_depth, encode_depth
+    from kinefuse.io.store.session import decode_depth, encode_depth
 
     with SessionStore.open(session) as st:
         _, _, frames = next(st.iter_depth_frames("k0", batch=4))

@@ -13,7 +13,7 @@ import pytest
 from kinefuse.app import run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, SyncError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.sim.clock import (
     ClockParams,
     capture_times,
@@ -146,7 +146,7 @@ class TruthRead(RuntimeError):
 
 def _forbid_truth(mp: pytest.MonkeyPatch) -> None:
     """Every way into the truth raises: the store's accessor and every method of ``Truth``."""
-    from kinefuse.io.store import Truth
+    from kinefuse.io.store.session import Truth
 
     def refuse(*_args: object, **_kwargs: object) -> None:
         raise TruthRead("calibration or fusion asked for the ground truth")

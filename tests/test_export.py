@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError
-from kinefuse.io.export import export_skeleton
+from kinefuse.io.formats.export import export_skeleton
 from kinefuse.skeleton import JOINTS
 
 

@@ -11,7 +11,7 @@ from kinefuse.fusion.live import LiveFusion, LiveOptions, replay
 from kinefuse.fusion.model import world_measurements
 from kinefuse.fusion.view import VIEW_JOINTS, side_view, view_variance
 from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline import frame_grid, load_sensors
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
 

@@ -10,7 +10,7 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, StoreError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.report.inspect import format_inspect, inspect_session
 from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
 

@@ -16,7 +16,7 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.report.live_consistency import recording_consistency
 from kinefuse.sources import BodyFrame, MultitrackReplay
 
@@ -31,7 +31,7 @@ def _log(shared_data: Path, pattern: str) -> Path:
 
 
 def _record(path: Path, out: Path) -> list[str]:
-    from kinefuse.io.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 
     ids = [s.sensor_id for s in read_kinect_multitrack(path).streams]
     with SessionStore.create(out) as st:

@@ -14,7 +14,7 @@ import pytest
 
 from kinefuse.app import demo_clip_path, run_simulate
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.report.live_eval import clock_errors, playback_truth, write_live_truth
 
 SERVER_T0 = 5000.0  # CLOCK_MONOTONIC instant the (pretend) server started, s
@@ -102,7 +102,7 @@ def test_clock_error_is_zero_for_symmetric_delays_and_half_the_asymmetry_otherwi
 
 
 def test_recorded_estimates_are_preferred_and_each_epoch_warms_up(tmp_path, sim) -> None:
-    from kinefuse.io.store_live import append_clock, create_live_tables
+    from kinefuse.io.store.live import append_clock, create_live_tables
 
     rec, sides = _recording(tmp_path, sim, probes_delays=(0.001, 0.001))
     write_live_truth(rec, sim, sides)

@@ -27,7 +27,7 @@ import pytest
 
 from kinefuse.app import demo_clip_path, run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.live_demo import ChildProcesses, parse_listening, sensor_args
 from kinefuse.protocol import codec
 from kinefuse.protocol.auth import compute_mac
@@ -76,14 +76,14 @@ def _server_t0(rec: Path) -> float:
 
 
 def _events(rec: Path) -> list[tuple[float, str, str | None, dict]]:
-    from kinefuse.io.store_live import events
+    from kinefuse.io.store.live import events
 
     with SessionStore.open(rec) as st:
         return events(st)
 
 
 def test_a_killed_client_rejoins_with_its_pose_and_fusion_goes_on(tmp_path, session) -> None:
-    from kinefuse.io.store_live import live_fused
+    from kinefuse.io.store.live import live_fused
 
     rec = tmp_path / "rec.sqlite"
     with ChildProcesses(tmp_path / "logs") as procs:
@@ -119,7 +119,7 @@ def test_a_killed_client_rejoins_with_its_pose_and_fusion_goes_on(tmp_path, sess
 
 
 def test_sigkill_of_the_server_loses_at_most_half_a_second(tmp_path, session) -> None:
-    from kinefuse.io.store_live import live_fused
+    from kinefuse.io.store.live import live_fused
 
     rec = tmp_path / "rec.sqlite"
     with ChildProcesses(tmp_path / "logs") as procs:
@@ -174,7 +174,7 @@ def _raw_peer(port: int, send: list[Message] | bytes, *, reply: bool = False) ->
 
 
 def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> None:
-    from kinefuse.io.store_live import live_fused
+    from kinefuse.io.store.live import live_fused
 
     rec = tmp_path / "rec.sqlite"
     intr = Intrinsics()
@@ -235,7 +235,7 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
 
 
 def test_a_real_log_replayed_by_two_sensor_processes(tmp_path, shared_data) -> None:
-    from kinefuse.io.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
     from kinefuse.report.live_consistency import recording_consistency
 
     logs = sorted((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_1_*.csv"))

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from kinefuse.app import demo_clip_path, run_simulate
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline import frame_grid, load_sensors, run_method
 
 

@@ -19,7 +19,7 @@ from kinefuse.calibration.body import (
 from kinefuse.cli import realdata_main as main
 from kinefuse.errors import InputError, SyncError
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.io.kinect_multitrack import (
+from kinefuse.io.formats.kinect_multitrack import (
     kmt_rotation,
     multitrack_sensor,
     read_kinect_multitrack,

@@ -9,7 +9,7 @@ import pytest
 
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
-from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.report.realism import (
     DEFAULT_HEADINGS,

@@ -10,7 +10,7 @@ import pytest
 
 from kinefuse.cli import main as cli_main
 from kinefuse.errors import InputError
-from kinefuse.io.kinect_multitrack import read_kinect_multitrack
+from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.report.realism import PairLayout
 from kinefuse.report.realism_takes import (

@@ -12,8 +12,8 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import OutputError
-from kinefuse.io import store_live
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store import live as store_live
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.publish import FusedFrame, Publisher
 from kinefuse.net.recorder import Recorder
 from kinefuse.skeleton import N_JOINTS

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from kinefuse.cli import main
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 

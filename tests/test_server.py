@@ -20,8 +20,8 @@ import pytest
 from kinefuse.calibration.calib_file import loads_calibration
 from kinefuse.calibration.session import calibrate
 from kinefuse.cli import main
-from kinefuse.io import store_live
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store import live as store_live
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.live_calibration import LiveCalibrationOptions
 from kinefuse.net.publish import FusedFrame
 from kinefuse.net.server import Server, ServerOptions

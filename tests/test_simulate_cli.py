@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kinefuse.cli import main
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import JOINTS, TrackingState
 
 

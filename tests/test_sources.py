@@ -11,7 +11,7 @@ import pytest
 
 from kinefuse.cli import main
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import TrackingState
 from kinefuse.sources import (
     BodyFrame,
@@ -80,7 +80,7 @@ def test_one_sensor_of_a_session_and_bad_names(session) -> None:
 
 
 def test_a_real_multitrack_log_replays_as_one_sensor(shared_data) -> None:
-    from kinefuse.io.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 
     path = next((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_0_*.csv"))
     rec = read_kinect_multitrack(path)

@@ -14,7 +14,7 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, StoreError
-from kinefuse.io.store import SCHEMA_VERSION, Observations, SensorInfo, SessionStore
+from kinefuse.io.store.session import SCHEMA_VERSION, Observations, SensorInfo, SessionStore
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -276,7 +276,7 @@ def test_crash_keeps_committed_appends(tmp_path: Path) -> None:
     script = textwrap.dedent(
         f"""
         import os, numpy as np
-        from kinefuse.io.store import SessionStore
+        from kinefuse.io.store.session import SessionStore
         from kinefuse.camera.intrinsics import Intrinsics
         s = SessionStore.create({str(path)!r})
         s.add_sensor("k0", "A", Intrinsics())

@@ -14,7 +14,7 @@ import pytest
 
 from kinefuse.cli import main
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.publish import FusedFrame, Publisher, SensorStatus, ServerStatus
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.replay import ReplaySource

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from kinefuse.app import demo_clip_path
 from kinefuse.cli import main as cli
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.publish import Publisher
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.feed import publish_session

@@ -87,7 +87,7 @@ def sequence_from_session(
     stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
     """
     from kinefuse.app import resolve_poses
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
 
     if method not in METHODS:
@@ -128,7 +128,7 @@ def load_input(
     true_calibration: bool = False,
 ) -> AnalysisInput:
     """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc)."""
-    from kinefuse.io.sequences import sequence_from_markers, sequence_from_motion_file
+    from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
 
     if not path.exists():
         raise InputError(f"{path}: no such file")
@@ -426,7 +426,7 @@ def record_rom_phase(session: Path, phase: RomPhase, start_s: float) -> None:
     """Store a simulated session's ROM phase: its interval as ordinary protocol metadata
     (``rom_phase_server_s``, what a real lab's protocol also knows), its truth in the truth
     info (``rom_truth``, read only by ``report/``)."""
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
 
     with SessionStore.open(session, writable=True) as store:
         store.set_meta("rom_phase_server_s", [start_s, start_s + phase.rom_s])

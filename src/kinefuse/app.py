@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import CalibrationError, InputError, KinefuseError, OutputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.motion.types import Motion
 from kinefuse.sim.rig import Rig
 from kinefuse.skeleton import JOINT_INDEX
@@ -317,7 +317,7 @@ def run_fuse(
     the work starts, so a bad ``out`` fails fast.
     """
     from kinefuse.fusion.status import status_counts
-    from kinefuse.io.export import check_export_path, export_skeleton
+    from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
     from kinefuse.pipeline import clip_grid, frame_grid, load_sensors, run_method
 

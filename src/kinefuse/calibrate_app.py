@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 
 def run_calibrate(

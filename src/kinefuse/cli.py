@@ -124,7 +124,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
     from kinefuse.report.inspect import format_inspect, inspect_session
 
     with SessionStore.open(args.session) as st:

@@ -325,7 +325,7 @@ def run_live(
     ``on_started(processes, sensor_children)`` is called once everything runs (the fault tests
     use it to kill a client mid-run). Every process must exit with status 0.
     """
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
     from kinefuse.net.proxy import ProxyThread, jitter_profiles
 
     with SessionStore.open(session) as st:
@@ -534,7 +534,7 @@ def run_live_demo(
 def _write_calibration(recording: Path, out: Path) -> None:
     """The calibration the server stored in the recording, as a calibration file."""
     from kinefuse.calibration.calib_file import write_calibration
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
 
     with SessionStore.open(recording) as st:
         for name in ("full", "paper", *st.calibration_names()):

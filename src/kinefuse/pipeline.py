@@ -32,8 +32,8 @@ from kinefuse.fusion.session import (
     frame_grid,
 )
 from kinefuse.fusion.session import run_method as _run_method
-from kinefuse.io import store_live
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store import live as store_live
+from kinefuse.io.store.session import SessionStore
 from kinefuse.occlusion.segments import detect_occlusion
 from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync import sensor_timebase

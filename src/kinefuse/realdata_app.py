@@ -6,7 +6,7 @@ far the two sensors are from each other, how far each is from the fused skeleton
 
 Pipeline (``docs/real_data.md`` shows the result and how to rerun it):
 
-1. **Frames** (:func:`kinefuse.io.kinect_multitrack.unique_frames`). Each sensor's rows are
+1. **Frames** (:func:`kinefuse.io.formats.kinect_multitrack.unique_frames`). Each sensor's rows are
    reduced to its distinct frames (a row repeats a sensor's latest skeleton whenever the other
    sensor triggered the log line; rows are also logged out of capture order). A frame's receive
    time is its first appearance.
@@ -21,7 +21,7 @@ Pipeline (``docs/real_data.md`` shows the result and how to rerun it):
    re-registers the other sensor rigidly onto the reference from the trunk joints at their
    aligned capture times (the body as the calibration object); the floor (``fit_foot_plane``,
    the plane of the standing feet) gives the world's up. See
-   :func:`kinefuse.io.kinect_multitrack.sensor_poses` for how each sensor's pose is
+   :func:`kinefuse.io.formats.kinect_multitrack.sensor_poses` for how each sensor's pose is
    reconstructed.
 4. **Fusion** with :func:`kinefuse.fusion.best.fuse_best` on a 30 Hz grid, with and without the
    left/right swap correction, and the per-joint consistency figures
@@ -42,7 +42,7 @@ from kinefuse.calibration.body import fit_foot_plane, refine_registration, world
 from kinefuse.errors import InputError
 from kinefuse.fusion.best import BestOptions
 from kinefuse.geometry.transforms import apply_transform, make_transform
-from kinefuse.io.kinect_multitrack import (
+from kinefuse.io.formats.kinect_multitrack import (
     LAYOUT_NAMES,
     LAYOUT_NOMINAL_DEG,
     SCENARIO_NAMES,

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.observations import BodyFrame, BodyFrames, DepthFrame, Frame
 from kinefuse.skeleton import N_JOINTS
 
@@ -152,7 +152,7 @@ class MultitrackReplay:
     """
 
     def __init__(self, path: str | Path, kinect_id: str | None = None) -> None:
-        from kinefuse.io.kinect_multitrack import read_kinect_multitrack
+        from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 
         rec = read_kinect_multitrack(path)
         ids = [s.sensor_id for s in rec.streams]

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 
 def is_loopback(host: str) -> bool:

@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.publish import Publisher
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.feed import publish_session

@@ -61,7 +61,7 @@ def check_output_folder(path: Path, what: str = "output") -> None:
 
 def is_kinefuse_session(path: Path) -> bool:
     """True if ``path`` is a SQLite file with kinefuse's session schema (not by its extension)."""
-    from kinefuse.io.store import APPLICATION_ID
+    from kinefuse.io.store.session import APPLICATION_ID
 
     try:
         with path.open("rb") as f:

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 #: a monotonic clock, seconds (injected so tests can drive time)
 Monotonic = Callable[[], float]

@@ -35,8 +35,8 @@ from numpy.typing import NDArray
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import OutputError
-from kinefuse.io import store_live
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store import live as store_live
+from kinefuse.io.store.session import SessionStore
 from kinefuse.net.publish import FusedFrame, ServerStatus, Subscription
 
 log = logging.getLogger("kinefuse.serve")

@@ -48,7 +48,7 @@ from pathlib import Path
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.errors import CalibrationError, SyncError
 from kinefuse.fusion.live import LiveOptions
-from kinefuse.io.store_live import SightingRow
+from kinefuse.io.store.live import SightingRow
 from kinefuse.net.fusion_loop import FrameFusion, FusionLoop
 from kinefuse.net.live_calibration import (
     CalibrationOutcome,

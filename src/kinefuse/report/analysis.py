@@ -31,7 +31,7 @@ from kinefuse.analysis.limbs import LIMB_NAMES, limb
 from kinefuse.analysis.normalize import normalize
 from kinefuse.analysis.parameterize import learn_axes
 from kinefuse.analysis.sequence import SkeletonSequence
-from kinefuse.io.angles import write_angles_csv, write_angles_mot
+from kinefuse.io.formats.angles import write_angles_csv, write_angles_mot
 
 if TYPE_CHECKING:
     from kinefuse.analysis_app import AnalysisInput

@@ -38,7 +38,7 @@ Array = NDArray[np.float64]
 
 def true_sequence(inp: AnalysisInput) -> tuple[SkeletonSequence, object | None] | None:
     """The true motion at the input's frame times, and the stored ROM truth (or None)."""
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
     from kinefuse.report.evaluate import truth_at
 
     with SessionStore.open(inp.path) as store:
@@ -169,7 +169,7 @@ def _true_world(
     """The generator's world axes, rotated into the calibration's world."""
     rot = np.eye(3)
     if not true_calibration and inp.sensor_poses is not None:
-        from kinefuse.io.store import SessionStore
+        from kinefuse.io.store.session import SessionStore
         from kinefuse.report.evaluate import calibration_alignment
 
         with SessionStore.open(inp.path) as store:

@@ -25,7 +25,7 @@ from kinefuse.calibration.evaluate import (
 from kinefuse.calibration.register import Registration
 from kinefuse.calibration.session import CalibrationInput, calibrate
 from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 
 def calibration_errors(

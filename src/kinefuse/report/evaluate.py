@@ -17,7 +17,7 @@ from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.status import status_counts
 from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
 from kinefuse.pipeline import (
     METHODS,

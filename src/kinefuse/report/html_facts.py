@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.session import SensorData
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import TrackingState
 from kinefuse.sync.ntp import probe_offsets
 
@@ -55,7 +55,7 @@ class SessionFacts:
 
 def _latencies(store: SessionStore) -> tuple[Array | None, str]:
     """The fused frames' latencies (ms) a live recording holds, and a note on what they are."""
-    from kinefuse.io.store_live import has_live_tables, live_fused
+    from kinefuse.io.store.live import has_live_tables, live_fused
 
     if has_live_tables(store):
         lat = live_fused(store).latency_s

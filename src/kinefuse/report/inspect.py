@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
 
 __all__ = ["format_inspect", "inspect_session"]

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
 

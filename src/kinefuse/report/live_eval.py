@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
 
@@ -279,13 +279,13 @@ def clock_errors(store: SessionStore, warmup_s: float = CLOCK_WARMUP_S) -> dict[
 
     The truth is the recording's (:func:`write_live_truth`: ``host_offset_s`` at server time 0,
     ``host_drift_ppm``). The estimate is the one the server recorded after every probe reply
-    (``live_clock``, :func:`kinefuse.io.store_live.clock_estimates`); a recording without it
+    (``live_clock``, :func:`kinefuse.io.store.live.clock_estimates`); a recording without it
     gets the online estimator (:class:`kinefuse.sync.online.OnlineClock`, default parameters)
     replayed over its probes. Errors are ``|estimate - truth|`` at the estimate's time, from
     ``warmup_s`` after the first estimate of each estimator epoch (a fresh start, e.g. after a
     reconnect, warms up again).
     """
-    from kinefuse.io.store_live import clock_estimates
+    from kinefuse.io.store.live import clock_estimates
 
     truth = store.truth()
     out: dict[str, Any] = {"by_sensor": {}, "warmup_s": warmup_s}
@@ -362,7 +362,7 @@ def live_vs_offline(store: SessionStore) -> dict[str, Any]:
     both over the frames x joints that both solved (``common``) and each over its own."""
     from kinefuse.app import resolve_poses
     from kinefuse.geometry.transforms import apply_transform
-    from kinefuse.io.store_live import live_fused
+    from kinefuse.io.store.live import live_fused
     from kinefuse.pipeline import load_sensors, run_method
     from kinefuse.report.evaluate import calibration_alignment, truth_at
 
@@ -402,7 +402,7 @@ def client_connections(store: SessionStore) -> dict[str, dict[str, Any]]:
     """Per sensor: its connections and how long before the playback of the simulated session
     started (true time 0, on the server clock) it first connected, seconds (negative: it joined
     late and missed the start of the wand phase)."""
-    from kinefuse.io.store_live import events
+    from kinefuse.io.store.live import events
 
     info = store.truth().info("live_playback")
     start = info.get("true_to_server_s") if isinstance(info, dict) else None
@@ -432,7 +432,7 @@ def evaluate_live(
         published, server clock), and with ``offline_report`` (``run_evaluate``'s) the offline
         MAE of each method.
     """
-    from kinefuse.io.store_live import live_fused
+    from kinefuse.io.store.live import live_fused
 
     with SessionStore.open(recording) as store:
         if not store.has_truth():
@@ -452,7 +452,7 @@ def evaluate_live(
         )
         # the same over the frames published before the first client left (the capture, without
         # the stop, when the last frames wait for clients that have ended)
-        from kinefuse.io.store_live import events
+        from kinefuse.io.store.live import events
 
         gone = [t for t, kind, _, _ in events(store) if kind == "disconnected"]
         before = lf.t_recorded_s < min(gone) if gone else np.ones(lf.t_server_s.size, bool)

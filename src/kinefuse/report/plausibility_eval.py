@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from kinefuse.analysis.limbs import LIMBS
 from kinefuse.errors import KinefuseError
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import JOINTS
 
 Array = NDArray[np.float64]

@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, kabsch, look_at
-from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
 from kinefuse.sim.lab import subject_height

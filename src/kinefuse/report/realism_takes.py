@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.report.realism import (
     _CORE,

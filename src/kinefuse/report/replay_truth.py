@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.geometry.transforms import apply_transform
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.report.evaluate import calibration_alignment, truth_at
 
 Array = NDArray[np.float64]

@@ -25,7 +25,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.motion.types import Motion
 from kinefuse.sim.choreography import WandPath, WandProtocol, holding_poses, make_wand_path
 from kinefuse.sim.clock import (

@@ -13,9 +13,9 @@ checkpoints and returns the file to the rollback-journal mode, so a closed sessi
 self-contained file.
 
 Parts of the store live beside it, by what they hold: the sensors' streams (observations, depth
-frames, clock probes: :mod:`~kinefuse.io.store_streams`), the truth (:mod:`~kinefuse.io.
-store_truth`), the encodings (:mod:`~kinefuse.io.store_codec`) and the live server's tables
-(:mod:`~kinefuse.io.store_live`). This module keeps the schema and the connection (about 670
+frames, clock probes: :mod:`~kinefuse.io.store.streams`), the truth (:mod:`~kinefuse.io.
+store_truth`), the encodings (:mod:`~kinefuse.io.store.codec`) and the live server's tables
+(:mod:`~kinefuse.io.store.live`). This module keeps the schema and the connection (about 670
 lines: the schema is one text and the class that owns the connection reads it everywhere).
 
 Arrays are stored as little-endian BLOBs, one row per frame: joints ``float64`` (25 x 3), states
@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, StoreError
-from kinefuse.io.store_codec import (
+from kinefuse.io.store.codec import (
     _F8,
     _I1,
     _JOINTS_BYTES,
@@ -62,8 +62,8 @@ from kinefuse.io.store_codec import (
     decode_depth,
     encode_depth,
 )
-from kinefuse.io.store_streams import SensorStreams
-from kinefuse.io.store_truth import Truth, TruthTables
+from kinefuse.io.store.streams import SensorStreams
+from kinefuse.io.store.truth import Truth, TruthTables
 from kinefuse.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS
 

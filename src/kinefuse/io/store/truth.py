@@ -2,7 +2,7 @@
 accessor :class:`Truth` that only evaluation code (``report/``) uses.
 
 The truth lives in the ``truth_*`` tables of the same SQLite file; :class:`TruthTables` adds
-their writers to :class:`~kinefuse.io.store.SessionStore`, which inherits it. The system under
+their writers to :class:`~kinefuse.io.store.session.SessionStore`, which inherits it. The system under
 test never reads them (the truth-firewall test empties them and makes :meth:`truth` raise).
 """
 
@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import check_rigid
-from kinefuse.io.store_codec import (
+from kinefuse.io.store.codec import (
     _F8,
     _U1,
     StorePart,
@@ -36,7 +36,7 @@ from kinefuse.io.store_codec import (
 from kinefuse.skeleton import N_JOINTS
 
 if TYPE_CHECKING:
-    from kinefuse.io.store import SessionStore
+    from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
 

@@ -1,6 +1,6 @@
 """What the sensors delivered, in the session store: body-tracker observations, calibration
-depth frames and clock probes (a part of :class:`~kinefuse.io.store.SessionStore`, which
-inherits :class:`SensorStreams`; split from :mod:`kinefuse.io.store` by what each part is).
+depth frames and clock probes (a part of :class:`~kinefuse.io.store.session.SessionStore`, which
+inherits :class:`SensorStreams`; split from :mod:`kinefuse.io.store.session` by what each part is).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, StoreError
-from kinefuse.io.store_codec import (
+from kinefuse.io.store.codec import (
     _F8,
     _I1,
     _U1,
@@ -38,7 +38,7 @@ from kinefuse.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 if TYPE_CHECKING:
-    from kinefuse.io.store import SensorInfo
+    from kinefuse.io.store.session import SensorInfo
 
 Array = NDArray[np.float64]
 

@@ -1,6 +1,6 @@
 """What a live recording holds beyond an ordinary session: the extra tables of ``kinefuse serve``.
 
-A live recording is an ordinary :class:`~kinefuse.io.store.SessionStore` (sensors, body
+A live recording is an ordinary :class:`~kinefuse.io.store.session.SessionStore` (sensors, body
 observations with device, host and server times, clock probes, calibrations, fused results), so
 every offline command reads it as it reads a simulated session. The server also records what
 only a live run has, in tables this module adds (``CREATE TABLE IF NOT EXISTS``: the store's own
@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.register import Sightings
-from kinefuse.io.store import SessionStore
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
 Array = NDArray[np.float64]

@@ -1,8 +1,8 @@
 """The session store's encodings: validation of what goes in, BLOBs, and the depth codec.
 
 Arrays are little-endian BLOBs, one row per frame; every BLOB's size is checked on read. Depth
-frames use the "KFD1" codec (:func:`encode_depth`). Split from :mod:`kinefuse.io.store`, which
-keeps the schema and the :class:`~kinefuse.io.store.SessionStore` class.
+frames use the "KFD1" codec (:func:`encode_depth`). Split from :mod:`kinefuse.io.store.session`, which
+keeps the schema and the :class:`~kinefuse.io.store.session.SessionStore` class.
 """
 
 from __future__ import annotations
@@ -194,8 +194,8 @@ def _json_dumps(value: object, what: str) -> str:
 
 
 class StorePart:
-    """Base of the parts of :class:`~kinefuse.io.store.SessionStore` kept in other modules
-    (:mod:`~kinefuse.io.store_streams`, :mod:`~kinefuse.io.store_truth`): declares, for the type
+    """Base of the parts of :class:`~kinefuse.io.store.session.SessionStore` kept in other modules
+    (:mod:`~kinefuse.io.store.streams`, :mod:`~kinefuse.io.store.truth`): declares, for the type
     checker, the connection helpers that SessionStore provides."""
 
     if TYPE_CHECKING:  # provided by SessionStore

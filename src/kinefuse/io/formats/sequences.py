@@ -10,7 +10,7 @@
   position-based frame of the normalization). The clip is not placed in a lab (the analysis
   does not depend on where the subject stands).
 * :func:`sequence_from_markers`: a TRC or C3D marker file through a marker map
-  (:mod:`kinefuse.io.marker_maps`): the map's joints only, with the orientations of the limbs
+  (:mod:`kinefuse.io.formats.marker_maps`): the map's joints only, with the orientations of the limbs
   the map gives a rigid marker cluster.
 
 Fused sessions are built by :func:`kinefuse.analysis_app.sequence_from_session` (it runs the
@@ -27,14 +27,14 @@ from numpy.typing import NDArray
 from kinefuse.analysis.limbs import LIMBS
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
-from kinefuse.io.marker_maps import (
+from kinefuse.io.formats.marker_maps import (
     MarkerMap,
     apply_marker_map,
     cluster_orientations,
     load_marker_map,
     select_marker_map,
 )
-from kinefuse.io.markers import read_markers
+from kinefuse.io.formats.markers import read_markers
 from kinefuse.motion.source import END_SITE_SUFFIX, SourceMotion, motion_suffix
 from kinefuse.skeleton import JOINTS
 
@@ -133,7 +133,7 @@ def sequence_from_markers(
         ``.trc`` or ``.c3d``.
     marker_map : MarkerMap, str or Path, optional
         A map, a shipped map's name or a TOML file; default: the shipped map whose joints the
-        file's markers all build (:func:`~kinefuse.io.marker_maps.select_marker_map`).
+        file's markers all build (:func:`~kinefuse.io.formats.marker_maps.select_marker_map`).
 
     Returns
     -------
@@ -147,7 +147,7 @@ def sequence_from_markers(
     MotionFormatError
         The file is malformed (with the line).
     """
-    from kinefuse.io.marker_maps import shipped_marker_maps
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
 
     markers = read_markers(path)
     if marker_map is None:
