@@ -87,7 +87,7 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     from kinefuse.calibrate_app import run_calibrate
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline import frame_grid, load_sensors, run_method
-    from kinefuse.report.evaluate import calibration_alignment
+    from kinefuse.evaluation.fusion import calibration_alignment
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
     from kinefuse.sim.tracker_body import _body_axes
 

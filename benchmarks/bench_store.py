@@ -14,7 +14,7 @@ import numpy as np
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.io.store.session import SessionStore
-from kinefuse.report.inspect import inspect_session
+from kinefuse.evaluation.inspect import inspect_session
 from kinefuse.skeleton import N_JOINTS
 
 SENSORS = 4

@@ -5,7 +5,7 @@ Run: ``python benchmarks/paper_comparison.py [--seeds 0 1 2]``. Prints Markdown 
 summary (the ones in docs/fusion.md). Reads the clips from ``../shared/data`` beside the project.
 
 Every gain comes with a 95 % interval (paired block bootstrap over frames,
-:func:`kinefuse.report.metrics.gain_ci`): a difference whose interval holds 0 is one the
+:func:`kinefuse.evaluation.metrics.gain_ci`): a difference whose interval holds 0 is one the
 session cannot tell from chance. Three parts:
 
 1. the methods and the ablation of ``best`` on the sessions as simulated;
@@ -32,8 +32,8 @@ from kinefuse.geometry.transforms import make_transform, rot_z
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion import load_motion
 from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
-from kinefuse.report.evaluate import ABLATION, COMPARISONS, evaluate, truth_at
-from kinefuse.report.metrics import gain_ci
+from kinefuse.evaluation.fusion import ABLATION, COMPARISONS, evaluate, truth_at
+from kinefuse.evaluation.metrics import gain_ci
 from kinefuse.sim.rig import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]

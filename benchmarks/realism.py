@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from kinefuse.report.realism import main
+from kinefuse.evaluation.realism import main
 
 if __name__ == "__main__":
     data = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -226,7 +226,7 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
     during = t[(t > t_bad - t0 - 1.0) & (t < t_done - t0 + 1.0)]
     assert during.size > 45 and np.diff(during).max() < 0.1  # and fused frames kept coming
     # and what was fused is right, with two sensors (best-live's facing is no tie any more)
-    from kinefuse.report.live_eval import live_vs_offline, write_live_truth
+    from kinefuse.evaluation.live import live_vs_offline, write_live_truth
 
     write_live_truth(rec, session, {sid: tmp_path / f"{sid}.json" for sid in ("k0", "k1")})
     with SessionStore.open(rec) as st:
@@ -236,7 +236,7 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
 
 def test_a_real_log_replayed_by_two_sensor_processes(tmp_path, shared_data) -> None:
     from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-    from kinefuse.report.live_consistency import recording_consistency
+    from kinefuse.evaluation.live_consistency import recording_consistency
 
     logs = sorted((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_1_*.csv"))
     if not logs:

@@ -120,8 +120,8 @@ def test_one_frame_bone_sweep_equals_the_batched_one() -> None:
 
 
 def test_best_live_is_close_to_offline_best_and_far_below_paper(session, sensors) -> None:
-    from kinefuse.report.evaluate import truth_at
-    from kinefuse.report.metrics import position_errors
+    from kinefuse.evaluation.fusion import truth_at
+    from kinefuse.evaluation.metrics import position_errors
 
     grid = frame_grid(sensors)
     with SessionStore.open(session) as st:

@@ -85,7 +85,7 @@ def test_a_turn_on_the_spot_is_not_mirrored_by_the_walking_vote(shared_data, tmp
     at 3.6 s the person turns round while the pelvis moves backwards at 1 m/s, and every sensor's
     view is ambiguous. The walking vote mirrored the skeleton for 0.5 s (29-46 cm; best-live
     6.2 cm against best's 4.3 cm over the clip)."""
-    from kinefuse.report.evaluate import truth_at
+    from kinefuse.evaluation.fusion import truth_at
 
     root = Path(__file__).resolve().parents[1]
     out = tmp_path / "turn.sqlite"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.report.metrics import bias_noise, gain, gain_ci, position_errors, verdict
+from kinefuse.evaluation.metrics import bias_noise, gain, gain_ci, position_errors, verdict
 
 
 @pytest.fixture

@@ -29,7 +29,7 @@ from kinefuse.io.formats.kinect_multitrack import (
 )
 from kinefuse.observations import BodyFrames
 from kinefuse.realdata_app import format_report, fuse_multitrack
-from kinefuse.report.consistency import consistency
+from kinefuse.evaluation.consistency import consistency
 from kinefuse.skeleton import (
     JOINT_INDEX,
     JOINTS,

@@ -11,7 +11,7 @@ from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
 from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
-from kinefuse.report.realism import (
+from kinefuse.evaluation.realism import (
     DEFAULT_HEADINGS,
     FACING_FRONT,
     PairLayout,
@@ -23,7 +23,7 @@ from kinefuse.report.realism import (
     real_disagreement,
     walking_passes,
 )
-from kinefuse.report.realism_single import format_single, single_sensor_realism
+from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -307,7 +307,7 @@ def test_single_sensor_realism(walk: Motion) -> None:
 
 
 def test_failures_reports_what_is_missed() -> None:
-    from kinefuse.report.realism_single import SingleSensorRealism
+    from kinefuse.evaluation.realism_single import SingleSensorRealism
 
     bad = SingleSensorRealism(
         median_of_joint_medians_m=0.2,

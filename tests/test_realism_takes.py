@@ -1,4 +1,4 @@
-"""Real against simulated figures per KinectMultiTrack take (kinefuse.report.realism_takes)."""
+"""Real against simulated figures per KinectMultiTrack take (kinefuse.evaluation.realism_takes)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from kinefuse.cli import main as cli_main
 from kinefuse.errors import InputError
 from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 from kinefuse.motion.types import Motion
-from kinefuse.report.realism import PairLayout
-from kinefuse.report.realism_takes import (
+from kinefuse.evaluation.realism import PairLayout
+from kinefuse.evaluation.realism_takes import (
     BANDS,
     FACTORS,
     FIGURE_KEYS,

@@ -70,7 +70,7 @@ def walk() -> np.ndarray:
     if not WALK.is_file():
         pytest.skip(f"real motion not found at {WALK}")
     from kinefuse.motion import load_motion
-    from kinefuse.report.realism import walking_passes
+    from kinefuse.evaluation.realism import walking_passes
 
     m = walking_passes(load_motion(WALK), [0.0], half_length_m=1.0)[0]
     return m.at(np.arange(0.0, m.duration_s, 1.0 / 30.0))

@@ -141,12 +141,12 @@ def run_simulate(
     Returns
     -------
     dict
-        ``out`` (path), ``coverage`` (:func:`kinefuse.report.coverage.tracking_coverage`) and
+        ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`) and
         ``warnings`` (list of str).
     """
     from kinefuse.io.outputs import atomic_file
     from kinefuse.motion import load_motion
-    from kinefuse.report.coverage import coverage_warnings, tracking_coverage
+    from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.sim.lab import LabConfig, simulate_session
     from kinefuse.sim.rig import default_rig, load_rig
 
@@ -204,7 +204,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
     """
     from kinefuse.fusion.session import METHODS
     from kinefuse.io.outputs import atomic_dir
-    from kinefuse.report.inspect import format_inspect, inspect_session
+    from kinefuse.evaluation.inspect import format_inspect, inspect_session
 
     say = print
     with atomic_dir(out_dir, what="demo output folder") as tmp:
@@ -371,7 +371,7 @@ def run_evaluate(
     """
     from kinefuse.io.outputs import atomic_dir, check_output_folder
     from kinefuse.pipeline import METHODS, load_sensors
-    from kinefuse.report.evaluate import calibration_alignment, evaluate, write_tables
+    from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -395,12 +395,12 @@ def run_evaluate(
         report, results, truth = evaluate(
             store, sensors, methods, truth2world=truth2world, start_s=start_s, end_s=end_s
         )
-        from kinefuse.report.plausibility_eval import plausibility_vs_errors
+        from kinefuse.evaluation.plausibility import plausibility_vs_errors
 
         report["plausibility"] = plausibility_vs_errors(store, results, truth)
         facts = None
         if out_dir is not None:
-            from kinefuse.report.html_facts import session_facts
+            from kinefuse.evaluation.report_facts import session_facts
 
             facts = session_facts(store, sensors, poses, source)
     report["calibration"] = source
@@ -469,7 +469,7 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
                      "interval, block bootstrap over frames):")  # fmt: skip
         for pair, v in comp.items():
             lines.append(f"  {pair:<22} {_gain_text(v)}")
-    from kinefuse.report.plausibility_eval import format_plausibility
+    from kinefuse.evaluation.plausibility import format_plausibility
 
     plaus = format_plausibility(report.get("plausibility"))
     if plaus:

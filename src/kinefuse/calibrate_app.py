@@ -85,7 +85,7 @@ def run_calibrate(
             "out": str(out) if out is not None and usable else None,
         }
         if store.has_truth():
-            from kinefuse.report.calibration import calibration_errors, write_calibration_report
+            from kinefuse.evaluation.calibration import calibration_errors, write_calibration_report
 
             errs = calibration_errors(store, reg)
             for s in result["sensors"]:

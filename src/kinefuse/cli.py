@@ -125,7 +125,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.report.inspect import format_inspect, inspect_session
+    from kinefuse.evaluation.inspect import format_inspect, inspect_session
 
     with SessionStore.open(args.session) as st:
         info = inspect_session(st)
@@ -271,7 +271,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_realism(args: argparse.Namespace) -> int:
-    from kinefuse.report.realism import main as realism_main
+    from kinefuse.evaluation.realism import main as realism_main
 
     return realism_main(args.rest)
 

@@ -11,7 +11,7 @@
 4. **stop** cleanly: every client ends with its source, then the server is asked to stop (SIGINT
    = a clean stop); every process must exit with status 0 within a bounded wait, or it is killed
    and the demo fails naming it; none is left behind, also on Ctrl-C;
-5. **evaluate** offline (:mod:`kinefuse.report.live_eval`): the truth is written into the
+5. **evaluate** offline (:mod:`kinefuse.evaluation.live`): the truth is written into the
    recording's truth tables, the recording is re-fused with ``best`` and the paper's chain,
    exported (``.c3d``, ``.trc``, ``.csv``) and scored; clock, calibration and latency figures.
 
@@ -452,7 +452,7 @@ def run_live_demo(
     from kinefuse.app import demo_clip_path, run_evaluate, run_fuse, run_simulate
     from kinefuse.io.outputs import atomic_dir
     from kinefuse.motion import load_motion
-    from kinefuse.report.live_eval import evaluate_live, format_live, write_live_truth
+    from kinefuse.evaluation.live import evaluate_live, format_live, write_live_truth
 
     if not 1 <= sensors <= 8:
         raise InputError(f"--sensors must be between 1 and 8, got {sensors}")

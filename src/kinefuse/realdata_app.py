@@ -25,7 +25,7 @@ Pipeline (``docs/real_data.md`` shows the result and how to rerun it):
    reconstructed.
 4. **Fusion** with :func:`kinefuse.fusion.best.fuse_best` on a 30 Hz grid, with and without the
    left/right swap correction, and the per-joint consistency figures
-   (:func:`kinefuse.report.consistency.consistency`).
+   (:func:`kinefuse.evaluation.consistency.consistency`).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from kinefuse.io.formats.kinect_multitrack import (
     unique_frames,
 )
 from kinefuse.observations import BodyFrames
-from kinefuse.report.consistency import consistency, pair_disagreement, pose_summary
+from kinefuse.evaluation.consistency import consistency, pair_disagreement, pose_summary
 from kinefuse.skeleton import JOINTS
 from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
 

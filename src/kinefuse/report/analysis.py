@@ -167,7 +167,7 @@ def analyse_one(
     report["plausibility"] = _flag_summary(plausibility(angles, dj), seq.t_s, phase)
     truth = None
     if inp.kind == "session":
-        from kinefuse.report.analysis_truth import truth_figures
+        from kinefuse.evaluation.analysis import truth_figures
 
         truth = truth_figures(inp, res, phase, true_calibration=true_calibration)
         if truth is not None:

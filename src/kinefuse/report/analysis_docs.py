@@ -251,7 +251,7 @@ def true_motion_consistency(takes: Sequence[Path]) -> dict[str, Any]:
     from kinefuse.analysis.consistency import normalization_consistency
     from kinefuse.analysis.normalize import normalize
     from kinefuse.analysis_app import load_input
-    from kinefuse.report.analysis_truth import true_sequence
+    from kinefuse.evaluation.analysis import true_sequence
 
     norms = []
     for s in takes:

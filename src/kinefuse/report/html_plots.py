@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from kinefuse.fusion.session import MethodResult
-from kinefuse.report.html_facts import SessionFacts
+from kinefuse.evaluation.report_facts import SessionFacts
 from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 Array = NDArray[np.float64]

@@ -2,7 +2,7 @@
 
 Everything here comes from what a real server has (observations, clock probes, the stored
 calibration and fused results); the truth, for simulated sessions, comes only through
-:func:`kinefuse.report.replay_truth.replay_truth`.
+:func:`kinefuse.evaluation.replay_truth.replay_truth`.
 """
 
 from __future__ import annotations
@@ -185,7 +185,7 @@ def load_session_view(
         )
     truth, note = None, ""
     if with_truth:
-        from kinefuse.report.replay_truth import replay_truth
+        from kinefuse.evaluation.replay_truth import replay_truth
 
         truth, note = replay_truth(store, t_grid, methods[order[0]][0], poses)
     return SessionView(

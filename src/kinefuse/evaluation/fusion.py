@@ -27,7 +27,7 @@ from kinefuse.pipeline import (
     frame_grid,
     run_method,
 )
-from kinefuse.report.metrics import bias_noise, gain, position_errors
+from kinefuse.evaluation.metrics import bias_noise, gain, position_errors
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState
 
 Array = NDArray[np.float64]

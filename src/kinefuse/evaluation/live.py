@@ -364,7 +364,7 @@ def live_vs_offline(store: SessionStore) -> dict[str, Any]:
     from kinefuse.geometry.transforms import apply_transform
     from kinefuse.io.store.live import live_fused
     from kinefuse.pipeline import load_sensors, run_method
-    from kinefuse.report.evaluate import calibration_alignment, truth_at
+    from kinefuse.evaluation.fusion import calibration_alignment, truth_at
 
     lf = live_fused(store)
     poses, _ = resolve_poses(store, None, False)

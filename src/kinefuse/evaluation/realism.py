@@ -12,8 +12,8 @@ Two checks (``docs/realism.md`` shows the table and how to recompute it):
    The subject-level bias is common to both sensors and invisible here; the view-dependent bias,
    jitter, inferred joints and swaps are what show.
 2. **One simulated sensor against the truth**
-   (:func:`kinefuse.report.realism_single.single_sensor_realism`).
-3. **Figures per take**, real beside simulated (:mod:`kinefuse.report.realism_takes`, the
+   (:func:`kinefuse.evaluation.realism_single.single_sensor_realism`).
+3. **Figures per take**, real beside simulated (:mod:`kinefuse.evaluation.realism_takes`, the
    ``kinefuse realism`` command).
 
 This is evaluation code: it reads the simulator's truth.
@@ -576,8 +576,8 @@ FACING_FRONT = tuple(np.radians([-45.0, 0.0, 45.0]))
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``kinefuse realism``: real against simulated figures per take
-    (:func:`kinefuse.report.realism_takes.main` has the options)."""
-    from kinefuse.report.realism_takes import main as takes_main
+    (:func:`kinefuse.evaluation.realism_takes.main` has the options)."""
+    from kinefuse.evaluation.realism_takes import main as takes_main
 
     return takes_main(argv)
 

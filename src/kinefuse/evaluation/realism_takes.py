@@ -6,7 +6,7 @@ function (:func:`pair_figures`) for both:
 
 ``median_m``, ``p95_m``
     all per-joint distances after pairing by receive time and one Kabsch fit
-    (:func:`kinefuse.report.realism.disagreement`);
+    (:func:`kinefuse.evaluation.realism.disagreement`);
 ``trunk_median_m``, ``extremity_median_m``
     the same distances pooled over the spine and shoulders, and over wrists, hands, ankles, feet;
 ``lr_disagreement_fraction``
@@ -27,8 +27,8 @@ sensor's own clock.
 
 The simulated copy: the layout from the file (logged distances, the side sensor's azimuth from
 the logged initial body angle corrected by the rigid fit of the real streams), the walking clip
-replayed at the take's speed profile (:func:`kinefuse.report.realism.motion_profile`), both
-sensors through :func:`kinefuse.report.realism.simulate_pair`, one simulation per seed; the
+replayed at the take's speed profile (:func:`kinefuse.evaluation.realism.motion_profile`), both
+sensors through :func:`kinefuse.evaluation.realism.simulate_pair`, one simulation per seed; the
 simulated figures are the mean over seeds with their range.
 
 This is evaluation code (it reads the simulator's truth through ``simulate_pair``).
@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.errors import InputError
 from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
-from kinefuse.report.realism import (
+from kinefuse.evaluation.realism import (
     _CORE,
     _EXTREMITIES,
     DEFAULT_HEADINGS,
@@ -64,7 +64,7 @@ from kinefuse.report.realism import (
     simulate_pair,
     walking_passes,
 )
-from kinefuse.report.realism_single import format_single, single_sensor_realism
+from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
 from kinefuse.sim.lab import subject_height
 from kinefuse.sim.tracker_params import TrackerParams
 from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, bone_index_array, standing_pose
@@ -293,7 +293,7 @@ def take_passes(walk: Motion, still_fraction: float, moving_speed_m_s: float) ->
     """The simulated person's motion for a take with this speed profile.
 
     Walking passes facing the front sensor and 45 degrees to either side, forward and backward,
-    at the take's moving speed (:func:`kinefuse.report.realism.walking_passes`), and a stand
+    at the take's moving speed (:func:`kinefuse.evaluation.realism.walking_passes`), and a stand
     facing the front sensor (the real subjects stood facing it; feet apart and arms down,
     :func:`kinefuse.skeleton.standing_pose` at the walker's height) as long as the take's share
     of still frames asks. An all-standing take gets the stand alone.

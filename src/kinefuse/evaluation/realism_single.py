@@ -18,7 +18,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.motion.types import Motion
-from kinefuse.report.realism import _CORE, _EXTREMITIES
+from kinefuse.evaluation.realism import _CORE, _EXTREMITIES
 from kinefuse.sim.lab import subject_height
 from kinefuse.sim.tracker import TrackerParams, draw_subject_bias, simulate_tracker
 from kinefuse.skeleton import (

@@ -39,7 +39,7 @@ Array = NDArray[np.float64]
 def true_sequence(inp: AnalysisInput) -> tuple[SkeletonSequence, object | None] | None:
     """The true motion at the input's frame times, and the stored ROM truth (or None)."""
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.report.evaluate import truth_at
+    from kinefuse.evaluation.fusion import truth_at
 
     with SessionStore.open(inp.path) as store:
         if not store.has_truth():
@@ -170,7 +170,7 @@ def _true_world(
     rot = np.eye(3)
     if not true_calibration and inp.sensor_poses is not None:
         from kinefuse.io.store.session import SessionStore
-        from kinefuse.report.evaluate import calibration_alignment
+        from kinefuse.evaluation.fusion import calibration_alignment
 
         with SessionStore.open(inp.path) as store:
             truth2world, _ = calibration_alignment(store, inp.sensor_poses)

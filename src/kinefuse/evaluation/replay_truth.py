@@ -4,7 +4,7 @@ The viewer shows stored fused results, which a session does not tag with the cal
 were fused with: ``kinefuse fuse --store`` uses the session's calibration (its own world: origin
 and heading are the protocol's choice), ``--true-calibration`` the simulator's world. As
 ``kinefuse evaluate`` does, the truth is moved into the calibration's world (the
-yaw-and-translation alignment of :func:`kinefuse.report.evaluate.calibration_alignment`),
+yaw-and-translation alignment of :func:`kinefuse.evaluation.fusion.calibration_alignment`),
 unless the unaligned truth is less than half as far from the shown result (then that result was
 evidently fused with the true poses); the page says which.
 """
@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from kinefuse.geometry.transforms import apply_transform
 from kinefuse.io.store.session import SessionStore
-from kinefuse.report.evaluate import calibration_alignment, truth_at
+from kinefuse.evaluation.fusion import calibration_alignment, truth_at
 
 Array = NDArray[np.float64]
 

@@ -65,7 +65,7 @@ def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]
         None without truth; ``lr_swap_fraction`` (frames the simulator swapped left/right among
         matched frames with a body) or None without truth; ``complete`` (the writer finished);
         ``storage_bytes`` (``file``, ``depth_frames``, ``observations``); ``coverage``
-        (:func:`kinefuse.report.coverage.tracking_coverage`: how much of the time each sensor
+        (:func:`kinefuse.evaluation.coverage.tracking_coverage`: how much of the time each sensor
         saw the body, when fewer than 2 did; no truth used) and its ``warnings``;
         ``calibrations``; ``fused_methods``. Distances in metres; a figure with no data is None.
     """
@@ -156,7 +156,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
         }
         swap_fraction = _num(swapped_frames / body_frames) if body_frames else None
 
-    from kinefuse.report.coverage import coverage_warnings, tracking_coverage
+    from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
 
     coverage = tracking_coverage(store)
     return {

@@ -2,7 +2,7 @@
 
 When real sensors, or a real log replayed by ``kinefuse sensor --source multitrack:...``, stream
 into ``kinefuse serve``, the recording has no ground truth; what can be measured is how well the
-sensors agree with each other and with their fused skeleton (:mod:`kinefuse.report.consistency`,
+sensors agree with each other and with their fused skeleton (:mod:`kinefuse.evaluation.consistency`,
 the figures ``kinefuse realdata`` reports for the KinectMultiTrack logs). This module computes
 them from the recording alone, with what the live system recorded:
 
@@ -41,7 +41,7 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
         JSON-ready: ``file``, ``sensors`` (the first is the reference), ``registration``
         (``"calibration"`` or ``"body"``, with the trunk disagreement before and after the body
         registration), ``clocks`` (per sensor: frames, the device->host and host->server fits),
-        ``duration_s``, and the figures of :func:`kinefuse.report.consistency.consistency`:
+        ``duration_s``, and the figures of :func:`kinefuse.evaluation.consistency.consistency`:
         ``disagreement`` (per pair, ``{"all": [median_m, p95_m], "by_joint": ..., "n"}``),
         ``to_fused``, ``to_fused_no_lr``, ``swaps``, ``frames``, ``frames_with_body``,
         ``fused_finite``.
@@ -49,7 +49,7 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
     from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
     from kinefuse.calibration.calib_file import loads_calibration
     from kinefuse.pipeline import load_sensors
-    from kinefuse.report.consistency import consistency
+    from kinefuse.evaluation.consistency import consistency
 
     if not (math.isfinite(grid_hz) and grid_hz > 0):
         raise InputError(f"grid_hz must be a positive frame rate in Hz, got {grid_hz!r}")
