@@ -28,8 +28,8 @@ from kinefuse.calibration.wand_paper import detect_wand_paper
 from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.client_parts import fit_floor
-from kinefuse.net.playback import SimTimeline
+from kinefuse.net.client.parts import fit_floor
+from kinefuse.net.client.playback import SimTimeline
 from kinefuse.occlusion import detect_occlusion
 
 ROOT = Path(__file__).resolve().parents[1]

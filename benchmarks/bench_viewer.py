@@ -4,7 +4,7 @@
                                       [--client browser|ws] [--json FILE]
 
 A 30 Hz "server" loop publishes fused frames (the fused skeleton plus ``--sensors`` raw
-skeletons, the size a real 8-sensor frame has) through :class:`kinefuse.net.publish.Publisher`
+skeletons, the size a real 8-sensor frame has) through :class:`kinefuse.net.bus.Publisher`
 on one asyncio loop, with a lossless recorder subscription (as the real server's recorder) and
 the live viewer (:func:`kinefuse.viewer.live_viewer`) serving on loopback. Phases without and
 with a connected viewer alternate (``--rounds`` times each, ``--phase-s`` seconds each) in the
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.net.publish import FusedFrame, Publisher, SensorStatus, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, SensorStatus, ServerStatus
 from kinefuse.skeleton import N_JOINTS, standing_pose
 from kinefuse.viewer import live_viewer
 

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
-from kinefuse.net.clocks import HostClock, real_host_clock
-from kinefuse.net.playback import SourceTimeline
+from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
+from kinefuse.net.client.clocks import HostClock, real_host_clock
+from kinefuse.net.client.playback import SourceTimeline
 from kinefuse.occlusion import detect_occlusion
 from kinefuse.protocol import (
     PROTOCOL_VERSION,

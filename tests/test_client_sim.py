@@ -21,9 +21,9 @@ from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.client import ClientOptions, SensorClient
-from kinefuse.net.clocks import HostClock, SimClockTruth
-from kinefuse.net.playback import SimTimeline, open_timeline
+from kinefuse.net.client.client import ClientOptions, SensorClient
+from kinefuse.net.client.clocks import HostClock, SimClockTruth
+from kinefuse.net.client.playback import SimTimeline, open_timeline
 from kinefuse.protocol import (
     BodyFrame,
     CalibrationStop,

@@ -6,7 +6,7 @@ import asyncio
 
 import numpy as np
 
-from kinefuse.net.publish import FusedFrame, Publisher, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, ServerStatus
 
 
 def _frame(seq: int) -> FusedFrame:

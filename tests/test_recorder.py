@@ -14,8 +14,8 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import OutputError
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.publish import FusedFrame, Publisher
-from kinefuse.net.recorder import Recorder
+from kinefuse.net.bus import FusedFrame, Publisher
+from kinefuse.net.server.recorder import Recorder
 from kinefuse.skeleton import N_JOINTS
 
 

@@ -22,9 +22,9 @@ from kinefuse.calibration.session import calibrate
 from kinefuse.cli import main
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.live_calibration import LiveCalibrationOptions
-from kinefuse.net.publish import FusedFrame
-from kinefuse.net.server import Server, ServerOptions
+from kinefuse.net.server.calibration import LiveCalibrationOptions
+from kinefuse.net.bus import FusedFrame
+from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.pipeline import gather_calibration as gather
 from kinefuse.protocol import (
     AuthReply,

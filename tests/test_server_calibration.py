@@ -13,7 +13,7 @@ from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_wa
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError
 from kinefuse.geometry.transforms import invert_transform
-from kinefuse.net.live_calibration import LiveCalibration, LiveCalibrationOptions
+from kinefuse.net.server.calibration import LiveCalibration, LiveCalibrationOptions
 
 IDS = ("a", "b", "c", "d")
 

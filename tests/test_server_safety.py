@@ -18,8 +18,8 @@ import pytest
 
 from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.publish import FusedFrame
-from kinefuse.net.server import Server, ServerOptions, is_loopback
+from kinefuse.net.bus import FusedFrame
+from kinefuse.net.server.server import Server, ServerOptions, is_loopback
 from kinefuse.protocol import (
     AuthReply,
     BodyFrame,

@@ -15,7 +15,7 @@ import pytest
 from kinefuse.cli import main
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.publish import FusedFrame, Publisher, SensorStatus, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, SensorStatus, ServerStatus
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.replay import ReplaySource
 from kinefuse.viewer.session_data import load_session_view

@@ -26,7 +26,7 @@ from pathlib import Path
 from kinefuse.app import demo_clip_path
 from kinefuse.cli import main as cli
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.publish import Publisher
+from kinefuse.net.bus import Publisher
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.feed import publish_session
 from kinefuse.viewer.replay import ReplaySource

@@ -128,9 +128,9 @@ def cmd_sensor(args: argparse.Namespace) -> int:
 
     from kinefuse import __version__
     from kinefuse.io.outputs import json_recognizer, refuse_unless_ours
-    from kinefuse.net.client import ClientOptions, ClientRefused, SensorClient
-    from kinefuse.net.clocks import HostClock, real_host_clock
-    from kinefuse.net.playback import open_timeline
+    from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClient
+    from kinefuse.net.client.clocks import HostClock, real_host_clock
+    from kinefuse.net.client.playback import open_timeline
 
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,

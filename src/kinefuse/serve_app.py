@@ -95,14 +95,14 @@ def run_serve(
     verbose: bool = False,
 ) -> int:
     """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop."""
-    from kinefuse.net.live_calibration import LiveCalibrationOptions
-    from kinefuse.net.server import Server, ServerOptions
+    from kinefuse.net.server.calibration import LiveCalibrationOptions
+    from kinefuse.net.server.server import Server, ServerOptions
 
     _setup_logging(verbose)
     if not (math.isfinite(latency_budget_ms) and latency_budget_ms >= 0):
         raise InputError(f"--latency-budget-ms must be >= 0, got {latency_budget_ms}")
     if record is not None:
-        from kinefuse.net.recorder import check_recording_path
+        from kinefuse.net.server.recorder import check_recording_path
 
         check_recording_path(record)
     options = ServerOptions(

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.publish import Publisher
+from kinefuse.net.bus import Publisher
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.feed import publish_session
 from kinefuse.viewer.replay import ReplaySource

@@ -1,4 +1,4 @@
-"""Publish a recorded session into a :class:`~kinefuse.net.publish.Publisher` as a live server
+"""Publish a recorded session into a :class:`~kinefuse.net.bus.Publisher` as a live server
 would: a :class:`FusedFrame` every frame period, a :class:`ServerStatus` every second.
 
 This is how the viewer is exercised without the live server (tests, the README screenshot, the
@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from kinefuse.net.publish import FusedFrame, Publisher, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, ServerStatus
 from kinefuse.viewer.session_data import SessionView
 
 

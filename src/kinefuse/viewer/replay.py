@@ -17,7 +17,7 @@ from typing import Any
 
 from aiohttp import web
 
-from kinefuse.net.publish import ServerStatus
+from kinefuse.net.bus import ServerStatus
 from kinefuse.viewer.server import read_commands
 from kinefuse.viewer.session_data import SessionView
 from kinefuse.viewer.wire import FUSED, RAW, TRUTH, Layer, encode_frame, status_message

@@ -1,7 +1,7 @@
 """The viewer's web server: the page, its static files and one WebSocket, over aiohttp.
 
 Two data sources sit behind one small interface (:class:`Source`): :class:`LiveSource` follows a
-:class:`~kinefuse.net.publish.Publisher` (the live server), :class:`~kinefuse.viewer.replay.
+:class:`~kinefuse.net.bus.Publisher` (the live server), :class:`~kinefuse.viewer.replay.
 ReplaySource` plays a recorded session. Each WebSocket connection gets its own
 ``Source.serve`` call; the server only moves bytes.
 
@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 from aiohttp import WSMsgType, web
 
-from kinefuse.net.publish import FusedFrame, Publisher, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, ServerStatus
 from kinefuse.viewer.wire import fused_frame_bytes, hello_message, status_message
 
 #: Default host: loopback only (a viewer shows a lab's capture; exposing it is a choice).

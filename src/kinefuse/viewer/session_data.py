@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.publish import SensorStatus
+from kinefuse.net.bus import SensorStatus
 from kinefuse.skeleton import TrackingState
 from kinefuse.sync import sensor_timebase
 from kinefuse.sync.ntp import probe_offsets

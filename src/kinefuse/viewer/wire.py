@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.net.publish import FusedFrame, ServerStatus
+from kinefuse.net.bus import FusedFrame, ServerStatus
 from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS
 
 FRAME = 1
@@ -122,7 +122,7 @@ def decode_frame(data: bytes) -> Frame:
 
 
 def fused_frame_bytes(frame: FusedFrame, *, method: str = "fused") -> bytes:
-    """The binary frame of a live :class:`~kinefuse.net.publish.FusedFrame`: the fused layer,
+    """The binary frame of a live :class:`~kinefuse.net.bus.FusedFrame`: the fused layer,
     then each sensor's raw skeleton (sorted by sensor id)."""
     layers = [Layer(FUSED, method, frame.positions_m, frame.status)]
     layers += [Layer(RAW, sid, frame.raw_m[sid]) for sid in sorted(frame.raw_m)]
@@ -135,7 +135,7 @@ def _num(x: float) -> float | None:
 
 
 def status_message(status: ServerStatus) -> dict[str, Any]:
-    """The ``status`` text message of a :class:`~kinefuse.net.publish.ServerStatus` (NaN: null)."""
+    """The ``status`` text message of a :class:`~kinefuse.net.bus.ServerStatus` (NaN: null)."""
     return {
         "type": "status",
         "t_server_s": _num(status.t_server_s),

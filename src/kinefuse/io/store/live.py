@@ -28,7 +28,7 @@ tables and schema version are unchanged, and a reader that does not know them ig
     and a JSON detail.
 
 Writing goes through the store's own transactions; these functions are meant to be called
-from the recorder's single writer thread (:mod:`kinefuse.net.recorder`).
+from the recorder's single writer thread (:mod:`kinefuse.net.server.recorder`).
 """
 
 from __future__ import annotations

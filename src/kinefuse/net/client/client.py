@@ -3,9 +3,9 @@
 One client per sensor (paper A's client PC). It connects, says Hello, answers the challenge if
 the server has a token, and after the Welcome:
 
-- plays its :class:`~kinefuse.net.playback.Timeline`: each frame is handed over when its time
+- plays its :class:`~kinefuse.net.client.playback.Timeline`: each frame is handed over when its time
   comes on the monotonic clock (``m0 + t_play / speed``), stamped ``t_host_s`` with the host
-  clock (:mod:`kinefuse.net.clocks`) and ``t_device_s`` with the source's device stamp;
+  clock (:mod:`kinefuse.net.client.clocks`) and ``t_device_s`` with the source's device stamp;
 - answers every ClockProbe at once from the protocol callback (``t2`` stamped when the bytes
   arrived, ``t3`` just before the reply is written), never queued behind data;
 - runs the paper's client-side parts: the 2-D bone-crossing occlusion test on every body frame
@@ -48,10 +48,10 @@ from typing import Any
 import numpy as np
 
 from kinefuse.errors import KinefuseError
-from kinefuse.net.client_depth import DepthWork
-from kinefuse.net.client_parts import Connection, Prefetch, Prepared, wait_event
-from kinefuse.net.clocks import HostClock, Monotonic
-from kinefuse.net.playback import Timed, Timeline
+from kinefuse.net.client.depth import DepthWork
+from kinefuse.net.client.parts import Connection, Prefetch, Prepared, wait_event
+from kinefuse.net.client.clocks import HostClock, Monotonic
+from kinefuse.net.client.playback import Timed, Timeline
 from kinefuse.protocol import auth
 from kinefuse.protocol.codec import check_version
 from kinefuse.protocol.errors import VersionError, WireError
@@ -174,7 +174,7 @@ class SensorClient:
     Parameters
     ----------
     timeline : Timeline
-        The sensor's frames (:func:`kinefuse.net.playback.open_timeline`); the client closes it.
+        The sensor's frames (:func:`kinefuse.net.client.playback.open_timeline`); the client closes it.
     options : ClientOptions
     host_clock : HostClock or callable
         The host clock, or ``make(m0) -> HostClock`` called at the play start with the

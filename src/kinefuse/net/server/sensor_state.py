@@ -2,7 +2,7 @@
 
 A :class:`SensorClient` lives as long as the server (keyed by sensor id), so a client that
 reconnects finds its pose, its device clock and its statistics again; only the connection
-(:class:`Connection` in :mod:`kinefuse.net.server`) is per TCP connection.
+(:class:`Connection` in :mod:`kinefuse.net.server.server`) is per TCP connection.
 
 Times of an observation (all seconds):
 

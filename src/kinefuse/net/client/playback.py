@@ -33,7 +33,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.clocks import SimClockTruth
+from kinefuse.net.client.clocks import SimClockTruth
 from kinefuse.sim.clock import ClockParams
 from kinefuse.sources import BodyFrame, DepthFrame, Frame, FrameSource, SessionReplay, open_source
 

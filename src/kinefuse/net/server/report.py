@@ -1,6 +1,6 @@
 """What the server reports: its status snapshot, a calibration's outcome, the run's figures.
 
-Functions of the :class:`~kinefuse.net.server.Server`'s state (no I/O), split from the server
+Functions of the :class:`~kinefuse.net.server.server.Server`'s state (no I/O), split from the server
 module so that it keeps to the connections, the tasks and their flow.
 """
 
@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinefuse.net.live_calibration import CalibrationOutcome
-from kinefuse.net.publish import SensorStatus, ServerStatus
+from kinefuse.net.server.calibration import CalibrationOutcome
+from kinefuse.net.bus import SensorStatus, ServerStatus
 from kinefuse.protocol import CalibrationResult, SensorInfo, Status
 
 if TYPE_CHECKING:
-    from kinefuse.net.server import Server
+    from kinefuse.net.server.server import Server
 
 
 def server_status(srv: Server) -> ServerStatus:

@@ -9,8 +9,8 @@ import logging
 from typing import TYPE_CHECKING
 
 from kinefuse.errors import CalibrationError
-from kinefuse.net.server_conn import Connection
-from kinefuse.net.server_report import status_message
+from kinefuse.net.server.conn import Connection
+from kinefuse.net.server.report import status_message
 from kinefuse.protocol import (
     CalibrationResult,
     CalibrationStart,
@@ -24,7 +24,7 @@ from kinefuse.protocol import (
 from kinefuse.protocol.errors import OutOfOrder
 
 if TYPE_CHECKING:
-    from kinefuse.net.server import Server
+    from kinefuse.net.server.server import Server
 
 log = logging.getLogger("kinefuse.serve")
 

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.net.client_parts import detect, fit_floor, warm_up
-from kinefuse.net.playback import Timeline
+from kinefuse.net.client.parts import detect, fit_floor, warm_up
+from kinefuse.net.client.playback import Timeline
 from kinefuse.protocol.messages import FloorPlane, Message, WandSighting
 from kinefuse.sources import DepthFrame
 

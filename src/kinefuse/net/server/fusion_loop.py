@@ -15,7 +15,7 @@ whose frame is late is waited for until the deadline ``T + lead_s + NOMINAL_LATE
 10 ms); after it the frame is fused without it: the filter holds that sensor's last observation
 or predicts (``PREDICTED``); the late observation still helps later frames.
 
-The published :class:`~kinefuse.net.publish.FusedFrame` carries ``latency_s``: the server time
+The published :class:`~kinefuse.net.bus.FusedFrame` carries ``latency_s``: the server time
 it was published minus the host receive time (mapped onto the server clock) of the newest
 observation it used; NaN for a frame that used none (a pure prediction: the newest observation
 is older than the fusion holds one, ``max_hold_s`` = 50 ms, or the paper's 1/30 s window).
@@ -48,8 +48,8 @@ from numpy.typing import NDArray
 
 from kinefuse.fusion.live import LiveFusion, LiveOptions
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.net.publish import FusedFrame, Publisher
-from kinefuse.net.server_client import Observation, SensorClient
+from kinefuse.net.bus import FusedFrame, Publisher
+from kinefuse.net.server.sensor_state import Observation, SensorClient
 from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync.device import NOMINAL_LATENCY_S
 

@@ -2,7 +2,7 @@
 replies stamped in the socket callback), the read-ahead of the source, and the work the client
 does on its frames off the event loop (occlusion, wand detection, the floor fit).
 
-Split from :mod:`kinefuse.net.client` to keep each module readable; nothing here is public.
+Split from :mod:`kinefuse.net.client.client` to keep each module readable; nothing here is public.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from kinefuse.net.playback import Timed, Timeline
+from kinefuse.net.client.playback import Timed, Timeline
 from kinefuse.protocol.codec import Decoder, encode
 from kinefuse.protocol.errors import WireError
 from kinefuse.protocol.messages import ClockProbe, ClockReply, Message
 from kinefuse.sources import DepthFrame
 
 if TYPE_CHECKING:
-    from kinefuse.net.client import SensorClient
+    from kinefuse.net.client.client import SensorClient
 
 
 class Connection(asyncio.Protocol):

@@ -9,10 +9,10 @@ the whole server loudly instead of leaving half of it running):
   ``probe_interval_s``), for a control peer its requests. A protocol error or a silent peer
   closes only that connection, with the reason logged; a bug while serving one peer is logged
   and closes that peer only;
-- the fusion loop (:class:`~kinefuse.net.fusion_loop.FusionLoop`, 30 Hz on the server clock);
+- the fusion loop (:class:`~kinefuse.net.server.fusion_loop.FusionLoop`, 30 Hz on the server clock);
 - housekeeping: ``ServerStatus`` about once a second and on every change, the end of a
-  calibration (:mod:`kinefuse.net.live_calibration`);
-- the recorder (:class:`~kinefuse.net.recorder.Recorder`), when recording;
+  calibration (:mod:`kinefuse.net.server.calibration`);
+- the recorder (:class:`~kinefuse.net.server.recorder.Recorder`), when recording;
 - the live web viewer (:func:`kinefuse.viewer.live_viewer`) on the same publisher, when asked.
 
 The parts live beside it: ``server_conn`` (one connection's bytes and messages),
@@ -20,7 +20,7 @@ The parts live beside it: ``server_conn`` (one connection's bytes and messages),
 ``server_report`` (status snapshots, calibration outcomes, run figures), ``fusion_loop``,
 ``live_calibration`` and ``recorder``.
 
-Per sensor the server keeps a :class:`~kinefuse.net.server_client.SensorClient` across
+Per sensor the server keeps a :class:`~kinefuse.net.server.sensor_state.SensorClient` across
 connections (pose, clocks, statistics): a client that dies is marked offline and fusion goes on
 with the others; when it comes back (same ``sensor_id``) it is re-synchronized and fused with its
 pose at once. A second connection claiming a connected sensor id is refused (``duplicate_id``).
@@ -49,18 +49,18 @@ from kinefuse.calibration.floor import FloorPlane
 from kinefuse.errors import CalibrationError, SyncError
 from kinefuse.fusion.live import LiveOptions
 from kinefuse.io.store.live import SightingRow
-from kinefuse.net.fusion_loop import FrameFusion, FusionLoop
-from kinefuse.net.live_calibration import (
+from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
+from kinefuse.net.server.calibration import (
     CalibrationOutcome,
     LiveCalibration,
     LiveCalibrationOptions,
 )
-from kinefuse.net.publish import Publisher, ServerStatus
-from kinefuse.net.recorder import Recorder
-from kinefuse.net.server_client import Observation, SensorClient, sanitize_joints
-from kinefuse.net.server_conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
-from kinefuse.net.server_control import serve_control
-from kinefuse.net.server_report import outcome_meta, result_message, run_stats, server_status
+from kinefuse.net.bus import Publisher, ServerStatus
+from kinefuse.net.server.recorder import Recorder
+from kinefuse.net.server.sensor_state import Observation, SensorClient, sanitize_joints
+from kinefuse.net.server.conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
+from kinefuse.net.server.control import serve_control
+from kinefuse.net.server.report import outcome_meta, result_message, run_stats, server_status
 from kinefuse.protocol import (
     MAX_FRAME_BYTES,
     AuthReply,
@@ -612,5 +612,5 @@ class Server:
                     self.publisher.publish(self.status())
 
     def status(self) -> ServerStatus:
-        """The status snapshot (:func:`kinefuse.net.server_report.server_status`)."""
+        """The status snapshot (:func:`kinefuse.net.server.report.server_status`)."""
         return server_status(self)

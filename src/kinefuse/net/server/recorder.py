@@ -2,7 +2,7 @@
 
 The server calls the ``add_*`` methods from the event loop as things happen (they only append
 to in-memory lists, never block); fused frames and status snapshots come through a lossless
-:class:`~kinefuse.net.publish.Subscription`. Every ``flush_s`` (0.25 s) the pending rows are
+:class:`~kinefuse.net.bus.Subscription`. Every ``flush_s`` (0.25 s) the pending rows are
 handed, as one batch, to a single writer thread that owns the SQLite connection (sqlite3
 connections belong to the thread that made them) and commits them, so the event loop never
 waits for the disk and a crash of the server loses at most the last ``flush_s`` plus one commit
@@ -37,7 +37,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import OutputError
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.publish import FusedFrame, ServerStatus, Subscription
+from kinefuse.net.bus import FusedFrame, ServerStatus, Subscription
 
 log = logging.getLogger("kinefuse.serve")
 
