@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.app import place_actor
+from kinefuse.workflows.common import place_actor
 from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline import frame_grid, load_sensors, run_method
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig
 

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from kinefuse.live_demo import DEMO_CALIBRATION_S
+from kinefuse.workflows.demo import DEMO_CALIBRATION_S
 
 
 def run_demo(out: Path, sensors: int, seconds: float, jitter: float | None) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.app import run_simulate
+from kinefuse.workflows.common import run_simulate
 from kinefuse.calibration.wand_paper import detect_wand_paper
 from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand

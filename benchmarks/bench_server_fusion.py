@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.app import demo_clip_path, resolve_poses, run_simulate
-from kinefuse.calibrate_app import run_calibrate
+from kinefuse.workflows.common import demo_clip_path, resolve_poses, run_simulate
+from kinefuse.workflows.calibrate import run_calibrate
 from kinefuse.fusion.session import frame_grid, load_sensors
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.server.fusion_loop import FrameFusion

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.app import demo_clip_path, place_actor
+from kinefuse.workflows.common import demo_clip_path, place_actor
 from kinefuse.motion import load_motion
 from kinefuse.motion.types import Motion
 from kinefuse.sim.lab import LabConfig, simulate_session

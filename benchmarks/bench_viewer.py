@@ -208,7 +208,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
 def real_server(args: argparse.Namespace) -> dict[str, Any]:
     """The same comparison on the real system: ``kinefuse serve --viewer-port`` with
     ``--sensors`` real ``kinefuse sensor`` processes playing a simulated session (the live demo's
-    processes, :func:`kinefuse.live_demo.run_live`); during the motion phase a viewer (a
+    processes, :func:`kinefuse.workflows.demo.run_live`); during the motion phase a viewer (a
     WebSocket client decoding every frame, in its own process) connects and leaves in turns.
     Measured from the recording: the latency of every fused frame the server published (client
     host receive -> published, on the server clock), by whether a viewer was connected."""
@@ -217,10 +217,10 @@ def real_server(args: argparse.Namespace) -> dict[str, Any]:
     import threading
     import time
 
-    from kinefuse.app import demo_clip_path, run_simulate
+    from kinefuse.workflows.common import demo_clip_path, run_simulate
     from kinefuse.io.store.session import SessionStore
     from kinefuse.io.store.live import live_fused
-    from kinefuse.live_demo import run_live
+    from kinefuse.workflows.demo import run_live
 
     cal_s = 15.0
     settle_s = 4.0  # after the motion starts: calibration done, fusion warmed up

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.app import run_simulate
+from kinefuse.workflows.common import run_simulate
 from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline import frame_grid, load_sensors, run_method
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 from kinefuse.evaluation.fusion import truth_at
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -57,9 +57,9 @@ def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Pat
 
 
 def _fuse(path: Path, options: BestOptions) -> an.SkeletonSequence:
-    from kinefuse.app import resolve_poses
+    from kinefuse.workflows.common import resolve_poses
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline import frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 
     with SessionStore.open(path) as store:
         poses, _ = resolve_poses(store, None, False)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.analysis_app import load_input, prepare_out
+from kinefuse.workflows.analyze import load_input, prepare_out
 from kinefuse.cli import main
 from kinefuse.errors import InputError, OutputError
 from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
@@ -86,7 +86,7 @@ def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
 
 
 def test_rom_phase_is_placed_where_the_clip_starts(shared_data: Path) -> None:
-    from kinefuse.analysis_app import add_rom_phase
+    from kinefuse.workflows.analyze import add_rom_phase
     from kinefuse.motion import facing_direction, load_motion, place
     from kinefuse.skeleton import JOINT_INDEX
 

@@ -14,7 +14,7 @@ from kinefuse.fusion.best import (
     fuse_best,
 )
 from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
 from kinefuse.sim.rig import default_rig
 from kinefuse.skeleton import (
@@ -211,9 +211,9 @@ def test_offline_best_is_not_mirrored_where_every_view_is_ambiguous(shared_data,
     walking direction) keeps it right. Sessions of ``benchmarks/fusion_sweep.py``."""
     from pathlib import Path
 
-    from kinefuse.app import run_simulate
+    from kinefuse.workflows.common import run_simulate
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline import frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
     from kinefuse.evaluation.fusion import truth_at
 
     out = tmp_path / "s.sqlite"

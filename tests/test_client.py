@@ -37,7 +37,7 @@ from kinefuse.protocol import (
     encode,
 )
 from kinefuse.skeleton import N_JOINTS
-from kinefuse.sources import BodyFrame as SourceBody
+from kinefuse.pipeline.sources import BodyFrame as SourceBody
 
 LIMIT_S = 30.0  # no test of this module may take longer (a hang fails instead of blocking)
 

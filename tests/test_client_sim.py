@@ -36,7 +36,7 @@ from kinefuse.protocol import (
     encode,
 )
 from kinefuse.sim.clock import ClockParams
-from kinefuse.sources import DepthFrame
+from kinefuse.pipeline.sources import DepthFrame
 from test_client import LIMIT_S, TestServer, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def session(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 sensors, a 3 s wand phase (depth at 10 Hz), then 1 s of walking."""
-    from kinefuse.app import run_simulate
+    from kinefuse.workflows.common import run_simulate
 
     out = tmp_path_factory.mktemp("clientsim") / "s.sqlite"
     run_simulate(
@@ -276,7 +276,7 @@ DRIVER = '''
 import math, time
 import numpy as np
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.sources import BodyFrame
+from kinefuse.pipeline.sources import BodyFrame
 
 class FakeKinect:
     """A driver: frames when the device delivers them, host stamps on time.monotonic()."""
@@ -351,7 +351,7 @@ def test_bad_driver_specs_say_what_is_wrong(tmp_path: Path, monkeypatch, spec, m
 
 def test_a_real_kinect_multitrack_log_goes_through_the_live_path(shared_data: Path):
     log = shared_data / "kinect" / "kinect_multitrack" / "Study_4_Kinect_1_Time_1_22_06_PM.csv"
-    from kinefuse.sources import open_source
+    from kinefuse.pipeline.sources import open_source
 
     ref = [f for _, f in zip(range(40), open_source(f"multitrack:{log}"), strict=False)]
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.app import run_simulate
+from kinefuse.workflows.common import run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, SyncError
 from kinefuse.io.store.session import SessionStore
@@ -194,8 +194,8 @@ def sim_and_blind(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -
 def _calibrate_and_fuse(path: Path) -> dict[str, dict[str, np.ndarray]]:
     """Both calibrations, and every fusion method on the ``full`` one, through the library."""
     from kinefuse.calibration.session import calibrate
-    from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
-    from kinefuse.pipeline import gather_calibration as gather
+    from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import gather_calibration as gather
 
     out: dict[str, dict[str, np.ndarray]] = {}
     with SessionStore.open(path) as store:

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.app import demo_clip_path, run_simulate
+from kinefuse.workflows.common import demo_clip_path, run_simulate
 from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.live import LiveFusion, LiveOptions, replay
 from kinefuse.fusion.model import world_measurements
 from kinefuse.fusion.view import VIEW_JOINTS, side_view, view_variance
 from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline import frame_grid, load_sensors
+from kinefuse.pipeline.session import frame_grid, load_sensors
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
 
 J = JOINT_INDEX

@@ -18,7 +18,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
 from kinefuse.evaluation.live_consistency import recording_consistency
-from kinefuse.sources import BodyFrame, MultitrackReplay
+from kinefuse.pipeline.sources import BodyFrame, MultitrackReplay
 
 HOST_AHEAD_S = 40.0  # the pretend client PCs' clocks run 40 s ahead of the server's
 

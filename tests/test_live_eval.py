@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-from kinefuse.app import demo_clip_path, run_simulate
+from kinefuse.workflows.common import demo_clip_path, run_simulate
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
 from kinefuse.evaluation.live import clock_errors, playback_truth, write_live_truth

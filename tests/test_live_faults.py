@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.app import demo_clip_path, run_simulate
+from kinefuse.workflows.common import demo_clip_path, run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.io.store.session import SessionStore
-from kinefuse.live_demo import ChildProcesses, parse_listening, sensor_args
+from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
 from kinefuse.protocol import codec
 from kinefuse.protocol.auth import compute_mac
 from kinefuse.protocol.messages import AuthReply, Challenge, Error, Hello, Message

@@ -12,7 +12,7 @@ from kinefuse.fusion.live import LiveFusion, LiveOptions, replay
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline import frame_grid, load_sensors, run_method
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
 
 J = JOINT_INDEX

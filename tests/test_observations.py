@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError
-from kinefuse.observations import BodyFrame, BodyFrames
+from kinefuse.frames.observations import BodyFrame, BodyFrames
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 

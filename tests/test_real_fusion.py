@@ -27,8 +27,8 @@ from kinefuse.io.formats.kinect_multitrack import (
     sensor_poses,
     unique_frames,
 )
-from kinefuse.observations import BodyFrames
-from kinefuse.realdata_app import format_report, fuse_multitrack
+from kinefuse.frames.observations import BodyFrames
+from kinefuse.workflows.realdata import format_report, fuse_multitrack
 from kinefuse.evaluation.consistency import consistency
 from kinefuse.skeleton import (
     JOINT_INDEX,
@@ -58,7 +58,7 @@ def real_runs() -> dict[str, tuple[dict, list]]:
     """Both real files fused once (about 2 s each), with what each scenario's fusion was given
     and gave: ``(report, [(streams, grid, consistency result), ...])``. The recorder passes every
     call through to the real :func:`consistency` unchanged."""
-    import kinefuse.realdata_app as rf
+    import kinefuse.workflows.realdata as rf
 
     out: dict[str, tuple[dict, list]] = {}
     real_consistency = rf.consistency

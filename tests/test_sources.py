@@ -13,7 +13,7 @@ from kinefuse.cli import main
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import TrackingState
-from kinefuse.sources import (
+from kinefuse.pipeline.sources import (
     BodyFrame,
     DepthFrame,
     FrameSource,

@@ -23,7 +23,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from kinefuse.app import demo_clip_path
+from kinefuse.workflows.common import demo_clip_path
 from kinefuse.cli import main as cli
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.bus import Publisher

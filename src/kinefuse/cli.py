@@ -97,7 +97,7 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from kinefuse.app import run_simulate
+    from kinefuse.workflows.common import run_simulate
 
     r = run_simulate(
         clip=args.clip,
@@ -179,7 +179,7 @@ def _add_partial_arg(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_fuse(args: argparse.Namespace) -> int:
-    from kinefuse.app import run_fuse
+    from kinefuse.workflows.common import run_fuse
 
     info = run_fuse(
         session=args.session,
@@ -211,7 +211,7 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from kinefuse.app import format_evaluate, run_evaluate
+    from kinefuse.workflows.common import format_evaluate, run_evaluate
 
     report = run_evaluate(
         session=args.session,
@@ -233,10 +233,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from kinefuse.calibrate_app import format_calibrate, run_calibrate
+    from kinefuse.workflows.calibrate import format_calibrate, run_calibrate
 
     if args.live is not None or args.session is None:
-        from kinefuse.serve_app import cmd_calibrate_live
+        from kinefuse.workflows.serve import cmd_calibrate_live
 
         return cmd_calibrate_live(args)
     r = run_calibrate(
@@ -277,7 +277,7 @@ def _cmd_realism(args: argparse.Namespace) -> int:
 
 
 def _cmd_realdata(args: argparse.Namespace) -> int:
-    from kinefuse.realdata_app import format_report, fuse_multitrack
+    from kinefuse.workflows.realdata import format_report, fuse_multitrack
 
     results = [
         fuse_multitrack(
@@ -296,7 +296,7 @@ def _cmd_realdata(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from kinefuse.viewer_app import run_view
+    from kinefuse.workflows.view import run_view
 
     return run_view(args.session, host=args.host, port=args.port)
 
@@ -314,7 +314,7 @@ def _phase(text: str) -> tuple[float, float]:
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
-    from kinefuse.analysis_app import format_analyze, json_text, run_analyze
+    from kinefuse.workflows.analyze import format_analyze, json_text, run_analyze
 
     if not args.no_plots:
         import matplotlib
@@ -376,7 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"kinefuse {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    from kinefuse.live_demo import add_parser as add_demo_parser
+    from kinefuse.workflows.demo import add_parser as add_demo_parser
 
     add_demo_parser(sub)  # kinefuse demo: the live system on this machine (docs/live.md)
 
@@ -393,8 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="find every sensor's pose from the wand phase")
     p.add_argument("session", type=Path, nargs="?", help="session store (or --live HOST:PORT)")
-    from kinefuse.serve_app import add_calibrate_live_args
-    from kinefuse.serve_app import add_parser as add_serve_parser
+    from kinefuse.workflows.serve import add_calibrate_live_args
+    from kinefuse.workflows.serve import add_parser as add_serve_parser
 
     add_calibrate_live_args(p)
     p.add_argument(
@@ -425,7 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_calibrate)
     add_serve_parser(sub)
-    from kinefuse.proxy_app import add_parser as add_proxy_parser
+    from kinefuse.workflows.proxy import add_parser as add_proxy_parser
 
     add_proxy_parser(sub)  # kinefuse proxy: a fault-injecting TCP proxy (docs/live.md)
 
@@ -507,7 +507,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_inspect)
 
-    from kinefuse.sensor_app import add_parser as add_sensor_parser
+    from kinefuse.workflows.sensor import add_parser as add_sensor_parser
 
     add_sensor_parser(sub)  # kinefuse sensor: one live sensor client (docs/live.md)
     return parser

@@ -3,7 +3,7 @@
 Uses what a real server has: the calibration-phase depth frames, each sensor's clock (from its
 probes), the sensors' intrinsics and the operator's protocol (where and how the wand was to be
 shown, stored in the session's metadata as the operator was told it). It reads no store:
-:func:`kinefuse.pipeline.gather_calibration` reads a session and hands these in. The truth is
+:func:`kinefuse.pipeline.session.gather_calibration` reads a session and hands these in. The truth is
 never read.
 """
 
@@ -105,7 +105,7 @@ def gather(
     ``detector``: ``"paper"`` (METHODS.md A.3, steps 1-4: iterated binarization of the nearest
     object) or ``"robust"`` (a known-radius sphere fit, :mod:`kinefuse.calibration.wand_robust`).
     ``sensors`` with no depth frames are refused by name (a calibration needs every sensor);
-    :func:`kinefuse.pipeline.gather_calibration` reads them from a session.
+    :func:`kinefuse.pipeline.session.gather_calibration` reads them from a session.
     """
     if detector not in DETECTORS:
         raise CalibrationError(f"unknown wand detector {detector!r}; choose paper or robust")

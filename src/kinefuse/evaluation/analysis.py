@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from kinefuse.analysis.sequence import SkeletonSequence
 
 if TYPE_CHECKING:
-    from kinefuse.analysis_app import AnalysisInput
+    from kinefuse.workflows.analyze import AnalysisInput
 
 Array = NDArray[np.float64]
 
@@ -62,7 +62,7 @@ def truth_figures(
 ) -> dict[str, Any] | None:
     """Figures of one analysed session against its truth (None for a live recording)."""
     from kinefuse.analysis.consistency import angle_rmse_deg, axis_errors_deg, twist_errors_deg
-    from kinefuse.report.analysis import analyse_sequence
+    from kinefuse.workflows.analyze_one import analyse_sequence
 
     got = true_sequence(inp)
     if got is None:

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.errors import InputError
 from kinefuse.fusion.best import BestOptions, check_streams, correct_swaps, fuse_best
 from kinefuse.geometry.transforms import apply_transform
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, TRUNK_JOINTS
 from kinefuse.sync.assembly import interpolate
 

@@ -19,7 +19,7 @@ from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.store.session import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
-from kinefuse.pipeline import (
+from kinefuse.pipeline.session import (
     METHODS,
     CalibratedSensor,
     MethodResult,

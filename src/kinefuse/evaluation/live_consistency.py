@@ -7,7 +7,7 @@ the figures ``kinefuse realdata`` reports for the KinectMultiTrack logs). This m
 them from the recording alone, with what the live system recorded:
 
 1. **Clocks**: each sensor's capture times on the server clock from its own recorded stamps, as
-   every offline command does (:func:`kinefuse.pipeline.load_sensors`: device -> host from
+   every offline command does (:func:`kinefuse.pipeline.session.load_sensors`: device -> host from
    the frames' two stamps, host -> server from the clock probes);
 2. **Registration**: the sensors' poses from the recording's calibration when it has one (a wand
    calibration), else the body as the calibration object: the other sensors re-registered rigidly
@@ -48,7 +48,7 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
     """
     from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
     from kinefuse.calibration.calib_file import loads_calibration
-    from kinefuse.pipeline import load_sensors
+    from kinefuse.pipeline.session import load_sensors
     from kinefuse.evaluation.consistency import consistency
 
     if not (math.isfinite(grid_hz) and grid_hz > 0):

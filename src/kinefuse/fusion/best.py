@@ -41,7 +41,7 @@ from scipy.ndimage import uniform_filter1d
 
 from kinefuse.fusion.model import facing, rts_smooth
 from kinefuse.fusion.options import BestOptions
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, bone_index_array
 
 __all__ = [

@@ -66,7 +66,7 @@ from kinefuse.fusion.model import (
 )
 from kinefuse.fusion.options import BestOptions
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]

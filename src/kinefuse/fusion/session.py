@@ -2,8 +2,8 @@
 
 Everything here uses only what a real server has: each sensor's observations with their
 capture times on the server clock and the client's occlusion flags, and a calibration (sensor
-poses). It reads no store and no clock: :mod:`kinefuse.pipeline` reads a session and hands the
-sensors in (:func:`kinefuse.pipeline.load_sensors`) and times the methods. The truth is never
+poses). It reads no store and no clock: :mod:`kinefuse.pipeline.session` reads a session and hands the
+sensors in (:func:`kinefuse.pipeline.session.load_sensors`) and times the methods. The truth is never
 read (``--true-calibration`` hands in true poses explicitly, for evaluation only).
 """
 
@@ -20,7 +20,7 @@ from kinefuse.errors import FusionError
 from kinefuse.fusion.best import BestOptions, fuse_best
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest
 
 Array = NDArray[np.float64]
@@ -56,7 +56,7 @@ class CalibratedSensor:
         if not np.isfinite(o.t_server_s).all() or o.occluded is None or o.n_crossings is None:
             raise FusionError(
                 f"sensor {o.sensor_id!r}: fusion needs every frame's capture time on the server "
-                "clock and occlusion flags; build the sensor with kinefuse.pipeline.load_sensors"
+                "clock and occlusion flags; build the sensor with kinefuse.pipeline.session.load_sensors"
             )
 
     @property
@@ -148,7 +148,7 @@ def run_method(
     """Fuse with one method. The paper's methods use the paper's frame assembly (each sensor's
     latest observation in the frame window); ``best`` interpolates at capture times.
 
-    The result's ``seconds`` is NaN: :func:`kinefuse.pipeline.run_method` times the call."""
+    The result's ``seconds`` is NaN: :func:`kinefuse.pipeline.session.run_method` times the call."""
     if method not in METHODS:
         raise FusionError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
     if method == "best-live":

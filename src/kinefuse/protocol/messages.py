@@ -10,7 +10,7 @@ started); ``t2``/``t3``/``t_host_s`` on the client PC's host clock; ``t_device_s
 sensor's own clock; all float64 seconds. Positions are metres in the sensor frame (x right,
 y down, z forward) unless a name says ``world``.
 
-The protocol's ``BodyFrame`` is the wire message, not :class:`kinefuse.sources.BodyFrame`
+The protocol's ``BodyFrame`` is the wire message, not :class:`kinefuse.pipeline.sources.BodyFrame`
 (what a source yields); the sensor client turns one into the other.
 """
 

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import make_transform
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]

@@ -13,7 +13,7 @@
   (:mod:`kinefuse.io.formats.marker_maps`): the map's joints only, with the orientations of the limbs
   the map gives a rigid marker cluster.
 
-Fused sessions are built by :func:`kinefuse.analysis_app.sequence_from_session` (it runs the
+Fused sessions are built by :func:`kinefuse.workflows.analyze.sequence_from_session` (it runs the
 fusion workflow).
 """
 

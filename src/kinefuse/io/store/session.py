@@ -64,7 +64,7 @@ from kinefuse.io.store.codec import (
 )
 from kinefuse.io.store.streams import SensorStreams
 from kinefuse.io.store.truth import Truth, TruthTables
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS
 
 __all__ = [
@@ -206,7 +206,7 @@ class SensorInfo:
     rate_hz: float
 
 
-#: The batch form of a sensor's stream (:class:`kinefuse.observations.BodyFrames`) under the
+#: The batch form of a sensor's stream (:class:`kinefuse.frames.observations.BodyFrames`) under the
 #: name this module first gave it; :meth:`SessionStore.observations` returns it.
 Observations = BodyFrames
 

@@ -34,7 +34,7 @@ from kinefuse.io.store.codec import (
     decode_depth,
     encode_depth,
 )
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 if TYPE_CHECKING:

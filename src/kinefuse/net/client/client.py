@@ -69,7 +69,7 @@ from kinefuse.protocol.messages import (
     Message,
     Welcome,
 )
-from kinefuse.sources import DepthFrame
+from kinefuse.pipeline.sources import DepthFrame
 
 log = logging.getLogger("kinefuse.sensor")
 

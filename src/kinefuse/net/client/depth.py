@@ -21,7 +21,7 @@ import numpy as np
 from kinefuse.net.client.parts import detect, fit_floor, warm_up
 from kinefuse.net.client.playback import Timeline
 from kinefuse.protocol.messages import FloorPlane, Message, WandSighting
-from kinefuse.sources import DepthFrame
+from kinefuse.pipeline.sources import DepthFrame
 
 log = logging.getLogger("kinefuse.sensor")
 

@@ -18,7 +18,7 @@ from kinefuse.net.client.playback import Timed, Timeline
 from kinefuse.protocol.codec import Decoder, encode
 from kinefuse.protocol.errors import WireError
 from kinefuse.protocol.messages import ClockProbe, ClockReply, Message
-from kinefuse.sources import DepthFrame
+from kinefuse.pipeline.sources import DepthFrame
 
 if TYPE_CHECKING:
     from kinefuse.net.client.client import SensorClient

@@ -6,13 +6,13 @@ reaches the client PC, in seconds of the timeline's own clock (``source_clock``)
 - ``sim:SESSION.sqlite#SENSOR_ID``: a simulated sensor. The timeline is the simulation's true
   time: a body frame plays at the true instant it reached the host (its recorded host arrival
   through the true host clock), a depth frame at its true capture + the mean capture-to-host
-  latency. (:class:`kinefuse.sources.SessionReplay` merges body and depth frames by keys on two
+  latency. (:class:`kinefuse.pipeline.sources.SessionReplay` merges body and depth frames by keys on two
   different clocks; a player needs one clock, so it merges them here.)
 - ``multitrack:FILE.csv#KINECT_ID``, ``kinect2json:FILE``: recorded real logs through
-  :func:`kinefuse.sources.open_source`; a frame plays at its host time where the log has one,
+  :func:`kinefuse.pipeline.sources.open_source`; a frame plays at its host time where the log has one,
   else at its device time (``source_clock`` ``"host"`` or ``"device"``).
 - ``driver:MODULE:FACTORY[?KEY=VALUE&...]`` or an entry point ``NAME:ARG`` of the group
-  ``kinefuse.sources``: a physical sensor's driver (docs/live.md, "A driver for a physical
+  ``kinefuse.pipeline.sources``: a physical sensor's driver (docs/live.md, "A driver for a physical
   sensor"). It is *live*: its iterator blocks until the device delivers the next frame, which
   the client sends at once (no schedule).
 """
@@ -35,10 +35,10 @@ from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.clocks import SimClockTruth
 from kinefuse.sim.clock import ClockParams
-from kinefuse.sources import BodyFrame, DepthFrame, Frame, FrameSource, SessionReplay, open_source
+from kinefuse.pipeline.sources import BodyFrame, DepthFrame, Frame, FrameSource, SessionReplay, open_source
 
 #: the entry-point group a driver package registers its sources under
-ENTRY_POINT_GROUP = "kinefuse.sources"
+ENTRY_POINT_GROUP = "kinefuse.pipeline.sources"
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,7 +139,7 @@ class SimTimeline(Timeline):
 
 
 class SourceTimeline(Timeline):
-    """Any :class:`~kinefuse.sources.FrameSource` of one sensor (a log, or a live driver)."""
+    """Any :class:`~kinefuse.pipeline.sources.FrameSource` of one sensor (a log, or a live driver)."""
 
     def __init__(
         self, source: FrameSource, sensor_id: str | None = None, *, live: bool = False
@@ -175,7 +175,7 @@ class SourceTimeline(Timeline):
             if not isinstance(f, BodyFrame | DepthFrame):
                 raise InputError(
                     f"the source yielded a {type(f).__name__}; a FrameSource yields "
-                    "kinefuse.sources.BodyFrame and DepthFrame items"
+                    "kinefuse.pipeline.sources.BodyFrame and DepthFrame items"
                 )
             if self.live:
                 yield Timed(math.nan, f)
@@ -229,7 +229,7 @@ def open_timeline(spec: str) -> Timeline:
             raise InputError(f"source {spec!r}: expected sim:SESSION.sqlite#SENSOR_ID")
         return SimTimeline(target, sensor)
     if kind in ("multitrack", "kinect2json", "simlive"):
-        # simlive (a simulated sensor generating its frames, where kinefuse.sources has it)
+        # simlive (a simulated sensor generating its frames, where kinefuse.pipeline.sources has it)
         # plays on its own host stamps like a log
         sensor = rest.partition("?")[0].partition("#")[2]
         src = open_source(spec)

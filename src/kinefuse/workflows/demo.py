@@ -449,7 +449,7 @@ def run_live_demo(
     viewer_port: int | None = None,
 ) -> int:
     """``kinefuse demo``: simulate, run the live system, evaluate; see the module docstring."""
-    from kinefuse.app import demo_clip_path, run_evaluate, run_fuse, run_simulate
+    from kinefuse.workflows.common import demo_clip_path, run_evaluate, run_fuse, run_simulate
     from kinefuse.io.outputs import atomic_dir
     from kinefuse.motion import load_motion
     from kinefuse.evaluation.live import evaluate_live, format_live, write_live_truth
@@ -598,8 +598,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if args.offline:  # the offline pipeline on a simulated session (kinefuse.app.run_demo)
-        from kinefuse.app import run_demo
+    if args.offline:  # the offline pipeline on a simulated session (kinefuse.workflows.common.run_demo)
+        from kinefuse.workflows.common import run_demo
 
         return run_demo(out_dir=args.out, seed=args.seed)
     return run_live_demo(

@@ -1,5 +1,5 @@
 """``kinefuse calibrate``: find every sensor's pose from a session's wand phase, grade the
-result from its own residuals, write the calibration file (split from :mod:`kinefuse.app`)."""
+result from its own residuals, write the calibration file (split from :mod:`kinefuse.workflows.common`)."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def run_calibrate(
     from kinefuse.calibration.grade import grade_calibration
     from kinefuse.calibration.session import METHODS, calibrate
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline import gather_calibration as gather
+    from kinefuse.pipeline.session import gather_calibration as gather
 
     if method not in METHODS:
         raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")

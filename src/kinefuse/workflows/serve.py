@@ -237,7 +237,7 @@ def run_calibrate_live(
     timeout_s: float = 300.0,
 ) -> dict[str, Any]:
     """Ask a running server to calibrate; the result as
-    :func:`kinefuse.calibrate_app.run_calibrate`'s."""
+    :func:`kinefuse.workflows.calibrate.run_calibrate`'s."""
     host, port = parse_hostport(address)
     res = asyncio.run(_control_calibrate(host, port, token, method, seconds, timeout_s))
     reasons = [r.strip() for r in res.message.split(";")[1:]]

@@ -52,7 +52,7 @@ from kinefuse.io.formats.kinect_multitrack import (
     sensor_poses,
     unique_frames,
 )
-from kinefuse.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.evaluation.consistency import consistency, pair_disagreement, pose_summary
 from kinefuse.skeleton import JOINTS
 from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s

@@ -34,7 +34,7 @@ from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.io.formats.angles import write_angles_csv, write_angles_mot
 
 if TYPE_CHECKING:
-    from kinefuse.analysis_app import AnalysisInput
+    from kinefuse.workflows.analyze import AnalysisInput
 
 Array = NDArray[np.float64]
 
@@ -197,7 +197,7 @@ def _write_outputs(
     truth: dict[str, Any] | None,
     plot_dpi: int | None = None,
 ) -> list[Path]:
-    from kinefuse.analysis_app import write_limb_frames
+    from kinefuse.workflows.analyze import write_limb_frames
 
     seq, norm, named = res["seq"], res["norm"], res["named"]
     t = seq.t_s

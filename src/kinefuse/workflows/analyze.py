@@ -86,9 +86,9 @@ def sequence_from_session(
     session's stored calibration, a calibration file or the true poses; the result is not
     stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
     """
-    from kinefuse.app import resolve_poses
+    from kinefuse.workflows.common import resolve_poses
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
 
     if method not in METHODS:
         raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
@@ -325,7 +325,7 @@ def _analyse_all(
     say: Callable[[str], None],
     plot_dpi: int | None = None,
 ) -> dict[str, Any]:
-    from kinefuse.report.analysis import analyse_one, consistency_report
+    from kinefuse.workflows.analyze_one import analyse_one, consistency_report
 
     reports = []
     results = []
@@ -359,7 +359,7 @@ def _analyse_all(
 
 def format_analyze(report: dict[str, Any]) -> str:
     """A short text summary of an analysis report."""
-    from kinefuse.report.analysis import format_report
+    from kinefuse.workflows.analyze_one import format_report
 
     return format_report(report)
 

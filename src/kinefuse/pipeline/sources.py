@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
-from kinefuse.observations import BodyFrame, BodyFrames, DepthFrame, Frame
+from kinefuse.frames.observations import BodyFrame, BodyFrames, DepthFrame, Frame
 from kinefuse.skeleton import N_JOINTS
 
 if TYPE_CHECKING:
@@ -242,7 +242,7 @@ class SimulatedSensorSource:
     Parameters
     ----------
     motion : Motion
-        Already placed in the lab (:func:`kinefuse.app.place_actor`).
+        Already placed in the lab (:func:`kinefuse.workflows.common.place_actor`).
     rig : Rig
     sensor_id : str
         One of the rig's sensors.
@@ -305,7 +305,7 @@ def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensor
     """``simlive:CLIP#SENSOR_ID?rig=...&seed=...&calibration=...&seconds=...&sensors=...``."""
     from urllib.parse import parse_qs
 
-    from kinefuse.app import place_actor
+    from kinefuse.workflows.common import place_actor
     from kinefuse.motion import load_motion
     from kinefuse.sim.lab import LabConfig
     from kinefuse.sim.rig import default_rig, load_rig

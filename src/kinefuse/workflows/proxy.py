@@ -7,7 +7,7 @@ import argparse
 
 def _cmd_proxy(args: argparse.Namespace) -> int:
     from kinefuse.net.proxy import LinkProfile, serve_proxy
-    from kinefuse.serve_app import parse_hostport
+    from kinefuse.workflows.serve import parse_hostport
 
     host, port = parse_hostport(args.listen, default_port=0)
     t_host, t_port = parse_hostport(args.target)

@@ -136,7 +136,7 @@ def run_simulate(
     whole, so an interrupted or failed run leaves any old ``out`` byte-identical. ``force``
     replaces an existing simulated session, never another file or a live recording. ``rom_s``:
     a range-of-motion calibration phase of that many seconds before the motion
-    (:func:`kinefuse.analysis_app.add_rom_phase`).
+    (:func:`kinefuse.workflows.analyze.add_rom_phase`).
 
     Returns
     -------
@@ -163,7 +163,7 @@ def run_simulate(
     motion = place_actor(motion, the_rig, seconds)
     rom = None
     if rom_s is not None:
-        from kinefuse.analysis_app import add_rom_phase
+        from kinefuse.workflows.analyze import add_rom_phase
 
         rom = add_rom_phase(motion, rom_s, seed=seed)
         if seconds is not None:
@@ -184,7 +184,7 @@ def run_simulate(
         tmp.unlink()  # the store creates its own file
         simulate_session(motion, the_rig, tmp, config, progress=say)
         if rom is not None:
-            from kinefuse.analysis_app import record_rom_phase
+            from kinefuse.workflows.analyze import record_rom_phase
 
             record_rom_phase(tmp, rom, calibration_s)
         with SessionStore.open(tmp, writable=True) as store:
@@ -226,7 +226,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
         say(format_inspect(info))
 
         say("\n== 2/4 calibrate: every sensor's pose from the wand seen in depth")
-        from kinefuse.calibrate_app import format_calibrate, run_calibrate
+        from kinefuse.workflows.calibrate import format_calibrate, run_calibrate
 
         cal = run_calibrate(
             session=session,
@@ -319,7 +319,7 @@ def run_fuse(
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
-    from kinefuse.pipeline import clip_grid, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import clip_grid, frame_grid, load_sensors, run_method
 
     if out is not None:
         check_export_path(out)
@@ -370,7 +370,7 @@ def run_evaluate(
     swapped in on success (an existing folder is replaced only if kinefuse made it).
     """
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline import METHODS, load_sensors
+    from kinefuse.pipeline.session import METHODS, load_sensors
     from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
 
     unknown = [m for m in methods if m not in METHODS]
