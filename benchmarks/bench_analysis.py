@@ -83,13 +83,14 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     """Simulate, calibrate (full), fuse (best); return the fused and true sequences, the
     placement, and the truth plus the subject-level tracker bias only (what every sensor shares,
     so no fusion can remove it: the floor of a perfect fusion)."""
-    from kinefuse.workflows.common import place_actor, resolve_poses
-    from kinefuse.workflows.calibrate import run_calibrate
+    from kinefuse.evaluation.fusion import calibration_alignment
+    from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-    from kinefuse.evaluation.fusion import calibration_alignment
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
+    from kinefuse.sim.rig import place_actor
     from kinefuse.sim.tracker_body import _body_axes
+    from kinefuse.workflows.calibrate import run_calibrate
 
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])

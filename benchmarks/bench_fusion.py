@@ -24,11 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.workflows.common import place_actor
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 from kinefuse.sim.lab import LabConfig, simulate_session
-from kinefuse.sim.rig import default_rig
+from kinefuse.sim.rig import default_rig, place_actor
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_simulate import long_motion

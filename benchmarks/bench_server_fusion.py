@@ -2,8 +2,8 @@
 
 Run: ``python benchmarks/bench_server_fusion.py [--sensors 4] [--seconds 5]``. Simulates a
 session, calibrates it offline (``full``), then feeds every observation to the server's
-:class:`kinefuse.net.server.fusion_loop.FrameFusion` as the fusion loop does (observations captured up
-to ``T + lead`` before frame ``T``) and times ``fuse`` per frame, for ``best-live`` and the
+:class:`kinefuse.net.server.fusion_loop.FrameFusion` as the fusion loop does (observations captured
+up to ``T + lead`` before frame ``T``) and times ``fuse`` per frame, for ``best-live`` and the
 paper's chain. Prints ms per frame and the share of the frame period: the fusion runs on the
 event loop, so this is also how long a clock-probe reply can wait to be stamped.
 """
@@ -17,12 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.workflows.common import demo_clip_path, resolve_poses, run_simulate
-from kinefuse.workflows.calibrate import run_calibrate
+from kinefuse.evaluation.poses import resolve_poses
 from kinefuse.fusion.session import frame_grid, load_sensors
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.server.fusion_loop import FrameFusion
 from kinefuse.net.server.sensor_state import Observation
+from kinefuse.workflows.calibrate import run_calibrate
+from kinefuse.workflows.common import demo_clip_path, run_simulate
 
 
 def main() -> None:

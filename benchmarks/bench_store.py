@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.io.store.session import SessionStore
 from kinefuse.evaluation.inspect import inspect_session
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
 SENSORS = 4

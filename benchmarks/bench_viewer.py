@@ -217,9 +217,9 @@ def real_server(args: argparse.Namespace) -> dict[str, Any]:
     import threading
     import time
 
-    from kinefuse.workflows.common import demo_clip_path, run_simulate
-    from kinefuse.io.store.session import SessionStore
     from kinefuse.io.store.live import live_fused
+    from kinefuse.io.store.session import SessionStore
+    from kinefuse.workflows.common import demo_clip_path, run_simulate
     from kinefuse.workflows.demo import run_live
 
     cal_s = 15.0

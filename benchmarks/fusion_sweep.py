@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.workflows.common import run_simulate
+from kinefuse.evaluation.fusion import truth_at
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.evaluation.fusion import truth_at
+from kinefuse.workflows.common import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

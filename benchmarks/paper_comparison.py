@@ -25,16 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.workflows.common import place_actor, run_simulate
+from kinefuse.evaluation.fusion import ABLATION, COMPARISONS, evaluate, truth_at
+from kinefuse.evaluation.metrics import gain_ci
 from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
 from kinefuse.geometry.transforms import make_transform, rot_z
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion import load_motion
 from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
-from kinefuse.evaluation.fusion import ABLATION, COMPARISONS, evaluate, truth_at
-from kinefuse.evaluation.metrics import gain_ci
-from kinefuse.sim.rig import load_rig
+from kinefuse.sim.rig import load_rig, place_actor
+from kinefuse.workflows.common import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

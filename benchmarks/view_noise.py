@@ -57,7 +57,7 @@ def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Pat
 
 
 def _fuse(path: Path, options: BestOptions) -> an.SkeletonSequence:
-    from kinefuse.workflows.common import resolve_poses
+    from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 

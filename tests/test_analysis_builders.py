@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.workflows.analyze import load_input, prepare_out
 from kinefuse.cli import main
 from kinefuse.errors import InputError, OutputError
 from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
 from kinefuse.io.store.session import SessionStore
+from kinefuse.workflows.analyze import load_input, prepare_out
 
 
 def _bone_in_limb_frame(seq, limb: str, a: str, b: str) -> np.ndarray:  # type: ignore[no-untyped-def]
@@ -86,9 +86,9 @@ def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
 
 
 def test_rom_phase_is_placed_where_the_clip_starts(shared_data: Path) -> None:
-    from kinefuse.workflows.analyze import add_rom_phase
     from kinefuse.motion import facing_direction, load_motion, place
     from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.workflows.analyze import add_rom_phase
 
     clip = place(load_motion(shared_data / "motion/cmu/02_walk_b.amc"), (1.0, -0.5), 75.0)
     rom = add_rom_phase(clip, 60.0, seed=3)

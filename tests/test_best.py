@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.best import (
     BestOptions,
     correct_swaps,
@@ -14,7 +15,6 @@ from kinefuse.fusion.best import (
     fuse_best,
 )
 from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
 from kinefuse.sim.rig import default_rig
 from kinefuse.skeleton import (
@@ -211,10 +211,10 @@ def test_offline_best_is_not_mirrored_where_every_view_is_ambiguous(shared_data,
     walking direction) keeps it right. Sessions of ``benchmarks/fusion_sweep.py``."""
     from pathlib import Path
 
-    from kinefuse.workflows.common import run_simulate
+    from kinefuse.evaluation.fusion import truth_at
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-    from kinefuse.evaluation.fusion import truth_at
+    from kinefuse.workflows.common import run_simulate
 
     out = tmp_path / "s.sqlite"
     rig = Path(__file__).resolve().parents[1] / "rigs" / "level4.toml"

@@ -19,6 +19,7 @@ from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClien
 from kinefuse.net.client.clocks import HostClock, real_host_clock
 from kinefuse.net.client.playback import SourceTimeline
 from kinefuse.occlusion import detect_occlusion
+from kinefuse.pipeline.sources import BodyFrame as SourceBody
 from kinefuse.protocol import (
     PROTOCOL_VERSION,
     AuthReply,
@@ -37,7 +38,6 @@ from kinefuse.protocol import (
     encode,
 )
 from kinefuse.skeleton import N_JOINTS
-from kinefuse.pipeline.sources import BodyFrame as SourceBody
 
 LIMIT_S = 30.0  # no test of this module may take longer (a hang fails instead of blocking)
 

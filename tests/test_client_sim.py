@@ -24,6 +24,7 @@ from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.client import ClientOptions, SensorClient
 from kinefuse.net.client.clocks import HostClock, SimClockTruth
 from kinefuse.net.client.playback import SimTimeline, open_timeline
+from kinefuse.pipeline.sources import DepthFrame
 from kinefuse.protocol import (
     BodyFrame,
     CalibrationStop,
@@ -36,7 +37,6 @@ from kinefuse.protocol import (
     encode,
 )
 from kinefuse.sim.clock import ClockParams
-from kinefuse.pipeline.sources import DepthFrame
 from test_client import LIMIT_S, TestServer, run
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.workflows.common import run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, SyncError
 from kinefuse.io.store.session import SessionStore
@@ -27,6 +26,7 @@ from kinefuse.sync import (
     sensor_timebase,
 )
 from kinefuse.sync.device import NOMINAL_LATENCY_S
+from kinefuse.workflows.common import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,8 +10,8 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, StoreError
-from kinefuse.io.store.session import SessionStore
 from kinefuse.evaluation.inspect import format_inspect, inspect_session
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -16,8 +16,8 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.io.store.session import SessionStore
 from kinefuse.evaluation.live_consistency import recording_consistency
+from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.sources import BodyFrame, MultitrackReplay
 
 HOST_AHEAD_S = 40.0  # the pretend client PCs' clocks run 40 s ahead of the server's

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.workflows.common import demo_clip_path, run_simulate
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.io.store.session import SessionStore
-from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
 from kinefuse.protocol import codec
 from kinefuse.protocol.auth import compute_mac
 from kinefuse.protocol.messages import AuthReply, Challenge, Error, Hello, Message
+from kinefuse.workflows.common import demo_clip_path, run_simulate
+from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
 
 CAL_S = 6.0  # the wand phase of the test sessions, s
 MOTION_S = 9.0  # their motion, s (a restarted client has several seconds left to stream)
@@ -235,8 +235,8 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
 
 
 def test_a_real_log_replayed_by_two_sensor_processes(tmp_path, shared_data) -> None:
-    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
     from kinefuse.evaluation.live_consistency import recording_consistency
+    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 
     logs = sorted((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_1_*.csv"))
     if not logs:

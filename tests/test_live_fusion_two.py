@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.workflows.common import demo_clip_path, run_simulate
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+from kinefuse.workflows.common import demo_clip_path, run_simulate
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,8 @@ from kinefuse.calibration.body import (
 )
 from kinefuse.cli import realdata_main as main
 from kinefuse.errors import InputError, SyncError
+from kinefuse.evaluation.consistency import consistency
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.io.formats.kinect_multitrack import (
     kmt_rotation,
@@ -27,9 +29,6 @@ from kinefuse.io.formats.kinect_multitrack import (
     sensor_poses,
     unique_frames,
 )
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.workflows.realdata import format_report, fuse_multitrack
-from kinefuse.evaluation.consistency import consistency
 from kinefuse.skeleton import (
     JOINT_INDEX,
     JOINTS,
@@ -40,6 +39,7 @@ from kinefuse.skeleton import (
 )
 from kinefuse.sync.assembly import interpolate
 from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
+from kinefuse.workflows.realdata import format_report, fuse_multitrack
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MT_DIR = SHARED / "kinect" / "kinect_multitrack"

@@ -8,9 +8,6 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
-from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
-from kinefuse.motion.types import Motion
 from kinefuse.evaluation.realism import (
     DEFAULT_HEADINGS,
     FACING_FRONT,
@@ -24,6 +21,9 @@ from kinefuse.evaluation.realism import (
     walking_passes,
 )
 from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
+from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
+from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.motion.types import Motion
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -10,8 +10,6 @@ import pytest
 
 from kinefuse.cli import main as cli_main
 from kinefuse.errors import InputError
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.motion.types import Motion
 from kinefuse.evaluation.realism import PairLayout
 from kinefuse.evaluation.realism_takes import (
     BANDS,
@@ -29,6 +27,8 @@ from kinefuse.evaluation.realism_takes import (
     take_layout,
     take_passes,
 )
+from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.motion.types import Motion
 from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 

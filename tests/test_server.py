@@ -22,8 +22,8 @@ from kinefuse.calibration.session import calibrate
 from kinefuse.cli import main
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.server.calibration import LiveCalibrationOptions
 from kinefuse.net.bus import FusedFrame
+from kinefuse.net.server.calibration import LiveCalibrationOptions
 from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.pipeline.session import gather_calibration as gather
 from kinefuse.protocol import (
@@ -437,7 +437,7 @@ def test_the_recording_reopens_and_offline_commands_work_on_it(live_run, tmp_pat
 
 
 def test_offline_best_live_agrees_with_the_live_frames(live_run) -> None:
-    from kinefuse.workflows.common import resolve_poses
+    from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.pipeline.session import load_sensors, run_method
 
     with SessionStore.open(live_run["record"]) as st:

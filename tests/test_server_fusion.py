@@ -9,8 +9,8 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
 from kinefuse.net.bus import FusedFrame, Publisher
+from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
 from kinefuse.net.server.sensor_state import Observation, SensorClient, sanitize_joints
 from kinefuse.skeleton import N_JOINTS, standing_pose
 

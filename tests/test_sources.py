@@ -12,7 +12,6 @@ import pytest
 from kinefuse.cli import main
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import TrackingState
 from kinefuse.pipeline.sources import (
     BodyFrame,
     DepthFrame,
@@ -22,6 +21,7 @@ from kinefuse.pipeline.sources import (
     SessionReplay,
     open_source,
 )
+from kinefuse.skeleton import TrackingState
 
 
 @pytest.fixture(scope="module")

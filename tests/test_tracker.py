@@ -69,8 +69,8 @@ def walk() -> np.ndarray:
     """Real walking motion (CMU 02_walk_a) at 30 Hz, centred on the lab origin, walking +x."""
     if not WALK.is_file():
         pytest.skip(f"real motion not found at {WALK}")
-    from kinefuse.motion import load_motion
     from kinefuse.evaluation.realism import walking_passes
+    from kinefuse.motion import load_motion
 
     m = walking_passes(load_motion(WALK), [0.0], half_length_m=1.0)[0]
     return m.at(np.arange(0.0, m.duration_s, 1.0 / 30.0))

@@ -25,9 +25,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from kinefuse.workflows.analyze import run_analyze
 from kinefuse.cli import main as cli
 from kinefuse.errors import KinefuseError
+from kinefuse.workflows.analyze import run_analyze
 
 ROOT = Path(__file__).resolve().parents[3]
 SHARED = ROOT.parent / "shared" / "data"
@@ -250,8 +250,8 @@ def true_motion_consistency(takes: Sequence[Path]) -> dict[str, Any]:
     """The same consistency on the true motion of the takes (what the sensors cost)."""
     from kinefuse.analysis.consistency import normalization_consistency
     from kinefuse.analysis.normalize import normalize
-    from kinefuse.workflows.analyze import load_input
     from kinefuse.evaluation.analysis import true_sequence
+    from kinefuse.workflows.analyze import load_input
 
     norms = []
     for s in takes:

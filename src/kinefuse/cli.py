@@ -124,8 +124,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from kinefuse.io.store.session import SessionStore
     from kinefuse.evaluation.inspect import format_inspect, inspect_session
+    from kinefuse.io.store.session import SessionStore
 
     with SessionStore.open(args.session) as st:
         info = inspect_session(st)

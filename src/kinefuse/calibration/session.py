@@ -3,8 +3,8 @@
 Uses what a real server has: the calibration-phase depth frames, each sensor's clock (from its
 probes), the sensors' intrinsics and the operator's protocol (where and how the wand was to be
 shown, stored in the session's metadata as the operator was told it). It reads no store:
-:func:`kinefuse.pipeline.session.gather_calibration` reads a session and hands these in. The truth is
-never read.
+:func:`kinefuse.pipeline.session.gather_calibration` reads a session and hands these in. The truth
+is never read.
 """
 
 from __future__ import annotations

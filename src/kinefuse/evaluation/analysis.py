@@ -31,15 +31,15 @@ from numpy.typing import NDArray
 from kinefuse.analysis.sequence import SkeletonSequence
 
 if TYPE_CHECKING:
-    from kinefuse.workflows.analyze import AnalysisInput
+    from kinefuse.pipeline.analysis import AnalysisInput
 
 Array = NDArray[np.float64]
 
 
 def true_sequence(inp: AnalysisInput) -> tuple[SkeletonSequence, object | None] | None:
     """The true motion at the input's frame times, and the stored ROM truth (or None)."""
-    from kinefuse.io.store.session import SessionStore
     from kinefuse.evaluation.fusion import truth_at
+    from kinefuse.io.store.session import SessionStore
 
     with SessionStore.open(inp.path) as store:
         if not store.has_truth():
@@ -62,7 +62,7 @@ def truth_figures(
 ) -> dict[str, Any] | None:
     """Figures of one analysed session against its truth (None for a live recording)."""
     from kinefuse.analysis.consistency import angle_rmse_deg, axis_errors_deg, twist_errors_deg
-    from kinefuse.workflows.analyze_one import analyse_sequence
+    from kinefuse.pipeline.analysis import analyse_sequence
 
     got = true_sequence(inp)
     if got is None:
@@ -169,8 +169,8 @@ def _true_world(
     """The generator's world axes, rotated into the calibration's world."""
     rot = np.eye(3)
     if not true_calibration and inp.sensor_poses is not None:
-        from kinefuse.io.store.session import SessionStore
         from kinefuse.evaluation.fusion import calibration_alignment
+        from kinefuse.io.store.session import SessionStore
 
         with SessionStore.open(inp.path) as store:
             truth2world, _ = calibration_alignment(store, inp.sensor_poses)

@@ -16,9 +16,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.best import BestOptions, check_streams, correct_swaps, fuse_best
 from kinefuse.geometry.transforms import apply_transform
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, TRUNK_JOINTS
 from kinefuse.sync.assembly import interpolate
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.evaluation.metrics import bias_noise, gain, position_errors
 from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.status import status_counts
 from kinefuse.fusion.trilateration import solve_nonlinear
@@ -27,7 +28,6 @@ from kinefuse.pipeline.session import (
     frame_grid,
     run_method,
 )
-from kinefuse.evaluation.metrics import bias_noise, gain, position_errors
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState
 
 Array = NDArray[np.float64]

@@ -328,8 +328,8 @@ def clock_errors(store: SessionStore, warmup_s: float = CLOCK_WARMUP_S) -> dict[
 def calibration_figures(store: SessionStore) -> dict[str, Any]:
     """The live calibration stored in the recording against the true rig (yaw-aligned, as
     :func:`kinefuse.calibration.evaluate.pose_errors`), and its grade as the server gave it."""
-    from kinefuse.workflows.common import resolve_poses
     from kinefuse.calibration.evaluate import pose_errors
+    from kinefuse.evaluation.poses import resolve_poses
 
     poses, source = resolve_poses(store, None, False)
     ids = sorted(poses)
@@ -360,11 +360,11 @@ def live_vs_offline(store: SessionStore) -> dict[str, Any]:
     """MAE of the frames the server published and of offline ``best`` on the same recording, at
     the same frame times, against the truth (in the calibration's world, as ``evaluate`` does);
     both over the frames x joints that both solved (``common``) and each over its own."""
-    from kinefuse.workflows.common import resolve_poses
+    from kinefuse.evaluation.fusion import calibration_alignment, truth_at
+    from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.geometry.transforms import apply_transform
     from kinefuse.io.store.live import live_fused
     from kinefuse.pipeline.session import load_sensors, run_method
-    from kinefuse.evaluation.fusion import calibration_alignment, truth_at
 
     lf = live_fused(store)
     poses, _ = resolve_poses(store, None, False)

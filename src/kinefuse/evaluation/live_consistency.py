@@ -48,8 +48,8 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
     """
     from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
     from kinefuse.calibration.calib_file import loads_calibration
-    from kinefuse.pipeline.session import load_sensors
     from kinefuse.evaluation.consistency import consistency
+    from kinefuse.pipeline.session import load_sensors
 
     if not (math.isfinite(grid_hz) and grid_hz > 0):
         raise InputError(f"grid_hz must be a positive frame rate in Hz, got {grid_hz!r}")

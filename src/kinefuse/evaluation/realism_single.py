@@ -16,9 +16,9 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
+from kinefuse.evaluation.realism import _CORE, _EXTREMITIES
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.motion.types import Motion
-from kinefuse.evaluation.realism import _CORE, _EXTREMITIES
 from kinefuse.sim.lab import subject_height
 from kinefuse.sim.tracker import TrackerParams, draw_subject_bias, simulate_tracker
 from kinefuse.skeleton import (

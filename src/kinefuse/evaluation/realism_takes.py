@@ -47,8 +47,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
-from kinefuse.motion.types import Motion
 from kinefuse.evaluation.realism import (
     _CORE,
     _EXTREMITIES,
@@ -65,6 +63,8 @@ from kinefuse.evaluation.realism import (
     walking_passes,
 )
 from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
+from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.motion.types import Motion
 from kinefuse.sim.lab import subject_height
 from kinefuse.sim.tracker_params import TrackerParams
 from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, bone_index_array, standing_pose

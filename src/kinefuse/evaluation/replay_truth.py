@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.evaluation.fusion import calibration_alignment, truth_at
 from kinefuse.geometry.transforms import apply_transform
 from kinefuse.io.store.session import SessionStore
-from kinefuse.evaluation.fusion import calibration_alignment, truth_at
 
 Array = NDArray[np.float64]
 

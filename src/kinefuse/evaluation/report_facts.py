@@ -83,7 +83,7 @@ def _calibration_rows(
     )
     from kinefuse.calibration.evaluate import pose_errors
 
-    # ``source`` is how kinefuse.workflows.common.resolve_poses named the poses it used
+    # ``source`` is how kinefuse.evaluation.poses.resolve_poses named the poses it used
     name = next((n for n in ("full", "paper") if source == f"session calibration ({n})"), None)
     text = store.calibration(name) if name else None
     if text is not None:

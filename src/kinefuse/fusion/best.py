@@ -39,9 +39,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter1d
 
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.model import facing, rts_smooth
 from kinefuse.fusion.options import BestOptions
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, bone_index_array
 
 __all__ = [

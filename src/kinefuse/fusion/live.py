@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import FusionError
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.model import (
     BONE_ORDER,
     BONES,
@@ -66,7 +67,6 @@ from kinefuse.fusion.model import (
 )
 from kinefuse.fusion.options import BestOptions
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]

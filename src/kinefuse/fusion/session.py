@@ -2,8 +2,9 @@
 
 Everything here uses only what a real server has: each sensor's observations with their
 capture times on the server clock and the client's occlusion flags, and a calibration (sensor
-poses). It reads no store and no clock: :mod:`kinefuse.pipeline.session` reads a session and hands the
-sensors in (:func:`kinefuse.pipeline.session.load_sensors`) and times the methods. The truth is never
+poses). It reads no store and no clock: :mod:`kinefuse.pipeline.session` reads a session and hands
+the sensors in (:func:`kinefuse.pipeline.session.load_sensors`) and times the methods. The truth is
+never
 read (``--true-calibration`` hands in true poses explicitly, for evaluation only).
 """
 
@@ -17,10 +18,10 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import FusionError
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.best import BestOptions, fuse_best
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest
 
 Array = NDArray[np.float64]
@@ -56,7 +57,8 @@ class CalibratedSensor:
         if not np.isfinite(o.t_server_s).all() or o.occluded is None or o.n_crossings is None:
             raise FusionError(
                 f"sensor {o.sensor_id!r}: fusion needs every frame's capture time on the server "
-                "clock and occlusion flags; build the sensor with kinefuse.pipeline.session.load_sensors"
+                "clock and occlusion flags; build the sensor with "
+                "kinefuse.pipeline.session.load_sensors"
             )
 
     @property

@@ -59,10 +59,19 @@ def check_output_folder(path: Path, what: str = "output") -> None:
         )
 
 
+#: ``PRAGMA application_id`` of a kinefuse session store ("KNFS"), so ``file(1)`` can tell (here,
+#: below the store, because every writer asks whether a file is a session before replacing it).
+APPLICATION_ID = 0x4B4E4653
+
+#: Extensions of other formats that a session store (SQLite) must not be written under.
+FOREIGN_SESSION_SUFFIXES = frozenset(
+    {".c3d", ".trc", ".csv", ".toml", ".json", ".bvh", ".amc", ".asf", ".mot", ".png", ".txt",
+     ".md", ".npy", ".npz", ".mkv", ".gz", ".html", ".xml", ".osim", ".py"}
+)  # fmt: skip
+
+
 def is_kinefuse_session(path: Path) -> bool:
     """True if ``path`` is a SQLite file with kinefuse's session schema (not by its extension)."""
-    from kinefuse.io.store.session import APPLICATION_ID
-
     try:
         with path.open("rb") as f:
             if f.read(16) != b"SQLite format 3\x00":

@@ -307,7 +307,7 @@ def load_name_map(path: str | Path) -> NameMap:
     InputError
         Unreadable file, TOML syntax error, unknown keys, joints or specs.
     """
-    from kinefuse.io.formats.toml_file import read_toml
+    from kinefuse.io.toml import read_toml
 
     p = Path(path)
     data = read_toml(p, "name map")

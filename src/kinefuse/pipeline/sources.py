@@ -29,8 +29,8 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.io.store.session import SessionStore
 from kinefuse.frames.observations import BodyFrame, BodyFrames, DepthFrame, Frame
+from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
 if TYPE_CHECKING:
@@ -242,7 +242,7 @@ class SimulatedSensorSource:
     Parameters
     ----------
     motion : Motion
-        Already placed in the lab (:func:`kinefuse.workflows.common.place_actor`).
+        Already placed in the lab (:func:`kinefuse.sim.rig.place_actor`).
     rig : Rig
     sensor_id : str
         One of the rig's sensors.
@@ -305,10 +305,9 @@ def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensor
     """``simlive:CLIP#SENSOR_ID?rig=...&seed=...&calibration=...&seconds=...&sensors=...``."""
     from urllib.parse import parse_qs
 
-    from kinefuse.workflows.common import place_actor
     from kinefuse.motion import load_motion
     from kinefuse.sim.lab import LabConfig
-    from kinefuse.sim.rig import default_rig, load_rig
+    from kinefuse.sim.rig import default_rig, load_rig, place_actor
 
     known = {"rig", "seed", "calibration", "seconds", "sensors", "depth_rate"}
     args = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}

@@ -2,9 +2,10 @@
 network) that ``kinefuse evaluate --out DIR`` and ``kinefuse demo`` write.
 
 The figures come from what :func:`kinefuse.evaluation.fusion.evaluate` computed (its report, the
-methods' results and the truth on the same frames) and from :class:`~kinefuse.evaluation.report_facts.
-SessionFacts`; the one thing computed here is the 95 % interval of each MAE (a circular block
-bootstrap over frames, as :func:`kinefuse.evaluation.metrics.gain` does for differences).
+methods' results and the truth on the same frames) and from
+:class:`~kinefuse.evaluation.report_facts. SessionFacts`; the one thing computed here is the 95 %
+interval of each MAE (a circular block bootstrap over frames, as
+:func:`kinefuse.evaluation.metrics.gain` does for differences).
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.evaluation.report_facts import SessionFacts
 from kinefuse.fusion.session import MethodResult
 from kinefuse.report import html_plots as hp
-from kinefuse.evaluation.report_facts import SessionFacts
 from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 Array = NDArray[np.float64]

@@ -11,8 +11,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from kinefuse.fusion.session import MethodResult
 from kinefuse.evaluation.report_facts import SessionFacts
+from kinefuse.fusion.session import MethodResult
 from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 Array = NDArray[np.float64]

@@ -168,8 +168,9 @@ def _seeds(seed: int, n_sensors: int, config: LabConfig) -> _Seeds:
 
 class SensorSimulation:
     """One simulated sensor of a session, frame by frame: what :func:`simulate_session` writes
-    for it, and what a live simulated sensor (:class:`kinefuse.pipeline.sources.SimulatedSensorSource`)
-    delivers. The same ``motion``, ``rig``, sensor and ``config`` give the same numbers either
+    for it, and what a live simulated sensor
+    (:class:`kinefuse.pipeline.sources.SimulatedSensorSource`) delivers. The same ``motion``,
+    ``rig``, sensor and ``config`` give the same numbers either
     way (the random streams are the session's: seeded by ``config.seed`` and the sensor's place
     in the rig, consumed in the same order).
 

@@ -27,12 +27,17 @@ from __future__ import annotations
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import RigError
 from kinefuse.geometry.transforms import look_at
+from kinefuse.skeleton import JOINT_INDEX
+
+if TYPE_CHECKING:
+    from kinefuse.motion.types import Motion
 
 Array = NDArray[np.float64]
 
@@ -266,3 +271,23 @@ def rig_to_toml(rig: Rig) -> str:
     (x0, y0), (x1, y1) = rig.room_min_xy_m, rig.room_max_xy_m
     lines += ["[room]", f"min_xy_m = [{x0:.6f}, {y0:.6f}]", f"max_xy_m = [{x1:.6f}, {y1:.6f}]", ""]
     return "\n".join(lines)
+
+
+def place_actor(motion: Motion, rig: Rig, seconds: float | None = None) -> Motion:
+    """Put the actor where the rig says: its SpineBase at the rig's actor position at the first
+    frame, or, when the rig names none, the path of the part that is simulated (the first
+    ``seconds``, default all) centred on the origin; facing the rig's heading at the first
+    frame; feet on the floor."""
+    from kinefuse.motion import place
+
+    if rig.actor_position_m is not None:
+        return place(motion, offset_m=rig.actor_position_m, heading_deg=rig.actor_heading_deg)
+    placed = place(motion, offset_m=(0.0, 0.0), heading_deg=rig.actor_heading_deg)
+    n = placed.n_frames if seconds is None else int(seconds * placed.rate_hz) + 1
+    root = placed.positions[:n, JOINT_INDEX["SpineBase"], :2]
+    centre = (root.min(axis=0) + root.max(axis=0)) / 2
+    return place(
+        motion,
+        offset_m=(float(-centre[0]), float(-centre[1])),
+        heading_deg=rig.actor_heading_deg,
+    )

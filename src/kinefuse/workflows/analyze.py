@@ -34,27 +34,13 @@ from numpy.typing import NDArray
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError, OutputError
 from kinefuse.io.outputs import atomic_dir, atomic_write_text, check_output_folder
+from kinefuse.pipeline.analysis import AnalysisInput
 
 Array = NDArray[np.float64]
 
-#: Axis-extraction methods, the one the angles use first (Direction Joining), then the paper's
-#: alternatives it is compared with.
-AXIS_METHODS = ("dj", "pca", "em")
 SESSION_EXT = (".sqlite", ".db")
 MOTION_EXT = (".bvh", ".amc")
 MARKER_EXT = (".trc", ".c3d")
-
-
-@dataclass(frozen=True, eq=False)
-class AnalysisInput:
-    """One input of ``kinefuse analyze`` as a skeleton sequence."""
-
-    path: Path
-    kind: str  # "session", "motion" or "markers"
-    seq: SkeletonSequence
-    stored_phase_s: tuple[float, float] | None = None  # a session's ROM phase (metadata)
-    fusion: dict[str, Any] | None = None  # method, calibration, frames (sessions)
-    sensor_poses: dict[str, Array] | None = None  # sensor2world used by the fusion (sessions)
 
 
 def _kind(path: Path) -> str:
@@ -86,7 +72,7 @@ def sequence_from_session(
     session's stored calibration, a calibration file or the true poses; the result is not
     stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
     """
-    from kinefuse.workflows.common import resolve_poses
+    from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
 

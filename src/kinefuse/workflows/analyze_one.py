@@ -19,26 +19,21 @@ Figures (all in the report JSON; definitions in ``docs/analysis.md``):
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis.kinematics import joint_angles, reconstruction_error
+from kinefuse.analysis.kinematics import reconstruction_error
 from kinefuse.analysis.limbs import LIMB_NAMES, limb
-from kinefuse.analysis.normalize import normalize
-from kinefuse.analysis.parameterize import learn_axes
-from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.io.formats.angles import write_angles_csv, write_angles_mot
+from kinefuse.pipeline.analysis import analyse_sequence
 
 if TYPE_CHECKING:
-    from kinefuse.workflows.analyze import AnalysisInput
+    from kinefuse.pipeline.analysis import AnalysisInput
 
 Array = NDArray[np.float64]
-
-AXIS_METHODS = ("dj", "pca", "em")
 
 #: The limb an anatomical angle belongs to, by the name's first word.
 _ANGLE_LIMB = {
@@ -83,26 +78,6 @@ def _axis_angle_deg(a: Array, b: Array) -> float:
     """Angle between two axes as lines (sign-free), degrees."""
     c = abs(float(np.dot(a, b)) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12))
     return float(np.degrees(np.arccos(min(c, 1.0))))
-
-
-def analyse_sequence(seq: SkeletonSequence, phase: tuple[float, float]) -> dict[str, Any]:
-    """The chain on one sequence: normalization, axes by every method, angles (DJ), timing."""
-    t0 = time.perf_counter()
-    norm = normalize(seq)
-    t1 = time.perf_counter()
-    models = {m: learn_axes(seq, norm, phase, method=m) for m in AXIS_METHODS}
-    t2 = time.perf_counter()
-    angles = joint_angles(seq, norm, models["dj"])
-    named = angles.anatomical()
-    t3 = time.perf_counter()
-    return {
-        "seq": seq,
-        "norm": norm,
-        "models": models,
-        "angles": angles,
-        "named": named,
-        "seconds": {"normalize": t1 - t0, "learn_axes": t2 - t1, "angles": t3 - t2},
-    }
 
 
 def analyse_one(

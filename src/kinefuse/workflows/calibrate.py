@@ -1,5 +1,6 @@
 """``kinefuse calibrate``: find every sensor's pose from a session's wand phase, grade the
-result from its own residuals, write the calibration file (split from :mod:`kinefuse.workflows.common`)."""
+result from its own residuals, write the calibration file (split from
+:mod:`kinefuse.workflows.common`)."""
 
 from __future__ import annotations
 

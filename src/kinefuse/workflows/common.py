@@ -12,10 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import CalibrationError, InputError, KinefuseError, OutputError
+from kinefuse.evaluation.poses import resolve_poses
 from kinefuse.io.store.session import SessionStore
-from kinefuse.motion.types import Motion
-from kinefuse.sim.rig import Rig
-from kinefuse.skeleton import JOINT_INDEX
 
 Array = NDArray[np.float64]
 
@@ -27,33 +25,6 @@ DEMO_CLIP = "01_01.amc.gz"
 def demo_clip_path() -> Path:
     """Path of the bundled demo clip inside the installed package."""
     return Path(str(resources.files("kinefuse") / "data" / DEMO_CLIP))
-
-
-def place_actor(motion: Motion, rig: Rig, seconds: float | None = None) -> Motion:
-    """Put the actor where the rig says: its SpineBase at the rig's actor position at the first
-    frame, or, when the rig names none, the path of the part that is simulated (the first
-    ``seconds``, default all) centred on the origin; facing the rig's heading at the first
-    frame; feet on the floor."""
-    from kinefuse.motion import place
-
-    if rig.actor_position_m is not None:
-        return place(motion, offset_m=rig.actor_position_m, heading_deg=rig.actor_heading_deg)
-    placed = place(motion, offset_m=(0.0, 0.0), heading_deg=rig.actor_heading_deg)
-    n = placed.n_frames if seconds is None else int(seconds * placed.rate_hz) + 1
-    root = placed.positions[:n, JOINT_INDEX["SpineBase"], :2]
-    centre = (root.min(axis=0) + root.max(axis=0)) / 2
-    return place(
-        motion,
-        offset_m=(float(-centre[0]), float(-centre[1])),
-        heading_deg=rig.actor_heading_deg,
-    )
-
-
-#: Extensions of other formats that a session store (SQLite) must not be written under.
-FOREIGN_SESSION_SUFFIXES = frozenset(
-    {".c3d", ".trc", ".csv", ".toml", ".json", ".bvh", ".amc", ".asf", ".mot", ".png", ".txt",
-     ".md", ".npy", ".npz", ".mkv", ".gz", ".html", ".xml", ".osim", ".py"}
-)  # fmt: skip
 
 
 def is_replaceable_simulation(path: Path) -> bool:
@@ -75,7 +46,11 @@ def is_replaceable_simulation(path: Path) -> bool:
 def check_session_out(out: Path, force: bool) -> None:
     """Refuse an ``--out`` for a new session: a foreign extension, or an existing file that is
     not a simulated session (or is one, without ``--force``)."""
-    from kinefuse.io.outputs import check_output_folder, is_kinefuse_session
+    from kinefuse.io.outputs import (
+        FOREIGN_SESSION_SUFFIXES,
+        check_output_folder,
+        is_kinefuse_session,
+    )
 
     if out.suffix.lower() in FOREIGN_SESSION_SUFFIXES:
         raise OutputError(
@@ -144,11 +119,11 @@ def run_simulate(
         ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`) and
         ``warnings`` (list of str).
     """
+    from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.io.outputs import atomic_file
     from kinefuse.motion import load_motion
-    from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.sim.lab import LabConfig, simulate_session
-    from kinefuse.sim.rig import default_rig, load_rig
+    from kinefuse.sim.rig import default_rig, load_rig, place_actor
 
     say = progress or (lambda _m: None)
     check_session_out(out, force)
@@ -202,9 +177,9 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
     Everything is built in a fresh folder beside ``out_dir`` and swapped in only when the whole
     run succeeded, so an interrupted demo leaves the previous run's outputs as they were.
     """
+    from kinefuse.evaluation.inspect import format_inspect, inspect_session
     from kinefuse.fusion.session import METHODS
     from kinefuse.io.outputs import atomic_dir
-    from kinefuse.evaluation.inspect import format_inspect, inspect_session
 
     say = print
     with atomic_dir(out_dir, what="demo output folder") as tmp:
@@ -264,37 +239,6 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
         "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, evaluation/ (report.html, "
         "tables I-III, trajectories.png, evaluate.json)")  # fmt: skip
     return 0
-
-
-def resolve_poses(
-    store: SessionStore, calibration: Path | None, true_calibration: bool
-) -> tuple[dict[str, Array], str]:
-    """Sensor poses for fusion: a calibration file, the truth (evaluation only), or the
-    calibration stored in the session by ``kinefuse calibrate`` (full preferred over paper)."""
-    from kinefuse.calibration.calib_file import loads_calibration, read_calibration
-
-    if calibration is not None and true_calibration:
-        raise InputError("give either --calibration or --true-calibration, not both")
-    if true_calibration:
-        if not store.has_truth():
-            raise InputError(
-                f"{store.path} has no ground truth (a live recording): --true-calibration is only "
-                "for simulated sessions; calibrate it with `kinefuse calibrate`"
-            )
-        truth = store.truth()
-        return {s.id: truth.sensor(s.id)[0] for s in store.sensors()}, "true poses (simulator)"
-    if calibration is not None:
-        return read_calibration(calibration).sensor2world, str(calibration)
-    for name in ("full", "paper"):
-        text = store.calibration(name)
-        if text is not None:
-            return loads_calibration(text, source=f"{store.path} [{name}]").sensor2world, (
-                f"session calibration ({name})"
-            )
-    raise InputError(
-        f"{store.path} has no calibration: run `kinefuse calibrate {store.path} --method full` "
-        "first, or pass --calibration CALIB.toml (or --true-calibration for a simulated session)"
-    )
 
 
 def run_fuse(
@@ -369,9 +313,9 @@ def run_evaluate(
     ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
     swapped in on success (an existing folder is replaced only if kinefuse made it).
     """
+    from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
     from kinefuse.io.outputs import atomic_dir, check_output_folder
     from kinefuse.pipeline.session import METHODS, load_sensors
-    from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:

@@ -449,10 +449,10 @@ def run_live_demo(
     viewer_port: int | None = None,
 ) -> int:
     """``kinefuse demo``: simulate, run the live system, evaluate; see the module docstring."""
-    from kinefuse.workflows.common import demo_clip_path, run_evaluate, run_fuse, run_simulate
+    from kinefuse.evaluation.live import evaluate_live, format_live, write_live_truth
     from kinefuse.io.outputs import atomic_dir
     from kinefuse.motion import load_motion
-    from kinefuse.evaluation.live import evaluate_live, format_live, write_live_truth
+    from kinefuse.workflows.common import demo_clip_path, run_evaluate, run_fuse, run_simulate
 
     if not 1 <= sensors <= 8:
         raise InputError(f"--sensors must be between 1 and 8, got {sensors}")
@@ -598,7 +598,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if args.offline:  # the offline pipeline on a simulated session (kinefuse.workflows.common.run_demo)
+    if (
+        args.offline
+    ):  # the offline pipeline on a simulated session (kinefuse.workflows.common.run_demo)
         from kinefuse.workflows.common import run_demo
 
         return run_demo(out_dir=args.out, seed=args.seed)

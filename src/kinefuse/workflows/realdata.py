@@ -40,6 +40,8 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
 from kinefuse.errors import InputError
+from kinefuse.evaluation.consistency import consistency, pair_disagreement, pose_summary
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.best import BestOptions
 from kinefuse.geometry.transforms import apply_transform, make_transform
 from kinefuse.io.formats.kinect_multitrack import (
@@ -52,8 +54,6 @@ from kinefuse.io.formats.kinect_multitrack import (
     sensor_poses,
     unique_frames,
 )
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.evaluation.consistency import consistency, pair_disagreement, pose_summary
 from kinefuse.skeleton import JOINTS
 from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
 

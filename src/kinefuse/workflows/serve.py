@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import json
 import logging
 import math
@@ -114,9 +115,13 @@ def run_serve(
         latency_budget_s=latency_budget_ms / 1e3,
         auto_calibrate=auto_calibrate,
         calibration=LiveCalibrationOptions(method=calibration_method, axis_length_m=wand_axis_m),
-        viewer_port=viewer_port,
     )
-    server = Server(options)
+    services = {}
+    if viewer_port is not None:  # the live web viewer, on the server's publisher
+        from kinefuse.viewer import live_viewer
+
+        services["viewer"] = functools.partial(live_viewer, host=host, port=viewer_port)
+    server = Server(options, services=services)
     if calibration is not None:
         from kinefuse.calibration.calib_file import read_calibration
 
@@ -124,8 +129,8 @@ def run_serve(
 
     def ready(h: str, p: int) -> None:
         print(f"kinefuse serve: listening on {h}:{p}", flush=True)
-        if server.viewer_port is not None:
-            print(f"kinefuse serve: viewer at http://{h}:{server.viewer_port}/", flush=True)
+        if "viewer" in server.services:
+            print(f"kinefuse serve: viewer at http://{h}:{server.services['viewer']}/", flush=True)
 
     async def main() -> None:
         loop = asyncio.get_running_loop()

@@ -43,8 +43,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import make_transform
 from kinefuse.frames.observations import BodyFrames
+from kinefuse.geometry.transforms import make_transform
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]

@@ -302,7 +302,7 @@ def load_marker_map(path: str | Path) -> MarkerMap:
     InputError
         Unreadable file, TOML syntax error, unknown keys, joints or rules.
     """
-    from kinefuse.io.formats.toml_file import read_toml
+    from kinefuse.io.toml import read_toml
 
     p = Path(path)
     return parse_marker_map(read_toml(p, "marker map"), name=p.stem, origin=str(p))

@@ -10,8 +10,8 @@
   position-based frame of the normalization). The clip is not placed in a lab (the analysis
   does not depend on where the subject stands).
 * :func:`sequence_from_markers`: a TRC or C3D marker file through a marker map
-  (:mod:`kinefuse.io.formats.marker_maps`): the map's joints only, with the orientations of the limbs
-  the map gives a rigid marker cluster.
+  (:mod:`kinefuse.io.formats.marker_maps`): the map's joints only, with the orientations of the
+  limbs the map gives a rigid marker cluster.
 
 Fused sessions are built by :func:`kinefuse.workflows.analyze.sequence_from_session` (it runs the
 fusion workflow).

@@ -1,8 +1,8 @@
 """The session store's encodings: validation of what goes in, BLOBs, and the depth codec.
 
 Arrays are little-endian BLOBs, one row per frame; every BLOB's size is checked on read. Depth
-frames use the "KFD1" codec (:func:`encode_depth`). Split from :mod:`kinefuse.io.store.session`, which
-keeps the schema and the :class:`~kinefuse.io.store.session.SessionStore` class.
+frames use the "KFD1" codec (:func:`encode_depth`). Split from :mod:`kinefuse.io.store.session`,
+which keeps the schema and the :class:`~kinefuse.io.store.session.SessionStore` class.
 """
 
 from __future__ import annotations

@@ -43,6 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, StoreError
+from kinefuse.frames.observations import BodyFrames
+from kinefuse.io.outputs import APPLICATION_ID
 from kinefuse.io.store.codec import (
     _F8,
     _I1,
@@ -64,7 +66,6 @@ from kinefuse.io.store.codec import (
 )
 from kinefuse.io.store.streams import SensorStreams
 from kinefuse.io.store.truth import Truth, TruthTables
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS
 
 __all__ = [
@@ -82,8 +83,6 @@ __all__ = [
 #: Version of the table layout written by this module; :meth:`SessionStore.open` reads only it.
 SCHEMA_VERSION = 1
 
-#: ``PRAGMA application_id`` of a kinefuse session store ("KNFS"), so ``file(1)`` can tell.
-APPLICATION_ID = 0x4B4E4653
 
 _RESERVED_META = frozenset({"schema_version", "complete", "completed"})
 

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, StoreError
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.io.store.codec import (
     _F8,
     _I1,
@@ -34,7 +35,6 @@ from kinefuse.io.store.codec import (
     decode_depth,
     encode_depth,
 )
-from kinefuse.frames.observations import BodyFrames
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 if TYPE_CHECKING:

@@ -2,8 +2,8 @@
 accessor :class:`Truth` that only evaluation code (``report/``) uses.
 
 The truth lives in the ``truth_*`` tables of the same SQLite file; :class:`TruthTables` adds
-their writers to :class:`~kinefuse.io.store.session.SessionStore`, which inherits it. The system under
-test never reads them (the truth-firewall test empties them and makes :meth:`truth` raise).
+their writers to :class:`~kinefuse.io.store.session.SessionStore`, which inherits it. The system
+under test never reads them (the truth-firewall test empties them and makes :meth:`truth` raise).
 """
 
 from __future__ import annotations

@@ -48,10 +48,11 @@ from typing import Any
 import numpy as np
 
 from kinefuse.errors import KinefuseError
+from kinefuse.net.client.clocks import HostClock, Monotonic
 from kinefuse.net.client.depth import DepthWork
 from kinefuse.net.client.parts import Connection, Prefetch, Prepared, wait_event
-from kinefuse.net.client.clocks import HostClock, Monotonic
 from kinefuse.net.client.playback import Timed, Timeline
+from kinefuse.pipeline.sources import DepthFrame
 from kinefuse.protocol import auth
 from kinefuse.protocol.codec import check_version
 from kinefuse.protocol.errors import VersionError, WireError
@@ -69,7 +70,6 @@ from kinefuse.protocol.messages import (
     Message,
     Welcome,
 )
-from kinefuse.pipeline.sources import DepthFrame
 
 log = logging.getLogger("kinefuse.sensor")
 
@@ -174,7 +174,8 @@ class SensorClient:
     Parameters
     ----------
     timeline : Timeline
-        The sensor's frames (:func:`kinefuse.net.client.playback.open_timeline`); the client closes it.
+        The sensor's frames (:func:`kinefuse.net.client.playback.open_timeline`); the client closes
+        it.
     options : ClientOptions
     host_clock : HostClock or callable
         The host clock, or ``make(m0) -> HostClock`` called at the play start with the

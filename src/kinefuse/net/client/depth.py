@@ -20,8 +20,8 @@ import numpy as np
 
 from kinefuse.net.client.parts import detect, fit_floor, warm_up
 from kinefuse.net.client.playback import Timeline
-from kinefuse.protocol.messages import FloorPlane, Message, WandSighting
 from kinefuse.pipeline.sources import DepthFrame
+from kinefuse.protocol.messages import FloorPlane, Message, WandSighting
 
 log = logging.getLogger("kinefuse.sensor")
 

@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from kinefuse.net.client.playback import Timed, Timeline
+from kinefuse.pipeline.sources import DepthFrame
 from kinefuse.protocol.codec import Decoder, encode
 from kinefuse.protocol.errors import WireError
 from kinefuse.protocol.messages import ClockProbe, ClockReply, Message
-from kinefuse.pipeline.sources import DepthFrame
 
 if TYPE_CHECKING:
     from kinefuse.net.client.client import SensorClient

@@ -6,11 +6,11 @@ reaches the client PC, in seconds of the timeline's own clock (``source_clock``)
 - ``sim:SESSION.sqlite#SENSOR_ID``: a simulated sensor. The timeline is the simulation's true
   time: a body frame plays at the true instant it reached the host (its recorded host arrival
   through the true host clock), a depth frame at its true capture + the mean capture-to-host
-  latency. (:class:`kinefuse.pipeline.sources.SessionReplay` merges body and depth frames by keys on two
-  different clocks; a player needs one clock, so it merges them here.)
+  latency. (:class:`kinefuse.pipeline.sources.SessionReplay` merges body and depth frames by keys on
+  two different clocks; a player needs one clock, so it merges them here.)
 - ``multitrack:FILE.csv#KINECT_ID``, ``kinect2json:FILE``: recorded real logs through
-  :func:`kinefuse.pipeline.sources.open_source`; a frame plays at its host time where the log has one,
-  else at its device time (``source_clock`` ``"host"`` or ``"device"``).
+  :func:`kinefuse.pipeline.sources.open_source`; a frame plays at its host time where the log has
+  one, else at its device time (``source_clock`` ``"host"`` or ``"device"``).
 - ``driver:MODULE:FACTORY[?KEY=VALUE&...]`` or an entry point ``NAME:ARG`` of the group
   ``kinefuse.pipeline.sources``: a physical sensor's driver (docs/live.md, "A driver for a physical
   sensor"). It is *live*: its iterator blocks until the device delivers the next frame, which
@@ -34,8 +34,15 @@ from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.clocks import SimClockTruth
+from kinefuse.pipeline.sources import (
+    BodyFrame,
+    DepthFrame,
+    Frame,
+    FrameSource,
+    SessionReplay,
+    open_source,
+)
 from kinefuse.sim.clock import ClockParams
-from kinefuse.pipeline.sources import BodyFrame, DepthFrame, Frame, FrameSource, SessionReplay, open_source
 
 #: the entry-point group a driver package registers its sources under
 ENTRY_POINT_GROUP = "kinefuse.pipeline.sources"
@@ -139,7 +146,8 @@ class SimTimeline(Timeline):
 
 
 class SourceTimeline(Timeline):
-    """Any :class:`~kinefuse.pipeline.sources.FrameSource` of one sensor (a log, or a live driver)."""
+    """Any :class:`~kinefuse.pipeline.sources.FrameSource` of one sensor (a log, or a live
+    driver)."""
 
     def __init__(
         self, source: FrameSource, sensor_id: str | None = None, *, live: bool = False

@@ -95,8 +95,7 @@ class _Batch:
 def check_recording_path(path: Path) -> None:
     """Refuse a recording path that exists, has another format's extension or whose folder is
     missing (before the server starts listening)."""
-    from kinefuse.workflows.common import FOREIGN_SESSION_SUFFIXES
-    from kinefuse.io.outputs import check_output_folder
+    from kinefuse.io.outputs import FOREIGN_SESSION_SUFFIXES, check_output_folder
 
     if path.suffix.lower() in FOREIGN_SESSION_SUFFIXES:
         raise OutputError(

@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinefuse.net.server.calibration import CalibrationOutcome
 from kinefuse.net.bus import SensorStatus, ServerStatus
+from kinefuse.net.server.calibration import CalibrationOutcome
 from kinefuse.protocol import CalibrationResult, SensorInfo, Status
 
 if TYPE_CHECKING:

@@ -41,7 +41,8 @@ import ipaddress
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,18 +50,18 @@ from kinefuse.calibration.floor import FloorPlane
 from kinefuse.errors import CalibrationError, SyncError
 from kinefuse.fusion.live import LiveOptions
 from kinefuse.io.store.live import SightingRow
-from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
+from kinefuse.net.bus import Publisher, ServerStatus
 from kinefuse.net.server.calibration import (
     CalibrationOutcome,
     LiveCalibration,
     LiveCalibrationOptions,
 )
-from kinefuse.net.bus import Publisher, ServerStatus
-from kinefuse.net.server.recorder import Recorder
-from kinefuse.net.server.sensor_state import Observation, SensorClient, sanitize_joints
 from kinefuse.net.server.conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
 from kinefuse.net.server.control import serve_control
+from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
+from kinefuse.net.server.recorder import Recorder
 from kinefuse.net.server.report import outcome_meta, result_message, run_stats, server_status
+from kinefuse.net.server.sensor_state import Observation, SensorClient, sanitize_joints
 from kinefuse.protocol import (
     MAX_FRAME_BYTES,
     AuthReply,
@@ -108,9 +109,6 @@ class ServerOptions:
     status_interval_s: float = 1.0
     max_frame_bytes: int = MAX_FRAME_BYTES
     max_sensors: int = 64
-    #: the live web viewer's port (None: no viewer; 0: a free one) and host (default: ``host``)
-    viewer_port: int | None = None
-    viewer_host: str | None = None
     session: str = "kinefuse-live"
 
 
@@ -132,10 +130,25 @@ class Server:
     options : ServerOptions
     clock : callable, optional
         The server clock, seconds (default: monotonic seconds since construction).
+    services : mapping of name to callable, optional
+        What else runs on the publisher while the server runs (the live web viewer, say): each
+        is called with :attr:`publisher` and gives an async context manager, entered once the
+        server listens and left when it stops; what it yields lands in :attr:`services`. The
+        server knows them only by this contract (net/bus.py), not by what they are.
     """
 
-    def __init__(self, options: ServerOptions, *, clock: Callable[[], float] | None = None) -> None:
+    def __init__(
+        self,
+        options: ServerOptions,
+        *,
+        clock: Callable[[], float] | None = None,
+        services: Mapping[str, Callable[[Publisher], AbstractAsyncContextManager[object]]]
+        | None = None,
+    ) -> None:
         self.options = options
+        self._service_factories = dict(services or {})
+        #: what each service yielded once running (the viewer: its port), by name
+        self.services: dict[str, object] = {}
         self.t0_monotonic = time.monotonic()
         self.clock = clock or (lambda: time.monotonic() - self.t0_monotonic)
         self.clients: dict[str, SensorClient] = {}
@@ -148,7 +161,6 @@ class Server:
         )
         self.recorder: Recorder | None = None
         self.port: int | None = None
-        self.viewer_port: int | None = None
         self._stop = asyncio.Event()
         self._stop_reason = ""
         self._conns: set[Connection] = set()
@@ -203,14 +215,8 @@ class Server:
                     self._accept, o.host, o.port, limit=o.max_frame_bytes + 8
                 )
                 self.port = int(srv.sockets[0].getsockname()[1])
-                if o.viewer_port is not None:  # the live web viewer, on this publisher
-                    from kinefuse.viewer import live_viewer
-
-                    self.viewer_port = await stack.enter_async_context(
-                        live_viewer(
-                            self.publisher, host=o.viewer_host or o.host, port=o.viewer_port
-                        )
-                    )
+                for name, factory in self._service_factories.items():
+                    self.services[name] = await stack.enter_async_context(factory(self.publisher))
                 if ready is not None:
                     ready(o.host, self.port)
                 if self.recorder is not None:

@@ -1,0 +1,45 @@
+"""Sensor poses for fusion: a calibration file, the calibration stored in a session, or (for
+simulated sessions, on request) the true poses, which is why this lives with the truth readers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import InputError
+from kinefuse.io.store.session import SessionStore
+
+Array = NDArray[np.float64]
+
+
+def resolve_poses(
+    store: SessionStore, calibration: Path | None, true_calibration: bool
+) -> tuple[dict[str, Array], str]:
+    """Sensor poses for fusion: a calibration file, the truth (evaluation only), or the
+    calibration stored in the session by ``kinefuse calibrate`` (full preferred over paper)."""
+    from kinefuse.calibration.calib_file import loads_calibration, read_calibration
+
+    if calibration is not None and true_calibration:
+        raise InputError("give either --calibration or --true-calibration, not both")
+    if true_calibration:
+        if not store.has_truth():
+            raise InputError(
+                f"{store.path} has no ground truth (a live recording): --true-calibration is only "
+                "for simulated sessions; calibrate it with `kinefuse calibrate`"
+            )
+        truth = store.truth()
+        return {s.id: truth.sensor(s.id)[0] for s in store.sensors()}, "true poses (simulator)"
+    if calibration is not None:
+        return read_calibration(calibration).sensor2world, str(calibration)
+    for name in ("full", "paper"):
+        text = store.calibration(name)
+        if text is not None:
+            return loads_calibration(text, source=f"{store.path} [{name}]").sensor2world, (
+                f"session calibration ({name})"
+            )
+    raise InputError(
+        f"{store.path} has no calibration: run `kinefuse calibrate {store.path} --method full` "
+        "first, or pass --calibration CALIB.toml (or --true-calibration for a simulated session)"
+    )
