@@ -60,6 +60,9 @@ Modules
 Errors the caller can cause raise :class:`kinefuse.errors.InputError` (a ``ValueError``) with a
 message saying what was expected and what to do; per-limb problems that should not stop the
 analysis of the other limbs are reported in ``status`` dictionaries instead.
+
+May import: skeleton, geometry, motion, errors (the numerical core: no files, sockets or
+clocks).
 """
 
 from kinefuse.analysis.anatomy import ANGLE_NAMES

@@ -9,6 +9,9 @@ Client side (one depth frame at a time):
 Server side:
     :func:`register_full` (6 DoF, joint robust refinement, gravity), :func:`register_paper`
     (paper A's level-sensor method), the TOML calibration file, and evaluation against truth.
+
+May import: errors, io (safe writes, TOML), skeleton, geometry, camera, frames, protocol,
+motion, sync, occlusion.
 """
 
 from kinefuse.calibration.calib_file import (

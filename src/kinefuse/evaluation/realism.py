@@ -572,15 +572,3 @@ DEFAULT_HEADINGS = tuple(np.radians(np.arange(0.0, 360.0, 45.0)))
 #: the real subject kept facing the front sensor (body yaw within about +/-60 degrees of it in
 #: 96 % of frames of both logs) while stepping forward, backward and sideways.
 FACING_FRONT = tuple(np.radians([-45.0, 0.0, 45.0]))
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``kinefuse realism``: real against simulated figures per take
-    (:func:`kinefuse.evaluation.realism_takes.main` has the options)."""
-    from kinefuse.evaluation.realism_takes import main as takes_main
-
-    return takes_main(argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

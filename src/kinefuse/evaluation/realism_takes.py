@@ -36,8 +36,6 @@ This is evaluation code (it reads the simulator's truth through ``simulate_pair`
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,19 +48,15 @@ from kinefuse.errors import InputError
 from kinefuse.evaluation.realism import (
     _CORE,
     _EXTREMITIES,
-    DEFAULT_HEADINGS,
     FACING_FRONT,
     PairLayout,
     _front_and_side,
-    default_walk_path,
     disagreement,
-    load_walk,
     motion_profile,
     pair_by_receive_time,
     simulate_pair,
     walking_passes,
 )
-from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
 from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.sim.lab import subject_height
@@ -444,61 +438,3 @@ def format_take_joints(results: Sequence[TakeResult]) -> str:
                  for r in results]  # fmt: skip
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``kinefuse realism [--take CSV ...] [--seeds N] [--json]``; exit 1 on a missed target."""
-    ap = argparse.ArgumentParser(
-        prog="kinefuse realism",
-        description="Real against simulated Kinect v2 figures for KinectMultiTrack takes "
-        "(docs/realism.md).",
-    )
-    ap.add_argument(
-        "--data",
-        type=Path,
-        default=Path(__file__).resolve().parents[3].parent / "shared" / "data",
-        help="the shared data folder (default: ../shared/data beside the project)",
-    )
-    ap.add_argument(
-        "--take",
-        type=Path,
-        nargs="+",
-        default=None,
-        metavar="CSV",
-        help="KinectMultiTrack take(s) (default: every CSV in DATA/kinect/kinect_multitrack)",
-    )
-    ap.add_argument("--seeds", type=int, default=5, help="simulations per take (seeds 0..N-1)")
-    ap.add_argument("--clip", type=Path, default=None, help="walking clip (default CMU 02_walk_a)")
-    ap.add_argument("--per-joint", action="store_true", help="also print per-joint medians")
-    ap.add_argument(
-        "--single", action="store_true", help="also check one simulated sensor against the truth"
-    )
-    ap.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
-    args = ap.parse_args(argv)
-    if args.seeds < 1:
-        raise InputError(f"--seeds must be at least 1, got {args.seeds}")
-    if args.take is None:
-        folder = args.data / "kinect" / "kinect_multitrack"
-        takes = sorted(folder.glob("*.csv"))
-        if not takes:
-            raise InputError(f"no KinectMultiTrack takes in {folder}; pass --take CSV")
-    else:
-        takes = list(args.take)
-    clip = args.clip or default_walk_path(args.data)
-    if not Path(clip).is_file():
-        raise InputError(f"walking clip not found: {clip}; pass --clip or --data")
-    walk = load_walk(clip)
-    results = [compare_take(t, walk, range(args.seeds)) for t in takes]
-    if args.json:
-        print(json.dumps({"takes": [r.to_json() for r in results]}, indent=2))
-    else:
-        for r in results:
-            print(format_take(r) + "\n")
-        if args.per_joint:
-            print(format_take_joints(results) + "\n")
-        if args.single:
-            single = single_sensor_realism(
-                walking_passes(walk, DEFAULT_HEADINGS), np.random.default_rng(0)
-            )
-            print(format_single(single))
-    return 0 if all(not r.failures() for r in results) else 1

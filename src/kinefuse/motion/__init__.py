@@ -2,6 +2,8 @@
 
 ``load_motion(path)`` reads a file and retargets it onto the 25 Kinect v2 joints in the lab frame;
 ``place`` puts the actor in the lab, ``resample`` changes the rate. See ``docs/motion.md``.
+
+May import: errors, io (base: TOML), skeleton, geometry.
 """
 
 from kinefuse.motion.asf_amc import AsfSkeleton, parse_amc, parse_asf, read_amc, read_asf

@@ -1,4 +1,7 @@
-"""Occlusion detection (client side, 2D bone intersection) and sensor selection (server side)."""
+"""Occlusion detection (client side, 2D bone intersection) and sensor selection (server side).
+
+May import: errors, io (base), skeleton, geometry, camera, frames, protocol, motion, sync.
+"""
 
 from kinefuse.occlusion.segments import (
     DEFAULT_NEAR_M,

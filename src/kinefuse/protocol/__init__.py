@@ -6,6 +6,8 @@
 - :mod:`~kinefuse.protocol.errors`: the exception tree (each error has a wire ``code``).
 
 docs/protocol.md is the specification.
+
+May import: errors, io (base), skeleton, geometry, camera, frames (sans-I/O: no sockets).
 """
 
 from kinefuse.protocol.codec import MAX_FRAME_BYTES, Decoder, check_version, encode

@@ -1,4 +1,7 @@
-"""Skeleton topology as data: the Kinect v2 body (25 joints, 24 bones) and its capsule body."""
+"""Skeleton topology as data: the Kinect v2 body (25 joints, 24 bones) and its capsule body.
+
+May import only errors: the Kinect v2 topology as data.
+"""
 
 from kinefuse.skeleton.kinect_v2 import (
     BONES,

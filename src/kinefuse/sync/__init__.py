@@ -1,4 +1,7 @@
-"""Clock synchronization (NTP-style offset and drift) and frame assembly. Pure: clocks injected."""
+"""Clock synchronization (NTP-style offset and drift) and frame assembly. Pure: clocks injected.
+
+May import: errors, io (base), skeleton, geometry, camera, frames, protocol, motion.
+"""
 
 from kinefuse.sync.assembly import AssembledFrames, assemble_latest
 from kinefuse.sync.device import (

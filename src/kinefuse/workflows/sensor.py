@@ -1,15 +1,13 @@
 """``kinefuse sensor``: one sensor client process (docs/live.md, "The sensor client").
 
-Light at import (the CLI imports it to build its parser); the client loads when it runs.
+The options are parsed in :mod:`kinefuse.cli.sensor`; the client loads when it runs.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
-import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -21,108 +19,26 @@ from kinefuse.errors import InputError
 SIDECAR_MARK = ("written_by", "kinefuse sensor")
 
 
-def _server(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT (e.g. 127.0.0.1:7400), got {text!r}")
-    return host.strip("[]"), int(port)
+def run_sensor(
+    *,
+    clock_drift_ppm: float | None,
+    clock_offset_ms: float | None,
+    detect_every: int,
+    detector: str,
+    epoch_monotonic: float | None,
+    max_seconds: float | None,
+    occlusion: str,
+    serial: str,
+    server: tuple[str, int],
+    source: str,
+    speed: float,
+    token: str | None,
+    truth_out: Path | None,
+    verbose: bool,
+) -> int:
+    """Run one sensor client until it stops; return the exit code (0 a clean stop, 3 refused).
 
-
-def _float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return v
-
-
-def _positive(text: str) -> float:
-    v = _float(text)
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _count(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return int(text)
-
-
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    """Add ``sensor`` to the CLI's subcommands."""
-    p = sub.add_parser(
-        "sensor",
-        help="a sensor client: play one sensor's frames to a kinefuse server in real time",
-        description="Play one sensor's frames to `kinefuse serve` as the sensor delivers them "
-        "(docs/live.md). Stops cleanly on SIGINT/SIGTERM (exit 0); exit 3 when the server "
-        "refuses (token, version, duplicate sensor id), 2 on bad input.",
-    )
-    p.add_argument("--server", type=_server, required=True, metavar="HOST:PORT")
-    p.add_argument(
-        "--source",
-        required=True,
-        help="sim:SESSION.sqlite#SENSOR_ID, multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, "
-        "driver:MODULE:FACTORY[?KEY=VALUE&...][#SENSOR_ID] or an installed driver NAME:ARG",
-    )
-    p.add_argument(
-        "--token",
-        default=os.environ.get("KINEFUSE_TOKEN"),
-        help="the server's shared token (default: $KINEFUSE_TOKEN); it never crosses the wire",
-    )
-    p.add_argument(
-        "--truth-out",
-        type=Path,
-        help="write the emulation's truth (clock and play start) to this JSON, for evaluation",
-    )
-    p.add_argument(
-        "--clock-offset-ms",
-        type=_float,
-        help="emulated host clock at the play start, ms (default: the simulated sensor's, else 0)",
-    )
-    p.add_argument(
-        "--clock-drift-ppm",
-        type=_float,
-        help="emulated host clock rate error, ppm (default: the simulated sensor's, else 0)",
-    )
-    p.add_argument(
-        "--epoch-monotonic",
-        type=_float,
-        metavar="M",
-        help="play source time T at CLOCK_MONOTONIC M + T / speed (clients in step; a late "
-        "start skips to the present)",
-    )
-    p.add_argument("--speed", type=_positive, default=1.0, help="source s per real s (1)")
-    p.add_argument(
-        "--max-seconds", type=_positive, help="stop after this much source time (default: all)"
-    )
-    p.add_argument(
-        "--detector", choices=["robust", "paper"], default="robust", help="wand detector"
-    )
-    p.add_argument(
-        "--detect-every",
-        type=_count,
-        default=1,
-        metavar="K",
-        help="run wand detection on every K-th depth frame (1; busy frames are skipped anyway)",
-    )
-    p.add_argument(
-        "--occlusion",
-        choices=["crossing", "coverage"],
-        default="crossing",
-        help="occlusion rule: the paper's bone crossing (default) or capsule coverage",
-    )
-    p.add_argument(
-        "--serial", default="", help="the device's serial number for Hello (default: the source's)"
-    )
-    p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
-    p.set_defaults(func=cmd_sensor)
-
-
-def cmd_sensor(args: argparse.Namespace) -> int:
-    """Run one sensor client until it stops; return the exit code."""
+    The options are those of ``kinefuse sensor`` (docs/live.md, "The sensor client")."""
     import asyncio
     import signal
 
@@ -133,31 +49,31 @@ def cmd_sensor(args: argparse.Namespace) -> int:
     from kinefuse.net.client.playback import open_timeline
 
     logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
+        level=logging.INFO if verbose else logging.WARNING,
         format="kinefuse sensor: %(message)s",
         stream=sys.stderr,
     )
     recognizer = json_recognizer(*SIDECAR_MARK)
-    if args.truth_out is not None:
-        refuse_unless_ours(args.truth_out, recognizer, "truth sidecar")
+    if truth_out is not None:
+        refuse_unless_ours(truth_out, recognizer, "truth sidecar")
     options = ClientOptions(
-        server=args.server,
-        token=args.token or None,
-        detector=args.detector,
-        detect_every=args.detect_every,
-        occlusion_rule=args.occlusion,
-        speed=args.speed,
-        max_seconds=args.max_seconds,
-        serial=args.serial,
+        server=server,
+        token=token or None,
+        detector=detector,
+        detect_every=detect_every,
+        occlusion_rule=occlusion,
+        speed=speed,
+        max_seconds=max_seconds,
+        serial=serial,
         software=f"kinefuse {__version__}",
     )
-    timeline = open_timeline(args.source)
-    if not args.serial and timeline.serial:
+    timeline = open_timeline(source)
+    if not serial and timeline.serial:
         options = replace(options, serial=timeline.serial)
     try:
         truth = timeline.truth
         if timeline.live:
-            if args.clock_offset_ms is not None or args.clock_drift_ppm is not None:
+            if clock_offset_ms is not None or clock_drift_ppm is not None:
                 raise InputError(
                     "a driver source stamps on this PC's clock: --clock-offset-ms and "
                     "--clock-drift-ppm are for simulated and recorded sources only"
@@ -166,10 +82,10 @@ def cmd_sensor(args: argparse.Namespace) -> int:
         else:
             h0 = truth.host_offset_s if truth is not None else 0.0
             drift = truth.host_drift_ppm * 1e-6 if truth is not None else 0.0
-            if args.clock_offset_ms is not None:
-                h0 = args.clock_offset_ms * 1e-3
-            if args.clock_drift_ppm is not None:
-                drift = args.clock_drift_ppm * 1e-6
+            if clock_offset_ms is not None:
+                h0 = clock_offset_ms * 1e-3
+            if clock_drift_ppm is not None:
+                drift = clock_drift_ppm * 1e-6
         HostClock(h0, drift, 0.0)  # checks the drift now, before connecting
     except BaseException:
         timeline.close()
@@ -178,21 +94,21 @@ def cmd_sensor(args: argparse.Namespace) -> int:
     side: dict[str, Any] = {
         SIDECAR_MARK[0]: SIDECAR_MARK[1],
         "sensor_id": timeline.sensor_id,
-        "source": args.source,
+        "source": source,
         "h0": h0,
         "drift": drift,
-        "epoch_monotonic": args.epoch_monotonic,
-        "speed": args.speed,
+        "epoch_monotonic": epoch_monotonic,
+        "speed": speed,
     }
 
     def write_sidecar(**more: Any) -> None:
-        if args.truth_out is None:
+        if truth_out is None:
             return
         from kinefuse.io.outputs import atomic_write_text
 
         side.update(more)
         atomic_write_text(
-            args.truth_out,
+            truth_out,
             json.dumps(side, indent=2) + "\n",
             what="truth sidecar",
             recognizer=recognizer,
@@ -217,7 +133,7 @@ def cmd_sensor(args: argparse.Namespace) -> int:
         timeline,
         options,
         host_clock=host_clock,
-        epoch_monotonic=args.epoch_monotonic,
+        epoch_monotonic=epoch_monotonic,
         on_play_start=on_play_start,
     )
     # the loop thread must get the GIL back quickly from the detection thread: probe replies

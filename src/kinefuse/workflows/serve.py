@@ -6,11 +6,9 @@ their outcome into exit codes and printed lines.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import functools
-import json
 import logging
 import math
 import os
@@ -42,34 +40,6 @@ def token_from(arg: str | None) -> str | None:
     if tok is not None and not tok:
         raise InputError("the token is empty; give a non-empty --token (or KINEFUSE_TOKEN)")
     return tok
-
-
-def parse_hostport(text: str, default_port: int = 7400) -> tuple[str, int]:
-    """``HOST:PORT`` (or ``HOST``) -> (host, port); IPv6 as ``[::1]:7400``."""
-    host, port = text, default_port
-    if text.startswith("["):
-        end = text.find("]")
-        if end < 0:
-            raise InputError(f"bad address {text!r}: expected [IPV6]:PORT")
-        host, rest = text[1:end], text[end + 1 :]
-        if rest.startswith(":"):
-            port = _port(rest[1:], text)
-    elif text.count(":") == 1:
-        host, p = text.split(":")
-        port = _port(p, text)
-    if not host:
-        raise InputError(f"bad address {text!r}: expected HOST:PORT, e.g. 127.0.0.1:7400")
-    return host, port
-
-
-def _port(p: str, text: str) -> int:
-    try:
-        v = int(p)
-    except ValueError:
-        raise InputError(f"bad port in {text!r}: expected a number 0-65535") from None
-    if not 0 <= v <= 65535:
-        raise InputError(f"bad port in {text!r}: expected a number 0-65535")
-    return v
 
 
 def _unwrap(eg: BaseExceptionGroup[BaseException]) -> BaseException:
@@ -235,15 +205,16 @@ async def _control_calibrate(
 
 def run_calibrate_live(
     *,
-    address: str,
+    address: tuple[str, int],
     method: str,
     seconds: float | None,
     token: str | None,
     timeout_s: float = 300.0,
 ) -> dict[str, Any]:
     """Ask a running server to calibrate; the result as
-    :func:`kinefuse.workflows.calibrate.run_calibrate`'s."""
-    host, port = parse_hostport(address)
+    :func:`kinefuse.workflows.calibrate.run_calibrate`'s. ``address``: the server's
+    ``(host, port)`` (:func:`kinefuse.net.address.parse_hostport` reads ``HOST:PORT``)."""
+    host, port = address
     res = asyncio.run(_control_calibrate(host, port, token, method, seconds, timeout_s))
     reasons = [r.strip() for r in res.message.split(";")[1:]]
     return {
@@ -281,97 +252,3 @@ def format_calibrate_live(r: dict[str, Any]) -> str:
 
 
 # -- command line ----------------------------------------------------------------------------------
-
-
-def add_calibrate_live_args(p: argparse.ArgumentParser) -> None:
-    """The ``--live`` options of ``kinefuse calibrate``."""
-    from kinefuse.cli import _positive_float
-
-    p.add_argument(
-        "--live",
-        metavar="HOST:PORT",
-        help="calibrate through a running `kinefuse serve` instead of a session",
-    )
-    p.add_argument(
-        "--seconds",
-        type=_positive_float,
-        help="(--live) stop the wand phase after this long (default: when the wand is put away)",
-    )
-    p.add_argument("--token", help="(--live) the server's token (default: KINEFUSE_TOKEN)")
-
-
-def cmd_calibrate_live(args: argparse.Namespace) -> int:
-    """``kinefuse calibrate --live HOST:PORT``."""
-
-    if args.live is None:
-        raise KinefuseError("give a session to calibrate, or --live HOST:PORT of a server")
-    if args.session is not None:
-        raise KinefuseError("give either a session or --live HOST:PORT, not both")
-    r = run_calibrate_live(
-        address=args.live, method=args.method, seconds=args.seconds, token=token_from(args.token)
-    )
-    print(json.dumps(r, indent=2) if args.json else format_calibrate_live(r))
-    return 0 if r["accepted"] else 3
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    """``kinefuse serve``."""
-
-    return run_serve(
-        host=args.host,
-        port=args.port,
-        token=token_from(args.token),
-        record=args.record,
-        calibration=args.calibration,
-        method=args.method,
-        latency_budget_ms=args.latency_budget_ms,
-        auto_calibrate=args.auto_calibrate,
-        calibration_method=args.calibration_method,
-        wand_axis_m=args.wand_axis_m,
-        viewer_port=args.viewer_port,
-        verbose=args.verbose,
-    )
-
-
-def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Register ``kinefuse serve``."""
-    from kinefuse.cli import _nonneg_float, _positive_float
-
-    p = sub.add_parser("serve", help="run the live server: sensor clients in, fused frames out")
-    p.add_argument("--host", default="127.0.0.1", help="bind address (127.0.0.1: this PC only)")
-    p.add_argument("--port", type=int, default=7400, help="TCP port (7400; 0: a free one)")
-    p.add_argument("--token", help="shared secret clients must prove (default: KINEFUSE_TOKEN)")
-    p.add_argument("--record", type=Path, help="record everything into this NEW session file")
-    p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
-    p.add_argument(
-        "--method", choices=["best-live", "paper"], default="best-live", help="live fusion"
-    )
-    p.add_argument(
-        "--latency-budget-ms",
-        type=_nonneg_float,
-        default=10.0,
-        metavar="MS",
-        help="wait this long for late frames before predicting (10 ms)",
-    )
-    p.add_argument(
-        "--auto-calibrate",
-        action="store_true",
-        help="start the wand calibration as soon as a sensor without a pose joins",
-    )
-    p.add_argument(
-        "--calibration-method", choices=["full", "paper"], default="full", help="registration"
-    )
-    p.add_argument(
-        "--wand-axis-m",
-        type=_positive_float,
-        metavar="M",
-        help="the wand protocol's move between its two holds (m), to fix the scale",
-    )
-    p.add_argument(
-        "--viewer-port",
-        type=int,
-        metavar="PORT",
-        help="serve the live web viewer on this port (0: a free one; on --host)",
-    )
-    p.add_argument("--verbose", action="store_true", help="log debug messages")
-    p.set_defaults(func=cmd_serve)

@@ -3,23 +3,13 @@
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
-
-
-def is_loopback(host: str) -> bool:
-    """True for 127.0.0.0/8, ::1 and ``localhost``."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+from kinefuse.net.address import is_loopback
 
 
 def run_view(

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ipaddress
 import logging
 import math
 import time
@@ -50,6 +49,7 @@ from kinefuse.calibration.floor import FloorPlane
 from kinefuse.errors import CalibrationError, SyncError
 from kinefuse.fusion.live import LiveOptions
 from kinefuse.io.store.live import SightingRow
+from kinefuse.net.address import is_loopback
 from kinefuse.net.bus import Publisher, ServerStatus
 from kinefuse.net.server.calibration import (
     CalibrationOutcome,
@@ -110,16 +110,6 @@ class ServerOptions:
     max_frame_bytes: int = MAX_FRAME_BYTES
     max_sensors: int = 64
     session: str = "kinefuse-live"
-
-
-def is_loopback(host: str) -> bool:
-    """True for a loopback bind address (127.0.0.0/8, ::1, localhost)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 class Server:

@@ -1,0 +1,65 @@
+"""``kinefuse analyze``: paper B's limb frames and joint angles of sessions, clips, marker files."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from kinefuse.cli import args as shared
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse analyze``."""
+    p = sub.add_parser(
+        "analyze", help="normalized limb frames and joint angles (paper B; docs/analysis.md)"
+    )
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        type=Path,
+        help="session (.sqlite), clip (.bvh/.amc), markers (.trc/.c3d)",
+    )
+    p.add_argument(
+        "--calibration-phase",
+        type=shared.phase,
+        metavar="START_S:END_S",
+        help="the frames to learn the movement axes from (default: a session's stored "
+        "range-of-motion phase, else the whole input)",
+    )
+    p.add_argument(
+        "--map", type=Path, help="marker map (TOML) for .trc/.c3d (default: a shipped one)"
+    )
+    p.add_argument(
+        "--method",
+        default="best",
+        choices=["linear", "geometric", "nonlinear", "paper", "best"],
+        help="fusion method for sessions (best)",
+    )
+    shared.add_calibration_args(p)
+    p.add_argument("--out", type=Path, required=True, help="fresh output folder")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from kinefuse.workflows.analyze import format_analyze, json_text, run_analyze
+
+    if not args.no_plots:
+        import matplotlib
+
+        matplotlib.use("Agg")  # the command draws to files only
+    report = run_analyze(
+        args.inputs,
+        out=args.out,
+        calibration_phase=args.calibration_phase,
+        marker_map=args.map,
+        method=args.method,
+        calibration=args.calibration,
+        true_calibration=args.true_calibration,
+        plots=not args.no_plots,
+        progress=lambda m: print(m, file=sys.stderr),
+    )
+    print(json_text(report) if args.json else format_analyze(report))
+    return 0

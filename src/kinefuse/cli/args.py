@@ -1,0 +1,133 @@
+"""The argument types and option groups every command shares (one of each).
+
+Numbers must be finite everywhere (``inf`` and ``nan`` are refused with the same message in every
+command); an address is ``HOST:PORT`` with IPv6 in brackets (:mod:`kinefuse.net.address`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from kinefuse.errors import InputError
+from kinefuse.net.address import parse_hostport
+
+
+def finite_float(text: str) -> float:
+    """A finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    v = finite_float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def nonneg_float(text: str) -> float:
+    """A finite number >= 0."""
+    v = finite_float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def count(text: str) -> int:
+    """An integer >= 1."""
+    if not text.strip().isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return int(text)
+
+
+def host_port(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (IPv6 as ``[::1]:7400``)."""
+    try:
+        return parse_hostport(text, default_port=None)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def listen_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT``, or ``HOST`` alone for a free port."""
+    try:
+        return parse_hostport(text, default_port=0)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def room(text: str) -> tuple[float, float, float, float]:
+    """``XMIN,YMIN,XMAX,YMAX`` in metres, a non-empty rectangle."""
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 4 or not (v[0] < v[2] and v[1] < v[3]):
+        raise argparse.ArgumentTypeError(
+            f"expected XMIN,YMIN,XMAX,YMAX in metres with XMIN < XMAX and YMIN < YMAX, got {text!r}"
+        )
+    return (v[0], v[1], v[2], v[3])
+
+
+def phase(text: str) -> tuple[float, float]:
+    """``START_S:END_S`` in seconds, the end after the start."""
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected START_S:END_S in seconds (e.g. 0:20), got {text!r}"
+        ) from None
+    if not b > a:
+        raise argparse.ArgumentTypeError(f"the end must be after the start, got {text!r}")
+    return a, b
+
+
+def methods(text: str) -> tuple[str, ...]:
+    """Comma-separated fusion methods, each one of ``kinefuse.fusion.session.METHODS``."""
+    from kinefuse.fusion.session import METHODS
+
+    names = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in names if m not in METHODS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
+        )
+    return names
+
+
+def add_calibration_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--calibration", type=Path, help="calibration file (TOML) with sensor poses")
+    g.add_argument(
+        "--true-calibration",
+        action="store_true",
+        help="use the simulator's true sensor poses (evaluation only)",
+    )
+
+
+def add_span_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--start",
+        type=float,
+        metavar="S",
+        help="first frame time, seconds from the session's start",
+    )
+    p.add_argument(
+        "--end", type=float, metavar="S", help="last frame time, seconds from the session's start"
+    )
+
+
+def add_partial_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--partial",
+        action="store_true",
+        help="use an incomplete session (an interrupted simulation or recording) as it is",
+    )

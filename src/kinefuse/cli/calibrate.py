@@ -1,0 +1,113 @@
+"""``kinefuse calibrate``: every sensor's pose from a wand phase (a session, or live)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from kinefuse.cli import args as shared
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse calibrate``."""
+    p = sub.add_parser("calibrate", help="find every sensor's pose from the wand phase")
+    p.add_argument("session", type=Path, nargs="?", help="session store (or --live HOST:PORT)")
+    _add_live_args(p)
+    p.add_argument(
+        "--method", choices=["paper", "full"], default="full", help="registration (full)"
+    )
+    p.add_argument(
+        "--detector",
+        choices=["paper", "robust"],
+        help="wand detector (default: the method's own: paper for paper, robust for full)",
+    )
+    p.add_argument("--out", type=Path, help="write the calibration file (TOML)")
+    p.add_argument(
+        "--store",
+        action="store_true",
+        help="also store the calibration in the session (otherwise the session is only read)",
+    )
+    p.add_argument(
+        "--accept",
+        action="store_true",
+        help="write a calibration even when it grades as failed (exit code 0)",
+    )
+    p.add_argument(
+        "--report",
+        type=Path,
+        help="folder for the paper-style error plots (sessions with truth only)",
+    )
+    shared.add_partial_arg(p)
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=run)
+
+
+def _add_live_args(p: argparse.ArgumentParser) -> None:
+    """The ``--live`` options of ``kinefuse calibrate``."""
+
+    p.add_argument(
+        "--live",
+        type=shared.host_port,
+        metavar="HOST:PORT",
+        help="calibrate through a running `kinefuse serve` instead of a session",
+    )
+    p.add_argument(
+        "--seconds",
+        type=shared.positive_float,
+        help="(--live) stop the wand phase after this long (default: when the wand is put away)",
+    )
+    p.add_argument("--token", help="(--live) the server's token (default: KINEFUSE_TOKEN)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from kinefuse.workflows.calibrate import format_calibrate, run_calibrate
+
+    if args.live is not None or args.session is None:
+        return _run_live(args)
+    r = run_calibrate(
+        session=args.session,
+        method=args.method,
+        out=args.out,
+        report_dir=args.report,
+        store_result=args.store,
+        accept=args.accept,
+        allow_incomplete=args.partial,
+        detector=args.detector,
+    )
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        print(format_calibrate(r))
+        if r["stored_in_session"]:
+            print(f"stored the calibration in {args.session} (as {r['method']!r})")
+        for w in [r["out"], *r.get("written", [])]:
+            if w:
+                print(f"wrote {w}")
+        if r.get("report_note"):
+            print(r["report_note"])
+    if r["grade"] == "failed" and not r["accepted"]:
+        print(
+            f"kinefuse: error: calibration failed ({'; '.join(r['reasons'])}); nothing was "
+            "written (pass --accept to keep it anyway)",
+            file=sys.stderr,
+        )
+        return 3
+    return 0
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    """``kinefuse calibrate --live HOST:PORT``."""
+    from kinefuse.errors import KinefuseError
+    from kinefuse.workflows.serve import format_calibrate_live, run_calibrate_live, token_from
+
+    if args.live is None:
+        raise KinefuseError("give a session to calibrate, or --live HOST:PORT of a server")
+    if args.session is not None:
+        raise KinefuseError("give either a session or --live HOST:PORT, not both")
+    r = run_calibrate_live(
+        address=args.live, method=args.method, seconds=args.seconds, token=token_from(args.token)
+    )
+    print(json.dumps(r, indent=2) if args.json else format_calibrate_live(r))
+    return 0 if r["accepted"] else 3

@@ -1,0 +1,49 @@
+"""``kinefuse evaluate``: every fusion method against the simulator's truth."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from kinefuse.cli import args as shared
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse evaluate``."""
+    p = sub.add_parser("evaluate", help="compare fusion methods against the simulator's truth")
+    p.add_argument("session", type=Path)
+    shared.add_calibration_args(p)
+    p.add_argument(
+        "--methods",
+        type=shared.methods,
+        default=("linear", "geometric", "nonlinear", "paper", "best", "best-live"),
+        help="comma-separated methods (all six)",
+    )
+    p.add_argument("--out", type=Path, help="folder for the paper-style tables and plots")
+    shared.add_span_args(p)
+    shared.add_partial_arg(p)
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from kinefuse.workflows.common import format_evaluate, run_evaluate
+
+    report = run_evaluate(
+        session=args.session,
+        methods=args.methods,
+        out_dir=args.out,
+        calibration=args.calibration,
+        true_calibration=args.true_calibration,
+        allow_incomplete=args.partial,
+        start_s=args.start,
+        end_s=args.end,
+    )
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(format_evaluate(report, args.methods))
+        for w in report.get("written", []):  # type: ignore[attr-defined]
+            print(f"wrote {w}")
+    return 0

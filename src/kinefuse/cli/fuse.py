@@ -1,0 +1,71 @@
+"""``kinefuse fuse``: one session fused into one skeleton, exported."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from kinefuse.cli import args as shared
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse fuse``."""
+    p = sub.add_parser("fuse", help="fuse a session's joints into one skeleton")
+    p.add_argument("session", type=Path)
+    shared.add_calibration_args(p)
+    p.add_argument(
+        "--method",
+        default="best",
+        choices=["linear", "geometric", "nonlinear", "paper", "best", "best-live"],
+        help="fusion method (best; best-live is the causal fusion a live server runs)",
+    )
+    p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc or .csv)")
+    p.add_argument(
+        "--trc-axes",
+        choices=["y-up", "z-up"],
+        default="y-up",
+        help="axes of a .trc export: OpenSim's Y up (default) or the lab's Z up",
+    )
+    p.add_argument(
+        "--store",
+        action="store_true",
+        help="also store the fused skeleton in the session (otherwise the session is only read)",
+    )
+    shared.add_span_args(p)
+    shared.add_partial_arg(p)
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from kinefuse.workflows.common import run_fuse
+
+    info = run_fuse(
+        session=args.session,
+        method=args.method,
+        out=args.out,
+        calibration=args.calibration,
+        true_calibration=args.true_calibration,
+        store_result=args.store,
+        allow_incomplete=args.partial,
+        trc_axes=args.trc_axes,
+        start_s=args.start,
+        end_s=args.end,
+    )
+    for w in info["warnings"]:  # type: ignore[attr-defined]
+        print(f"kinefuse: warning: {w}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        status = ", ".join(f"{k} {v}" for k, v in info["status"].items() if v)  # type: ignore[attr-defined]
+        print(
+            f"fused {info['frames']} frames with {info['method']} ({info['calibration']}) in "
+            f"{info['seconds']:.2f} s; joint status: {status}"
+        )
+        if info["stored_in_session"]:
+            print(f"stored the fused skeleton in {args.session} (method {info['method']})")
+        if info["out"]:
+            print(f"wrote {info['out']}")
+    return 0

@@ -1,0 +1,104 @@
+"""``kinefuse sensor``: one live sensor client."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+from kinefuse.cli import args as shared
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse sensor``."""
+    p = sub.add_parser(
+        "sensor",
+        help="a sensor client: play one sensor's frames to a kinefuse server in real time",
+        description="Play one sensor's frames to `kinefuse serve` as the sensor delivers them "
+        "(docs/live.md). Stops cleanly on SIGINT/SIGTERM (exit 0); exit 3 when the server "
+        "refuses (token, version, duplicate sensor id), 2 on bad input.",
+    )
+    p.add_argument("--server", type=shared.host_port, required=True, metavar="HOST:PORT")
+    p.add_argument(
+        "--source",
+        required=True,
+        help="sim:SESSION.sqlite#SENSOR_ID, multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, "
+        "driver:MODULE:FACTORY[?KEY=VALUE&...][#SENSOR_ID] or an installed driver NAME:ARG",
+    )
+    p.add_argument(
+        "--token",
+        default=os.environ.get("KINEFUSE_TOKEN"),
+        help="the server's shared token (default: $KINEFUSE_TOKEN); it never crosses the wire",
+    )
+    p.add_argument(
+        "--truth-out",
+        type=Path,
+        help="write the emulation's truth (clock and play start) to this JSON, for evaluation",
+    )
+    p.add_argument(
+        "--clock-offset-ms",
+        type=shared.finite_float,
+        help="emulated host clock at the play start, ms (default: the simulated sensor's, else 0)",
+    )
+    p.add_argument(
+        "--clock-drift-ppm",
+        type=shared.finite_float,
+        help="emulated host clock rate error, ppm (default: the simulated sensor's, else 0)",
+    )
+    p.add_argument(
+        "--epoch-monotonic",
+        type=shared.finite_float,
+        metavar="M",
+        help="play source time T at CLOCK_MONOTONIC M + T / speed (clients in step; a late "
+        "start skips to the present)",
+    )
+    p.add_argument(
+        "--speed", type=shared.positive_float, default=1.0, help="source s per real s (1)"
+    )
+    p.add_argument(
+        "--max-seconds",
+        type=shared.positive_float,
+        help="stop after this much source time (default: all)",
+    )
+    p.add_argument(
+        "--detector", choices=["robust", "paper"], default="robust", help="wand detector"
+    )
+    p.add_argument(
+        "--detect-every",
+        type=shared.count,
+        default=1,
+        metavar="K",
+        help="run wand detection on every K-th depth frame (1; busy frames are skipped anyway)",
+    )
+    p.add_argument(
+        "--occlusion",
+        choices=["crossing", "coverage"],
+        default="crossing",
+        help="occlusion rule: the paper's bone crossing (default) or capsule coverage",
+    )
+    p.add_argument(
+        "--serial", default="", help="the device's serial number for Hello (default: the source's)"
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from kinefuse.workflows.sensor import run_sensor
+
+    return run_sensor(
+        clock_drift_ppm=args.clock_drift_ppm,
+        clock_offset_ms=args.clock_offset_ms,
+        detect_every=args.detect_every,
+        detector=args.detector,
+        epoch_monotonic=args.epoch_monotonic,
+        max_seconds=args.max_seconds,
+        occlusion=args.occlusion,
+        serial=args.serial,
+        server=args.server,
+        source=args.source,
+        speed=args.speed,
+        token=args.token,
+        truth_out=args.truth_out,
+        verbose=args.verbose,
+    )

@@ -1,0 +1,71 @@
+"""``kinefuse serve``: the live server."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from kinefuse.cli import args as shared
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``kinefuse serve``."""
+
+    p = sub.add_parser("serve", help="run the live server: sensor clients in, fused frames out")
+    p.add_argument("--host", default="127.0.0.1", help="bind address (127.0.0.1: this PC only)")
+    p.add_argument("--port", type=int, default=7400, help="TCP port (7400; 0: a free one)")
+    p.add_argument("--token", help="shared secret clients must prove (default: KINEFUSE_TOKEN)")
+    p.add_argument("--record", type=Path, help="record everything into this NEW session file")
+    p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
+    p.add_argument(
+        "--method", choices=["best-live", "paper"], default="best-live", help="live fusion"
+    )
+    p.add_argument(
+        "--latency-budget-ms",
+        type=shared.nonneg_float,
+        default=10.0,
+        metavar="MS",
+        help="wait this long for late frames before predicting (10 ms)",
+    )
+    p.add_argument(
+        "--auto-calibrate",
+        action="store_true",
+        help="start the wand calibration as soon as a sensor without a pose joins",
+    )
+    p.add_argument(
+        "--calibration-method", choices=["full", "paper"], default="full", help="registration"
+    )
+    p.add_argument(
+        "--wand-axis-m",
+        type=shared.positive_float,
+        metavar="M",
+        help="the wand protocol's move between its two holds (m), to fix the scale",
+    )
+    p.add_argument(
+        "--viewer-port",
+        type=int,
+        metavar="PORT",
+        help="serve the live web viewer on this port (0: a free one; on --host)",
+    )
+    p.add_argument("--verbose", action="store_true", help="log debug messages")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``kinefuse serve``."""
+    from kinefuse.workflows.serve import run_serve, token_from
+
+    return run_serve(
+        host=args.host,
+        port=args.port,
+        token=token_from(args.token),
+        record=args.record,
+        calibration=args.calibration,
+        method=args.method,
+        latency_budget_ms=args.latency_budget_ms,
+        auto_calibrate=args.auto_calibrate,
+        calibration_method=args.calibration_method,
+        wand_axis_m=args.wand_axis_m,
+        viewer_port=args.viewer_port,
+        verbose=args.verbose,
+    )

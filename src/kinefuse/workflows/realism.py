@@ -1,0 +1,66 @@
+"""``kinefuse realism``: real against simulated figures for KinectMultiTrack takes (the logic;
+the options are in :mod:`kinefuse.cli.realism`)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from kinefuse.errors import InputError
+from kinefuse.evaluation.realism import (
+    DEFAULT_HEADINGS,
+    default_walk_path,
+    load_walk,
+    walking_passes,
+)
+from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
+from kinefuse.evaluation.realism_takes import compare_take, format_take, format_take_joints
+
+#: ../shared/data beside the project checkout (where the repository's data lives)
+DEFAULT_DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+
+
+def run_realism(
+    *,
+    data: Path | None = None,
+    takes: Sequence[Path] | None = None,
+    seeds: int = 5,
+    clip: Path | None = None,
+    per_joint: bool = False,
+    single: bool = False,
+    as_json: bool = False,
+) -> int:
+    """Print real against simulated figures per take; 0 if every target holds, else 1."""
+    data = DEFAULT_DATA if data is None else data
+    takes_arg = takes
+    clip_arg = clip
+    if seeds < 1:
+        raise InputError(f"--seeds must be at least 1, got {seeds}")
+    if takes_arg is None:
+        folder = data / "kinect" / "kinect_multitrack"
+        takes = sorted(folder.glob("*.csv"))
+        if not takes:
+            raise InputError(f"no KinectMultiTrack takes in {folder}; pass --take CSV")
+    else:
+        takes = list(takes_arg)
+    clip = clip_arg or default_walk_path(data)
+    if not Path(clip).is_file():
+        raise InputError(f"walking clip not found: {clip}; pass --clip or --data")
+    walk = load_walk(clip)
+    results = [compare_take(t, walk, range(seeds)) for t in takes]
+    if as_json:
+        print(json.dumps({"takes": [r.to_json() for r in results]}, indent=2))
+    else:
+        for r in results:
+            print(format_take(r) + "\n")
+        if per_joint:
+            print(format_take_joints(results) + "\n")
+        if single:
+            single = single_sensor_realism(
+                walking_passes(walk, DEFAULT_HEADINGS), np.random.default_rng(0)
+            )
+            print(format_single(single))
+    return 0 if all(not r.failures() for r in results) else 1
