@@ -14,12 +14,13 @@ function of time (drift) by a robust fit, so a client timestamp maps to server t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
+from kinefuse.sync.affine import AffineClock
 
 Array = NDArray[np.float64]
 
@@ -47,7 +48,7 @@ def probe_offsets(probes: ArrayLike) -> tuple[Array, Array, Array]:
 
 @dataclass(frozen=True)
 class ClockEstimate:
-    """``t_client = offset_s + rate * t_server`` (``rate = 1 + drift_ppm * 1e-6``).
+    """``t_client = offset_s + rate * t_server``, ``rate`` from ``drift_ppm`` (:attr:`affine`).
 
     Attributes
     ----------
@@ -58,23 +59,30 @@ class ClockEstimate:
         RMS of the kept probes' offsets around the fit (a quality figure).
     n_probes : int
         Probes kept after filtering.
+    affine : AffineClock
+        Server time -> client time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
     offset_s: float
     drift_ppm: float
     residual_s: float
     n_probes: int
+    affine: AffineClock = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        a = AffineClock.from_drift_ppm(self.drift_ppm, offset=self.offset_s)
+        object.__setattr__(self, "affine", a)
 
     @property
     def rate(self) -> float:
-        return 1.0 + self.drift_ppm * 1e-6
+        return self.affine.rate
 
     def to_server(self, t_client_s: ArrayLike) -> Array:
         """Server time of client timestamps."""
-        return (np.asarray(t_client_s, dtype=np.float64) - self.offset_s) / self.rate
+        return self.affine.inverse(np.asarray(t_client_s, dtype=np.float64))
 
     def to_client(self, t_server_s: ArrayLike) -> Array:
-        return self.offset_s + self.rate * np.asarray(t_server_s, dtype=np.float64)
+        return self.affine.forward(np.asarray(t_server_s, dtype=np.float64))
 
 
 def estimate_clock(
