@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
+from kinefuse.geometry.rotations import rot_z
+from kinefuse.geometry.transforms import apply_transform, make_transform
 from kinefuse.io.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.report.realism import (
