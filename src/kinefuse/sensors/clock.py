@@ -25,9 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from kinefuse.sync.affine import AffineClock
+from kinefuse.sync.affine import OffsetDriftClock
 
 Array = NDArray[np.float64]
 
@@ -127,8 +127,8 @@ class ClockParams:
 
 
 @dataclass(frozen=True)
-class SensorClock:
-    """One sensor's clock relative to true (server) time.
+class SensorClock(OffsetDriftClock):
+    """One sensor's clock relative to true (server) time (source: true, target: sensor).
 
     Attributes
     ----------
@@ -142,26 +142,10 @@ class SensorClock:
         True time -> sensor time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
-    offset_s: float
-    drift_ppm: float
     phase_s: float
-    affine: AffineClock = field(init=False, repr=False, compare=False)
 
-    def __post_init__(self) -> None:
-        a = AffineClock.from_drift_ppm(self.drift_ppm, offset=self.offset_s)
-        object.__setattr__(self, "affine", a)
-
-    @property
-    def rate(self) -> float:
-        return self.affine.rate
-
-    def to_sensor(self, t_true_s: ArrayLike) -> Array:
-        """Sensor-clock time of true times (no jitter)."""
-        return self.affine.forward(np.asarray(t_true_s, dtype=np.float64))
-
-    def to_true(self, t_sensor_s: ArrayLike) -> Array:
-        """True time of sensor-clock times (inverse of :meth:`to_sensor`)."""
-        return self.affine.inverse(np.asarray(t_sensor_s, dtype=np.float64))
+    to_sensor = OffsetDriftClock.forward  # sensor-clock time of true times (no jitter)
+    to_true = OffsetDriftClock.inverse  # true time of sensor-clock times
 
     def to_dict(self) -> dict[str, float]:
         return {"offset_s": self.offset_s, "drift_ppm": self.drift_ppm, "phase_s": self.phase_s}

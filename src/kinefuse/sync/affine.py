@@ -10,11 +10,11 @@ receiver's. The classes that estimate or simulate those relations carry more tha
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, overload
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 
@@ -97,3 +97,42 @@ class AffineClock:
             offset=self.forward(inner.offset),
             rate=self.rate * inner.rate,
         )
+
+
+@dataclass(frozen=True)
+class OffsetDriftClock:
+    """Base of the frozen dataclasses whose clock map is an offset and a drift in ppm.
+
+    Subclasses add what they carry beyond the map (a frame phase, a fit's residual) and name
+    the directions (e.g. ``to_client = OffsetDriftClock.forward``).
+
+    Attributes
+    ----------
+    offset_s : float
+        The target clock's reading at source time 0, s.
+    drift_ppm : float
+        Parts per million by which the target clock runs faster than the source.
+    affine : AffineClock
+        The map, source -> target (derived from the two, origin 0).
+    """
+
+    offset_s: float
+    drift_ppm: float
+    affine: AffineClock = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        a = AffineClock.from_drift_ppm(self.drift_ppm, offset=self.offset_s)
+        object.__setattr__(self, "affine", a)
+
+    @property
+    def rate(self) -> float:
+        """Target seconds per source second."""
+        return self.affine.rate
+
+    def forward(self, t_s: ArrayLike) -> Array:
+        """Target-clock times ``(...)`` of source-clock times (s), as an array."""
+        return self.affine.forward(np.asarray(t_s, dtype=np.float64))
+
+    def inverse(self, t_s: ArrayLike) -> Array:
+        """Source-clock times ``(...)`` of target-clock times (s), as an array."""
+        return self.affine.inverse(np.asarray(t_s, dtype=np.float64))

@@ -21,13 +21,13 @@ Pure: arrays in, a small frozen dataclass out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
-from kinefuse.sync.affine import AffineClock
+from kinefuse.sync.affine import OffsetDriftClock
 from kinefuse.sync.ntp import ClockEstimate, estimate_clock
 
 Array = NDArray[np.float64]
@@ -40,7 +40,7 @@ NOMINAL_LATENCY_S = 0.060
 
 
 @dataclass(frozen=True)
-class DeviceClockEstimate:
+class DeviceClockEstimate(OffsetDriftClock):
     """``t_host_capture = offset_s + rate * t_device`` for one sensor.
 
     Attributes
@@ -57,23 +57,10 @@ class DeviceClockEstimate:
         Device time -> host capture time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
-    offset_s: float
-    drift_ppm: float
     residual_s: float
     n_frames: int
-    affine: AffineClock = field(init=False, repr=False, compare=False)
 
-    def __post_init__(self) -> None:
-        a = AffineClock.from_drift_ppm(self.drift_ppm, offset=self.offset_s)
-        object.__setattr__(self, "affine", a)
-
-    @property
-    def rate(self) -> float:
-        return self.affine.rate
-
-    def to_host(self, t_device_s: ArrayLike) -> Array:
-        """Capture times on the host clock of device timestamps."""
-        return self.affine.forward(np.asarray(t_device_s, dtype=np.float64))
+    to_host = OffsetDriftClock.forward  # capture times on the host clock of device timestamps
 
     @classmethod
     def identity(cls) -> DeviceClockEstimate:

@@ -14,13 +14,13 @@ function of time (drift) by a robust fit, so a client timestamp maps to server t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
-from kinefuse.sync.affine import AffineClock
+from kinefuse.sync.affine import OffsetDriftClock
 
 Array = NDArray[np.float64]
 
@@ -47,7 +47,7 @@ def probe_offsets(probes: ArrayLike) -> tuple[Array, Array, Array]:
 
 
 @dataclass(frozen=True)
-class ClockEstimate:
+class ClockEstimate(OffsetDriftClock):
     """``t_client = offset_s + rate * t_server``, ``rate`` from ``drift_ppm`` (:attr:`affine`).
 
     Attributes
@@ -63,26 +63,11 @@ class ClockEstimate:
         Server time -> client time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
-    offset_s: float
-    drift_ppm: float
     residual_s: float
     n_probes: int
-    affine: AffineClock = field(init=False, repr=False, compare=False)
 
-    def __post_init__(self) -> None:
-        a = AffineClock.from_drift_ppm(self.drift_ppm, offset=self.offset_s)
-        object.__setattr__(self, "affine", a)
-
-    @property
-    def rate(self) -> float:
-        return self.affine.rate
-
-    def to_server(self, t_client_s: ArrayLike) -> Array:
-        """Server time of client timestamps."""
-        return self.affine.inverse(np.asarray(t_client_s, dtype=np.float64))
-
-    def to_client(self, t_server_s: ArrayLike) -> Array:
-        return self.affine.forward(np.asarray(t_server_s, dtype=np.float64))
+    to_client = OffsetDriftClock.forward  # client times of server times
+    to_server = OffsetDriftClock.inverse  # server times of client timestamps
 
 
 def estimate_clock(
