@@ -29,7 +29,8 @@ from kinefuse.evaluation.fusion import ABLATION, COMPARISONS, evaluate, truth_at
 from kinefuse.evaluation.metrics import gain_ci
 from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
-from kinefuse.geometry.transforms import make_transform, rot_z
+from kinefuse.geometry.rotations import rot_z
+from kinefuse.geometry.transforms import make_transform
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion import load_motion
 from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method

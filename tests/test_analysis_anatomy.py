@@ -7,8 +7,8 @@ import pytest
 
 from kinefuse import analysis as an
 from kinefuse.analysis import anatomy
-from kinefuse.analysis._vec import rodrigues
 from kinefuse.analysis.rom import make_rom_motion
+from kinefuse.geometry.rotations import rodrigues
 from kinefuse.motion import load_motion
 
 

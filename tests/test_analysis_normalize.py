@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from kinefuse import analysis as an
-from kinefuse.analysis._vec import rodrigues
 from kinefuse.analysis.normalize import body_frame, propagate
 from kinefuse.analysis.rom import make_rom_motion
 from kinefuse.errors import InputError
+from kinefuse.geometry.rotations import rodrigues
 from kinefuse.motion import load_motion
 from kinefuse.skeleton import standing_pose
 

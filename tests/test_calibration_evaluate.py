@@ -25,7 +25,8 @@ from kinefuse.calibration.synthetic import (
 )
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import make_transform, rot_x, rot_z
+from kinefuse.geometry.rotations import rot_x, rot_z
+from kinefuse.geometry.transforms import make_transform
 
 INTR = Intrinsics()
 

@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from kinefuse.geometry.raycast import ray_capsules, ray_capsules_batched, ray_plane, ray_spheres
+from kinefuse.geometry.rotations import rotation_angle_deg, rotation_vector_deg
 from kinefuse.geometry.transforms import (
     apply_transform,
     invert_transform,
     kabsch,
     look_at,
     make_transform,
-    rotation_angle_deg,
-    rotation_vector_deg,
 )
 
 
@@ -106,7 +105,8 @@ def test_look_at_points_the_optical_axis_and_keeps_x_level() -> None:
 
 def test_check_rigid_finds_what_is_not_rigid() -> None:
     from kinefuse.errors import InputError
-    from kinefuse.geometry.transforms import check_rigid, make_transform, rot_z
+    from kinefuse.geometry.rotations import rot_z
+    from kinefuse.geometry.transforms import check_rigid, make_transform
 
     good = make_transform(rot_z(0.3), [1.0, 2.0, 3.0])
     np.testing.assert_array_equal(check_rigid(good), good)

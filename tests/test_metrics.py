@@ -98,3 +98,18 @@ def test_bias_and_noise_split_a_fixed_offset_from_the_spread(rng, truth) -> None
     assert spine["noise_m"] == pytest.approx(0.01 * np.sqrt(3), rel=0.15)
     assert bn["by_joint"]["HandLeft"] is None
     assert bn["bias_norm_mean_m"] == pytest.approx(np.linalg.norm(offset), abs=0.003)
+
+
+def test_block_bootstrap_indices_as_the_inline_code_they_replaced() -> None:
+    from kinefuse.evaluation.metrics import block_bootstrap_indices
+
+    for n, block in [(1, 30), (7, 3), (100, 30), (95, 30), (10, 0)]:
+        idx = block_bootstrap_indices(n, block=block, n_boot=50, seed=4)
+        b = max(1, min(block, n))  # the code gain() and mae_intervals() each carried
+        starts = np.random.default_rng(4).integers(0, n, size=(50, -(-n // b)))
+        old = ((starts[..., None] + np.arange(b)) % n).reshape(50, -1)[:, :n]
+        np.testing.assert_array_equal(idx, old)
+        assert idx.shape == (50, n) and idx.min() >= 0 and idx.max() < n
+        # within a block the frames are consecutive, wrapping at the end
+        d = np.diff(idx[:, :b], axis=1) % n
+        assert (d == 1).all()

@@ -12,7 +12,7 @@ import pytest
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules
-from kinefuse.geometry.transforms import rot_y
+from kinefuse.geometry.rotations import rot_y
 from kinefuse.occlusion import (
     crossing_parameters,
     detect_occlusion,

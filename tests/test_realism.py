@@ -21,7 +21,8 @@ from kinefuse.evaluation.realism import (
     walking_passes,
 )
 from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
-from kinefuse.geometry.transforms import apply_transform, make_transform, rot_z
+from kinefuse.geometry.rotations import rot_z
+from kinefuse.geometry.transforms import apply_transform, make_transform
 from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
 from kinefuse.motion.types import Motion
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX

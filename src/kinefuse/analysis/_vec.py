@@ -1,4 +1,5 @@
-"""Small batched vector and rotation helpers of the analysis core (pure numpy, ``(..., 3)``)."""
+"""Small batched vector helpers of the analysis core (pure numpy, ``(..., 3)``); the rotation
+helpers are in :mod:`kinefuse.geometry.rotations`."""
 
 from __future__ import annotations
 
@@ -23,35 +24,6 @@ def dot(a: Array, b: Array) -> Array:
     return np.einsum("...i,...i->...", a, b)
 
 
-def rodrigues(axis: ArrayLike, angle: ArrayLike) -> Array:
-    """Rotation matrices ``(..., 3, 3)`` about unit ``axis (..., 3)`` by ``angle (...)`` rad."""
-    k = np.asarray(axis, dtype=np.float64)
-    t = np.asarray(angle, dtype=np.float64)
-    k, t = np.broadcast_arrays(k, t[..., None])
-    t = t[..., 0]
-    c, s = np.cos(t), np.sin(t)
-    x, y, z = k[..., 0], k[..., 1], k[..., 2]
-    C = 1.0 - c
-    r = np.empty((*t.shape, 3, 3))
-    r[..., 0, 0] = c + x * x * C
-    r[..., 0, 1] = x * y * C - z * s
-    r[..., 0, 2] = x * z * C + y * s
-    r[..., 1, 0] = y * x * C + z * s
-    r[..., 1, 1] = c + y * y * C
-    r[..., 1, 2] = y * z * C - x * s
-    r[..., 2, 0] = z * x * C - y * s
-    r[..., 2, 1] = z * y * C + x * s
-    r[..., 2, 2] = c + z * z * C
-    return r
-
-
-def rotate(axis: Array, angle: Array, v: Array) -> Array:
-    """Rotate ``v (..., 3)`` about unit ``axis (..., 3)`` by ``angle (...)`` rad (Rodrigues)."""
-    c = np.cos(angle)[..., None]
-    s = np.sin(angle)[..., None]
-    return v * c + np.cross(axis, v) * s + axis * dot(axis, v)[..., None] * (1.0 - c)
-
-
 def signed_angle(a: Array, b: Array, axis: Array) -> Array:
     """Angle ``(...)`` rad of the rotation about unit ``axis`` taking ``a`` toward ``b``.
 
@@ -60,28 +32,6 @@ def signed_angle(a: Array, b: Array, axis: Array) -> Array:
     a_p = a - dot(a, axis)[..., None] * axis
     b_p = b - dot(b, axis)[..., None] * axis
     return np.arctan2(dot(axis, np.cross(a_p, b_p)), dot(a_p, b_p))
-
-
-def minimal_rotation(a: Array, b: Array) -> Array:
-    """The smallest rotations ``(..., 3, 3)`` taking unit ``a`` onto unit ``b``."""
-    v = np.cross(a, b)
-    c = dot(a, b)
-    vx = np.zeros((*v.shape[:-1], 3, 3))
-    vx[..., 0, 1], vx[..., 0, 2] = -v[..., 2], v[..., 1]
-    vx[..., 1, 0], vx[..., 1, 2] = v[..., 2], -v[..., 0]
-    vx[..., 2, 0], vx[..., 2, 1] = -v[..., 1], v[..., 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f = 1.0 / (1.0 + c)
-    r = np.eye(3) + vx + (vx @ vx) * f[..., None, None]
-    # anti-parallel: rotate by pi about any axis orthogonal to a
-    anti = c < -1.0 + 1e-9
-    if np.any(anti):
-        aa = a[anti]
-        ortho = np.cross(aa, np.array([1.0, 0.0, 0.0]))
-        small = np.linalg.norm(ortho, axis=-1) < 1e-6
-        ortho[small] = np.cross(aa[small], np.array([0.0, 1.0, 0.0]))
-        r[anti] = rodrigues(unit(ortho), np.full(aa.shape[0], np.pi))
-    return r
 
 
 def twist_angle(r: Array, axis: Array) -> Array:
@@ -112,14 +62,6 @@ def frame_from(u: Array, r: Array) -> Array:
     e0 = unit(u)
     w = unit(r - dot(r, e0)[..., None] * e0)
     return np.stack([e0, w, np.cross(e0, w)], axis=-1)
-
-
-def chordal_mean(r: Array) -> Array:
-    """Mean rotation ``(3, 3)`` of rotations ``r (N, 3, 3)`` (projection of the sum onto SO(3))."""
-    s = np.nansum(r, axis=0)
-    u, _, vt = np.linalg.svd(s)
-    d = np.sign(np.linalg.det(u @ vt))
-    return np.asarray(u @ np.diag([1.0, 1.0, d]) @ vt)
 
 
 def tmv(r: Array, v: Array) -> Array:

@@ -152,8 +152,8 @@ def true_axes_in_normalization(
     constant offset of the normalization is left out of the axis error (it is what the
     consistency across takes and the angles measure).
     """
-    from kinefuse.analysis._vec import chordal_mean
     from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+    from kinefuse.geometry.rotations import chordal_mean
 
     out = {}
     for name, a in true_axes.items():

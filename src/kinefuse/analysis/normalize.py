@@ -31,21 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis._vec import (
-    chordal_mean,
-    dot,
-    frame_from,
-    minimal_rotation,
-    rodrigues,
-    tmm,
-    tmv,
-    twist_angle,
-    unit,
-    wrap,
-)
+from kinefuse.analysis._vec import dot, frame_from, tmm, tmv, twist_angle, unit, wrap
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS, Limb
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
+from kinefuse.geometry.rotations import chordal_mean, minimal_rotation, rodrigues
 from kinefuse.skeleton import JOINT_INDEX
 
 Array = NDArray[np.float64]

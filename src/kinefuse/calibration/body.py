@@ -16,7 +16,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import fit_plane, kabsch, make_transform, rotation_vector_deg
+from kinefuse.geometry.rotations import rotation_vector_deg
+from kinefuse.geometry.transforms import fit_plane, kabsch, make_transform
 from kinefuse.skeleton import JOINT_INDEX, TRUNK_JOINTS
 from kinefuse.sync.assembly import interpolate
 

@@ -32,7 +32,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.calibration.register import Registration, Sightings
 from kinefuse.errors import CalibrationError, InputError
-from kinefuse.geometry.transforms import check_transform, kabsch, make_transform, rotation_angle_deg
+from kinefuse.geometry.rotations import rotation_angle_deg
+from kinefuse.geometry.transforms import check_transform, kabsch, make_transform
 
 Array = NDArray[np.float64]
 Align = Literal["yaw", "rigid", "similarity", "none"]

@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.register_common import Registration, Sightings
 from kinefuse.errors import CalibrationError, InputError
+from kinefuse.geometry.rotations import skew, so3_exp_and_left_jacobian
 from kinefuse.geometry.transforms import invert_transform, kabsch, make_transform
 
 Array = NDArray[np.float64]
@@ -24,33 +25,6 @@ Array = NDArray[np.float64]
 
 # ---------------------------------------------------------------------------------------------
 # Full 6-DoF registration
-
-
-def _skew(v: Array) -> Array:
-    """Cross-product matrices ``(..., 3, 3)`` of vectors ``(..., 3)``."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack(
-        [
-            np.stack([z, -v[..., 2], v[..., 1]], -1),
-            np.stack([v[..., 2], z, -v[..., 0]], -1),
-            np.stack([-v[..., 1], v[..., 0], z], -1),
-        ],
-        -2,
-    )
-
-
-def _so3_exp_and_left_jacobian(phi: Array) -> tuple[Array, Array]:
-    """Rotation matrices and SO(3) left Jacobians ``(..., 3, 3)`` of rotation vectors."""
-    th = np.linalg.norm(phi, axis=-1)[..., None, None]
-    k = _skew(phi)
-    k2 = k @ k
-    small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5, (1 - np.cos(ths)) / ths**2)
-    c = np.where(small, 1.0 / 6.0, (ths - np.sin(ths)) / ths**3)
-    eye = np.eye(3)
-    return eye + a * k + b * k2, eye + b * k + c * k2
 
 
 @dataclass
@@ -249,7 +223,7 @@ def _refine(
         jl = np.tile(np.eye(3), (n_s, 1, 1))
         if free:
             pose = x[:n_pose].reshape(-1, 6)
-            r_exp, j_left = _so3_exp_and_left_jacobian(pose[:, :3])
+            r_exp, j_left = so3_exp_and_left_jacobian(pose[:, :3])
             r_all[free] = r_exp @ rot[free]
             t_all[free] = pose[:, 3:]
             jl[free] = j_left
@@ -263,7 +237,7 @@ def _refine(
     def jac(x: Array) -> sparse.csr_matrix:
         r_all, _, jl, _ = unpack(x)
         q = np.einsum("oij,oj->oi", r_all[s_idx[fo]], obs_p[fo])
-        blk = -_skew(q) @ jl[s_idx[fo]] * obs_w[fo, None, None]
+        blk = -skew(q) @ jl[s_idx[fo]] * obs_w[fo, None, None]
         data = np.concatenate([np.repeat(-obs_w, 3), blk.reshape(-1), np.repeat(obs_w[fo], 3)])
         return sparse.csr_matrix((data, (rows_all, cols_all)), shape=shape)
 

@@ -12,7 +12,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.calibration.register_common import _SENSOR2LEVEL, Registration, Sightings
 from kinefuse.errors import CalibrationError, InputError
-from kinefuse.geometry.transforms import make_transform, rot_z
+from kinefuse.geometry.rotations import rot_z
+from kinefuse.geometry.transforms import make_transform
 
 Array = NDArray[np.float64]
 

@@ -140,8 +140,8 @@ def _axes_in_world(
 ) -> dict[str, dict[str, Array]]:
     """Per method, the learned axes carried into the world by the fused parent frame at the
     start of the phase (mean over its first 0.3 s)."""
-    from kinefuse.analysis._vec import chordal_mean
     from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+    from kinefuse.geometry.rotations import chordal_mean
 
     t = inp.seq.t_s
     start = float(rom["start_server_s"])

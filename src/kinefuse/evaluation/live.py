@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
+from kinefuse.sync.affine import AffineClock
 
 Array = NDArray[np.float64]
 
@@ -69,6 +70,8 @@ class PlaybackTruth:
         Monotonic instant at which the simulation's true time 0 was played, seconds.
     mono_rate : float
         Monotonic seconds per simulated true second (1 when played on the true clock).
+    host : AffineClock
+        Monotonic time -> emulated host time (derived from ``h0``, ``drift``, ``m0``).
     """
 
     sensor_id: str
@@ -77,9 +80,14 @@ class PlaybackTruth:
     m0: float
     mono_at_true0: float
     mono_rate: float = 1.0
+    host: AffineClock = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        a = AffineClock.from_drift(self.drift, offset=self.h0, origin=self.m0)
+        object.__setattr__(self, "host", a)
 
     def host_at_mono(self, t_mono: Array | float) -> Array:
-        return self.h0 + (1.0 + self.drift) * (np.asarray(t_mono, dtype=np.float64) - self.m0)
+        return self.host.forward(np.asarray(t_mono, dtype=np.float64))
 
     def true_offset_s(self, t_server_s: Array, server_t0: float) -> Array:
         """True host-clock offset (client minus server) at server times, seconds."""
@@ -135,9 +143,11 @@ def playback_truth(side: dict[str, Any], sim_clock: dict[str, float]) -> Playbac
         # source time s = off + rate T, played at monotonic p0 + (s - s0)
         off, rate = 0.0, 1.0
         if clock == "host":
-            off, rate = sim_clock["host_offset_s"], 1.0 + sim_clock["host_drift_ppm"] * 1e-6
+            off = sim_clock["host_offset_s"]
+            rate = AffineClock.from_drift_ppm(sim_clock["host_drift_ppm"]).rate
         elif clock == "device":
-            off, rate = sim_clock["offset_s"], 1.0 + sim_clock["drift_ppm"] * 1e-6
+            off = sim_clock["offset_s"]
+            rate = AffineClock.from_drift_ppm(sim_clock["drift_ppm"]).rate
         a, b = p0 + off - s0, rate
     return PlaybackTruth(str(side["sensor_id"]), h0, drift, m0, a, b)
 
@@ -215,7 +225,7 @@ def write_live_truth(recording: Path, simulated: Path, sidecars: dict[str, Path]
         )
         for sid, p in plays.items():
             pose, clock = truth.sensor(sid)
-            dev_rate = 1.0 + clock["drift_ppm"] * 1e-6
+            dev_rate = AffineClock.from_drift_ppm(clock["drift_ppm"]).rate
             # device time = off + rate T and T = (t_server - shift) / rate_play
             dev_off = clock["offset_s"] - dev_rate * shift / rate
             host_at_server0 = float(p.host_at_mono(t0))
@@ -305,7 +315,10 @@ def clock_errors(store: SessionStore, warmup_s: float = CLOCK_WARMUP_S) -> dict[
             out["by_sensor"][sid] = {"estimates": 0, "p50_ms": None, "max_ms": None}
             continue
         true_clock = truth.sensor(sid)[1]
-        true_off = true_clock["host_offset_s"] + true_clock["host_drift_ppm"] * 1e-6 * t
+        true_host = AffineClock.from_drift_ppm(
+            true_clock["host_drift_ppm"], offset=true_clock["host_offset_s"]
+        )
+        true_off = true_host.forward(t) - t
         err = np.abs(off - true_off)
         # each epoch's first estimate starts a warm-up (a reset or a reconnect)
         new = np.r_[True, epoch[1:] != epoch[:-1]]

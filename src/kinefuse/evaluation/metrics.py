@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.skeleton import JOINTS
 
@@ -75,6 +75,19 @@ def verdict(low_percent: float, high_percent: float) -> str:
     return "no clear difference"
 
 
+def block_bootstrap_indices(n: int, *, block: int, n_boot: int, seed: int) -> NDArray[np.intp]:
+    """Frame indices ``(n_boot, n)`` of circular block-bootstrap resamples of ``n >= 1`` frames.
+
+    Each resample joins ``ceil(n / b)`` blocks of ``b = clip(block, 1, n)`` consecutive frames
+    (wrapping past the end, so every frame is as likely) drawn from ``default_rng(seed)``, cut to
+    ``n``. Neighbouring frames' errors are correlated; blocks keep that correlation in.
+    """
+    b = max(1, min(block, n))
+    rng = np.random.default_rng(seed)
+    starts = rng.integers(0, n, size=(n_boot, -(-n // b)))
+    return ((starts[..., None] + np.arange(b)) % n).reshape(n_boot, -1)[:, :n]
+
+
 def gain(
     estimate: ArrayLike,
     reference: ArrayLike,
@@ -119,12 +132,7 @@ def gain(
     }
     if sb.sum() <= 0 or cnt.sum() == 0:
         return out
-    n = sa.size
-    b = max(1, min(block, n))
-    n_blocks = -(-n // b)
-    rng = np.random.default_rng(seed)
-    starts = rng.integers(0, n, size=(n_boot, n_blocks))  # circular: every frame as likely
-    idx = ((starts[..., None] + np.arange(b)) % n).reshape(n_boot, -1)[:, :n]
+    idx = block_bootstrap_indices(sa.size, block=block, n_boot=n_boot, seed=seed)
     a_, b_, c_ = sa[idx].sum(axis=1), sb[idx].sum(axis=1), np.maximum(cnt[idx].sum(axis=1), 1.0)
     boot_m = (b_ - a_) / c_
     boot_pct = 100.0 * (1.0 - a_ / np.maximum(b_, 1e-300))

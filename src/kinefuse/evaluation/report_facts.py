@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from kinefuse.fusion.session import SensorData
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import TrackingState
+from kinefuse.sync.affine import AffineClock
 from kinefuse.sync.ntp import probe_offsets
 
 Array = NDArray[np.float64]
@@ -121,7 +122,10 @@ def _clock(store: SessionStore, s: SensorData) -> ClockTrack:
     if "host_offset_s" not in clock:
         return track
     t = np.linspace(float(t_mid.min()), float(t_mid.max()), 200)
-    true = clock["host_offset_s"] + clock.get("host_drift_ppm", 0.0) * 1e-6 * t
+    host = AffineClock.from_drift_ppm(
+        clock.get("host_drift_ppm", 0.0), offset=clock["host_offset_s"]
+    )
+    true = host.forward(t) - t
     err = (s.clock.to_client(t) - t - true) * 1e3
     return ClockTrack(s.id, t_mid, track.probe_residual_ms, track.rtt_ms, t, err)
 

@@ -1,4 +1,4 @@
-"""Rigid transforms and rotations.
+"""Rigid transforms (rotations: :mod:`kinefuse.geometry.rotations`).
 
 Naming follows ``A2B``: ``sensor2world`` maps a point from the sensor frame into the world frame,
 ``p_world = sensor2world @ [p_sensor, 1]``. Batched inputs have their batch axes first:
@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from kinefuse.geometry.rotations import rot_z
 
 Array = NDArray[np.float64]
 
@@ -109,24 +111,6 @@ def apply_transform(a2b: ArrayLike, p_a: ArrayLike) -> Array:
     return p @ t[:3, :3].T + t[:3, 3]
 
 
-def rot_x(angle_rad: float) -> Array:
-    """Rotation about x by ``angle_rad`` (right-handed)."""
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rot_y(angle_rad: float) -> Array:
-    """Rotation about y by ``angle_rad`` (right-handed)."""
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_z(angle_rad: float) -> Array:
-    """Rotation about z by ``angle_rad`` (right-handed)."""
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def look_at(position_m: ArrayLike, target_m: ArrayLike, roll_rad: float = 0.0) -> Array:
     """``sensor2world`` of a camera at ``position_m`` whose optical axis points at ``target_m``.
 
@@ -153,36 +137,6 @@ def look_at(position_m: ArrayLike, target_m: ArrayLike, roll_rad: float = 0.0) -
     y = np.cross(z, x)  # image down
     r = np.stack([x, y, z], axis=1) @ rot_z(roll_rad)
     return make_transform(r, pos)
-
-
-def rotation_angle_deg(r_a: ArrayLike, r_b: ArrayLike) -> NDArray[np.float64]:
-    """Angle of the rotation ``r_a^T r_b`` in degrees, for ``(..., 3, 3)`` inputs."""
-    a = np.asarray(r_a, dtype=np.float64)
-    b = np.asarray(r_b, dtype=np.float64)
-    rel = np.einsum("...ji,...jk->...ik", a, b)
-    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-
-
-def rotation_vector_deg(r: ArrayLike) -> Array:
-    """Rotation vector ``(3,)`` of one rotation ``(3, 3)``, degrees (axis times angle).
-
-    The angle is :func:`rotation_angle_deg` from the identity; at 180 degrees the axis comes from
-    the symmetric part of ``r``.
-    """
-    m = np.asarray(r, dtype=np.float64)
-    if m.shape != (3, 3):
-        raise ValueError(f"rotation_vector_deg takes one (3, 3) rotation, got {m.shape}")
-    angle_deg = float(rotation_angle_deg(np.eye(3), m))
-    if angle_deg < np.degrees(1e-12):
-        return np.zeros(3)
-    axis = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
-    n = float(np.linalg.norm(axis))
-    if n < 1e-12:  # 180 degrees: axis from the symmetric part
-        w, v = np.linalg.eigh((m + m.T) / 2.0)
-        axis = v[:, int(np.argmax(w))]
-        n = 1.0
-    return np.asarray(angle_deg * axis / n)
 
 
 def kabsch(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None) -> Array:

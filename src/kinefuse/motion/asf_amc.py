@@ -30,13 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.errors import MotionFormatError
-from kinefuse.motion.source import (
-    END_SITE_SUFFIX,
-    Array,
-    SourceMotion,
-    compose_rotations,
-    read_motion_text,
-)
+from kinefuse.geometry.rotations import euler_rotations
+from kinefuse.motion.source import END_SITE_SUFFIX, Array, SourceMotion, read_motion_text
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -275,7 +270,7 @@ def _rotation(order: str, angles_rad: Array) -> Array:
     ``angles_rad`` is ``(T, 3)`` indexed by axis x, y, z.
     """
     axes = [_AXES[c.lower()] for c in reversed(order)]
-    return compose_rotations(axes, [angles_rad[:, a] for a in axes], angles_rad.shape[0])
+    return euler_rotations(axes, [angles_rad[:, a] for a in axes], angles_rad.shape[0])
 
 
 def parse_amc(
@@ -405,7 +400,7 @@ def _amc_kinematics(
             trans[:, _AXES[name[1]]] = root[:, k]
         else:
             rot_angles.append((_AXES[name[1]], root[:, k] * to_rad))
-    m_root = compose_rotations(
+    m_root = euler_rotations(
         [a for a, _ in reversed(rot_angles)], [v for _, v in reversed(rot_angles)], t
     )
     c_root = _rotation(sk.root_axis, (sk.root_orientation * axis_to_rad)[None, :])[0]
@@ -425,7 +420,7 @@ def _amc_kinematics(
             order = "".join(d[1] for d in b.dof)
             axes = [_AXES[ch] for ch in reversed(order)]
             cols = {d[1]: k for k, d in enumerate(b.dof)}
-            m = compose_rotations(axes, [vals[:, cols["xyz"[a]]] for a in axes], t)
+            m = euler_rotations(axes, [vals[:, cols["xyz"[a]]] for a in axes], t)
         else:
             m = np.broadcast_to(np.eye(3), (t, 3, 3))
         g[name] = g[parent] @ (c @ m @ c.T)

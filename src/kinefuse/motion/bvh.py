@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.errors import MotionFormatError
+from kinefuse.geometry.rotations import euler_rotations
 from kinefuse.motion.source import (
     END_SITE_SUFFIX,
     Array,
     SourceMotion,
-    compose_rotations,
     leading_outlier_frames,
     read_motion_text,
 )
@@ -298,7 +298,7 @@ def _forward_kinematics(joints: list[_Joint], data: Array) -> tuple[Array, Array
             else:
                 axes.append(ax)
                 angles.append(np.radians(col))
-        local = compose_rotations(axes, angles, t)
+        local = euler_rotations(axes, angles, t)
         if j.parent < 0:
             pos[:, i] = trans
             rot[:, i] = local

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, RetargetError
-from kinefuse.geometry.transforms import rot_z
+from kinefuse.geometry.rotations import rot_z
 from kinefuse.motion.maps import BUILTIN_MAPS, NameMap
 from kinefuse.motion.source import Array, SourceMotion
 from kinefuse.motion.types import Motion

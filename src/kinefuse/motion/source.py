@@ -113,53 +113,6 @@ class SourceMotion:
         return {n: i for i, n in enumerate(self.names)}
 
 
-def axis_rotations(axis: int, angle_rad: Array) -> Array:
-    """Right-handed rotations about one coordinate axis, batched.
-
-    Parameters
-    ----------
-    axis : int
-        0, 1, 2 for x, y, z.
-    angle_rad : (T,) float
-
-    Returns
-    -------
-    r : (T, 3, 3) float
-    """
-    a = np.asarray(angle_rad, dtype=np.float64)
-    c, s = np.cos(a), np.sin(a)
-    r = np.zeros((*a.shape, 3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    r[..., axis, axis] = 1.0
-    r[..., i, i] = c
-    r[..., j, j] = c
-    r[..., i, j] = -s
-    r[..., j, i] = s
-    return r
-
-
-def compose_rotations(axes: list[int], angles_rad: list[Array], n: int) -> Array:
-    """Product ``R_axes[0] @ R_axes[1] @ ...`` of elementary rotations, batched over frames.
-
-    Parameters
-    ----------
-    axes : list of int
-        Rotation axes (0, 1, 2 for x, y, z), leftmost factor first.
-    angles_rad : list of (T,) float
-        The angle of each factor.
-    n : int
-        T, the number of frames (used when ``axes`` is empty).
-
-    Returns
-    -------
-    r : (T, 3, 3) float
-    """
-    r = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    for ax, ang in zip(axes, angles_rad, strict=True):
-        r = r @ axis_rotations(ax, ang)
-    return r
-
-
 def leading_outlier_frames(positions: Array, roots: list[int], *, max_frames: int = 10) -> int:
     """Number of leading frames that are an inserted pose (T-pose) rather than the motion.
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.evaluation.metrics import block_bootstrap_indices
 from kinefuse.evaluation.report_facts import SessionFacts
 from kinefuse.fusion.session import MethodResult
 from kinefuse.report import html_plots as hp
@@ -49,10 +50,7 @@ def mae_intervals(
     if n == 0:
         nan = np.full(len(JOINTS), np.nan)
         return (math.nan, math.nan), (nan, nan)
-    b = max(1, min(block, n))
-    rng = np.random.default_rng(seed)
-    starts = rng.integers(0, n, size=(n_boot, -(-n // b)))
-    idx = ((starts[..., None] + np.arange(b)) % n).reshape(n_boot, -1)[:, :n]
+    idx = block_bootstrap_indices(n, block=block, n_boot=n_boot, seed=seed)
     sums = s[idx].sum(axis=1)  # (n_boot, 25)
     cnts = ok[idx].sum(axis=1).astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):

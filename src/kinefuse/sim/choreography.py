@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.wand import Wand
 from kinefuse.geometry.raycast import ray_capsules
-from kinefuse.geometry.transforms import rot_z
+from kinefuse.geometry.rotations import rot_z
 from kinefuse.skeleton import JOINT_INDEX, bone_index_array, capsule_radii
 
 Array = NDArray[np.float64]

@@ -6,7 +6,7 @@ real Kinect v2 has two clocks that matter, as here:
 - the **device clock** stamps every frame (``RelativeTime``; ``Skeleton_Time`` in the
   KinectMultiTrack logs)::
 
-      t_sensor = offset_s + (1 + drift_ppm * 1e-6) * t_true + jitter
+      t_sensor = offset_s + rate * t_true + jitter      (rate: drift_ppm parts per million above 1)
 
   and the device captures at its nominal rate on that clock with a phase of its own: the sensors
   are not synchronized;
@@ -25,7 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
+
+from kinefuse.sync.affine import OffsetDriftClock
 
 Array = NDArray[np.float64]
 
@@ -125,34 +127,25 @@ class ClockParams:
 
 
 @dataclass(frozen=True)
-class SensorClock:
-    """One sensor's clock relative to true (server) time.
+class SensorClock(OffsetDriftClock):
+    """One sensor's clock relative to true (server) time (source: true, target: sensor).
 
     Attributes
     ----------
     offset_s : float
         Sensor time at true time 0.
     drift_ppm : float
-        Rate error: the sensor clock runs ``1 + drift_ppm * 1e-6`` times as fast as true time.
+        Rate error, parts per million: the sensor clock's seconds per true second, minus 1.
     phase_s : float
         Sensor time of the first frame grid point modulo the frame period.
+    affine : AffineClock
+        True time -> sensor time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
-    offset_s: float
-    drift_ppm: float
     phase_s: float
 
-    @property
-    def rate(self) -> float:
-        return 1.0 + self.drift_ppm * 1e-6
-
-    def to_sensor(self, t_true_s: ArrayLike) -> Array:
-        """Sensor-clock time of true times (no jitter)."""
-        return self.offset_s + self.rate * np.asarray(t_true_s, dtype=np.float64)
-
-    def to_true(self, t_sensor_s: ArrayLike) -> Array:
-        """True time of sensor-clock times (inverse of :meth:`to_sensor`)."""
-        return (np.asarray(t_sensor_s, dtype=np.float64) - self.offset_s) / self.rate
+    to_sensor = OffsetDriftClock.forward  # sensor-clock time of true times (no jitter)
+    to_true = OffsetDriftClock.inverse  # true time of sensor-clock times
 
     def to_dict(self) -> dict[str, float]:
         return {"offset_s": self.offset_s, "drift_ppm": self.drift_ppm, "phase_s": self.phase_s}

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
+from kinefuse.sync.affine import OffsetDriftClock
 from kinefuse.sync.ntp import ClockEstimate, estimate_clock
 
 Array = NDArray[np.float64]
@@ -39,7 +40,7 @@ NOMINAL_LATENCY_S = 0.060
 
 
 @dataclass(frozen=True)
-class DeviceClockEstimate:
+class DeviceClockEstimate(OffsetDriftClock):
     """``t_host_capture = offset_s + rate * t_device`` for one sensor.
 
     Attributes
@@ -47,25 +48,19 @@ class DeviceClockEstimate:
     offset_s : float
         Host time of device time 0, minus the nominal latency.
     drift_ppm : float
-        The host clock runs ``1 + drift_ppm * 1e-6`` times as fast as the device clock.
+        Parts per million by which the host clock runs faster than the device clock.
     residual_s : float
         Robust spread (1.4826 MAD) of the arrival delays around the fit: the latency jitter.
     n_frames : int
         Frames used (0: no host times, the identity map).
+    affine : AffineClock
+        Device time -> host capture time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
-    offset_s: float
-    drift_ppm: float
     residual_s: float
     n_frames: int
 
-    @property
-    def rate(self) -> float:
-        return 1.0 + self.drift_ppm * 1e-6
-
-    def to_host(self, t_device_s: ArrayLike) -> Array:
-        """Capture times on the host clock of device timestamps."""
-        return self.offset_s + self.rate * np.asarray(t_device_s, dtype=np.float64)
+    to_host = OffsetDriftClock.forward  # capture times on the host clock of device timestamps
 
     @classmethod
     def identity(cls) -> DeviceClockEstimate:

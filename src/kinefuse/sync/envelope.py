@@ -11,13 +11,14 @@ simulated and live sessions have probes (:mod:`kinefuse.sync.ntp`, :mod:`kinefus
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, SyncError
 from kinefuse.skeleton import JOINT_INDEX, TRUNK_JOINTS
+from kinefuse.sync.affine import AffineClock
 from kinefuse.sync.assembly import interpolate
 
 Array = NDArray[np.float64]
@@ -41,6 +42,8 @@ class ClockFit:
         Frames fitted, and frames on the lower envelope used for the final fit.
     jitter_median_s, jitter_p95_s : float
         Receive time above the envelope (the jitter that the fit removes), median and p95, s.
+    affine : AffineClock
+        Sensor time -> receiver time (derived from ``t0_sensor_s``, ``offset_s``, ``rate``).
     """
 
     t0_sensor_s: float
@@ -50,16 +53,20 @@ class ClockFit:
     n_envelope: int
     jitter_median_s: float
     jitter_p95_s: float
+    affine: AffineClock = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        a = AffineClock(origin=self.t0_sensor_s, offset=self.offset_s, rate=self.rate)
+        object.__setattr__(self, "affine", a)
 
     @property
     def drift_ppm(self) -> float:
         """Drift of the sensor clock against the receiver, parts per million."""
-        return (self.rate - 1.0) * 1e6
+        return self.affine.drift_ppm
 
     def to_receiver(self, t_sensor_s: ArrayLike) -> Array:
         """Capture times ``(N,)`` on the receiver's clock for sensor times ``(N,)``, seconds."""
-        t = np.asarray(t_sensor_s, dtype=np.float64)
-        return self.offset_s + self.rate * (t - self.t0_sensor_s)
+        return self.affine.forward(np.asarray(t_sensor_s, dtype=np.float64))
 
 
 def fit_clock_lower_envelope(

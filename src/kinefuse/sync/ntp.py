@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
+from kinefuse.sync.affine import OffsetDriftClock
 
 Array = NDArray[np.float64]
 
@@ -46,8 +47,8 @@ def probe_offsets(probes: ArrayLike) -> tuple[Array, Array, Array]:
 
 
 @dataclass(frozen=True)
-class ClockEstimate:
-    """``t_client = offset_s + rate * t_server`` (``rate = 1 + drift_ppm * 1e-6``).
+class ClockEstimate(OffsetDriftClock):
+    """``t_client = offset_s + rate * t_server``, ``rate`` from ``drift_ppm`` (:attr:`affine`).
 
     Attributes
     ----------
@@ -58,23 +59,15 @@ class ClockEstimate:
         RMS of the kept probes' offsets around the fit (a quality figure).
     n_probes : int
         Probes kept after filtering.
+    affine : AffineClock
+        Server time -> client time (derived from ``offset_s`` and ``drift_ppm``).
     """
 
-    offset_s: float
-    drift_ppm: float
     residual_s: float
     n_probes: int
 
-    @property
-    def rate(self) -> float:
-        return 1.0 + self.drift_ppm * 1e-6
-
-    def to_server(self, t_client_s: ArrayLike) -> Array:
-        """Server time of client timestamps."""
-        return (np.asarray(t_client_s, dtype=np.float64) - self.offset_s) / self.rate
-
-    def to_client(self, t_server_s: ArrayLike) -> Array:
-        return self.offset_s + self.rate * np.asarray(t_server_s, dtype=np.float64)
+    to_client = OffsetDriftClock.forward  # client times of server times
+    to_server = OffsetDriftClock.inverse  # server times of client timestamps
 
 
 def estimate_clock(

@@ -38,7 +38,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import overload
 
@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import SyncError
+from kinefuse.sync.affine import AffineClock
 
 Array = NDArray[np.float64]
 
@@ -118,7 +119,8 @@ class OnlineEstimate:
 
     ``offset_s`` (client minus server, s) and its standard error ``offset_se_s`` at that time;
     ``drift_ppm`` = d(offset)/dt and ``drift_se_ppm``; ``n_bursts`` burst samples in the fit;
-    ``epoch`` = resets so far (explicit or clock jumps).
+    ``epoch`` = resets so far (explicit or clock jumps). ``affine``: server time -> client time
+    under this line (origin ``at_server_s``, where the client reads ``at_server_s + offset_s``).
     """
 
     at_server_s: float
@@ -128,14 +130,27 @@ class OnlineEstimate:
     drift_se_ppm: float
     n_bursts: int
     epoch: int
+    affine: AffineClock = field(init=False, repr=False, compare=False)
 
-    def to_server(self, t_client_s: float) -> float:
+    def __post_init__(self) -> None:
+        t, off = self.at_server_s, self.offset_s
+        a = AffineClock.from_drift_ppm(self.drift_ppm, offset=t + off, origin=t)
+        object.__setattr__(self, "affine", a)
+
+    @overload
+    def to_server(self, t_client_s: float) -> float: ...
+    @overload
+    def to_server(self, t_client_s: Array) -> Array: ...
+    def to_server(self, t_client_s: float | Array) -> float | Array:
         """Server time of a client timestamp, under this line."""
-        b = self.drift_ppm * 1e-6
-        return (t_client_s - self.offset_s + b * self.at_server_s) / (1.0 + b)
+        return self.affine.inverse(t_client_s)
 
-    def to_client(self, t_server_s: float) -> float:
-        return t_server_s + self.offset_s + self.drift_ppm * 1e-6 * (t_server_s - self.at_server_s)
+    @overload
+    def to_client(self, t_server_s: float) -> float: ...
+    @overload
+    def to_client(self, t_server_s: Array) -> Array: ...
+    def to_client(self, t_server_s: float | Array) -> float | Array:
+        return self.affine.forward(t_server_s)
 
 
 @dataclass(frozen=True)
@@ -152,6 +167,11 @@ class _Line:
     n: int
     d_low: float  # least delay among the samples (s)
     sys2: float  # variance that averaging cannot reduce: the least-delay sample's bound (s^2)
+    affine: AffineClock = field(init=False, repr=False, compare=False)  # server -> client time
+
+    def __post_init__(self) -> None:
+        a = AffineClock.from_drift(self.b, offset=self.t_ref + self.a, origin=self.t_ref)
+        object.__setattr__(self, "affine", a)
 
     def offset(self, t: float) -> float:
         return self.a + self.b * (t - self.t_ref)
@@ -264,8 +284,7 @@ class OnlineClock:
     def to_server(self, t_client_s: Array) -> Array: ...
     def to_server(self, t_client_s: float | Array) -> float | Array:
         """Server time of client timestamps (s), under the current line."""
-        line = self._require()
-        return (t_client_s - line.a + line.b * line.t_ref) / (1.0 + line.b)
+        return self._require().affine.inverse(t_client_s)
 
     @overload
     def to_client(self, t_server_s: float) -> float: ...
@@ -273,8 +292,7 @@ class OnlineClock:
     def to_client(self, t_server_s: Array) -> Array: ...
     def to_client(self, t_server_s: float | Array) -> float | Array:
         """Client time of server times (s), under the current line."""
-        line = self._require()
-        return t_server_s + line.a + line.b * (t_server_s - line.t_ref)
+        return self._require().affine.forward(t_server_s)
 
     def reset(self, reason: str, *, keep_drift: bool = False) -> None:
         """Forget the estimate (a reconnect: the client may be another machine, another route).

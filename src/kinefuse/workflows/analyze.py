@@ -373,7 +373,7 @@ def add_rom_phase(clip: Any, rom_s: float, *, seed: int = 0, blend_s: float = 1.
     """
     from kinefuse.analysis import find_default_pose
     from kinefuse.analysis.rom import make_rom_motion, prepend_rom
-    from kinefuse.geometry.transforms import rot_z
+    from kinefuse.geometry.rotations import rot_z
     from kinefuse.motion import facing_direction
     from kinefuse.skeleton import JOINT_INDEX
 

@@ -59,8 +59,8 @@ def run_realism(
         if per_joint:
             print(format_take_joints(results) + "\n")
         if single:
-            single = single_sensor_realism(
+            one = single_sensor_realism(
                 walking_passes(walk, DEFAULT_HEADINGS), np.random.default_rng(0)
             )
-            print(format_single(single))
+            print(format_single(one))
     return 0 if all(not r.failures() for r in results) else 1

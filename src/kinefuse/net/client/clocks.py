@@ -5,7 +5,7 @@ real client PC that clock is the PC's own (``time.monotonic`` here: :func:`real_
 A simulated client on the server's machine must not share the server's clock (the sync would
 have nothing to find), so it emulates one on ``CLOCK_MONOTONIC``::
 
-    host(t_mono) = h0 + (1 + drift) * (t_mono - m0)
+    host(t_mono) = h0 + (1 + drift) * (t_mono - m0)        (an AffineClock)
 
 with ``h0``/``drift`` taken from the simulated session's true host clock of that sensor (or
 given by ``--clock-offset-ms`` / ``--clock-drift-ppm``) and ``m0`` the monotonic instant that
@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
+from kinefuse.sync.affine import AffineClock
 
 #: a monotonic clock, seconds (injected so tests can drive time)
 Monotonic = Callable[[], float]
@@ -41,12 +42,15 @@ class HostClock:
         The monotonic instant at which the host clock reads ``h0``.
     monotonic : callable
         The monotonic clock read by :meth:`now` (``time.monotonic``).
+    affine : AffineClock
+        Monotonic time -> host time (derived from ``h0``, ``drift`` and ``m0``).
     """
 
     h0: float
     drift: float
     m0: float
     monotonic: Monotonic = time.monotonic
+    affine: AffineClock = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not abs(self.drift) < 1e-2:
@@ -54,14 +58,16 @@ class HostClock:
                 f"host clock drift {self.drift * 1e6:g} ppm is not a clock's; give |drift| "
                 "below 10000 ppm"
             )
+        a = AffineClock.from_drift(self.drift, offset=self.h0, origin=self.m0)
+        object.__setattr__(self, "affine", a)
 
     def at(self, t_mono: float) -> float:
         """Host time at monotonic time ``t_mono``."""
-        return self.h0 + (1.0 + self.drift) * (t_mono - self.m0)
+        return self.affine.forward(t_mono)
 
     def mono_at(self, t_host: float) -> float:
         """The monotonic time at which the host clock reads ``t_host``."""
-        return self.m0 + (t_host - self.h0) / (1.0 + self.drift)
+        return self.affine.inverse(t_host)
 
     def now(self) -> float:
         """The host clock now."""
@@ -80,9 +86,10 @@ def real_host_clock(monotonic: Monotonic = time.monotonic) -> HostClock:
 class SimClockTruth:
     """A simulated sensor's true clocks (``kinefuse.sim.clock.SensorClocks.to_dict``).
 
-    ``device = offset_s + (1 + drift_ppm 1e-6) * t_true``; the host clock likewise with
-    ``host_offset_s``/``host_drift_ppm``; ``latency_offset_s`` is the unit's extra mean
-    capture-to-host latency. True time is the simulated server's clock.
+    ``device``: true time -> device time, an :class:`AffineClock` of ``offset_s`` and
+    ``drift_ppm``; ``host`` likewise of ``host_offset_s``/``host_drift_ppm``;
+    ``latency_offset_s`` is the unit's extra mean capture-to-host latency. True time is the
+    simulated server's clock.
     """
 
     offset_s: float
@@ -90,6 +97,14 @@ class SimClockTruth:
     host_offset_s: float
     host_drift_ppm: float
     latency_offset_s: float = 0.0
+    device: AffineClock = field(init=False, repr=False, compare=False)
+    host: AffineClock = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        dev = AffineClock.from_drift_ppm(self.drift_ppm, offset=self.offset_s)
+        host = AffineClock.from_drift_ppm(self.host_drift_ppm, offset=self.host_offset_s)
+        object.__setattr__(self, "device", dev)
+        object.__setattr__(self, "host", host)
 
     @classmethod
     def from_store(cls, store: SessionStore, sensor_id: str) -> SimClockTruth:
@@ -116,7 +131,7 @@ class SimClockTruth:
             ) from None
 
     def device_to_true(self, t_device_s: float) -> float:
-        return (t_device_s - self.offset_s) / (1.0 + self.drift_ppm * 1e-6)
+        return self.device.inverse(t_device_s)
 
     def host_to_true(self, t_host_s: float) -> float:
-        return (t_host_s - self.host_offset_s) / (1.0 + self.host_drift_ppm * 1e-6)
+        return self.host.inverse(t_host_s)

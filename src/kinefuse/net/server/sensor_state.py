@@ -57,7 +57,7 @@ class DeviceClockTracker:
         """Capture time on the host clock (NaN before the first frame with a host time)."""
         if self.estimate is None:
             return float("nan")
-        return float(self.estimate.offset_s + self.estimate.rate * t_device_s)
+        return float(self.estimate.affine.forward(t_device_s))
 
 
 @dataclass(frozen=True, eq=False)
