@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.errors import CalibrationError, InputError, KinefuseError, OutputError
+from kinefuse.errors import CalibrationError, InputError, OutputError
 from kinefuse.io.store import SessionStore
 from kinefuse.motion.types import Motion
 from kinefuse.sensors.rig import Rig
@@ -58,18 +58,10 @@ FOREIGN_SESSION_SUFFIXES = frozenset(
 
 def is_replaceable_simulation(path: Path) -> bool:
     """True if ``path`` is a kinefuse session with ground truth (a simulation, which can be made
-    again) and no writer has it open; a live recording, or any other file, is never replaced."""
-    from kinefuse.io.outputs import is_kinefuse_session
+    again) and no writer has it open (:func:`kinefuse.io.outputs.is_simulated_session`)."""
+    from kinefuse.io.outputs import is_simulated_session
 
-    if not is_kinefuse_session(path):
-        return False
-    if any(path.with_name(path.name + s).exists() for s in ("-wal", "-journal")):
-        return False  # open by a writer, or a crashed one left its journal: not ours to drop
-    try:
-        with SessionStore.open(path) as old:
-            return old.has_truth()
-    except KinefuseError:
-        return False
+    return is_simulated_session(path)
 
 
 def check_session_out(out: Path, force: bool) -> None:

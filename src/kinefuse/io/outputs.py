@@ -33,6 +33,8 @@ __all__ = [
     "atomic_write_text",
     "check_output_folder",
     "is_kinefuse_session",
+    "is_simulated_session",
+    "never_replace",
     "refuse_unless_ours",
 ]
 
@@ -78,6 +80,33 @@ def is_kinefuse_session(path: Path) -> bool:
             conn.close()
     except (OSError, sqlite3.Error):
         return False
+
+
+def is_simulated_session(path: Path) -> bool:
+    """True if ``path`` is a kinefuse session with ground truth (a simulation, which can be made
+    again) and no writer has it open; a live recording, or any other file, is never replaced.
+
+    The one recognizer of a replaceable session: ``kinefuse simulate --force``,
+    :func:`kinefuse.sensors.lab.simulate_session` and ``SessionStore.create(overwrite=True)``
+    all use it."""
+    from kinefuse.errors import KinefuseError
+    from kinefuse.io.store import SessionStore
+
+    if not is_kinefuse_session(path):
+        return False
+    if any(path.with_name(path.name + s).exists() for s in ("-wal", "-journal")):
+        return False  # open by a writer, or a crashed one left its journal: not ours to drop
+    try:
+        with SessionStore.open(path) as old:
+            return old.has_truth()
+    except KinefuseError:
+        return False
+
+
+def never_replace(_path: Path) -> bool:
+    """The recognizer of a file kinefuse only ever writes new (a table or a plot written into a
+    folder the caller names): any existing file at its path is refused."""
+    return False
 
 
 def _is_kinefuse_dir(path: Path) -> bool:

@@ -250,12 +250,19 @@ class SessionStore(SensorStreams, TruthTables):
         path : path-like
             The ``.sqlite`` file to create; its folder must exist.
         overwrite : bool
-            Replace an existing file (and its ``-wal``/``-shm``/``-journal`` companions).
+            Replace an existing simulated session (and its ``-shm`` companion); any other file,
+            a live recording or a session open by a writer is refused
+            (:func:`kinefuse.io.outputs.is_simulated_session`). The new store is built in
+            place; to keep the old one until the new one is whole, build it in
+            :func:`kinefuse.io.outputs.atomic_file` as :func:`kinefuse.sensors.lab.simulate_session`
+            does.
 
         Raises
         ------
         StoreError
             The file exists and ``overwrite`` is False, or the folder does not exist.
+        OutputError
+            ``overwrite`` is True and the file is not a simulated kinefuse session.
         """
         p = Path(path)
         if p.is_dir():
@@ -269,6 +276,9 @@ class SessionStore(SensorStreams, TruthTables):
                 f"cannot create a session store at {p}: folder {p.parent} does not exist"
             )
         if overwrite:
+            from kinefuse.io.outputs import is_simulated_session, refuse_unless_ours
+
+            refuse_unless_ours(p, is_simulated_session, "session")
             for q in (p, *(p.with_name(p.name + s) for s in ("-wal", "-shm", "-journal"))):
                 q.unlink(missing_ok=True)
         conn = sqlite3.connect(p, isolation_level=None)
