@@ -18,6 +18,7 @@ import pytest
 
 from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
 from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.fusion.status import FusionStatus
 from kinefuse.net.bus import FusedFrame
 from kinefuse.net.server.server import Server, ServerOptions, is_loopback
 from kinefuse.protocol import (
@@ -270,15 +271,19 @@ def test_out_of_order_and_silent_peers_are_closed(running) -> None:
 def test_the_paper_method_fuses_live(running) -> None:
     async def body(srv, frames):
         await asyncio.sleep(0.3)
-        return frames[-1], srv.options.method
+        return list(frames), srv.fusion
 
-    last, method = running(body, method="paper")
-    assert method == "paper"
-    # one sensor: the paper's trilateration has a single range per joint; the frames flow and the
-    # skeleton is where that one sensor puts it (the paper's chain falls back to it)
-    assert np.isfinite(last.positions_m).all()
-    np.testing.assert_allclose(last.positions_m, standing_pose(), atol=0.01)  # 1 cm
-    assert np.isnan(last.variance_m2).all()  # the paper's method gives no variance
+    frames, fusion = running(body, method="paper")
+    # the server fuses with the paper's method (not only carries the option): no filter lead
+    assert fusion.method == "paper" and fusion.lead_s == 0.0
+    # one sensor: the paper's trilateration has a single range per joint, too few to solve;
+    # every joint of every frame says so (best-live would say SINGLE_SENSOR, with a variance),
+    # and the skeleton is that one sensor's (the paper's chain falls back to it) to 1 mm
+    assert len(frames) >= 10
+    for fr in frames:
+        assert (fr.status == FusionStatus.TOO_FEW_SENSORS).all(), fr.status
+        assert np.isnan(fr.variance_m2).all()  # the paper's method gives no variance
+        np.testing.assert_allclose(fr.positions_m, standing_pose(), atol=0.001)  # 1 mm
 
 
 def test_loopback_detection() -> None:

@@ -374,6 +374,7 @@ def test_create_refuses_existing_unless_overwrite(tmp_path: Path) -> None:
     p = tmp_path / "s.sqlite"
     with SessionStore.create(p) as s:
         s.add_sensor("k0", "A", SMALL)
+        s.append_truth_wand([0.0], [[0.0, 0.0, 1.0]])  # a simulation: only those are replaced
     with pytest.raises(StoreError, match="already exists; pass overwrite=True"):
         SessionStore.create(p)
     with SessionStore.create(p, overwrite=True) as s:

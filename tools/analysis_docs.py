@@ -36,11 +36,20 @@ DOC_DPI = 55
 
 
 def small_png(src: Path, dst: Path, colors: int = 48) -> None:
-    """Copy a plot into the docs as a small palette PNG (the curves survive 48 colours)."""
+    """Copy a plot into the docs as a small palette PNG (the curves survive 48 colours).
+
+    Written atomically; it replaces an earlier figure (a PNG), never a file of another kind."""
     from PIL import Image
 
-    with Image.open(src) as im:
-        im.convert("RGB").quantize(colors=colors).save(dst, optimize=True)
+    from kinefuse.io.outputs import atomic_file
+
+    def is_png(p: Path) -> bool:
+        with p.open("rb") as f:
+            return f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+    with Image.open(src) as im, atomic_file(dst, what="docs figure", recognizer=is_png,
+                                            suffix=".png") as tmp:  # fmt: skip
+        im.convert("RGB").quantize(colors=colors).save(tmp, format="PNG", optimize=True)
 
 
 def _run(*argv: str) -> None:

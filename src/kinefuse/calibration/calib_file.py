@@ -35,7 +35,6 @@ one is wrong in which file.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 import tomllib
 from collections.abc import Mapping
@@ -50,6 +49,7 @@ from kinefuse.calibration.register import Registration
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import check_rigid
+from kinefuse.io.toml import toml_str
 
 Array = NDArray[np.float64]
 
@@ -149,11 +149,6 @@ def _mm(x_m: float) -> float:
     return round(x_m * 1e3, 4) if math.isfinite(x_m) else float("nan")
 
 
-def _toml_str(text: str) -> str:
-    """A TOML basic string (JSON's escapes are valid TOML escapes)."""
-    return json.dumps(text)
-
-
 def _toml_float(x: float) -> str:
     if math.isnan(x):
         return "nan"
@@ -168,11 +163,11 @@ def dumps_calibration(cal: CalibrationFile) -> str:
     if created.tzinfo is None:
         created = created.replace(tzinfo=_dt.UTC)
     lines = [
-        f"format = {_toml_str(FORMAT)}",
+        f"format = {toml_str(FORMAT)}",
         f"format_version = {FORMAT_VERSION}",
-        f"method = {_toml_str(cal.method)}",
+        f"method = {toml_str(cal.method)}",
         f"created = {created.isoformat()}",
-        f"world = {_toml_str(cal.world)}",
+        f"world = {toml_str(cal.world)}",
         f"rms_mm = {_toml_float(_mm(cal.rms_m))}",
     ]
     for s in cal.sensors:
@@ -182,8 +177,8 @@ def dumps_calibration(cal: CalibrationFile) -> str:
         lines += [
             "",
             "[[sensor]]",
-            f"id = {_toml_str(s.id)}",
-            f"serial = {_toml_str(s.serial)}",
+            f"id = {toml_str(s.id)}",
+            f"serial = {toml_str(s.serial)}",
             f"residual_mm = {_toml_float(_mm(s.residual_m))}",
             f"sightings = {int(s.n_sightings)}",
             f"sensor2world = [\n{rows},\n]",

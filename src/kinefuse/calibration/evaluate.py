@@ -34,6 +34,7 @@ from kinefuse.calibration.register import Registration, Sightings
 from kinefuse.errors import CalibrationError, InputError
 from kinefuse.geometry.rotations import rotation_angle_deg
 from kinefuse.geometry.transforms import check_transform, kabsch, make_transform
+from kinefuse.io.outputs import atomic_file, never_replace
 
 Array = NDArray[np.float64]
 Align = Literal["yaw", "rigid", "similarity", "none"]
@@ -363,6 +364,7 @@ def plot_calibration_errors(
         ax2.legend(loc="center right")
     fig.suptitle(title)
     out = Path(path)
-    fig.savefig(out, dpi=100)
+    with atomic_file(out, what="plot", recognizer=never_replace, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
 
     return out

@@ -25,6 +25,7 @@ from kinefuse.calibration.evaluate import (
 from kinefuse.calibration.register import Registration
 from kinefuse.calibration.session import CalibrationInput, calibrate
 from kinefuse.geometry.transforms import apply_transform, invert_transform
+from kinefuse.io.outputs import atomic_write_text, never_replace
 from kinefuse.io.store.session import SessionStore
 
 
@@ -99,5 +100,5 @@ def write_calibration_report(
     for d, n, p, r in zip(curve.duration_s, curve.mean_sightings, curve.mean_position_error_m,
                           curve.mean_rotation_error_deg, strict=True):  # fmt: skip
         rows.append(f"{d:g},{n:.1f},{p * 1e3:.3f},{r:.4f}")
-    csv.write_text("\n".join(rows) + "\n")
+    atomic_write_text(csv, "\n".join(rows) + "\n", what="table", recognizer=never_replace)
     return [Path(png), csv]

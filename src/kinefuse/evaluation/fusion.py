@@ -6,6 +6,7 @@ This module reads the truth; nothing in the capture path may import it.
 from __future__ import annotations
 
 import csv
+import io
 import time
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from kinefuse.fusion.best import BestOptions
 from kinefuse.fusion.status import status_counts
 from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
+from kinefuse.io.outputs import atomic_file, atomic_write_text, never_replace, refuse_unless_ours
 from kinefuse.io.store.session import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
 from kinefuse.pipeline.session import (
@@ -208,11 +210,19 @@ def _md_table(header: list[str], rows: list[list[str]]) -> str:
 
 
 def _write_table(out_dir: Path, name: str, header: list[str], rows: list[list[str]]) -> None:
-    with (out_dir / f"{name}.csv").open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(rows)
-    (out_dir / f"{name}.md").write_text(_md_table(header, rows))
+    """``name.csv`` and ``name.md``, each new (an existing file is refused), written atomically."""
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(header)
+    w.writerows(rows)
+    files = {
+        out_dir / f"{name}.csv": buf.getvalue(),
+        out_dir / f"{name}.md": _md_table(header, rows),
+    }
+    for path in files:  # both refused before either is written
+        refuse_unless_ours(path, never_replace, "table")
+    for path, text in files.items():
+        atomic_write_text(path, text, what="table", recognizer=never_replace)
 
 
 def table_c_threshold(
@@ -289,7 +299,8 @@ def plot_trajectories(
     path: Path,
     joints: tuple[str, ...] = ("SpineBase", "WristRight", "AnkleLeft"),
 ) -> None:
-    """Trajectories of a few joints, x/y/z over time, every method against the truth (PNG)."""
+    """Trajectories of a few joints, x/y/z over time, every method against the truth (PNG, a new
+    file written atomically: an existing one is refused)."""
     from matplotlib.figure import Figure  # drawn off-screen; no global backend is changed
 
     t = next(iter(results.values())).t_server_s
@@ -307,7 +318,8 @@ def plot_trajectories(
                 ax.set_xlabel("server time (s)")
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with atomic_file(path, what="plot", recognizer=never_replace, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
 
 
 def write_tables(

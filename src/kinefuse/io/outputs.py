@@ -33,6 +33,7 @@ __all__ = [
     "atomic_write_text",
     "check_output_folder",
     "is_kinefuse_session",
+    "never_replace",
     "refuse_unless_ours",
 ]
 
@@ -87,6 +88,12 @@ def is_kinefuse_session(path: Path) -> bool:
             conn.close()
     except (OSError, sqlite3.Error):
         return False
+
+
+def never_replace(_path: Path) -> bool:
+    """The recognizer of a file kinefuse only ever writes new (a table or a plot written into a
+    folder the caller names): any existing file at its path is refused."""
+    return False
 
 
 def _is_kinefuse_dir(path: Path) -> bool:

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, RetargetError
 from kinefuse.geometry.rotations import rot_z
+from kinefuse.io.toml import toml_str
 from kinefuse.motion.maps import BUILTIN_MAPS, NameMap
 from kinefuse.motion.source import Array, SourceMotion
 from kinefuse.motion.types import Motion
@@ -246,11 +247,11 @@ def _unmappable(
 def _spec_toml(term: Sequence[tuple[str, float]]) -> str:
     """A map entry in TOML for a weighted sum of source joints."""
     if len(term) == 1:
-        return f'"{term[0][0]}"'
+        return toml_str(term[0][0])
     weights = {w for _, w in term}
     if len(weights) == 1:
-        return "{ mean = [" + ", ".join(f'"{n}"' for n, _ in term) + "] }"
-    return "{ blend = { " + ", ".join(f'"{n}" = {w:g}' for n, w in term) + " } }"
+        return "{ mean = [" + ", ".join(toml_str(n) for n, _ in term) + "] }"
+    return "{ blend = { " + ", ".join(f"{toml_str(n)} = {w:g}" for n, w in term) + " } }"
 
 
 def _unit(v: Array) -> Array:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.io.outputs import atomic_file
+from kinefuse.io.outputs import atomic_file, never_replace
 
 Array = NDArray[np.float64]
 
@@ -52,7 +52,7 @@ def angle_groups(names: Sequence[str]) -> list[tuple[str, list[str]]]:
 def _save(fig: object, path: Path, *, dpi: int) -> Path:
     import matplotlib.pyplot as plt
 
-    with atomic_file(path, what="plot", recognizer=lambda _p: False, suffix=".png") as tmp:
+    with atomic_file(path, what="plot", recognizer=never_replace, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")  # type: ignore[attr-defined]
     plt.close(fig)  # type: ignore[arg-type]
     return path

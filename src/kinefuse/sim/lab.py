@@ -25,7 +25,8 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError, StoreError
 from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.io.store.session import SessionStore
+from kinefuse.io.outputs import atomic_file
+from kinefuse.io.store.session import SessionStore, is_simulated_session
 from kinefuse.motion.types import Motion
 from kinefuse.sim.choreography import WandPath, WandProtocol, holding_poses, make_wand_path
 from kinefuse.sim.clock import (
@@ -263,17 +264,17 @@ def simulate_session(
 ) -> Path:
     """Simulate a capture session of ``motion`` (already placed in the lab) seen by ``rig``.
 
-    Writes one SQLite session store at ``out`` and returns its path. An existing file is only
-    replaced with ``overwrite=True``, and never when it is a recording without ground truth
-    (a live session cannot be simulated again).
+    Writes one SQLite session store at ``out`` and returns its path. The store is built in a
+    temporary file beside ``out`` and renamed into place only when it is whole
+    (:func:`kinefuse.io.outputs.atomic_file`). An existing file is only replaced with
+    ``overwrite=True``, and then only when it is a simulated kinefuse session
+    (:func:`kinefuse.io.store.session.is_simulated_session`): never a recording without ground truth
+    (a live session cannot be simulated again), nor any other file.
     Deterministic: the same inputs and ``config.seed`` give the same observation rows.
     """
     say = progress or (lambda _msg: None)
     motion_s = _check_config(motion, config)
     t_cal = float(config.calibration_s)
-    t_end = t_cal + motion_s
-    height = subject_height(motion)
-    errs = config.errors
 
     if Path(out).exists():
         if not overwrite:
@@ -290,7 +291,27 @@ def simulate_session(
                 f"{out} is a recording without ground truth (a live session); kinefuse will not "
                 "overwrite it with a simulation: choose another --out"
             )
-    store = SessionStore.create(out, overwrite=overwrite)
+    with atomic_file(
+        out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
+    ) as tmp:
+        tmp.unlink()  # the store creates its own file
+        _simulate_into(SessionStore.create(tmp), motion, rig, config, t_cal, motion_s, say)
+    return Path(out)
+
+
+def _simulate_into(
+    store: SessionStore,
+    motion: Motion,
+    rig: Rig,
+    config: LabConfig,
+    t_cal: float,
+    motion_s: float,
+    say: Callable[[str], None],
+) -> None:
+    """Fill a new session store with the simulation (:func:`simulate_session`); closes it."""
+    t_end = t_cal + motion_s
+    height = subject_height(motion)
+    errs = config.errors
     try:
         store.set_meta("generator", f"kinefuse {__version__} simulate")
         store.set_meta("clip", motion.source)
@@ -347,7 +368,6 @@ def simulate_session(
             )
     finally:
         store.close()
-    return Path(out)
 
 
 def _fmt_value(v: object) -> str:

@@ -38,6 +38,7 @@ from kinefuse.skeleton import JOINT_INDEX
 
 if TYPE_CHECKING:
     from kinefuse.motion.types import Motion
+from kinefuse.io.toml import toml_str
 
 Array = NDArray[np.float64]
 
@@ -256,8 +257,8 @@ def rig_to_toml(rig: Rig) -> str:
         )
         lines += [
             "[[sensor]]",
-            f'id = "{s.id}"',
-            f'serial = "{s.serial}"',
+            f"id = {toml_str(s.id)}",
+            f"serial = {toml_str(s.serial)}",
             f"position_m = [{pos[0]:.6f}, {pos[1]:.6f}, {pos[2]:.6f}]",
             f"look_at_m = [{tgt[0]:.6f}, {tgt[1]:.6f}, {tgt[2]:.6f}]",
             f"roll_deg = {roll:.6f}",

@@ -33,7 +33,12 @@ from numpy.typing import NDArray
 
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError, OutputError
-from kinefuse.io.outputs import atomic_dir, atomic_write_text, check_output_folder
+from kinefuse.io.outputs import (
+    atomic_dir,
+    atomic_write_text,
+    check_output_folder,
+    never_replace,
+)
 from kinefuse.pipeline.analysis import AnalysisInput
 
 Array = NDArray[np.float64]
@@ -174,7 +179,7 @@ def write_limb_frames(path: Path, t_s: Array, limbs: Sequence[str], transforms: 
             cells = ",".join("" if not np.isfinite(v) else f"{v:.6f}" for v in row)
             buf.write(f"{tk},{name},{cells}\n")
     return atomic_write_text(path, buf.getvalue(), what="limb frames file",
-                             recognizer=lambda _p: False)  # fmt: skip
+                             recognizer=never_replace)  # fmt: skip
 
 
 def _choose_phase(

@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.errors import CalibrationError, InputError, KinefuseError, OutputError
+from kinefuse.errors import CalibrationError, InputError, OutputError
 from kinefuse.evaluation.poses import resolve_poses
-from kinefuse.io.store.session import SessionStore
+from kinefuse.io.store.session import SessionStore, is_simulated_session
 
 Array = NDArray[np.float64]
 
@@ -25,22 +25,6 @@ DEMO_CLIP = "01_01.amc.gz"
 def demo_clip_path() -> Path:
     """Path of the bundled demo clip inside the installed package."""
     return Path(str(resources.files("kinefuse") / "data" / DEMO_CLIP))
-
-
-def is_replaceable_simulation(path: Path) -> bool:
-    """True if ``path`` is a kinefuse session with ground truth (a simulation, which can be made
-    again) and no writer has it open; a live recording, or any other file, is never replaced."""
-    from kinefuse.io.outputs import is_kinefuse_session
-
-    if not is_kinefuse_session(path):
-        return False
-    if any(path.with_name(path.name + s).exists() for s in ("-wal", "-journal")):
-        return False  # open by a writer, or a crashed one left its journal: not ours to drop
-    try:
-        with SessionStore.open(path) as old:
-            return old.has_truth()
-    except KinefuseError:
-        return False
 
 
 def check_session_out(out: Path, force: bool) -> None:
@@ -78,7 +62,7 @@ def check_session_out(out: Path, force: bool) -> None:
             f"(a {out.name}-wal or -journal file lies beside it); close that process, or run "
             f"`kinefuse inspect {out}` once to recover it, then try again"
         )
-    if not is_replaceable_simulation(out):
+    if not is_simulated_session(out):
         raise OutputError(
             f"refusing to replace {out}: it is a recording without ground truth (a live session); "
             "choose another --out"
@@ -154,7 +138,7 @@ def run_simulate(
         subject_seed=subject_seed,
     )
     with atomic_file(
-        out, what="session", recognizer=is_replaceable_simulation, suffix=".partial.sqlite"
+        out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
     ) as tmp:
         tmp.unlink()  # the store creates its own file
         simulate_session(motion, the_rig, tmp, config, progress=say)

@@ -116,6 +116,7 @@ class ChildProcesses:
     def __init__(self, log_dir: Path) -> None:
         self.log_dir = log_dir
         self.children: list[Child] = []
+        self._logs: set[Path] = set()  # the logs this object made (a restarted child appends)
         log_dir.mkdir(parents=True, exist_ok=True)
 
     def __enter__(self) -> ChildProcesses:
@@ -130,7 +131,18 @@ class ChildProcesses:
         log = self.log_dir / f"{name}.log"
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         cmd = [sys.executable, "-m", "kinefuse", *args]
-        f = log.open("wb")
+        try:  # a log file never replaces one this object did not make
+            f = log.open("ab" if log in self._logs else "xb")
+        except OSError as e:
+            raise ProcessError(
+                f"cannot start {name}: its log {log} "
+                + (
+                    "exists already; give an empty log folder"
+                    if isinstance(e, FileExistsError)
+                    else f"cannot be written: {e.strerror or e}"
+                )
+            ) from None
+        self._logs.add(log)
         try:
             popen = subprocess.Popen(
                 cmd,

@@ -10,6 +10,7 @@ in time order and angles in the order given; an empty ``degrees`` cell is a miss
     nRows=<frames>
     nColumns=<1 + angles>
     inDegrees=yes
+    generator=kinefuse <version>
     endheader
     time<TAB>hip_flexion_r<TAB>...
     0.000000<TAB>12.345678<TAB>...
@@ -18,35 +19,68 @@ tab-separated, one row per frame; missing values are written ``NaN`` (OpenSim re
 Column names must be OpenSim-safe (letters, digits, ``_``, ``-``, ``.``): no blanks or tabs.
 
 Both writers go through a temporary file and an atomic rename (:mod:`kinefuse.io.outputs`) and
-refuse to replace an existing file unless ``overwrite=True``.
+refuse to replace an existing file unless ``overwrite=True``, and even then unless kinefuse wrote
+it as that kind of file (the CSV's header line; the ``.mot``'s ``generator=kinefuse`` line).
 """
 
 from __future__ import annotations
 
 import io
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse import __version__
 from kinefuse.errors import InputError
 from kinefuse.io.outputs import atomic_write_text
 
 #: what each writer's file is, for messages
 _WHAT = {".csv": "angles file", ".mot": "OpenSim motion file"}
+_CSV_HEADER = "time_s,joint,angle,degrees"
+_MOT_GENERATOR = "kinefuse"
 
 
-def _write(path: str | Path, text: str, overwrite: bool) -> Path:
-    """Atomic write; an existing file is replaced only with ``overwrite`` (the caller made it)."""
+def is_angles_csv(path: Path) -> bool:
+    """True if ``path`` is an ``angles.csv`` kinefuse wrote (by its header line)."""
+    try:
+        with Path(path).open(encoding="utf-8") as f:
+            return f.readline().rstrip("\r\n") == _CSV_HEADER
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def is_angles_mot(path: Path) -> bool:
+    """True if ``path`` is a ``.mot`` kinefuse wrote (its header's ``generator=kinefuse`` line)."""
+    try:
+        gen = read_angles_mot(path)[2].get("generator", "")
+    except (OSError, UnicodeDecodeError, ValueError, IndexError, InputError):
+        return False
+    return gen.split(" ", 1)[0] == _MOT_GENERATOR
+
+
+def _write(
+    path: str | Path, text: str, overwrite: bool, recognizer: Callable[[Path], bool]
+) -> Path:
+    """Atomic write; an existing file is replaced only with ``overwrite`` and only when
+    ``recognizer`` says kinefuse wrote it as this kind of file."""
     what = _WHAT.get(Path(path).suffix.lower(), "angles file")
-    return atomic_write_text(path, text, what=what, recognizer=lambda _p: overwrite)
+    return atomic_write_text(
+        path, text, what=what, recognizer=lambda p: overwrite and recognizer(p)
+    )
 
 
 Array = NDArray[np.float64]
 
-__all__ = ["read_angles_mot", "write_angles_csv", "write_angles_mot"]
+__all__ = [
+    "is_angles_csv",
+    "is_angles_mot",
+    "read_angles_mot",
+    "write_angles_csv",
+    "write_angles_mot",
+]
 
 _SAFE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -86,7 +120,7 @@ def write_angles_csv(
     joints : mapping of str to str
         Angle name -> the joint (or limb) it belongs to.
     overwrite : bool
-        Replace an existing file (only one the caller made).
+        Replace an existing file, only one kinefuse wrote as this kind of file.
 
     Returns
     -------
@@ -100,7 +134,7 @@ def write_angles_csv(
         if any(c in n for c in ',"\n\r'):
             raise InputError(f"angle and joint names cannot hold commas, quotes or newlines: {n!r}")
     buf = io.StringIO()
-    buf.write("time_s,joint,angle,degrees\n")
+    buf.write(_CSV_HEADER + "\n")
     names = list(ang)
     if names:
         vals = np.stack([ang[n] for n in names], axis=1)  # (T, A)
@@ -109,7 +143,7 @@ def write_angles_csv(
             for i, n in enumerate(names):
                 v = vals[k, i]
                 buf.write(f"{tk},{joints[n]},{n},{'' if not np.isfinite(v) else f'{v:.4f}'}\n")
-    return _write(path, buf.getvalue(), overwrite)
+    return _write(path, buf.getvalue(), overwrite, is_angles_csv)
 
 
 def write_angles_mot(
@@ -132,7 +166,7 @@ def write_angles_mot(
     name : str
         The first header line (OpenSim's name of the storage).
     overwrite : bool
-        Replace an existing file (only one the caller made).
+        Replace an existing file, only one kinefuse wrote as this kind of file.
 
     Returns
     -------
@@ -148,7 +182,8 @@ def write_angles_mot(
     names = list(ang)
     buf = io.StringIO()
     buf.write(
-        f"{name}\nversion=1\nnRows={t.size}\nnColumns={len(names) + 1}\ninDegrees=yes\nendheader\n"
+        f"{name}\nversion=1\nnRows={t.size}\nnColumns={len(names) + 1}\ninDegrees=yes\n"
+        f"generator={_MOT_GENERATOR} {__version__}\nendheader\n"
     )
     buf.write("\t".join(["time", *names]) + "\n")
     cols = np.stack([t, *(ang[n] for n in names)], axis=1)
@@ -156,7 +191,7 @@ def write_angles_mot(
         buf.write(
             "\t".join(["NaN" if not np.isfinite(v) else f"{v:.6f}" for v in row.tolist()]) + "\n"
         )
-    return _write(path, buf.getvalue(), overwrite)
+    return _write(path, buf.getvalue(), overwrite, is_angles_mot)
 
 
 def read_angles_mot(path: str | Path) -> tuple[Array, dict[str, Array], dict[str, str]]:

@@ -62,7 +62,7 @@ def _check(t_s: Array, positions: Array) -> tuple[Array, Array, float, int]:
     return t, p, rate, round(t[0] * rate)
 
 
-def export_csv(path: Path, t_s: Array, positions: Array, **_: object) -> None:
+def _write_csv(path: Path, t_s: Array, positions: Array, **_: object) -> None:
     """CSV: ``time_s`` then ``<Joint>_x_m, <Joint>_y_m, <Joint>_z_m`` per joint; empty = missing."""
     t, p, _rate, _k0 = _check(t_s, positions)
     flat = np.concatenate([t[:, None], p.reshape(t.size, -1)], axis=1)
@@ -92,7 +92,7 @@ def _trc_header(name: str, rate: float, n_frames: int) -> list[str]:
     ]
 
 
-def export_trc(
+def _write_trc(
     path: Path,
     t_s: Array,
     positions: Array,
@@ -125,7 +125,7 @@ def is_trc_export(path: Path) -> bool:
     return head[0].startswith("PathFileType\t4\t(X/Y/Z)") and head[3] == _trc_header("", 1, 1)[3]
 
 
-def export_c3d(
+def _write_c3d(
     path: Path, t_s: Array, positions: Array, *, residual_m: Array | None = None, **_: object
 ) -> None:
     """C3D via ezc3d (millimetres, world frame z up).
@@ -179,12 +179,40 @@ def is_c3d_export(path: Path) -> bool:
 
 Exporter = Callable[..., None]
 
-#: extension -> (writer, recognizer of a file of that kind written by kinefuse)
+#: extension -> (writer of a new file, recognizer of a file of that kind written by kinefuse);
+#: the writers write in place: every public writer calls them through :func:`_export`
 EXPORTERS: dict[str, tuple[Exporter, Callable[[Path], bool]]] = {
-    ".csv": (export_csv, is_csv_export),
-    ".trc": (export_trc, is_trc_export),
-    ".c3d": (export_c3d, is_c3d_export),
+    ".csv": (_write_csv, is_csv_export),
+    ".trc": (_write_trc, is_trc_export),
+    ".c3d": (_write_c3d, is_c3d_export),
 }
+
+
+def _export(path: str | Path, kind: str, t_s: Array, positions: Array, **kw: object) -> Path:
+    """Write format ``kind`` (".csv", ".trc", ".c3d") to ``path`` through
+    :func:`kinefuse.io.outputs.atomic_file`: a temporary file renamed into place, and an
+    existing file replaced only if it is a kinefuse export of that format."""
+    p = Path(path)
+    writer, recognizer = EXPORTERS[kind]
+    what = f"{kind[1:].upper()} export"
+    with atomic_file(p, what=what, recognizer=recognizer, suffix=kind) as tmp:
+        writer(tmp, t_s, positions, name=p.name, **kw)
+    return p
+
+
+def export_csv(path: str | Path, t_s: Array, positions: Array, **kw: object) -> Path:
+    """Write a CSV export (layout: :func:`_write_csv`), safely (:func:`_export`)."""
+    return _export(path, ".csv", t_s, positions, **kw)
+
+
+def export_trc(path: str | Path, t_s: Array, positions: Array, **kw: object) -> Path:
+    """Write an OpenSim TRC export (layout: :func:`_write_trc`), safely (:func:`_export`)."""
+    return _export(path, ".trc", t_s, positions, **kw)
+
+
+def export_c3d(path: str | Path, t_s: Array, positions: Array, **kw: object) -> Path:
+    """Write a C3D export (layout: :func:`_write_c3d`), safely (:func:`_export`)."""
+    return _export(path, ".c3d", t_s, positions, **kw)
 
 
 def check_export_path(path: str | Path) -> Path:
@@ -217,8 +245,4 @@ def export_skeleton(
         (missing or read-only folder, disk full...). An old file is left untouched.
     """
     p = check_export_path(path)
-    writer, recognizer = EXPORTERS[p.suffix.lower()]
-    what = f"{p.suffix.lower()[1:].upper()} export"
-    with atomic_file(p, what=what, recognizer=recognizer, suffix=p.suffix) as tmp:
-        writer(tmp, t_s, positions, name=p.name, residual_m=residual_m, trc_axes=trc_axes)
-    return p
+    return _export(p, p.suffix.lower(), t_s, positions, residual_m=residual_m, trc_axes=trc_axes)

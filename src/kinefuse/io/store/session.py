@@ -42,9 +42,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.errors import IncompleteSessionError, InputError, StoreError
+from kinefuse.errors import IncompleteSessionError, InputError, KinefuseError, StoreError
 from kinefuse.frames.observations import BodyFrames
-from kinefuse.io.outputs import APPLICATION_ID
+from kinefuse.io.outputs import APPLICATION_ID, is_kinefuse_session
 from kinefuse.io.store.codec import (
     _F8,
     _I1,
@@ -249,12 +249,19 @@ class SessionStore(SensorStreams, TruthTables):
         path : path-like
             The ``.sqlite`` file to create; its folder must exist.
         overwrite : bool
-            Replace an existing file (and its ``-wal``/``-shm``/``-journal`` companions).
+            Replace an existing simulated session (and its ``-shm`` companion); any other file,
+            a live recording or a session open by a writer is refused
+            (:func:`kinefuse.io.store.session.is_simulated_session`). The new store is built in
+            place; to keep the old one until the new one is whole, build it in
+            :func:`kinefuse.io.outputs.atomic_file` as :func:`kinefuse.sim.lab.simulate_session`
+            does.
 
         Raises
         ------
         StoreError
             The file exists and ``overwrite`` is False, or the folder does not exist.
+        OutputError
+            ``overwrite`` is True and the file is not a simulated kinefuse session.
         """
         p = Path(path)
         if p.is_dir():
@@ -268,6 +275,10 @@ class SessionStore(SensorStreams, TruthTables):
                 f"cannot create a session store at {p}: folder {p.parent} does not exist"
             )
         if overwrite:
+            from kinefuse.io.outputs import refuse_unless_ours
+            from kinefuse.io.store.session import is_simulated_session
+
+            refuse_unless_ours(p, is_simulated_session, "session")
             for q in (p, *(p.with_name(p.name + s) for s in ("-wal", "-shm", "-journal"))):
                 q.unlink(missing_ok=True)
         conn = sqlite3.connect(p, isolation_level=None)
@@ -677,3 +688,21 @@ class SessionStore(SensorStreams, TruthTables):
         """Methods that have a stored fused result, sorted."""
         rows = self._db.execute("SELECT method FROM fused_runs ORDER BY method").fetchall()
         return [str(r[0]) for r in rows]
+
+
+def is_simulated_session(path: Path) -> bool:
+    """True if ``path`` is a kinefuse session with ground truth (a simulation, which can be made
+    again) and no writer has it open; a live recording, or any other file, is never replaced.
+
+    The one recognizer of a replaceable session: ``kinefuse simulate --force``,
+    :func:`kinefuse.sim.lab.simulate_session` and ``SessionStore.create(overwrite=True)``
+    all use it."""
+    if not is_kinefuse_session(path):
+        return False
+    if any(path.with_name(path.name + s).exists() for s in ("-wal", "-journal")):
+        return False  # open by a writer, or a crashed one left its journal: not ours to drop
+    try:
+        with SessionStore.open(path) as old:
+            return old.has_truth()
+    except KinefuseError:
+        return False
