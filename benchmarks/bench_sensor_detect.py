@@ -30,7 +30,7 @@ from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.parts import fit_floor
 from kinefuse.net.client.playback import SimTimeline
 from kinefuse.occlusion import detect_occlusion
-from kinefuse.workflows.common import run_simulate
+from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT.parent / "shared" / "data" / "motion" / "cmu" / "02_walk_a.amc"

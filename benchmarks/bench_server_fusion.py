@@ -23,7 +23,7 @@ from kinefuse.io.store.session import SessionStore
 from kinefuse.net.server.fusion_loop import FrameFusion
 from kinefuse.net.server.sensor_state import Observation
 from kinefuse.workflows.calibrate import run_calibrate
-from kinefuse.workflows.common import demo_clip_path, run_simulate
+from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 
 def main() -> None:

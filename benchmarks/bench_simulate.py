@@ -24,7 +24,7 @@ from kinefuse.motion import load_motion
 from kinefuse.motion.types import Motion
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig, place_actor
-from kinefuse.workflows.common import demo_clip_path
+from kinefuse.workflows.simulate import demo_clip_path
 
 SECONDS = 60.0
 TARGET_S = 20.0

@@ -219,8 +219,8 @@ def real_server(args: argparse.Namespace) -> dict[str, Any]:
 
     from kinefuse.io.store.live import live_fused
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.workflows.common import demo_clip_path, run_simulate
     from kinefuse.workflows.demo import run_live
+    from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
     cal_s = 15.0
     settle_s = 4.0  # after the motion starts: calibration done, fusion warmed up

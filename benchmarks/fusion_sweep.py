@@ -23,7 +23,7 @@ import numpy as np
 from kinefuse.evaluation.fusion import truth_at
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.workflows.common import run_simulate
+from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

@@ -35,7 +35,7 @@ from kinefuse.io.store.session import SessionStore
 from kinefuse.motion import load_motion
 from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
 from kinefuse.sim.rig import load_rig, place_actor
-from kinefuse.workflows.common import run_simulate
+from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

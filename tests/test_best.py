@@ -214,7 +214,7 @@ def test_offline_best_is_not_mirrored_where_every_view_is_ambiguous(shared_data,
     from kinefuse.evaluation.fusion import truth_at
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-    from kinefuse.workflows.common import run_simulate
+    from kinefuse.workflows.simulate import run_simulate
 
     out = tmp_path / "s.sqlite"
     rig = Path(__file__).resolve().parents[1] / "rigs" / "level4.toml"

@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def session(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 sensors, a 3 s wand phase (depth at 10 Hz), then 1 s of walking."""
-    from kinefuse.workflows.common import run_simulate
+    from kinefuse.workflows.simulate import run_simulate
 
     out = tmp_path_factory.mktemp("clientsim") / "s.sqlite"
     run_simulate(

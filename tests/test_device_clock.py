@@ -26,7 +26,7 @@ from kinefuse.sync import (
     sensor_timebase,
 )
 from kinefuse.sync.device import NOMINAL_LATENCY_S
-from kinefuse.workflows.common import run_simulate
+from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,7 @@ from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.session import frame_grid, load_sensors
 from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
-from kinefuse.workflows.common import demo_clip_path, run_simulate
+from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 J = JOINT_INDEX
 BODY = [J[n] for n in VIEW_JOINTS]

@@ -60,8 +60,7 @@ def tiny(shared_data):
     """A placed 0.3 s walk and a 2-sensor rig: a session simulates in about a second."""
     from kinefuse.motion import load_motion
     from kinefuse.sim.lab import LabConfig
-    from kinefuse.sim.rig import default_rig
-    from kinefuse.workflows.common import place_actor
+    from kinefuse.sim.rig import default_rig, place_actor
 
     rig = default_rig(2)
     motion = place_actor(load_motion(shared_data / "motion" / "cmu" / "02_walk_a.amc"), rig, 0.3)

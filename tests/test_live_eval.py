@@ -15,7 +15,7 @@ import pytest
 from kinefuse.errors import InputError
 from kinefuse.evaluation.live import clock_errors, playback_truth, write_live_truth
 from kinefuse.io.store.session import SessionStore
-from kinefuse.workflows.common import demo_clip_path, run_simulate
+from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 SERVER_T0 = 5000.0  # CLOCK_MONOTONIC instant the (pretend) server started, s
 EPOCH = 5003.5  # the clients' common playback epoch, s

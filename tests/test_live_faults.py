@@ -30,8 +30,8 @@ from kinefuse.io.store.session import SessionStore
 from kinefuse.protocol import codec
 from kinefuse.protocol.auth import compute_mac
 from kinefuse.protocol.messages import AuthReply, Challenge, Error, Hello, Message
-from kinefuse.workflows.common import demo_clip_path, run_simulate
 from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
+from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 CAL_S = 6.0  # the wand phase of the test sessions, s
 MOTION_S = 9.0  # their motion, s (a restarted client has several seconds left to stream)

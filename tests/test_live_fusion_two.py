@@ -18,7 +18,7 @@ import pytest
 
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.workflows.common import demo_clip_path, run_simulate
+from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 
 @pytest.fixture(scope="module")

@@ -30,7 +30,7 @@ from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.feed import publish_session
 from kinefuse.viewer.replay import ReplaySource
 from kinefuse.viewer.session_data import load_session_view
-from kinefuse.workflows.common import demo_clip_path
+from kinefuse.workflows.simulate import demo_clip_path
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"

@@ -57,7 +57,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def run(args: argparse.Namespace) -> int:
     if args.offline:  # the offline pipeline on a simulated session
-        from kinefuse.workflows.common import run_demo
+        from kinefuse.workflows.demo import run_demo
 
         return run_demo(out_dir=args.out, seed=args.seed)
     from kinefuse.workflows.demo import run_live_demo

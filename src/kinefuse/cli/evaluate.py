@@ -28,7 +28,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    from kinefuse.workflows.common import format_evaluate, run_evaluate
+    from kinefuse.workflows.evaluate import format_evaluate, run_evaluate
 
     report = run_evaluate(
         session=args.session,

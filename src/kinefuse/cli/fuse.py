@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    from kinefuse.workflows.common import run_fuse
+    from kinefuse.workflows.fuse import run_fuse
 
     info = run_fuse(
         session=args.session,

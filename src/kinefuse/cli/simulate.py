@@ -78,7 +78,7 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from kinefuse.workflows.common import run_simulate
+    from kinefuse.workflows.simulate import run_simulate
 
     r = run_simulate(
         clip=args.clip,

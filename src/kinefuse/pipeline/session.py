@@ -1,7 +1,7 @@
 """The pipeline layer: reads a session store, hands arrays and frozen inputs to the core.
 
 The numerical core (:mod:`kinefuse.fusion.session`, :mod:`kinefuse.calibration.session`) reads
-no store and no clock; this module does both for the commands in :mod:`kinefuse.workflows.common`:
+no store and no clock; this module does both for the commands in :mod:`kinefuse.workflows`:
 
 - :func:`load_sensors`: every sensor's stream, its clock from the probes (capture times on the
   server clock) and the client's occlusion flags (run here, on the sensor's own data, when the

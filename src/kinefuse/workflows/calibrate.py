@@ -1,6 +1,5 @@
 """``kinefuse calibrate``: find every sensor's pose from a session's wand phase, grade the
-result from its own residuals, write the calibration file (split from
-:mod:`kinefuse.workflows.common`)."""
+result from its own residuals, write the calibration file."""
 
 from __future__ import annotations
 

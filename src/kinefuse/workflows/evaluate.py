@@ -1,0 +1,153 @@
+"""``kinefuse evaluate``: every fusion method of a simulated session against its truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import InputError
+from kinefuse.evaluation.poses import resolve_poses
+from kinefuse.io.store.session import SessionStore
+
+Array = NDArray[np.float64]
+
+
+def run_evaluate(
+    *,
+    session: Path,
+    methods: tuple[str, ...],
+    out_dir: Path | None,
+    calibration: Path | None,
+    true_calibration: bool,
+    allow_incomplete: bool = False,
+    start_s: float | None = None,
+    end_s: float | None = None,
+) -> dict[str, object]:
+    """Compare fusion methods against the truth of a simulated session (opened read-only).
+
+    ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
+    swapped in on success (an existing folder is replaced only if kinefuse made it).
+    """
+    from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
+    from kinefuse.io.outputs import atomic_dir, check_output_folder
+    from kinefuse.pipeline.session import METHODS, load_sensors
+
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputError(
+            f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+        )
+    if out_dir is not None:
+        check_output_folder(out_dir, "evaluation folder")
+    with SessionStore.open(session) as store:
+        store.require_complete(allow_incomplete=allow_incomplete)
+        if not store.has_truth():
+            raise InputError(
+                f"{session} has no ground truth, so there is nothing to evaluate against; "
+                "evaluate simulated sessions (kinefuse simulate)"
+            )
+        poses, source = resolve_poses(store, calibration, true_calibration)
+        sensors = load_sensors(store, poses)
+        truth2world = None
+        if not true_calibration:
+            truth2world, cal_error = calibration_alignment(store, poses)
+        report, results, truth = evaluate(
+            store, sensors, methods, truth2world=truth2world, start_s=start_s, end_s=end_s
+        )
+        from kinefuse.evaluation.plausibility import plausibility_vs_errors
+
+        report["plausibility"] = plausibility_vs_errors(store, results, truth)
+        facts = None
+        if out_dir is not None:
+            from kinefuse.evaluation.report_facts import session_facts
+
+            facts = session_facts(store, sensors, poses, source)
+    report["calibration"] = source
+    if truth2world is not None:
+        report["calibration_alignment"] = {
+            "note": "truth moved into the calibration's world by a translation and a rotation "
+            "about z fitted on the sensor poses",
+            "translation_m": [float(v) for v in truth2world[:3, 3]],
+            "yaw_deg": float(np.degrees(np.arctan2(truth2world[1, 0], truth2world[0, 0]))),
+            "calibration_mean_position_error_m": cal_error,
+        }
+    if out_dir is not None:
+        with atomic_dir(out_dir, what="evaluation folder") as tmp:
+            written = write_tables(tmp, report, results, sensors, truth, methods)
+            if facts is not None:
+                from kinefuse.report.html import write_html_report
+
+                written.append(
+                    write_html_report(tmp / "report.html", facts, report, results, truth, methods)
+                )
+            report["written"] = [str(out_dir / p.name) for p in written] + [
+                str(out_dir / "evaluate.json")
+            ]
+            (tmp / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
+    """A short text table of an evaluation."""
+    common = report.get("common")
+    frac = common.get("joint_fraction", float("nan")) if isinstance(common, dict) else float("nan")
+    lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}", ""]
+    lines.append(
+        f"{'method':<10} {'MAE cm':>8} {'common':>8} {'RMSE cm':>8} {'p95 cm':>8} "
+        f"{'coverage':>9} {'bias cm':>8} {'noise cm':>9}"
+    )
+    for m in methods:
+        r = report[m]
+        assert isinstance(r, dict)
+        bn = r["bias_noise"]
+        lines.append(
+            f"{m:<10} {100 * r['mae_m']:8.2f} {100 * r['mae_common_m']:8.2f} "
+            f"{100 * r['rmse_m']:8.2f} {100 * r['p95_m']:8.2f} {100 * r['coverage']:8.1f}% "
+            f"{100 * bn['bias_norm_mean_m']:8.2f} {100 * bn['noise_mean_m']:9.2f}"
+        )
+    lines.append(
+        f"(MAE over each method's own joints; 'common' over the {100 * frac:.1f} % of frames x "
+        "joints every method solved; bias = mean offset per joint, noise = spread around it)"
+    )
+    for m in methods:
+        r = report[m]
+        assert isinstance(r, dict)
+        if m == "best-live":
+            parts = [f"{k.lower()} {100 * v['fraction']:.1f} % ({100 * v['mae_m']:.1f} cm)"
+                     for k, v in r["by_status"].items()]  # fmt: skip
+            lines.append(f"{m} by joint status: " + ", ".join(parts))
+    occ = report.get("occlusion")
+    if isinstance(occ, dict):
+        lines.append(
+            f"\nocclusion detection vs ray casting: precision {occ['precision']:.2f}, "
+            f"recall {occ['recall']:.2f}"
+        )
+    comp = report.get("comparisons")
+    if isinstance(comp, dict) and comp:
+        lines.append("\ngain of a over b: MAE of b minus MAE of a on joints both solved (95 % "
+                     "interval, block bootstrap over frames):")  # fmt: skip
+        for pair, v in comp.items():
+            lines.append(f"  {pair:<22} {_gain_text(v)}")
+    from kinefuse.evaluation.plausibility import format_plausibility
+
+    plaus = format_plausibility(report.get("plausibility"))
+    if plaus:
+        lines.append(plaus)
+    abl = report.get("ablation")
+    if isinstance(abl, dict):
+        lines.append("\nablation of best (MAE without the part, and what the part gains):")
+        for part, v in abl.items():
+            lines.append(f"  {part:<11} {100 * v['mae_without_m']:6.2f} cm   {_gain_text(v)}")
+    return "\n".join(lines)
+
+
+def _gain_text(v: dict[str, Any]) -> str:
+    low, high = v["gain_ci95_percent"]
+    return (
+        f"{100 * v['gain_m']:+6.2f} cm, {v['gain_percent']:+6.1f} % [{low:+.1f}, {high:+.1f}] "
+        f"{v['verdict']}"
+    )

@@ -1,0 +1,69 @@
+"""``kinefuse fuse``: a session's joints fused into one skeleton, exported or stored."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.evaluation.poses import resolve_poses
+from kinefuse.io.store.session import SessionStore
+
+Array = NDArray[np.float64]
+
+
+def run_fuse(
+    *,
+    session: Path,
+    method: str,
+    out: Path | None,
+    calibration: Path | None,
+    true_calibration: bool,
+    store_result: bool = False,
+    allow_incomplete: bool = False,
+    trc_axes: str = "y-up",
+    start_s: float | None = None,
+    end_s: float | None = None,
+) -> dict[str, object]:
+    """Fuse a session with one method and export the result.
+
+    The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
+    (the one case that writes to the session). The export's folder and kind are checked before
+    the work starts, so a bad ``out`` fails fast.
+    """
+    from kinefuse.fusion.status import status_counts
+    from kinefuse.io.formats.export import check_export_path, export_skeleton
+    from kinefuse.io.outputs import check_output_folder
+    from kinefuse.pipeline.session import clip_grid, frame_grid, load_sensors, run_method
+
+    if out is not None:
+        check_export_path(out)
+        check_output_folder(out, "export")
+    with SessionStore.open(session, writable=store_result) as store:
+        store.require_complete(allow_incomplete=allow_incomplete)
+        poses, source = resolve_poses(store, calibration, true_calibration)
+        sensors = load_sensors(store, poses)
+        warnings = [
+            f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
+            for s in sensors
+            if not s.observations.has_body.any()
+        ]
+        grid = clip_grid(frame_grid(sensors), start_s, end_s)
+        res = run_method(sensors, grid, method)
+        if store_result:
+            store.write_fused(method, res.t_server_s, res.positions, res.status)
+    if out is not None:
+        export_skeleton(
+            out, res.t_server_s, res.positions, residual_m=res.residual_m, trc_axes=trc_axes
+        )
+    return {
+        "method": method,
+        "calibration": source,
+        "frames": int(res.t_server_s.size),
+        "seconds": res.seconds,
+        "status": status_counts(res.status),
+        "out": str(out) if out is not None else None,
+        "stored_in_session": store_result,
+        "warnings": warnings,
+    }

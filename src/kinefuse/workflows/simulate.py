@@ -1,0 +1,153 @@
+"""``kinefuse simulate``: a session of a real clip seen by simulated sensors (the bundled demo clip
+included)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.errors import InputError, OutputError
+from kinefuse.io.store.session import SessionStore, is_simulated_session
+
+Array = NDArray[np.float64]
+
+
+#: The demo's bundled clip: CMU subject 01, trial 01 (forward jumps, turn around), the original
+#: Acclaim ASF/AMC from the fairmotion repository (BSD); see ``kinefuse/data/LICENSE_clips.md``.
+DEMO_CLIP = "01_01.amc.gz"
+
+
+def demo_clip_path() -> Path:
+    """Path of the bundled demo clip inside the installed package."""
+    return Path(str(resources.files("kinefuse") / "data" / DEMO_CLIP))
+
+
+def check_session_out(out: Path, force: bool) -> None:
+    """Refuse an ``--out`` for a new session: a foreign extension, or an existing file that is
+    not a simulated session (or is one, without ``--force``)."""
+    from kinefuse.io.outputs import (
+        FOREIGN_SESSION_SUFFIXES,
+        check_output_folder,
+        is_kinefuse_session,
+    )
+
+    if out.suffix.lower() in FOREIGN_SESSION_SUFFIXES:
+        raise OutputError(
+            f"--out {out}: a session is a SQLite file, but {out.suffix!r} is the extension of "
+            "another format; name it .sqlite"
+        )
+    check_output_folder(out, "session")
+    if out.is_dir():
+        raise OutputError(f"--out {out} is a folder; give the path of a .sqlite file")
+    if not out.exists():
+        return
+    if not force:
+        raise OutputError(
+            f"{out} already exists; choose another --out, or pass --force to replace it (only a "
+            "simulated kinefuse session is ever replaced)"
+        )
+    if not is_kinefuse_session(out):
+        raise OutputError(
+            f"refusing to replace {out}: it is not a kinefuse session (checked by its content, "
+            "not its name); --force only replaces simulated sessions"
+        )
+    if any(out.with_name(out.name + s).exists() for s in ("-wal", "-journal")):
+        raise OutputError(
+            f"refusing to replace {out}: it is open by another process or was not closed cleanly "
+            f"(a {out.name}-wal or -journal file lies beside it); close that process, or run "
+            f"`kinefuse inspect {out}` once to recover it, then try again"
+        )
+    if not is_simulated_session(out):
+        raise OutputError(
+            f"refusing to replace {out}: it is a recording without ground truth (a live session); "
+            "choose another --out"
+        )
+
+
+def run_simulate(
+    *,
+    clip: Path,
+    out: Path,
+    skeleton: Path | None = None,
+    units: str | None = None,
+    name_map: Path | None = None,
+    rig: Path | None = None,
+    sensors: int = 4,
+    seconds: float | None = None,
+    seed: int = 0,
+    calibration_s: float = 20.0,
+    depth_rate_hz: float = 10.0,
+    room: tuple[float, float, float, float] | None = None,
+    force: bool = False,
+    progress: Callable[[str], None] | None = None,
+    rom_s: float | None = None,
+    subject_seed: int | None = None,
+) -> dict[str, Any]:
+    """Load a clip and a rig, place the actor, and simulate a session into ``out``.
+
+    Everything that can be checked is checked before anything is written; the session is built
+    in a temporary file beside ``out``, marked complete, and renamed into place only when it is
+    whole, so an interrupted or failed run leaves any old ``out`` byte-identical. ``force``
+    replaces an existing simulated session, never another file or a live recording. ``rom_s``:
+    a range-of-motion calibration phase of that many seconds before the motion
+    (:func:`kinefuse.workflows.analyze.add_rom_phase`).
+
+    Returns
+    -------
+    dict
+        ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`) and
+        ``warnings`` (list of str).
+    """
+    from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
+    from kinefuse.io.outputs import atomic_file
+    from kinefuse.motion import load_motion
+    from kinefuse.sim.lab import LabConfig, simulate_session
+    from kinefuse.sim.rig import default_rig, load_rig, place_actor
+
+    say = progress or (lambda _m: None)
+    check_session_out(out, force)
+    the_rig = load_rig(rig, room=room) if rig is not None else default_rig(sensors, room=room)
+    say(f"loading {clip}")
+    motion = load_motion(clip, skeleton=skeleton, units=units, name_map=name_map)
+    if seconds is not None and seconds > motion.duration_s + 1e-9:
+        raise InputError(
+            f"--seconds {seconds:g} is longer than the clip ({motion.duration_s:.2f} s); "
+            "give at most the clip's length or leave --seconds out"
+        )
+    motion = place_actor(motion, the_rig, seconds)
+    rom = None
+    if rom_s is not None:
+        from kinefuse.workflows.analyze import add_rom_phase
+
+        rom = add_rom_phase(motion, rom_s, seed=seed)
+        if seconds is not None:
+            seconds = min(
+                seconds + rom.motion.duration_s - motion.duration_s, rom.motion.duration_s
+            )
+        motion = rom.motion
+    config = LabConfig(
+        seed=seed,
+        calibration_s=calibration_s,
+        depth_rate_hz=depth_rate_hz,
+        motion_s=seconds,
+        subject_seed=subject_seed,
+    )
+    with atomic_file(
+        out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
+    ) as tmp:
+        tmp.unlink()  # the store creates its own file
+        simulate_session(motion, the_rig, tmp, config, progress=say)
+        if rom is not None:
+            from kinefuse.workflows.analyze import record_rom_phase
+
+            record_rom_phase(tmp, rom, calibration_s)
+        with SessionStore.open(tmp, writable=True) as store:
+            coverage = tracking_coverage(store)
+            store.mark_complete()
+    warnings = coverage_warnings(coverage)
+    return {"out": out, "coverage": coverage, "warnings": warnings}
