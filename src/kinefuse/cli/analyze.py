@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from kinefuse.cli import args as shared
+from kinefuse.fusion.session import METHODS
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -33,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--method",
         default="best",
-        choices=["linear", "geometric", "nonlinear", "paper", "best"],
+        choices=METHODS,
         help="fusion method for sessions (best)",
     )
     shared.add_calibration_args(p)

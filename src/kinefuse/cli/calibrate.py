@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from kinefuse.calibration.session import DETECTORS, METHODS
 from kinefuse.cli import args as shared
 
 
@@ -15,12 +16,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p = sub.add_parser("calibrate", help="find every sensor's pose from the wand phase")
     p.add_argument("session", type=Path, nargs="?", help="session store (or --live HOST:PORT)")
     _add_live_args(p)
-    p.add_argument(
-        "--method", choices=["paper", "full"], default="full", help="registration (full)"
-    )
+    p.add_argument("--method", choices=METHODS, default="full", help="registration (full)")
     p.add_argument(
         "--detector",
-        choices=["paper", "robust"],
+        choices=DETECTORS,
         help="wand detector (default: the method's own: paper for paper, robust for full)",
     )
     p.add_argument("--out", type=Path, help="write the calibration file (TOML)")

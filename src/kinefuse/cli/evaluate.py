@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from kinefuse.cli import args as shared
+from kinefuse.fusion.session import METHODS
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -17,7 +18,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--methods",
         type=shared.methods,
-        default=("linear", "geometric", "nonlinear", "paper", "best", "best-live"),
+        default=METHODS,
         help="comma-separated methods (all six)",
     )
     p.add_argument("--out", type=Path, help="folder for the paper-style tables and plots")

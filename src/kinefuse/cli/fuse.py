@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from kinefuse.cli import args as shared
+from kinefuse.fusion.session import METHODS
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -18,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--method",
         default="best",
-        choices=["linear", "geometric", "nonlinear", "paper", "best", "best-live"],
+        choices=METHODS,
         help="fusion method (best; best-live is the causal fusion a live server runs)",
     )
     p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc or .csv)")

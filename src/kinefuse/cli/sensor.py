@@ -6,7 +6,9 @@ import argparse
 import os
 from pathlib import Path
 
+from kinefuse.calibration.session import DETECTORS
 from kinefuse.cli import args as shared
+from kinefuse.occlusion.segments import OCCLUSION_RULES
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -60,9 +62,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         type=shared.positive_float,
         help="stop after this much source time (default: all)",
     )
-    p.add_argument(
-        "--detector", choices=["robust", "paper"], default="robust", help="wand detector"
-    )
+    p.add_argument("--detector", choices=DETECTORS, default="robust", help="wand detector")
     p.add_argument(
         "--detect-every",
         type=shared.count,
@@ -72,7 +72,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument(
         "--occlusion",
-        choices=["crossing", "coverage"],
+        choices=OCCLUSION_RULES,
         default="crossing",
         help="occlusion rule: the paper's bone crossing (default) or capsule coverage",
     )

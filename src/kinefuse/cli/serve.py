@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from kinefuse.calibration.session import METHODS as CALIBRATION_METHODS
 from kinefuse.cli import args as shared
 
 
@@ -33,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="start the wand calibration as soon as a sensor without a pose joins",
     )
     p.add_argument(
-        "--calibration-method", choices=["full", "paper"], default="full", help="registration"
+        "--calibration-method", choices=CALIBRATION_METHODS, default="full", help="registration"
     )
     p.add_argument(
         "--wand-axis-m",

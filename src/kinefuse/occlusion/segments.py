@@ -53,6 +53,8 @@ DEFAULT_NEAR_M = 0.10
 #: A covering bone must be nearer than the joint by this fraction of its capsule radius.
 COVERAGE_DEPTH_FRACTION = 0.5
 OcclusionRule = Literal["crossing", "coverage"]
+#: The occlusion rules: the paper's 2D bone crossing, and capsule coverage.
+OCCLUSION_RULES: tuple[OcclusionRule, ...] = ("crossing", "coverage")
 _CHUNK_FRAMES = 2048
 
 
@@ -284,7 +286,7 @@ def detect_occlusion(
     _check_intrinsics(intrinsics)
     if not (np.isfinite(near_m) and near_m > 0):
         raise InputError(f"near_m must be a positive distance in metres, got {near_m!r}")
-    if rule not in ("crossing", "coverage"):
+    if rule not in OCCLUSION_RULES:
         raise InputError(f"rule must be 'crossing' (the paper's) or 'coverage', got {rule!r}")
     b = bone_index_array() if bones is None else _check_bones(bones)
     if rule == "coverage" and bones is not None and not np.array_equal(b, bone_index_array()):
