@@ -169,7 +169,10 @@ class Server:
 
         assert isinstance(cal, CalibrationFile)
         self.calibration.load(cal)
-        self.fusion.set_poses(cal.sensor2world)
+        if self._tg is None:
+            self.fusion.set_poses(cal.sensor2world)
+        else:  # running: the fusion may be fusing in a worker thread; the loop applies them
+            self.loop.set_poses(cal.sensor2world)
 
     def request_stop(self, reason: str = "stop requested") -> None:
         """Stop cleanly: goodbye to every peer, finish the recording."""
