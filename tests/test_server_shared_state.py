@@ -198,3 +198,112 @@ def test_a_sensor_joining_while_the_fusion_warms_up_in_a_thread_does_not_stop_th
         collecting.cancel()
 
     asyncio.run(asyncio.wait_for(main(), LIMIT_S))
+
+
+class PausingId(str):
+    """A sensor id whose hashing (a dict lookup with it as the key looked up) pauses a worker
+    thread: the hook that lets the loop act while the worker is inside a loop over a dict."""
+
+    pause: PauseInWorker | None = None
+
+    def __hash__(self) -> int:
+        if PausingId.pause is not None:
+            PausingId.pause("the floors")
+        return str.__hash__(self)
+
+
+def test_a_floor_arriving_while_the_calibration_is_solved_in_a_thread():
+    """The calibration is solved in a worker thread while sensors go on sending: sensor "d"
+    joins and sends its floor plane, which the loop keeps (``add_floor``). The worker must not
+    be reading the floors the loop adds to (it iterated them: the task group stopped the
+    server), the floor is kept for the next calibration, and the state machine is the
+    calibration's own: "solving" until the loop applies the outcome, reported as "collecting"."""
+    from kinefuse.calibration.floor import FloorPlane
+    from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+    from kinefuse.protocol import FloorPlane as FloorMsg
+
+    ids = ("a", "b", "c")
+    rng = np.random.default_rng(7)
+    truth = dict(zip(ids, make_rig(3, rng), strict=True))
+    t, p = wand_waving(12.0, rng)
+    sights = simulate_sightings(list(truth.values()), Intrinsics(), t, p, rng, sensor_ids=ids)
+
+    def floor(pose: np.ndarray) -> FloorPlane:  # the floor z = 0 seen from the sensor
+        return FloorPlane(pose[:3, :3].T @ np.array([0.0, 0.0, 1.0]), float(pose[2, 3]), 1000)
+
+    async def main() -> None:
+        srv = Server(ServerOptions(port=0, timeout_s=30.0))
+        task = asyncio.ensure_future(srv.run())
+        await until(lambda: srv.port is not None, 5, "the server")
+        assert srv.port is not None
+        peers = []
+        for sid in ids:
+            peers.append(await Peer.open(srv.port))
+            assert isinstance(await peers[-1].hello(sid), Welcome)
+        cal = srv.calibration
+        srv._start_calibration(method="", sensor_ids=ids)
+        for sid in ids:
+            key = PausingId(sid) if sid == "a" else sid
+            cal.add_floor(key, floor(truth[sid]))
+            s = sights[sid]
+            for tt, c, q in zip(s.t_server_s, s.centre_sensor_m, s.quality, strict=True):
+                cal.add_sighting(sid, float(tt), c, float(q))
+        pause = PausingId.pause = PauseInWorker()
+        d = None
+        try:
+            srv._finish_calibration(abort=False, why="the test's wand phase is over")
+            assert cal.state == "solving"
+            await asyncio.wait_for(pause.reached.wait(), 10)
+            # the worker is inside its loop over the floors: sensor "d" joins, sends its floor
+            assert srv.status().calibration_state == "collecting"
+            d = await Peer.open(srv.port)
+            assert isinstance(await d.hello("d"), Welcome)
+            d.send(FloorMsg(normal=np.array([0.0, -1.0, 0.0]), offset_m=1.1, n_inliers=500))
+            await until(lambda: "d" in cal.floors or task.done(), 5, "d's floor")
+            assert cal.state == "solving"  # until the loop applies the outcome
+        finally:
+            pause.resume()
+            PausingId.pause = None
+        await until(lambda: srv.last_outcome is not None or task.done(), 20, "the outcome")
+        assert not task.done(), f"the server stopped: {task.exception()!r}"
+        out = srv.last_outcome
+        assert out is not None and out.ok, out.message
+        assert cal.state == "calibrated" and set(cal.poses) == set(ids)
+        assert set(cal.floors) == {"a", "b", "c", "d"}  # d's floor is kept for later
+        assert srv.status().calibration_state == "calibrated"
+        for x in (*peers, d):
+            x.w.close()
+        srv.request_stop("done")
+        await asyncio.wait_for(task, 10)
+
+    asyncio.run(asyncio.wait_for(main(), LIMIT_S))
+
+
+def test_the_calibration_owns_its_state_machine():
+    """Solving is a state of LiveCalibration's own (not a string the server writes into it):
+    begin_solve (on the loop) enters it, the outcome computed from the snapshot alone changes
+    nothing, apply (on the loop) leaves it; the status strings stay the protocol's."""
+    from kinefuse.calibration.floor import FloorPlane
+    from kinefuse.errors import CalibrationError
+    from kinefuse.net.live_calibration import (
+        CalibrationState,
+        LiveCalibration,
+        solve_calibration,
+    )
+
+    cal = LiveCalibration()
+    assert cal.state is CalibrationState.NONE and cal.state == "none"
+    cal.start(0.0, ["a"])
+    job = cal.begin_solve({"a": Intrinsics()}, {})
+    assert cal.state is CalibrationState.SOLVING and cal.state.reported == "collecting"
+    try:
+        cal.start(1.0, ["a"])
+    except CalibrationError as e:
+        assert "being solved" in str(e)
+    else:
+        raise AssertionError("a calibration started while one was being solved")
+    cal.add_floor("a", FloorPlane(np.array([0.0, -1.0, 0.0]), 1.0))  # the loop goes on
+    out = solve_calibration(job)  # nothing sighted: failed
+    assert not out.ok and cal.state is CalibrationState.SOLVING and "a" not in job.floors
+    cal.apply(out)
+    assert cal.state is CalibrationState.FAILED and cal.state.reported == "failed"

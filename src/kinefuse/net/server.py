@@ -54,6 +54,8 @@ from kinefuse.net.live_calibration import (
     CalibrationOutcome,
     LiveCalibration,
     LiveCalibrationOptions,
+    SolveInput,
+    solve_calibration,
 )
 from kinefuse.net.publish import Publisher, ServerStatus
 from kinefuse.net.recorder import Recorder
@@ -383,7 +385,7 @@ class Server:
         if (
             self.options.auto_calibrate
             and not cal.collecting
-            and cal.state != "solving"
+            and not cal.solving
             and sid not in cal.poses
         ):
             self._start_calibration(method="", sensor_ids=())
@@ -533,7 +535,7 @@ class Server:
         seconds: float | None = None,
     ) -> None:
         cal = self.calibration
-        if cal.state == "solving":
+        if cal.solving:
             raise CalibrationError("a calibration is being solved; start again when it is done")
         connected = [s for s, c in self.clients.items() if c.connected]
         cid = cal.start(
@@ -574,15 +576,18 @@ class Server:
             cal.abort()
             self._status_dirty = True
             return
-        cal.state = "solving"
+        # the solve runs in a worker thread on a snapshot taken here, on the loop; its outcome
+        # is applied on the loop (floors that arrive meanwhile are kept for the next one)
+        job = cal.begin_solve(
+            {s: c.intrinsics for s, c in self.clients.items()},
+            {s: c.serial for s, c in self.clients.items()},
+        )
         assert self._tg is not None
-        self._tg.create_task(self._solve())
+        self._tg.create_task(self._solve(job))
 
-    async def _solve(self) -> None:
-        cal = self.calibration
-        intr = {s: c.intrinsics for s, c in self.clients.items()}
-        serials = {s: c.serial for s, c in self.clients.items()}
-        out = await asyncio.to_thread(cal.solve, intr, serials)
+    async def _solve(self, job: SolveInput) -> None:
+        out = await asyncio.to_thread(solve_calibration, job)
+        self.calibration.apply(out)
         self.last_outcome = out
         log.info("calibration %d: %s", out.calibration_id, out.message)
         for r in out.grade.reasons:

@@ -42,9 +42,7 @@ def server_status(srv: Server) -> ServerStatus:
     return ServerStatus(
         t_server_s=now,
         sensors=tuple(sensors),
-        calibration_state="collecting"
-        if srv.calibration.state == "solving"
-        else srv.calibration.state,
+        calibration_state=srv.calibration.state.reported,
         calibration_grade=srv.calibration.grade,
         fused_fps=srv.loop.fps(),
         method=srv.options.method,
