@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import enum
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -407,7 +406,7 @@ def _against_fixed(job: SolveInput, use: dict[str, Sightings]) -> Registration:
     # the world's scale was corrected from the wand protocol (sensor positions scaled by f
     # about the origin, the sensors' own measurements not): register in the unscaled world
     # the sightings live in, then scale the new sensor's position the same way
-    f = world_scale(world)
+    f = prev.scale if prev is not None else 1.0
     unscaled = {}
     for k in fixed_tracks:
         u = np.array(fixed[k], dtype=np.float64)
@@ -429,14 +428,8 @@ def _against_fixed(job: SolveInput, use: dict[str, Sightings]) -> Registration:
         n_sightings=np.array(n_used, dtype=np.int64),
         rms_m=float(np.sqrt(np.mean(np.square(resid)))),
         world=f"{world}; {', '.join(ids)} registered against {', '.join(sorted(fixed))}",
+        scale=f,
     )
-
-
-def world_scale(world: str) -> float:
-    """The scale factor a calibration's world was corrected by (``"scaled by F"`` in its world
-    description, as :func:`kinefuse.calibration.session.scale_registration` writes it), else 1."""
-    m = re.search(r"scaled by ([0-9]+(?:\.[0-9]+)?)", world)
-    return float(m.group(1)) if m else 1.0
 
 
 def register_against(
@@ -516,4 +509,5 @@ def _merge(
         sensors=sensors,
         world=new.world,
         rms_m=rms,
+        scale=new.scale,
     )
