@@ -447,15 +447,26 @@ class Server:
             elif isinstance(msg, FloorMsg):
                 fl = FloorPlane(msg.normal, msg.offset_m, msg.n_inliers, msg.residual_m)
                 self.calibration.add_floor(sid, fl)
+                client.floor_error = None
                 if self.recorder is not None:
                     self.recorder.add_floor(sid, t_arr, fl)
             elif isinstance(msg, Goodbye):
                 log.info("sensor %s said goodbye: %s", sid, msg.reason)
                 return
             elif isinstance(msg, Heartbeat):
-                pass
+                self._floor_error(client, msg.floor_error)
             else:
                 raise OutOfOrder(f"a sensor may not send {msg.TYPE} after the handshake")
+
+    def _floor_error(self, client: SensorClient, error: str | None) -> None:
+        """What a sensor's heartbeat says of its floor fit (None: it did not fail)."""
+        if error == client.floor_error:
+            return
+        client.floor_error = error
+        if error is not None:
+            log.warning("sensor %s: %s", client.sensor_id, error)
+            self._event("floor_error", client.sensor_id, error=error)
+        self._status_dirty = True
 
     def _clock_reply(self, client: SensorClient, msg: ClockReply, t4: float) -> None:
         try:
@@ -556,6 +567,8 @@ class Server:
         )
         for c in self._sensor_conns.values():
             c.send(CalibrationStart(calibration_id=cid, method=cal.method))
+        for s in self.clients.values():
+            s.floor_error = None  # each sensor fits its floor anew
         self._status_dirty = True
 
     def _finish_calibration(self, *, abort: bool, why: str) -> None:

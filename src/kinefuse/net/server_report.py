@@ -37,6 +37,7 @@ def server_status(srv: Server) -> ServerStatus:
                 latency_ms=c.latency_s * 1e3,
                 tracked_fraction=c.tracked_fraction(),
                 pose=None if p is None else tuple(float(v) for v in np.asarray(p).ravel()),
+                floor_error=c.floor_error,
             )
         )
     return ServerStatus(
@@ -67,6 +68,7 @@ def status_message(srv: Server, request_id: int) -> Status:
                 x.latency_ms,
                 x.tracked_fraction,
                 None if x.pose is None else np.array(x.pose).reshape(4, 4),
+                x.floor_error,
             )
             for x in s.sensors
         ),
