@@ -28,7 +28,7 @@ pose at once. A second connection claiming a connected sensor id is refused (``d
 The server clock is ``clock()``: ``time.monotonic() - t0`` by default (recorded as the meta
 ``server_t0_monotonic``), injectable for tests.
 
-Why about 610 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
+Why about 640 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
 the per-connection protocol, the control commands and the report live in the ``server_*``
 modules beside it.
 """
