@@ -8,6 +8,7 @@ Example::
     created = 2026-11-21T22:50:00Z
     world = "wand: origin below the wand's first position, x along its first move; z up ..."
     rms_mm = 1.9
+    scale = 1.0022
 
     [[sensor]]
     id = "k0"
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -85,13 +87,18 @@ class SensorCalibration:
 
 @dataclass(frozen=True, eq=False)
 class CalibrationFile:
-    """A whole calibration: method, date, world definition and the sensors."""
+    """A whole calibration: method, date, world definition and the sensors.
+
+    ``scale``: the factor the sensor positions were scaled by to correct the world's scale
+    (:attr:`~kinefuse.calibration.register.Registration.scale`; 1.0: not scaled).
+    """
 
     method: str
     created: _dt.datetime
     sensors: tuple[SensorCalibration, ...]
     world: str = ""
     rms_m: float = float("nan")
+    scale: float = 1.0
 
     def sensor(self, sensor_id: str) -> SensorCalibration:
         """The entry of one sensor (KeyError naming the known ids otherwise)."""
@@ -142,6 +149,7 @@ def calibration_from_registration(
         sensors=sensors,
         world=registration.world,
         rms_m=float(registration.rms_m),
+        scale=float(registration.scale),
     )
 
 
@@ -169,6 +177,7 @@ def dumps_calibration(cal: CalibrationFile) -> str:
         f"created = {created.isoformat()}",
         f"world = {toml_str(cal.world)}",
         f"rms_mm = {_toml_float(_mm(cal.rms_m))}",
+        f"scale = {_toml_float(cal.scale)}",
     ]
     for s in cal.sensors:
         rows = ",\n".join(
@@ -254,6 +263,12 @@ def loads_calibration(text: str, *, source: str = "<string>") -> CalibrationFile
         created = _dt.datetime(created.year, created.month, created.day, tzinfo=_dt.UTC)
     world = doc.get("world", "")
     rms = float(_need(doc, "rms_mm", (int, float), source)) * 1e-3 if "rms_mm" in doc else math.nan
+    if "scale" in doc:
+        scale = float(_need(doc, "scale", (int, float), source))
+        if not (math.isfinite(scale) and scale > 0):
+            raise InputError(f"{source}: field 'scale' must be a finite number > 0, got {scale}")
+    else:
+        scale = _scale_of_old_file(str(world), source)
     tables = _need(doc, "sensor", list, source)
     if not tables:
         raise InputError(f"{source}: no [[sensor]] tables")
@@ -284,8 +299,34 @@ def loads_calibration(text: str, *, source: str = "<string>") -> CalibrationFile
             )
         )
     return CalibrationFile(
-        method=method, created=created, sensors=tuple(sensors), world=str(world), rms_m=rms
+        method=method,
+        created=created,
+        sensors=tuple(sensors),
+        world=str(world),
+        rms_m=rms,
+        scale=scale,
     )
+
+
+#: the sentence :func:`kinefuse.calibration.session.scale_registration` adds to ``world``
+_SCALED_BY = re.compile(r"; scaled by ([0-9]+\.[0-9]+) from the protocol's known axis length")
+
+
+def _scale_of_old_file(world: str, source: str) -> float:
+    """The scale of a file written before the ``scale`` field: the factor in the one sentence
+    kinefuse wrote into ``world`` when it scaled (5 decimals: within 5e-6 of the factor), else
+    1.0 (the world was not scaled). A sentence that no correction of kinefuse can have written
+    (several factors, one off by more than 3 %) is refused rather than guessed."""
+    found = {float(m) for m in _SCALED_BY.findall(world)}
+    if not found:
+        return 1.0
+    f = found.pop()
+    if found or not 0.97 <= f <= 1.03:
+        raise InputError(
+            f"{source}: no field 'scale', and the world description's scale sentence is not "
+            "one kinefuse wrote; add the line 'scale = <factor>' (1.0 when not scaled)"
+        )
+    return f
 
 
 def read_calibration(path: str | Path) -> CalibrationFile:

@@ -85,6 +85,11 @@ class Registration:
         RMS residual over all sensors.
     world : str
         How the world frame was defined (for the calibration file and the logs).
+    scale : float
+        The factor every sensor position was scaled by about the world origin to correct the
+        world's scale (the wand protocol's known move); 1.0: not scaled. The sensors' own
+        measurements are not scaled: a sensor registered later against this world is
+        registered in the unscaled one and its position scaled by the same factor.
     """
 
     method: str
@@ -94,6 +99,7 @@ class Registration:
     n_sightings: NDArray[np.int64]
     rms_m: float
     world: str
+    scale: float = 1.0
 
     def pose(self, sensor_id: str) -> Array:
         """``sensor2world`` of one sensor."""

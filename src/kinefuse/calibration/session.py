@@ -248,6 +248,7 @@ def scale_registration(reg: Registration, factor: float) -> Registration:
         reg,
         sensor2world=poses,
         world=reg.world + f"; scaled by {factor:.5f} from the protocol's known axis length",
+        scale=reg.scale * factor,
     )
 
 

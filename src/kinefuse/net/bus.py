@@ -70,6 +70,8 @@ class SensorStatus:
     tracked_fraction: float
     #: calibrated pose, sensor -> world, row-major 4x4 (16 floats), or None if not calibrated
     pose: tuple[float, ...] | None = None
+    #: why the sensor's floor fit failed in this calibration (the client says), or None
+    floor_error: str | None = None
 
 
 @dataclass(frozen=True)

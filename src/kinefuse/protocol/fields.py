@@ -384,7 +384,10 @@ class IntrinsicsKind(Kind):
 
 @dataclass(frozen=True)
 class Records(Kind):
-    """A list of at most ``max_items`` maps, each decoded by ``fields`` into ``make(**values)``."""
+    """A list of at most ``max_items`` maps, each decoded by ``fields`` into ``make(**values)``.
+
+    A missing :class:`Optional` field is left to ``make``'s default (a newer minor version may
+    add one: an older peer does not send it); any other missing field is an error."""
 
     fields: tuple[tuple[str, Kind], ...]
     make: Callable[..., Any]
@@ -412,6 +415,8 @@ class Records(Kind):
             vals = {}
             for n, k in self.fields:
                 if n not in item:
+                    if isinstance(k, Optional):
+                        continue
                     raise FieldError(msg, f"{where}.{n}", "missing")
                 vals[n] = k.decode(item[n], msg, f"{where}.{n}")
             out.append(self.make(**vals))

@@ -176,7 +176,11 @@ class Heartbeat(Message):
     """Either side, when it has sent nothing for ``heartbeat_s``: I am alive.
 
     ``t_s``: the sender's own clock (informational); ``sent``/``dropped``: data messages the
-    sender sent / dropped from its bounded send queue so far on this connection.
+    sender sent / dropped from its bounded send queue so far on this connection;
+    ``floor_error`` (a sensor; optional, nil from older peers): why the floor fit of the
+    current calibration failed, nil when it did not. A sensor whose fit fails sends a heartbeat
+    with it at once; the server shows it in that sensor's status until the next calibration
+    starts or a floor plane arrives.
     """
 
     TYPE: ClassVar[str] = "heartbeat"
@@ -185,6 +189,7 @@ class Heartbeat(Message):
     t_s: float = _f(_T, 0.0)
     sent: int = _f(_SEQ, 0)
     dropped: int = _f(_SEQ, 0)
+    floor_error: str | None = _f(Optional(_TEXT), None)
 
 
 # ---- clock -------------------------------------------------------------------------------
@@ -366,7 +371,7 @@ class StatusRequest(Message):
 @dataclass(frozen=True, eq=False)
 class SensorInfo:
     """One sensor in a :class:`Status` (times in ms, NaN unknown; ``sensor2world`` (4, 4) or
-    None if not calibrated)."""
+    None if not calibrated; ``floor_error``: why the sensor's floor fit failed, or None)."""
 
     sensor_id: str
     connected: bool
@@ -377,6 +382,7 @@ class SensorInfo:
     latency_ms: float
     tracked_fraction: float
     sensor2world: NDArray[np.float64] | None = None
+    floor_error: str | None = None
 
 
 _NANF = Float(-1e12, 1e12, allow_nan=True)
@@ -392,6 +398,7 @@ _SENSOR_INFO = Records(
         ("latency_ms", _NANF),
         ("tracked_fraction", Float(0.0, 1.0, allow_nan=True)),
         ("sensor2world", Optional(Array((4, 4), lo=-1e4, hi=1e4))),
+        ("floor_error", Optional(_TEXT)),
     ),
     make=SensorInfo,
     label="SensorInfo",

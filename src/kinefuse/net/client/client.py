@@ -235,6 +235,7 @@ class SensorClient:
             stats=self.stats,
             send_sighting=self._enqueue_sighting,
             send_floor=self._enqueue_urgent,
+            report_floor_error=self._report_floor_error,
         )
 
     # -- public ----------------------------------------------------------------------------
@@ -453,7 +454,7 @@ class SensorClient:
             self._send_pending(conn)
             idle = self.monotonic() - conn.last_tx
             if idle >= heartbeat_s:
-                conn.send(Heartbeat(self._host_now(), self._n_sent(), self._n_dropped()))
+                conn.send(self._heartbeat())
                 idle = 0.0
             self._wake.clear()
             await wait_event(self._wake, max(0.01, heartbeat_s - idle))
@@ -481,6 +482,15 @@ class SensorClient:
                 return
             self._send_pending(conn)
             await asyncio.sleep(0.01)
+
+    def _heartbeat(self) -> Heartbeat:
+        return Heartbeat(
+            self._host_now(), self._n_sent(), self._n_dropped(), self.depth.floor_error
+        )
+
+    def _report_floor_error(self, text: str) -> None:
+        """The floor fit failed: tell the server now (a heartbeat carries it)."""
+        self._enqueue_urgent(self._heartbeat())
 
     def _n_sent(self) -> int:
         return self.stats.body_sent + self.stats.sightings_sent

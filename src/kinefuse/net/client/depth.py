@@ -5,7 +5,10 @@ Detection runs on one worker thread, one frame at a time: a depth frame that arr
 detector is busy is not detected (counted), and each sighting's ``stride`` says how many depth
 frames its detection covers. The floor fit (a per-pixel median of the first ``floor_frames``
 frames after a start, then :func:`~kinefuse.calibration.floor.fit_floor_plane`) runs on a
-second thread, so its ~0.3 s hold up no detection. Results come back on the event loop.
+second thread, so its ~0.3 s hold up no detection. Results come back on the event loop. A fit
+that fails (an exception in its thread, not "no floor found") is logged and reported: the
+client tells the server at once (a Heartbeat's ``floor_error``), which shows it in the sensor's
+status.
 """
 
 from __future__ import annotations
@@ -42,6 +45,9 @@ class DepthWork:
         Counters (``depth_frames``, ``depth_detected``, ``depth_skipped_busy``).
     send_sighting, send_floor : callable
         Called on the event loop with each WandSighting / the FloorPlane.
+    report_floor_error : callable, optional
+        Called on the event loop with the text of a failed floor fit (also kept in
+        :attr:`floor_error` until the next calibration starts).
     """
 
     def __init__(
@@ -54,6 +60,7 @@ class DepthWork:
         stats: Any,
         send_sighting: Callable[[Message], None],
         send_floor: Callable[[Message], None],
+        report_floor_error: Callable[[str], None] | None = None,
     ) -> None:
         self.timeline = timeline
         self.detector = detector
@@ -62,6 +69,9 @@ class DepthWork:
         self.stats = stats
         self.send_sighting = send_sighting
         self.send_floor = send_floor
+        self.report_floor_error = report_floor_error
+        #: why this calibration's floor fit failed (None: it did not, or not yet)
+        self.floor_error: str | None = None
         self.calibrating = False
         self.calibration_id = 0
         self._floor: list[np.ndarray] | None = None
@@ -83,6 +93,7 @@ class DepthWork:
             self._det.submit(warm_up)
         self.calibrating = True
         self.calibration_id = calibration_id
+        self.floor_error = None
         self._floor = []
         self._since = 0
 
@@ -153,7 +164,21 @@ class DepthWork:
         )
 
     def _floor_done(self, fut: asyncio.Future[Any], cal_id: int, n: int) -> None:
-        if fut.cancelled() or fut.exception() is not None:
+        if fut.cancelled():
+            return
+        exc = fut.exception()
+        if exc is not None:
+            why = f"{type(exc).__name__}: {exc}"
+            log.warning(
+                "calibration %d: the floor fit on the first %d depth frames failed: %s",
+                cal_id,
+                n,
+                why,
+            )
+            if cal_id == self.calibration_id:
+                self.floor_error = f"floor fit failed: {why}"[:1024]
+                if self.report_floor_error is not None:
+                    self.report_floor_error(self.floor_error)
             return
         res = fut.result()
         if res is None or cal_id != self.calibration_id:

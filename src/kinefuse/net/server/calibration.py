@@ -1,6 +1,11 @@
 """Live calibration on the server: collect wand sightings, register the sensors, grade, switch.
 
 Pure state (no I/O, times come in as arguments); the server feeds it and acts on the outcome.
+It is used on the server's event loop only, except the solve, which runs in a worker thread on
+a snapshot: :meth:`LiveCalibration.begin_solve` (on the loop) takes the sightings, floors and
+poses as they are and switches to ``SOLVING``; :func:`solve_calibration` (in the thread) is a
+pure function of that snapshot; :meth:`LiveCalibration.apply` (on the loop) switches to its
+outcome. Meanwhile the loop keeps the floors sensors send and reads the state freely.
 
 Flow
 ----
@@ -14,7 +19,7 @@ Flow
    ``seconds`` the ``CalibrationStart`` asked for if it did, else when no
    sensor has sent a sighting for ``quiet_s`` (the wand was put away; the simulated sensors'
    depth phase ended) once one has sent ``min_sightings``, or after ``max_s``.
-4. :meth:`LiveCalibration.solve`: with no sensor kept fixed, every target is registered as the
+4. :func:`solve_calibration`: with no sensor kept fixed, every target is registered as the
    offline ``kinefuse calibrate`` does (:func:`kinefuse.calibration.session.calibrate`: full
    6-DoF with gravity from the floors by default, or the paper's level-sensor method; the scale
    from the wand protocol's known move when ``axis_length_m`` is given). Sensors that already
@@ -30,7 +35,7 @@ A sensor's pose is kept by its id, so a client that reconnects gets it back at o
 from __future__ import annotations
 
 import datetime as _dt
-import re
+import enum
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -79,6 +84,22 @@ class LiveCalibrationOptions:
             raise CalibrationError("quiet_s and max_s must be > 0, min_sightings >= 1")
 
 
+class CalibrationState(enum.StrEnum):
+    """Where the live calibration is (the value is the string the server reports)."""
+
+    NONE = "none"
+    COLLECTING = "collecting"
+    #: the collected sightings are being registered (a worker thread); reported as "collecting"
+    SOLVING = "solving"
+    CALIBRATED = "calibrated"
+    FAILED = "failed"
+
+    @property
+    def reported(self) -> str:
+        """The state as the status messages carry it: none, collecting, calibrated, failed."""
+        return CalibrationState.COLLECTING.value if self is CalibrationState.SOLVING else self.value
+
+
 @dataclass
 class _Track:
     t: list[float] = field(default_factory=list)
@@ -109,12 +130,32 @@ class CalibrationOutcome:
     registration: Registration | None = None
 
 
+@dataclass(frozen=True, eq=False)
+class SolveInput:
+    """What one solve works on, taken on the event loop (:meth:`LiveCalibration.begin_solve`):
+    nothing in it is shared with the live state."""
+
+    calibration_id: int
+    method: str
+    options: LiveCalibrationOptions
+    #: every sensor's sightings of this run (those with at least 3)
+    tracks: dict[str, Sightings]
+    targets: tuple[str, ...]
+    #: the poses of the sensors that stay as they are
+    fixed: dict[str, Array]
+    floors: dict[str, FloorPlane]
+    previous: CalibrationFile | None
+    t_start: float
+    intrinsics: dict[str, Intrinsics]
+    serials: dict[str, str]
+
+
 class LiveCalibration:
     """The server's calibration state (see the module docstring)."""
 
     def __init__(self, options: LiveCalibrationOptions = LiveCalibrationOptions()) -> None:
         self.options = options
-        self.state = "none"  # none | collecting | calibrated | failed
+        self.state = CalibrationState.NONE
         self.grade: str | None = None
         self.calibration: CalibrationFile | None = None
         self.floors: dict[str, FloorPlane] = {}
@@ -124,7 +165,7 @@ class LiveCalibration:
         self._tracks: dict[str, _Track] = {}
         self._t_start = 0.0
         self._seconds: float | None = None
-        self._state_before = "none"
+        self._state_before = CalibrationState.NONE
 
     # -- poses -----------------------------------------------------------------------------------
 
@@ -136,12 +177,16 @@ class LiveCalibration:
     def load(self, cal: CalibrationFile) -> None:
         """Start from a calibration file (``kinefuse serve --calibration``)."""
         self.calibration = cal
-        self.state = "calibrated"
+        self.state = CalibrationState.CALIBRATED
         self.grade = None
 
     @property
     def collecting(self) -> bool:
-        return self.state == "collecting"
+        return self.state is CalibrationState.COLLECTING
+
+    @property
+    def solving(self) -> bool:
+        return self.state is CalibrationState.SOLVING
 
     @property
     def targets(self) -> tuple[str, ...]:
@@ -160,6 +205,8 @@ class LiveCalibration:
         seconds: float | None = None,
     ) -> int:
         """Begin collecting; returns the calibration id. Restarting discards what was collected."""
+        if self.solving:
+            raise CalibrationError("a calibration is being solved; start again when it is done")
         if method and method not in METHODS:
             raise CalibrationError(f"unknown calibration method {method!r}; choose full or paper")
         self.method = method or self.options.method
@@ -173,9 +220,9 @@ class LiveCalibration:
         self._tracks = {}
         self._t_start = float(t_server_s)
         self._seconds = seconds
-        if self.state != "collecting":
+        if self.state is not CalibrationState.COLLECTING:
             self._state_before = self.state
-        self.state = "collecting"
+        self.state = CalibrationState.COLLECTING
         return self.calibration_id
 
     def add_target(self, sensor_id: str) -> None:
@@ -228,131 +275,161 @@ class LiveCalibration:
 
     # -- solving ---------------------------------------------------------------------------------
 
+    def begin_solve(
+        self, intrinsics: Mapping[str, Intrinsics], serials: Mapping[str, str]
+    ) -> SolveInput:
+        """End collecting: switch to ``SOLVING`` and return the snapshot
+        :func:`solve_calibration` works on (on the event loop)."""
+        if not self.collecting:
+            raise CalibrationError(f"no calibration is collecting (the state is {self.state})")
+        self.state = CalibrationState.SOLVING
+        return SolveInput(
+            calibration_id=self.calibration_id,
+            method=self.method,
+            options=self.options,
+            tracks={sid: tr.sightings() for sid, tr in self._tracks.items() if len(tr.t) >= 3},
+            targets=tuple(sorted(self._targets)),
+            fixed={
+                sid: np.array(p, dtype=np.float64)
+                for sid, p in self.poses.items()
+                if sid not in self._targets
+            },
+            floors=dict(self.floors),
+            previous=self.calibration,
+            t_start=self._t_start,
+            intrinsics=dict(intrinsics),
+            serials=dict(serials),
+        )
+
+    def apply(self, outcome: CalibrationOutcome) -> None:
+        """Switch to a solve's outcome (on the event loop): its calibration unless it failed."""
+        if not self.solving or outcome.calibration_id != self.calibration_id:
+            return  # not the solve under way (cannot happen through the server)
+        self._targets = set()
+        if outcome.ok and outcome.calibration is not None:
+            self.calibration = outcome.calibration
+            self.state = CalibrationState.CALIBRATED
+            self.grade = outcome.grade.grade
+        else:
+            self.state = (
+                CalibrationState.FAILED if self.calibration is None else CalibrationState.CALIBRATED
+            )
+
     def solve(
         self, intrinsics: Mapping[str, Intrinsics], serials: Mapping[str, str]
     ) -> CalibrationOutcome:
-        """Register the targets (see the module docstring); switch to the result unless failed."""
-        cid, method = self.calibration_id, self.method
-        tracks = {sid: tr.sightings() for sid, tr in self._tracks.items() if len(tr.t) >= 3}
-        targets = tuple(sorted(self._targets))
-        fixed = {sid: p for sid, p in self.poses.items() if sid not in self._targets}
-        try:
-            missing = [s for s in targets if s not in tracks]
-            use = {s: tracks[s] for s in targets if s in tracks}
-            if not use:
-                raise CalibrationError(
-                    "no sensor sent wand sightings during the calibration; wave the wand in the "
-                    "sensors' view while the calibration runs"
-                )
-            if fixed:
-                reg = self._against_fixed(fixed, use, method)
-            else:
-                reg = self._register_all(use, method)
-            grade = grade_calibration(reg, self.floors)
-            if missing:
-                grade = Grade(
-                    "doubtful" if grade.grade == "good" else grade.grade,
-                    (
-                        *grade.reasons,
-                        f"doubtful: sensor(s) {', '.join(missing)} sent no sightings "
-                        "and were not calibrated",
-                    ),
-                )
-        except KinefuseError as e:
-            self.state = "failed" if self.calibration is None else "calibrated"
-            self._targets = set()
-            return CalibrationOutcome(
-                cid, False, method, Grade("failed", (str(e),)), f"calibration failed: {e}", targets
-            )
-        new = calibration_from_registration(
-            reg, {s: intrinsics[s] for s in reg.sensor_ids}, serials=serials
-        )
-        merged = _merge(self.calibration, new, fixed)
-        text = dumps_calibration(merged)
-        ok = grade.grade != "failed"
-        self._targets = set()
-        rms = f"{1e3 * reg.rms_m:.2f} mm RMS" if np.isfinite(reg.rms_m) else "no RMS"
-        message = f"{method}: {grade.grade}, {rms} over {', '.join(reg.sensor_ids)}"
-        if ok:
-            self.calibration = merged
-            self.state = "calibrated"
-            self.grade = grade.grade
-        else:
-            self.state = "failed" if self.calibration is None else "calibrated"
-            message += " (not used)"
-        return CalibrationOutcome(cid, ok, method, grade, message, targets, merged, text, reg)
+        """:meth:`begin_solve`, :func:`solve_calibration` and :meth:`apply` in one call (for a
+        caller without threads)."""
+        out = solve_calibration(self.begin_solve(intrinsics, serials))
+        self.apply(out)
+        return out
 
-    def _register_all(self, use: dict[str, Sightings], method: str) -> Registration:
-        floors = {s: f for s, f in self.floors.items() if s in use}
-        periods = [float(np.median(np.diff(s.t_server_s))) for s in use.values() if len(s) > 1]
-        period = float(np.median(periods)) if periods else 1 / 30
-        protocol: dict[str, object] = {}
-        if self.options.axis_length_m is not None:
-            protocol["axis_length_m"] = float(self.options.axis_length_m)
-        cal = CalibrationInput(
-            sightings=use,
-            tracks={},
-            floors=floors,
-            protocol=protocol,
-            phase_server_s=(self._t_start, self._t_start),
-            frame_period_s=period,
-        )
-        if method == "full" and not floors:
-            return register_full(
-                use,
-                origin="sensor",
-                max_gap_s=1.6 * period,
-                max_speed_m_s=min(1.5, 0.05 / period),
-            )
-        return calibrate(cal, method, fix_scale=self.options.axis_length_m is not None)
 
-    def _against_fixed(
-        self, fixed: dict[str, Array], use: dict[str, Sightings], method: str
-    ) -> Registration:
-        """Each target against the fixed sensors' wand track (fixed sightings are this run's)."""
-        fixed_tracks = {s: tr.sightings() for s, tr in self._tracks.items() if s in fixed}
-        fixed_tracks = {s: t for s, t in fixed_tracks.items() if len(t) >= 3}
-        if not fixed_tracks:
+def solve_calibration(job: SolveInput) -> CalibrationOutcome:
+    """Register the targets (see the module docstring): a pure function of ``job``, safe in a
+    worker thread. The outcome is not in force until :meth:`LiveCalibration.apply`."""
+    cid, method, targets, fixed = job.calibration_id, job.method, job.targets, job.fixed
+    try:
+        missing = [s for s in targets if s not in job.tracks]
+        use = {s: job.tracks[s] for s in targets if s in job.tracks}
+        if not use:
             raise CalibrationError(
-                f"sensor(s) {', '.join(use)} are to be registered against the calibrated "
-                f"sensor(s) {', '.join(fixed)}, but none of those saw the wand in this run; "
-                "wave the wand where their views overlap"
+                "no sensor sent wand sightings during the calibration; wave the wand in the "
+                "sensors' view while the calibration runs"
             )
-        prev = self.calibration
-        world = prev.world if prev is not None else "the calibrated sensors' world"
-        # the world's scale was corrected from the wand protocol (sensor positions scaled by f
-        # about the origin, the sensors' own measurements not): register in the unscaled world
-        # the sightings live in, then scale the new sensor's position the same way
-        f = world_scale(world)
-        unscaled = {}
-        for k in fixed_tracks:
-            u = np.array(fixed[k], dtype=np.float64)
-            u[:3, 3] /= f
-            unscaled[k] = u
-        ids, poses, resid, n_used = [], [], [], []
-        for sid, s in use.items():
-            pose, r, n = register_against(fixed_tracks, unscaled, s, name=sid)
-            pose[:3, 3] *= f
-            ids.append(sid)
-            poses.append(pose)
-            resid.append(r)
-            n_used.append(n)
-        return Registration(
-            method=method,
-            sensor_ids=tuple(ids),
-            sensor2world=np.stack(poses),
-            residual_m=np.array(resid),
-            n_sightings=np.array(n_used, dtype=np.int64),
-            rms_m=float(np.sqrt(np.mean(np.square(resid)))),
-            world=f"{world}; {', '.join(ids)} registered against {', '.join(sorted(fixed))}",
+        reg = _against_fixed(job, use) if fixed else _register_all(job, use)
+        grade = grade_calibration(reg, job.floors)
+        if missing:
+            grade = Grade(
+                "doubtful" if grade.grade == "good" else grade.grade,
+                (
+                    *grade.reasons,
+                    f"doubtful: sensor(s) {', '.join(missing)} sent no sightings "
+                    "and were not calibrated",
+                ),
+            )
+    except KinefuseError as e:
+        return CalibrationOutcome(
+            cid, False, method, Grade("failed", (str(e),)), f"calibration failed: {e}", targets
         )
+    new = calibration_from_registration(
+        reg, {s: job.intrinsics[s] for s in reg.sensor_ids}, serials=job.serials
+    )
+    merged = _merge(job.previous, new, fixed)
+    text = dumps_calibration(merged)
+    ok = grade.grade != "failed"
+    rms = f"{1e3 * reg.rms_m:.2f} mm RMS" if np.isfinite(reg.rms_m) else "no RMS"
+    message = f"{method}: {grade.grade}, {rms} over {', '.join(reg.sensor_ids)}"
+    if not ok:
+        message += " (not used)"
+    return CalibrationOutcome(cid, ok, method, grade, message, targets, merged, text, reg)
 
 
-def world_scale(world: str) -> float:
-    """The scale factor a calibration's world was corrected by (``"scaled by F"`` in its world
-    description, as :func:`kinefuse.calibration.session.scale_registration` writes it), else 1."""
-    m = re.search(r"scaled by ([0-9]+(?:\.[0-9]+)?)", world)
-    return float(m.group(1)) if m else 1.0
+def _register_all(job: SolveInput, use: dict[str, Sightings]) -> Registration:
+    floors = {s: f for s, f in job.floors.items() if s in use}
+    periods = [float(np.median(np.diff(s.t_server_s))) for s in use.values() if len(s) > 1]
+    period = float(np.median(periods)) if periods else 1 / 30
+    protocol: dict[str, object] = {}
+    axis = job.options.axis_length_m
+    if axis is not None:
+        protocol["axis_length_m"] = float(axis)
+    cal = CalibrationInput(
+        sightings=use,
+        tracks={},
+        floors=floors,
+        protocol=protocol,
+        phase_server_s=(job.t_start, job.t_start),
+        frame_period_s=period,
+    )
+    if job.method == "full" and not floors:
+        return register_full(
+            use,
+            origin="sensor",
+            max_gap_s=1.6 * period,
+            max_speed_m_s=min(1.5, 0.05 / period),
+        )
+    return calibrate(cal, job.method, fix_scale=axis is not None)
+
+
+def _against_fixed(job: SolveInput, use: dict[str, Sightings]) -> Registration:
+    """Each target against the fixed sensors' wand track (fixed sightings are this run's)."""
+    fixed = job.fixed
+    fixed_tracks = {s: t for s, t in job.tracks.items() if s in fixed}
+    if not fixed_tracks:
+        raise CalibrationError(
+            f"sensor(s) {', '.join(use)} are to be registered against the calibrated "
+            f"sensor(s) {', '.join(fixed)}, but none of those saw the wand in this run; "
+            "wave the wand where their views overlap"
+        )
+    prev = job.previous
+    world = prev.world if prev is not None else "the calibrated sensors' world"
+    # the world's scale was corrected from the wand protocol (sensor positions scaled by f
+    # about the origin, the sensors' own measurements not): register in the unscaled world
+    # the sightings live in, then scale the new sensor's position the same way
+    f = prev.scale if prev is not None else 1.0
+    unscaled = {}
+    for k in fixed_tracks:
+        u = np.array(fixed[k], dtype=np.float64)
+        u[:3, 3] /= f
+        unscaled[k] = u
+    ids, poses, resid, n_used = [], [], [], []
+    for sid, s in use.items():
+        pose, r, n = register_against(fixed_tracks, unscaled, s, name=sid)
+        pose[:3, 3] *= f
+        ids.append(sid)
+        poses.append(pose)
+        resid.append(r)
+        n_used.append(n)
+    return Registration(
+        method=job.method,
+        sensor_ids=tuple(ids),
+        sensor2world=np.stack(poses),
+        residual_m=np.array(resid),
+        n_sightings=np.array(n_used, dtype=np.int64),
+        rms_m=float(np.sqrt(np.mean(np.square(resid)))),
+        world=f"{world}; {', '.join(ids)} registered against {', '.join(sorted(fixed))}",
+        scale=f,
+    )
 
 
 def register_against(
@@ -432,4 +509,5 @@ def _merge(
         sensors=sensors,
         world=new.world,
         rms_m=rms,
+        scale=new.scale,
     )

@@ -162,11 +162,17 @@ class FrameFusion:
 class FusionLoop:
     """Drains the clients' queues and fuses/publishes at ``rate_hz`` (see the module docstring).
 
+    Threads: the table of sensors, their queues and this loop's buffers are read and changed on
+    the event loop only. A worker thread (a slow frame's ``fuse``, the warm-up's batches) gets
+    the fusion and, for the warm-up, a batch of observations taken on the loop; nothing on the
+    loop touches the fusion meanwhile (new poses wait in :meth:`set_poses` for the next frame).
+
     Parameters
     ----------
     fusion : FrameFusion
+        Owned by this loop once it runs: change its poses through :meth:`set_poses`.
     clients : mapping sensor id -> SensorClient
-        The server's (live) table of sensors.
+        The server's (live) table of sensors (changes on the loop when a sensor joins).
     publisher : Publisher
     clock : callable
         The server clock, seconds.
@@ -264,9 +270,11 @@ class FusionLoop:
         c = self._costs
         return len(c) >= 10 and sum(c) / len(c) > self.thread_above_s
 
-    def _push_upto(self, horizon: float) -> None:
-        """Push the calibrated sensors' buffered observations captured up to ``horizon``, in
-        capture order; a sensor without a pose keeps its own (the last ``64``) for later."""
+    def _take_upto(self, horizon: float) -> dict[str, list[Observation]]:
+        """Take the calibrated sensors' buffered observations captured up to ``horizon``, each
+        sensor's in capture order; a sensor without a pose keeps its own (the last ``64``) for
+        later. On the loop: it reads the buffers :meth:`_collect` fills."""
+        out: dict[str, list[Observation]] = {}
         for sid, q in self._pending.items():
             if sid not in self.fusion.ids:
                 continue
@@ -279,18 +287,30 @@ class FusionLoop:
             rest = [o for o in q if o.t_capture_server_s > horizon]
             q.clear()
             q.extend(rest)
+            out[sid] = ready
             for o in ready:
-                self.fusion.push(sid, o)
                 if o.t_capture_server_s > self._newest[0]:
                     self._newest = (o.t_capture_server_s, o.t_host_server_s)
+        return out
 
-    def _warm_up(self, k: int) -> int:
+    def _push_upto(self, horizon: float) -> None:
+        """Push the observations :meth:`_take_upto` takes into the fusion."""
+        for sid, obs in self._take_upto(horizon).items():
+            for o in obs:
+                self.fusion.push(sid, o)
+
+    async def _warm_up(self, k: int) -> int:
         """Fuse, without publishing, the frames from at most ``warm_up_s`` before ``k`` that the
         buffered observations cover, and on until the present: a filter that starts mid-motion
         (the first calibration just finished) gets its state, bone lengths and facing from
-        them, and publishing then starts on time. Runs in a worker thread (it only touches the
-        fusion and the buffers, which nothing else touches meanwhile; the clients' queues are
-        drained atomically). Returns the next frame to publish."""
+        them, and publishing then starts on time. Returns the next frame to publish.
+
+        The frames are fused in a worker thread, a batch at a time; between batches the loop
+        collects what arrived meanwhile. The worker gets the batch's observations, taken on the
+        loop, and touches nothing but them and the fusion (which nothing on the loop touches
+        while this task waits for it): the server's table of sensors and their queues change
+        on the loop at any time (a sensor joins) and are read on the loop only."""
+        self._collect()
         caps = [o.t_capture_server_s for q in self._pending.values() for o in q]
         kk = k
         if caps:
@@ -299,14 +319,29 @@ class FusionLoop:
         while True:
             self._collect()
             due = math.floor((self.clock() - self.delay_s) * self.rate_hz)
-            if kk >= max(due, k):
+            end = max(due, k)
+            if kk >= end:
                 break
-            self._push_upto(kk / self.rate_hz + self.fusion.lead_s)
-            self.fusion.fuse(kk / self.rate_hz)
-            kk += 1
-            n += 1
+            batch = self._take_upto((end - 1) / self.rate_hz + self.fusion.lead_s)
+            await asyncio.to_thread(self._fuse_frames, batch, kk, end)
+            n += end - kk
+            kk = end
         log.info("fusion starts at frame %d after %d frames of warm-up", kk, n)
         return kk
+
+    def _fuse_frames(self, batch: Mapping[str, list[Observation]], k0: int, k1: int) -> None:
+        """Frames ``k0 .. k1 - 1``, each after pushing the batch's observations up to its
+        horizon (in a worker thread: only ``batch`` and the fusion are touched)."""
+        at = dict.fromkeys(batch, 0)
+        for kk in range(k0, k1):
+            horizon = kk / self.rate_hz + self.fusion.lead_s
+            for sid, obs in batch.items():
+                i = at[sid]
+                while i < len(obs) and obs[i].t_capture_server_s <= horizon:
+                    self.fusion.push(sid, obs[i])
+                    i += 1
+                at[sid] = i
+            self.fusion.fuse(kk / self.rate_hz)
 
     async def step(self, k: int) -> FusedFrame | None:
         """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
@@ -363,7 +398,7 @@ class FusionLoop:
                 self._collect()
                 self.fusion.set_poses(self._new_poses)
                 self._new_poses = None
-                k = await asyncio.to_thread(self._warm_up, k)
+                k = await self._warm_up(k)
             due = k / self.rate_hz + self.delay_s
             now = self.clock()
             if now < due:

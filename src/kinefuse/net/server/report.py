@@ -37,14 +37,13 @@ def server_status(srv: Server) -> ServerStatus:
                 latency_ms=c.latency_s * 1e3,
                 tracked_fraction=c.tracked_fraction(),
                 pose=None if p is None else tuple(float(v) for v in np.asarray(p).ravel()),
+                floor_error=c.floor_error,
             )
         )
     return ServerStatus(
         t_server_s=now,
         sensors=tuple(sensors),
-        calibration_state="collecting"
-        if srv.calibration.state == "solving"
-        else srv.calibration.state,
+        calibration_state=srv.calibration.state.reported,
         calibration_grade=srv.calibration.grade,
         fused_fps=srv.loop.fps(),
         method=srv.options.method,
@@ -69,6 +68,7 @@ def status_message(srv: Server, request_id: int) -> Status:
                 x.latency_ms,
                 x.tracked_fraction,
                 None if x.pose is None else np.array(x.pose).reshape(4, 4),
+                x.floor_error,
             )
             for x in s.sensors
         ),

@@ -119,6 +119,8 @@ class SensorClient:
         self.stale = 0  # frames not newer than last_seq (a restarted client replaying)
         self.rtt_s = float("nan")
         self.latency_s = float("nan")
+        #: why the client's floor fit of this calibration failed (its heartbeats say), or None
+        self.floor_error: str | None = None
         self._arrivals: deque[float] = deque(maxlen=90)
         self._tracked: deque[float] = deque(maxlen=90)
 

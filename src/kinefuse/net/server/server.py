@@ -28,7 +28,7 @@ pose at once. A second connection claiming a connected sensor id is refused (``d
 The server clock is ``clock()``: ``time.monotonic() - t0`` by default (recorded as the meta
 ``server_t0_monotonic``), injectable for tests.
 
-Why about 610 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
+Why about 640 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
 the per-connection protocol, the control commands and the report live in the ``server_*``
 modules beside it.
 """
@@ -55,6 +55,8 @@ from kinefuse.net.server.calibration import (
     CalibrationOutcome,
     LiveCalibration,
     LiveCalibrationOptions,
+    SolveInput,
+    solve_calibration,
 )
 from kinefuse.net.server.conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
 from kinefuse.net.server.control import serve_control
@@ -171,7 +173,10 @@ class Server:
 
         assert isinstance(cal, CalibrationFile)
         self.calibration.load(cal)
-        self.fusion.set_poses(cal.sensor2world)
+        if self._tg is None:
+            self.fusion.set_poses(cal.sensor2world)
+        else:  # running: the fusion may be fusing in a worker thread; the loop applies them
+            self.loop.set_poses(cal.sensor2world)
 
     def request_stop(self, reason: str = "stop requested") -> None:
         """Stop cleanly: goodbye to every peer, finish the recording."""
@@ -376,7 +381,7 @@ class Server:
         if (
             self.options.auto_calibrate
             and not cal.collecting
-            and cal.state != "solving"
+            and not cal.solving
             and sid not in cal.poses
         ):
             self._start_calibration(method="", sensor_ids=())
@@ -438,15 +443,26 @@ class Server:
             elif isinstance(msg, FloorMsg):
                 fl = FloorPlane(msg.normal, msg.offset_m, msg.n_inliers, msg.residual_m)
                 self.calibration.add_floor(sid, fl)
+                client.floor_error = None
                 if self.recorder is not None:
                     self.recorder.add_floor(sid, t_arr, fl)
             elif isinstance(msg, Goodbye):
                 log.info("sensor %s said goodbye: %s", sid, msg.reason)
                 return
             elif isinstance(msg, Heartbeat):
-                pass
+                self._floor_error(client, msg.floor_error)
             else:
                 raise OutOfOrder(f"a sensor may not send {msg.TYPE} after the handshake")
+
+    def _floor_error(self, client: SensorClient, error: str | None) -> None:
+        """What a sensor's heartbeat says of its floor fit (None: it did not fail)."""
+        if error == client.floor_error:
+            return
+        client.floor_error = error
+        if error is not None:
+            log.warning("sensor %s: %s", client.sensor_id, error)
+            self._event("floor_error", client.sensor_id, error=error)
+        self._status_dirty = True
 
     def _clock_reply(self, client: SensorClient, msg: ClockReply, t4: float) -> None:
         try:
@@ -526,7 +542,7 @@ class Server:
         seconds: float | None = None,
     ) -> None:
         cal = self.calibration
-        if cal.state == "solving":
+        if cal.solving:
             raise CalibrationError("a calibration is being solved; start again when it is done")
         connected = [s for s, c in self.clients.items() if c.connected]
         cid = cal.start(
@@ -547,6 +563,8 @@ class Server:
         )
         for c in self._sensor_conns.values():
             c.send(CalibrationStart(calibration_id=cid, method=cal.method))
+        for s in self.clients.values():
+            s.floor_error = None  # each sensor fits its floor anew
         self._status_dirty = True
 
     def _finish_calibration(self, *, abort: bool, why: str) -> None:
@@ -567,15 +585,18 @@ class Server:
             cal.abort()
             self._status_dirty = True
             return
-        cal.state = "solving"
+        # the solve runs in a worker thread on a snapshot taken here, on the loop; its outcome
+        # is applied on the loop (floors that arrive meanwhile are kept for the next one)
+        job = cal.begin_solve(
+            {s: c.intrinsics for s, c in self.clients.items()},
+            {s: c.serial for s, c in self.clients.items()},
+        )
         assert self._tg is not None
-        self._tg.create_task(self._solve())
+        self._tg.create_task(self._solve(job))
 
-    async def _solve(self) -> None:
-        cal = self.calibration
-        intr = {s: c.intrinsics for s, c in self.clients.items()}
-        serials = {s: c.serial for s, c in self.clients.items()}
-        out = await asyncio.to_thread(cal.solve, intr, serials)
+    async def _solve(self, job: SolveInput) -> None:
+        out = await asyncio.to_thread(solve_calibration, job)
+        self.calibration.apply(out)
         self.last_outcome = out
         log.info("calibration %d: %s", out.calibration_id, out.message)
         for r in out.grade.reasons:
