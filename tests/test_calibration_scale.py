@@ -22,7 +22,7 @@ from kinefuse.calibration.calib_file import (
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.net.live_calibration import LiveCalibration
+from kinefuse.net.server.calibration import LiveCalibration
 
 IDS = ("a", "b", "c", "d")
 F = 1.01  # the fixed sensors' world was scaled by this (1 %: 3 cm at 3 m)

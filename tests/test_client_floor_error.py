@@ -15,11 +15,11 @@ from collections.abc import Iterator
 import numpy as np
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.client import ClientOptions, SensorClient
-from kinefuse.net.clocks import HostClock
-from kinefuse.net.playback import SourceTimeline
-from kinefuse.net.server import Server, ServerOptions
-from kinefuse.observations import DepthFrame
+from kinefuse.frames.observations import DepthFrame
+from kinefuse.net.client.client import ClientOptions, SensorClient
+from kinefuse.net.client.clocks import HostClock
+from kinefuse.net.client.playback import SourceTimeline
+from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.protocol import (
     Decoder,
     Heartbeat,

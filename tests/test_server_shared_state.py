@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.publish import FusedFrame
-from kinefuse.net.server import Server, ServerOptions
+from kinefuse.net.bus import FusedFrame
+from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.protocol import (
     BodyFrame,
     ClockProbe,
@@ -285,7 +285,7 @@ def test_the_calibration_owns_its_state_machine():
     nothing, apply (on the loop) leaves it; the status strings stay the protocol's."""
     from kinefuse.calibration.floor import FloorPlane
     from kinefuse.errors import CalibrationError
-    from kinefuse.net.live_calibration import (
+    from kinefuse.net.server.calibration import (
         CalibrationState,
         LiveCalibration,
         solve_calibration,
