@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.net.bus import FusedFrame, Publisher, SensorStatus, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, SensorInfo, Status
 from kinefuse.skeleton import N_JOINTS, standing_pose
 from kinefuse.viewer import live_viewer
 
@@ -70,7 +70,7 @@ async def synthetic_server(
     frames = _frames(n_sensors)
     status_names = [f"k{i}" for i in range(n_sensors)]
     seq = 0
-    pose = tuple(float(v) for v in np.eye(4).ravel())
+    pose = np.eye(4)
     while not stop.is_set():
         due = t0 + seq / rate_hz
         wait = due - loop.time()
@@ -78,10 +78,11 @@ async def synthetic_server(
             await asyncio.sleep(wait)
         f = frames[seq % len(frames)]
         if seq % int(rate_hz) == 0:
-            sensors = tuple(SensorStatus(s, True, 1.0, 0.0, 0.05, rate_hz, 20.0, 0.9, pose)
+            sensors = tuple(SensorInfo(s, True, 1.0, 0.0, 0.05, rate_hz, 20.0, 0.9, pose)
                             for s in status_names)  # fmt: skip
-            pub.publish(ServerStatus(loop.time() - t0, sensors, "calibrated", "good", rate_hz,
-                                     "best-live"))  # fmt: skip
+            pub.publish(Status(t_server_s=loop.time() - t0, sensors=sensors,
+                               calibration_state="calibrated", calibration_grade="good",
+                               fused_fps=rate_hz, method="best-live"))  # fmt: skip
         raw = {s: f[s] for s in status_names}
         st = np.zeros(N_JOINTS, np.int8)
         pub.publish(FusedFrame(seq, due - t0, f["fused"], np.full(N_JOINTS, 1e-4), st,

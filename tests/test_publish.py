@@ -6,7 +6,7 @@ import asyncio
 
 import numpy as np
 
-from kinefuse.net.bus import FusedFrame, Publisher, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, Status
 
 
 def _frame(seq: int) -> FusedFrame:
@@ -20,8 +20,8 @@ def _frame(seq: int) -> FusedFrame:
     )
 
 
-def _status(t: float) -> ServerStatus:
-    return ServerStatus(
+def _status(t: float) -> Status:
+    return Status(
         t_server_s=t,
         sensors=(),
         calibration_state="none",
@@ -64,9 +64,9 @@ def test_new_subscriber_gets_last_status_and_unsubscribe_stops_delivery() -> Non
         return await _collect(late), await _collect(gone), n
 
     late_items, gone_items, n = asyncio.run(run())
-    assert isinstance(late_items[0], ServerStatus) and late_items[0].t_server_s == 1.0
-    assert [type(i).__name__ for i in late_items] == ["ServerStatus", "FusedFrame"]
-    assert [type(i).__name__ for i in gone_items] == ["ServerStatus"] and n == 1
+    assert isinstance(late_items[0], Status) and late_items[0].t_server_s == 1.0
+    assert [type(i).__name__ for i in late_items] == ["Status", "FusedFrame"]
+    assert [type(i).__name__ for i in gone_items] == ["Status"] and n == 1
 
 
 def test_iteration_waits_for_items() -> None:

@@ -15,7 +15,7 @@ import pytest
 from kinefuse.cli import main
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame, Publisher, SensorStatus, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, SensorInfo, Status
 from kinefuse.viewer import live_viewer, serve
 from kinefuse.viewer.replay import ReplaySource
 from kinefuse.viewer.session_data import load_session_view
@@ -61,9 +61,9 @@ def _frame(seq: int, sensors: int = 8, rng: np.random.Generator | None = None) -
     return FusedFrame(seq, seq / 30, pos, np.full(25, 1e-4), st, 0.012, raw)
 
 
-def _status(n: int = 4) -> ServerStatus:
+def _status(n: int = 4) -> Status:
     sensors = tuple(
-        SensorStatus(
+        SensorInfo(
             f"k{i}",
             i != 2,
             1.5,
@@ -72,11 +72,18 @@ def _status(n: int = 4) -> ServerStatus:
             math.nan if i == 0 else 30.0,  # fps not known yet
             20.0,
             0.9,
-            tuple(float(v) for v in np.eye(4).ravel()),
+            np.eye(4),
         )
         for i in range(n)
     )
-    return ServerStatus(1.0, sensors, "calibrated", "good", 30.0, "best-live")
+    return Status(
+        t_server_s=1.0,
+        sensors=sensors,
+        calibration_state="calibrated",
+        calibration_grade="good",
+        fused_fps=30.0,
+        method="best-live",
+    )
 
 
 def test_frame_round_trips_and_stays_small(rng) -> None:

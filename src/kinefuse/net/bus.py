@@ -1,7 +1,7 @@
 """What the server publishes, and the one small interface it publishes through.
 
 The server produces two kinds of items: a :class:`FusedFrame` every fused frame (30 Hz) and a
-:class:`ServerStatus` snapshot about once a second. Anything that wants them (the recorder, the
+:class:`Status` snapshot about once a second. Anything that wants them (the recorder, the
 live viewer, a test) calls :meth:`Publisher.subscribe` and iterates its :class:`Subscription`.
 
 :meth:`Publisher.publish` never blocks and never awaits, so a slow subscriber cannot stall the
@@ -19,6 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+
+from kinefuse.protocol.messages import SensorInfo, Status
+
+__all__ = ["FusedFrame", "Item", "Publisher", "SensorInfo", "Status", "Subscription"]
 
 Array = NDArray[np.float64]
 
@@ -56,40 +60,7 @@ class FusedFrame:
     raw_m: Mapping[str, Array] = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class SensorStatus:
-    """One sensor client as the server sees it (times in milliseconds, NaN when unknown)."""
-
-    sensor_id: str
-    connected: bool
-    rtt_ms: float
-    clock_offset_ms: float
-    clock_offset_sd_ms: float
-    fps: float
-    latency_ms: float
-    tracked_fraction: float
-    #: calibrated pose, sensor -> world, row-major 4x4 (16 floats), or None if not calibrated
-    pose: tuple[float, ...] | None = None
-    #: why the sensor's floor fit failed in this calibration (the client says), or None
-    floor_error: str | None = None
-
-
-@dataclass(frozen=True)
-class ServerStatus:
-    """A snapshot of the server (published about once a second and on every change)."""
-
-    t_server_s: float
-    sensors: tuple[SensorStatus, ...]
-    #: "none", "collecting", "calibrated" or "failed"
-    calibration_state: str
-    #: "good", "doubtful", "failed" or None before any calibration
-    calibration_grade: str | None
-    fused_fps: float
-    method: str
-    recording: str | None = None
-
-
-Item = FusedFrame | ServerStatus
+Item = FusedFrame | Status
 
 
 class Subscription:
@@ -150,7 +121,7 @@ class Publisher:
         self._subs: list[Subscription] = []
         self._closed = False
         #: the last status published (a new subscriber gets it first)
-        self.last_status: ServerStatus | None = None
+        self.last_status: Status | None = None
 
     def subscribe(self, maxsize: int | None = 2) -> Subscription:
         """A new subscription (lossy with the newest ``maxsize`` items; None = lossless)."""
@@ -167,7 +138,7 @@ class Publisher:
         """Hand ``item`` to every subscription; never blocks."""
         if self._closed:
             raise RuntimeError("publish after close")
-        if isinstance(item, ServerStatus):
+        if isinstance(item, Status):
             self.last_status = item
         for sub in self._subs:
             sub._put(item)

@@ -407,9 +407,12 @@ _SENSOR_INFO = Records(
 
 @dataclass(frozen=True, eq=False)
 class Status(Message):
-    """Server -> control: a snapshot (answer to StatusRequest, or unasked on a change).
+    """Server -> control: a snapshot (answer to StatusRequest, or unasked on a change); the same
+    object is what the server publishes on its bus (``request_id`` 0) for the viewer and the
+    recorder, so there is one status type.
 
-    ``calibration_state``: "none", "collecting", "calibrated" or "failed";
+    ``calibration_state``: "none", "collecting" (also while the collected phase is solved: the
+    server's ``CalibrationState.SOLVING``), "calibrated" or "failed";
     ``calibration_grade``: "good", "doubtful", "failed" or nil; ``fused_fps`` Hz;
     ``frames_fused``: fused frames published so far; ``recording``: the store path or nil.
     """

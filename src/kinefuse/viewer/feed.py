@@ -1,5 +1,5 @@
 """Publish a recorded session into a :class:`~kinefuse.net.bus.Publisher` as a live server
-would: a :class:`FusedFrame` every frame period, a :class:`ServerStatus` every second.
+would: a :class:`FusedFrame` every frame period, a :class:`Status` every second.
 
 This is how the viewer is exercised without the live server (tests, the README screenshot, the
 viewer benchmark): the frames are a stored fused result with each sensor's raw skeleton, the
@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from kinefuse.net.bus import FusedFrame, Publisher, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, Status
 from kinefuse.viewer.session_data import SessionView
 
 
@@ -37,8 +37,8 @@ def frame_at(
     )
 
 
-def status_at(view: SessionView, k: int, t_server_s: float, fused_fps: float) -> ServerStatus:
-    """The :class:`ServerStatus` at frame ``k``: the recording's per-sensor figures, with the
+def status_at(view: SessionView, k: int, t_server_s: float, fused_fps: float) -> Status:
+    """The :class:`Status` at frame ``k``: the recording's per-sensor figures, with the
     tracked fraction of the frame shown."""
     sensors = tuple(
         replace(s, tracked_fraction=float(view.tracked[s.sensor_id][k]))
@@ -46,7 +46,7 @@ def status_at(view: SessionView, k: int, t_server_s: float, fused_fps: float) ->
         else s
         for s in view.sensors
     )
-    return ServerStatus(
+    return Status(
         t_server_s=t_server_s,
         sensors=sensors,
         calibration_state="calibrated" if view.calibration else "none",

@@ -17,7 +17,7 @@ from typing import Any
 
 from aiohttp import web
 
-from kinefuse.net.bus import ServerStatus
+from kinefuse.net.bus import Status
 from kinefuse.viewer.server import read_commands
 from kinefuse.viewer.session_data import SessionView
 from kinefuse.viewer.wire import FUSED, RAW, TRUTH, Layer, encode_frame, status_message
@@ -32,7 +32,7 @@ class ReplaySource:
         self.view = view
         self.name = name
         cal = view.calibration
-        self._status = ServerStatus(
+        self._status = Status(
             t_server_s=float(view.t_s[0]) if view.n_frames else 0.0,
             sensors=view.sensors,
             calibration_state="calibrated" if cal else "none",

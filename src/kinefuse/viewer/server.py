@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 from aiohttp import WSMsgType, web
 
-from kinefuse.net.bus import FusedFrame, Publisher, ServerStatus
+from kinefuse.net.bus import FusedFrame, Publisher, Status
 from kinefuse.viewer.wire import fused_frame_bytes, hello_message, status_message
 
 #: Default host: loopback only (a viewer shows a lab's capture; exposing it is a choice).
@@ -77,9 +77,9 @@ class LiveSource:
             sub.close()
 
         async def send() -> None:
-            sent: ServerStatus | None = None
+            sent: Status | None = None
             async for item in sub:
-                if isinstance(item, ServerStatus):
+                if isinstance(item, Status):
                     if item is not sent:  # not already sent ahead of a frame
                         await ws.send_str(json.dumps(status_message(item)))
                         sent = item

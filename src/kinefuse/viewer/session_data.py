@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import apply_transform
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import SensorStatus
+from kinefuse.net.bus import SensorInfo
 from kinefuse.skeleton import TrackingState
 from kinefuse.sync import sensor_timebase
 from kinefuse.sync.ntp import probe_offsets
@@ -41,7 +41,7 @@ class SessionView:
     raw : dict of str to (T, 25, 3) float
         Each sensor's latest observation at or before each frame time, world frame (needs a
         calibration; empty without one).
-    sensors : tuple of SensorStatus
+    sensors : tuple of SensorInfo
         Per sensor, from the recording: probe round trip, clock offset, rate, latency,
         tracked fraction and the calibrated pose.
     calibration : str or None
@@ -54,7 +54,7 @@ class SessionView:
     t_s: Array
     methods: dict[str, tuple[Array, NDArray[np.int8]]]
     raw: dict[str, Array]
-    sensors: tuple[SensorStatus, ...]
+    sensors: tuple[SensorInfo, ...]
     calibration: str | None
     calibration_rms_mm: float | None = None
     calibration_grade: str | None = None
@@ -169,7 +169,7 @@ def load_session_view(
                 fresh, (obs.states[k] == TrackingState.TRACKED).mean(axis=1), 0.0
             )
         statuses.append(
-            SensorStatus(
+            SensorInfo(
                 sensor_id=info.id,
                 connected=bool(obs.n_frames),
                 rtt_ms=rtt_ms,
@@ -178,7 +178,7 @@ def load_session_view(
                 fps=fps,
                 latency_ms=lat_ms,
                 tracked_fraction=frac,
-                pose=tuple(float(v) for v in np.asarray(pose).ravel())
+                sensor2world=np.asarray(pose, dtype=float).reshape(4, 4)
                 if pose is not None
                 else None,
             )

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.status import FusionStatus
-from kinefuse.net.bus import FusedFrame, ServerStatus
+from kinefuse.net.bus import FusedFrame, Status
 from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS
 
 FRAME = 1
@@ -134,8 +134,8 @@ def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def status_message(status: ServerStatus) -> dict[str, Any]:
-    """The ``status`` text message of a :class:`~kinefuse.net.bus.ServerStatus` (NaN: null)."""
+def status_message(status: Status) -> dict[str, Any]:
+    """The ``status`` text message of a :class:`~kinefuse.net.bus.Status` (NaN: null)."""
     return {
         "type": "status",
         "t_server_s": _num(status.t_server_s),
@@ -154,9 +154,9 @@ def status_message(status: ServerStatus) -> dict[str, Any]:
                 "fps": _num(s.fps),
                 "latency_ms": _num(s.latency_ms),
                 "tracked_fraction": _num(s.tracked_fraction),
-                "pose": None
-                if s.pose is None or not all(math.isfinite(v) for v in s.pose)
-                else list(s.pose),
+                "pose": None  # row-major 4x4, sensor -> world
+                if s.sensor2world is None or not np.isfinite(s.sensor2world).all()
+                else [float(v) for v in np.asarray(s.sensor2world).ravel()],
             }
             for s in status.sensors
         ],

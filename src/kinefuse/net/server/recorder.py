@@ -37,7 +37,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import OutputError
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame, ServerStatus, Subscription
+from kinefuse.net.bus import FusedFrame, Status, Subscription
 
 log = logging.getLogger("kinefuse.serve")
 
@@ -185,7 +185,7 @@ class Recorder:
         async for item in sub:
             if isinstance(item, FusedFrame):
                 self.add_fused(item, self._clock())
-            elif isinstance(item, ServerStatus):
+            elif isinstance(item, Status):
                 self.add_event(item.t_server_s, "status", None, _status_detail(item))
 
     async def _flusher(self) -> None:
@@ -374,7 +374,7 @@ class Recorder:
         return n + len(b.events) + len(b.meta)
 
 
-def _status_detail(s: ServerStatus) -> dict[str, Any]:
+def _status_detail(s: Status) -> dict[str, Any]:
     return {
         "calibration_state": s.calibration_state,
         "calibration_grade": s.calibration_grade,

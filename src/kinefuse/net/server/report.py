@@ -6,11 +6,11 @@ module so that it keeps to the connections, the tasks and their flow.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from kinefuse.net.bus import SensorStatus, ServerStatus
 from kinefuse.net.server.calibration import CalibrationOutcome
 from kinefuse.protocol import CalibrationResult, SensorInfo, Status
 
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from kinefuse.net.server.server import Server
 
 
-def server_status(srv: Server) -> ServerStatus:
+def server_status(srv: Server) -> Status:
     """The server's status snapshot (what the publisher sends about once a second)."""
     now = srv.clock()
     poses = srv.calibration.poses
@@ -27,7 +27,7 @@ def server_status(srv: Server) -> ServerStatus:
         off, sd = c.clock_ms(now)
         p = poses.get(sid)
         sensors.append(
-            SensorStatus(
+            SensorInfo(
                 sensor_id=sid,
                 connected=c.connected,
                 rtt_ms=c.rtt_s * 1e3,
@@ -36,12 +36,13 @@ def server_status(srv: Server) -> ServerStatus:
                 fps=c.fps(now),
                 latency_ms=c.latency_s * 1e3,
                 tracked_fraction=c.tracked_fraction(),
-                pose=None if p is None else tuple(float(v) for v in np.asarray(p).ravel()),
+                sensor2world=None if p is None else np.asarray(p, dtype=float).reshape(4, 4),
                 floor_error=c.floor_error,
             )
         )
-    return ServerStatus(
+    return Status(
         t_server_s=now,
+        frames_fused=srv.loop.frames,
         sensors=tuple(sensors),
         calibration_state=srv.calibration.state.reported,
         calibration_grade=srv.calibration.grade,
@@ -52,33 +53,8 @@ def server_status(srv: Server) -> ServerStatus:
 
 
 def status_message(srv: Server, request_id: int) -> Status:
-    """The status as a control peer gets it."""
-    s = server_status(srv)
-    return Status(
-        request_id=request_id,
-        t_server_s=s.t_server_s,
-        sensors=tuple(
-            SensorInfo(
-                x.sensor_id,
-                x.connected,
-                x.rtt_ms,
-                x.clock_offset_ms,
-                x.clock_offset_sd_ms,
-                x.fps,
-                x.latency_ms,
-                x.tracked_fraction,
-                None if x.pose is None else np.array(x.pose).reshape(4, 4),
-                x.floor_error,
-            )
-            for x in s.sensors
-        ),
-        calibration_state=s.calibration_state,
-        calibration_grade=s.calibration_grade,
-        fused_fps=s.fused_fps,
-        frames_fused=srv.loop.frames,
-        method=s.method,
-        recording=s.recording,
-    )
+    """The status as a control peer gets it: the published snapshot, answering ``request_id``."""
+    return replace(server_status(srv), request_id=request_id)
 
 
 def run_stats(srv: Server) -> dict[str, object]:

@@ -10,7 +10,7 @@ the whole server loudly instead of leaving half of it running):
   closes only that connection, with the reason logged; a bug while serving one peer is logged
   and closes that peer only;
 - the fusion loop (:class:`~kinefuse.net.server.fusion_loop.FusionLoop`, 30 Hz on the server clock);
-- housekeeping: ``ServerStatus`` about once a second and on every change, the end of a
+- housekeeping: ``Status`` about once a second and on every change, the end of a
   calibration (:mod:`kinefuse.net.server.calibration`);
 - the recorder (:class:`~kinefuse.net.server.recorder.Recorder`), when recording;
 - the live web viewer (:func:`kinefuse.viewer.live_viewer`) on the same publisher, when asked.
@@ -50,7 +50,7 @@ from kinefuse.errors import CalibrationError, SyncError
 from kinefuse.fusion.live import LiveOptions
 from kinefuse.io.store.live import SightingRow
 from kinefuse.net.address import is_loopback
-from kinefuse.net.bus import Publisher, ServerStatus
+from kinefuse.net.bus import Publisher, Status
 from kinefuse.net.server.calibration import (
     CalibrationOutcome,
     LiveCalibration,
@@ -628,6 +628,6 @@ class Server:
                 if not self.publisher._closed:
                     self.publisher.publish(self.status())
 
-    def status(self) -> ServerStatus:
+    def status(self) -> Status:
         """The status snapshot (:func:`kinefuse.net.server.report.server_status`)."""
         return server_status(self)
