@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.frames.observations import BodyFrame as SourceBody
 from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
 from kinefuse.net.client.clocks import HostClock, real_host_clock
 from kinefuse.net.client.playback import SourceTimeline
 from kinefuse.occlusion import detect_occlusion
-from kinefuse.pipeline.sources import BodyFrame as SourceBody
 from kinefuse.protocol import (
     PROTOCOL_VERSION,
     AuthReply,
-    BodyFrame,
+    BodyFrameMessage,
     Challenge,
     ClockProbe,
     ClockReply,
@@ -153,8 +153,8 @@ class TestServer:
             writer.write(encode(Heartbeat(self.clock())))
             await asyncio.sleep(self.welcome.heartbeat_s)
 
-    def bodies(self) -> list[BodyFrame]:
-        return [m for p in self.peers for m in p.messages if isinstance(m, BodyFrame)]
+    def bodies(self) -> list[BodyFrameMessage]:
+        return [m for p in self.peers for m in p.messages if isinstance(m, BodyFrameMessage)]
 
     async def wait_for(self, cond: Any, timeout: float = 10.0) -> None:
         async with asyncio.timeout(timeout):
@@ -335,7 +335,7 @@ def test_reconnects_after_the_server_restarts_and_keeps_id_and_stream():
 
     server, client, first = run(go())
     assert [p.hello.sensor_id for p in server.peers if p.hello] == ["w0", "w0"]
-    second = [m for m in server.peers[1].messages if isinstance(m, BodyFrame)]
+    second = [m for m in server.peers[1].messages if isinstance(m, BodyFrameMessage)]
     seqs = first + [b.seq for b in second]
     assert seqs == sorted(set(seqs))  # in order, nothing twice
     assert second[0].seq > first[-1] + 5  # the stream went on while disconnected...

@@ -20,16 +20,16 @@ import pytest
 from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
+from kinefuse.frames.observations import DepthFrame
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.client import ClientOptions, SensorClient
 from kinefuse.net.client.clocks import HostClock, SimClockTruth
 from kinefuse.net.client.playback import SimTimeline, open_timeline
-from kinefuse.pipeline.sources import DepthFrame
 from kinefuse.protocol import (
-    BodyFrame,
+    BodyFrameMessage,
     CalibrationStop,
     ClockProbe,
-    FloorPlane,
+    FloorPlaneMessage,
     Goodbye,
     Hello,
     WandSighting,
@@ -111,7 +111,7 @@ def test_sightings_and_floor_come_from_the_clients_own_depth_frames(session: Pat
     server = run(go())
     msgs = server.peers[0].messages
     sightings = [m for m in msgs if isinstance(m, WandSighting)]
-    floors = [m for m in msgs if isinstance(m, FloorPlane)]
+    floors = [m for m in msgs if isinstance(m, FloorPlaneMessage)]
     assert len(sightings) >= 10 and len(floors) == 1
     assert all(s.calibration_id == 4 and s.detector == "robust" for s in sightings)
     assert sum(s.stride for s in sightings) <= 30 and all(s.stride >= 1 for s in sightings)
@@ -132,7 +132,7 @@ def test_sightings_and_floor_come_from_the_clients_own_depth_frames(session: Pat
     assert floors[0].offset_m == pytest.approx(sensor2world[2, 3], abs=0.03)
     assert floors[0].n_frames == 15 and floors[0].calibration_id == 4
     # depth images never cross the wire; body frames come after the wand phase
-    assert [type(m).__name__ for m in msgs].count("BodyFrame") > 0
+    assert [type(m).__name__ for m in msgs].count("BodyFrameMessage") > 0
     assert max(len(encode(m)) for m in msgs) < 2000  # bytes
 
 
@@ -276,7 +276,7 @@ DRIVER = '''
 import math, time
 import numpy as np
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.pipeline.sources import BodyFrame
+from kinefuse.frames.observations import BodyFrame
 
 class FakeKinect:
     """A driver: frames when the device delivers them, host stamps on time.monotonic()."""
@@ -326,7 +326,7 @@ def test_a_driver_plugs_in_as_module_factory(tmp_path: Path):
     hello = server.peers[0].messages[0]
     assert isinstance(hello, Hello) and hello.sensor_id == "kinect-1" and hello.serial == "SN42"
     assert hello.intrinsics is not None and hello.intrinsics.fx == 364.0
-    bodies = [m for m in server.peers[0].messages if isinstance(m, BodyFrame)]
+    bodies = [m for m in server.peers[0].messages if isinstance(m, BodyFrameMessage)]
     assert [b.seq for b in bodies] == list(range(7))
     assert all(abs(b.t_host_s - time.monotonic()) < 60 for b in bodies)  # the PC's own clock
 
@@ -452,7 +452,8 @@ def test_a_client_joining_a_past_epoch_starts_at_the_present(session: Path):
 
     server, client = run(go())
     msgs = server.peers[0].messages
-    assert not any(isinstance(m, WandSighting | FloorPlane) for m in msgs)  # no depth was due
+    # no depth was due
+    assert not any(isinstance(m, WandSighting | FloorPlaneMessage) for m in msgs)
     bodies = server.bodies()
     assert bodies and client.stats.depth_frames == 0
     with SessionStore.open(session) as st:

@@ -17,8 +17,9 @@ import pytest
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.evaluation.live_consistency import recording_consistency
+from kinefuse.frames.observations import BodyFrame
 from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.sources import BodyFrame, MultitrackReplay
+from kinefuse.pipeline.sources import MultitrackReplay
 
 HOST_AHEAD_S = 40.0  # the pretend client PCs' clocks run 40 s ahead of the server's
 

@@ -18,7 +18,7 @@ from kinefuse.protocol import (
     MAX_FRAME_BYTES,
     MESSAGE_TYPES,
     AuthReply,
-    BodyFrame,
+    BodyFrameMessage,
     CalibrationResult,
     CalibrationStart,
     CalibrationStop,
@@ -29,7 +29,7 @@ from kinefuse.protocol import (
     EmptyFrame,
     Error,
     FieldError,
-    FloorPlane,
+    FloorPlaneMessage,
     FrameTooLarge,
     Goodbye,
     Heartbeat,
@@ -90,7 +90,7 @@ def _examples() -> list[Message]:
             pixel_uv=np.array([250.5, 200.25]),
             stride=2,
         ),
-        FloorPlane(
+        FloorPlaneMessage(
             normal=np.array([0.0, -0.96, 0.28]) / np.linalg.norm([0.0, -0.96, 0.28]),
             offset_m=1.2,
             n_inliers=900,
@@ -99,7 +99,7 @@ def _examples() -> list[Message]:
             t_device_s=3.5,
             calibration_id=1,
         ),
-        BodyFrame(
+        BodyFrameMessage(
             seq=42,
             t_device_s=1.4,
             t_host_s=1001.4,
@@ -109,7 +109,7 @@ def _examples() -> list[Message]:
             n_crossings=4,
             dropped=1,
         ),
-        BodyFrame(
+        BodyFrameMessage(
             seq=43,
             t_device_s=1.5,
             t_host_s=1001.5,
@@ -180,7 +180,7 @@ def _frame(raw: object) -> bytes:
 
 
 def _body_raw(**change: object) -> dict:
-    raw = to_wire(_ex(BodyFrame))
+    raw = to_wire(_ex(BodyFrameMessage))
     raw.update(change)
     return raw
 
@@ -195,7 +195,7 @@ def test_every_message_type_has_an_example_and_round_trips():
 
 
 def test_decoded_arrays_have_the_python_dtypes_and_are_read_only():
-    (b,) = Decoder().feed(encode(_ex(BodyFrame)))
+    (b,) = Decoder().feed(encode(_ex(BodyFrameMessage)))
     assert b.joints_m.dtype == np.float64 and b.joints_m.shape == (25, 3)
     assert b.states.dtype == np.int8 and b.occluded.dtype == np.bool_
     assert np.isnan(b.joints_m[3]).all()
@@ -205,7 +205,7 @@ def test_decoded_arrays_have_the_python_dtypes_and_are_read_only():
 
 def test_a_body_frame_is_compact():
     # 25x3 float32 + 25 + 25 bytes of arrays and the scalars: well under 600 bytes
-    assert len(encode(_ex(BodyFrame))) < 600
+    assert len(encode(_ex(BodyFrameMessage))) < 600
 
 
 STREAM = b"".join(encode(m) for m in EXAMPLES)
@@ -241,7 +241,7 @@ def test_oversized_frame_is_refused_from_its_prefix_alone():
 
 
 def test_a_frame_of_exactly_the_limit_is_fine_and_encode_refuses_larger():
-    msg = BodyFrame(
+    msg = BodyFrameMessage(
         seq=1, t_device_s=0, t_host_s=0, joints_m=np.zeros((25, 3)), states=np.zeros(25, np.int8)
     )
     n = len(encode(msg)) - 4
@@ -258,7 +258,7 @@ def test_empty_frame():
 
 
 def test_truncated_stream():
-    data = encode(_ex(BodyFrame))
+    data = encode(_ex(BodyFrameMessage))
     dec = Decoder()
     assert dec.feed(data[:-3]) == []
     with pytest.raises(TruncatedFrame, match="unfinished frame") as e:
@@ -321,7 +321,7 @@ def test_another_major_version_is_refused_before_its_fields_are_read():
         Decoder().feed(_frame({**to_wire(Welcome()), "protocol_version": [0, 9]}))
 
 
-_J = to_wire(_ex(BodyFrame))["joints_m"]
+_J = to_wire(_ex(BodyFrameMessage))["joints_m"]
 
 
 @pytest.mark.parametrize(
@@ -405,9 +405,15 @@ def test_a_huge_announced_array_is_refused_without_allocating():
             {**to_wire(_ex(CalibrationResult)), "sensor_ids": ["k0"]},
             "calibration_result.sensor2world: 2 rows for 1 sensor_ids",
         ),
-        ({**to_wire(_ex(FloorPlane)), "normal": to_wire(Welcome())["capabilities"]}, "expected an"),
         (
-            {**to_wire(_ex(FloorPlane)), "normal": Array((3,)).encode([0.5, 0.0, 0.0])},
+            {
+                **to_wire(_ex(FloorPlaneMessage)),
+                "normal": to_wire(Welcome())["capabilities"],
+            },
+            "expected an",
+        ),
+        (
+            {**to_wire(_ex(FloorPlaneMessage)), "normal": Array((3,)).encode([0.5, 0.0, 0.0])},
             "floor_plane.normal: length 0.5000",
         ),
         (
@@ -498,7 +504,7 @@ def test_random_body_frames_round_trip(seq, t_dev, t_host, seed, crossings):
     rng = np.random.default_rng(seed)
     joints = rng.uniform(-99.0, 99.0, (25, 3))
     joints[rng.random(25) < 0.3] = np.nan
-    msg = BodyFrame(
+    msg = BodyFrameMessage(
         seq=seq,
         t_device_s=t_dev,
         t_host_s=t_host,

@@ -28,7 +28,7 @@ from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.pipeline.session import gather_calibration as gather
 from kinefuse.protocol import (
     AuthReply,
-    BodyFrame,
+    BodyFrameMessage,
     CalibrationStart,
     CalibrationStop,
     Challenge,
@@ -36,7 +36,7 @@ from kinefuse.protocol import (
     ClockReply,
     Decoder,
     Error,
-    FloorPlane,
+    FloorPlaneMessage,
     Goodbye,
     Heartbeat,
     Hello,
@@ -63,8 +63,8 @@ class Script:
     serial: str
     intrinsics: object
     sightings: list[tuple[float, WandSighting]] = field(default_factory=list)
-    bodies: list[tuple[float, BodyFrame]] = field(default_factory=list)
-    floor: FloorPlane | None = None
+    bodies: list[tuple[float, BodyFrameMessage]] = field(default_factory=list)
+    floor: FloorPlaneMessage | None = None
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +125,7 @@ def scripts(sim) -> dict[str, Script]:
                 sc.bodies.append(
                     (
                         float(t_cap[k]) + NOMINAL_LATENCY_S,
-                        BodyFrame(
+                        BodyFrameMessage(
                             seq=int(obs.seq[k]),
                             t_device_s=float(obs.t_device_s[k]),
                             t_host_s=0.0,
@@ -136,7 +136,7 @@ def scripts(sim) -> dict[str, Script]:
                 )
             fl = cal.floors.get(s.id)
             if fl is not None:
-                sc.floor = FloorPlane(
+                sc.floor = FloorPlaneMessage(
                     normal=fl.normal,
                     offset_m=fl.offset_m,
                     n_inliers=fl.n_inliers,
@@ -257,7 +257,7 @@ class SimClient:
                         sent_floor = True
                     p.send(WandSighting(**{**msg.__dict__, "t_host_s": self.host()}))
                 else:
-                    p.send(BodyFrame(**{**msg.__dict__, "t_host_s": self.host()}))
+                    p.send(BodyFrameMessage(**{**msg.__dict__, "t_host_s": self.host()}))
                     self.sent_bodies += 1
                 last = time.monotonic()
             while time.monotonic() - self.epoch < until_s:

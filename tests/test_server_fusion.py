@@ -11,7 +11,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.net.bus import FusedFrame, Publisher
 from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
-from kinefuse.net.server.sensor_state import Observation, SensorClient, sanitize_joints
+from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_joints
 from kinefuse.skeleton import N_JOINTS, standing_pose
 
 
@@ -57,7 +57,7 @@ def test_the_loop_uses_what_was_captured_up_to_its_horizon_and_publishes() -> No
     poses = rig(2)
     world = standing_pose()
     now = [0.0]
-    clients = {s: SensorClient(s, "", Intrinsics()) for s in poses}
+    clients = {s: SensorState(s, "", Intrinsics()) for s in poses}
     pub = Publisher()
     sub = pub.subscribe(None)
     loop = FusionLoop(FrameFusion("best-live"), clients, pub, lambda: now[0], wait_s=0.01)

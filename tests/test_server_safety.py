@@ -23,7 +23,7 @@ from kinefuse.net.bus import FusedFrame
 from kinefuse.net.server.server import Server, ServerOptions, is_loopback
 from kinefuse.protocol import (
     AuthReply,
-    BodyFrame,
+    BodyFrameMessage,
     Challenge,
     ClockProbe,
     ClockReply,
@@ -113,7 +113,7 @@ async def good_client(port: int, stop: asyncio.Event, stats: dict) -> None:
         while not stop.is_set():
             t = time.monotonic() + h0
             p.send(
-                BodyFrame(
+                BodyFrameMessage(
                     seq=seq,
                     t_device_s=t - h0 - 0.06,
                     t_host_s=t,
@@ -235,7 +235,7 @@ def test_out_of_order_and_silent_peers_are_closed(running) -> None:
     async def body(srv, frames):
         before = await Peer.open(srv.port)  # data before the hello
         before.send(
-            BodyFrame(
+            BodyFrameMessage(
                 seq=0,
                 t_device_s=0.0,
                 t_host_s=0.0,
@@ -248,7 +248,7 @@ def test_out_of_order_and_silent_peers_are_closed(running) -> None:
         assert isinstance(await back.hello("other"), Welcome)
         for seq in (5, 3):
             back.send(
-                BodyFrame(
+                BodyFrameMessage(
                     seq=seq,
                     t_device_s=1.0,
                     t_host_s=1.0,

@@ -22,7 +22,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.net.bus import FusedFrame
 from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.protocol import (
-    BodyFrame,
+    BodyFrameMessage,
     ClockProbe,
     ClockReply,
     Decoder,
@@ -90,7 +90,7 @@ async def stream(port: int, sensor_id: str, stop: asyncio.Event) -> None:
         while not stop.is_set():
             t = time.monotonic() + h0
             p.send(
-                BodyFrame(
+                BodyFrameMessage(
                     seq=seq,
                     t_device_s=t - h0 - 0.06,
                     t_host_s=t,
@@ -220,7 +220,7 @@ def test_a_floor_arriving_while_the_calibration_is_solved_in_a_thread():
     calibration's own: "solving" until the loop applies the outcome, reported as "collecting"."""
     from kinefuse.calibration.floor import FloorPlane
     from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-    from kinefuse.protocol import FloorPlane as FloorMsg
+    from kinefuse.protocol import FloorPlaneMessage as FloorMsg
 
     ids = ("a", "b", "c")
     rng = np.random.default_rng(7)

@@ -11,11 +11,10 @@ import pytest
 
 from kinefuse.cli import main
 from kinefuse.errors import InputError
+from kinefuse.frames.observations import BodyFrame, DepthFrame
+from kinefuse.frames.source import FrameSource
 from kinefuse.io.store.session import SessionStore
 from kinefuse.pipeline.sources import (
-    BodyFrame,
-    DepthFrame,
-    FrameSource,
     Kinect2TrackingReplay,
     MultitrackReplay,
     SessionReplay,

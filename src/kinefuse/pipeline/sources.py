@@ -22,14 +22,15 @@ import heapq
 import json
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame, BodyFrames, DepthFrame, Frame
+from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
+from kinefuse.frames.source import FrameSource
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
@@ -39,11 +40,6 @@ if TYPE_CHECKING:
     from kinefuse.sim.rig import Rig
 
 __all__ = [
-    "BodyFrame",
-    "BodyFrames",
-    "DepthFrame",
-    "Frame",
-    "FrameSource",
     "Kinect2TrackingReplay",
     "MultitrackReplay",
     "SessionReplay",
@@ -55,22 +51,6 @@ Array = NDArray[np.float64]
 
 #: Kinect camera space (x left, y up, z forward) -> kinefuse sensor axes (x right, y down, z fwd).
 _KINECT_AXES = np.array([-1.0, -1.0, 1.0])
-
-
-@runtime_checkable
-class FrameSource(Protocol):
-    """What a sensor client plays: frames in arrival order (a driver implements this too).
-
-    ``sensor_ids`` names the sensors it delivers; ``intrinsics(sensor_id)`` their depth camera;
-    iterating yields :data:`Frame` items, each sensor's in increasing ``seq``.
-    """
-
-    @property
-    def sensor_ids(self) -> tuple[str, ...]: ...
-
-    def intrinsics(self, sensor_id: str) -> Intrinsics: ...
-
-    def __iter__(self) -> Iterator[Frame]: ...
 
 
 def _arrival_key(f: Frame) -> float:

@@ -10,8 +10,10 @@ started); ``t2``/``t3``/``t_host_s`` on the client PC's host clock; ``t_device_s
 sensor's own clock; all float64 seconds. Positions are metres in the sensor frame (x right,
 y down, z forward) unless a name says ``world``.
 
-The protocol's ``BodyFrame`` is the wire message, not :class:`kinefuse.pipeline.sources.BodyFrame`
-(what a source yields); the sensor client turns one into the other.
+The wire messages carry ``Message`` in their names where a core type has the same idea:
+``BodyFrameMessage`` is what crosses the wire, :class:`kinefuse.frames.observations.BodyFrame` what
+a source yields (the sensor client turns one into the other); ``FloorPlaneMessage`` carries a
+:class:`kinefuse.calibration.floor.FloorPlane`.
 """
 
 # ruff: noqa: RUF009  (_f returns dataclasses.field(...) with the field's wire kind as metadata)
@@ -287,7 +289,7 @@ class WandSighting(Message):
 
 
 @dataclass(frozen=True, eq=False)
-class FloorPlane(Message):
+class FloorPlaneMessage(Message):
     """Sensor -> server, once per calibration: the floor ``normal . p + offset_m = 0``.
 
     Fitted (:func:`kinefuse.calibration.floor.fit_floor_plane`) on the per-pixel median of the
@@ -317,7 +319,7 @@ class FloorPlane(Message):
 
 
 @dataclass(frozen=True, eq=False)
-class BodyFrame(Message):
+class BodyFrameMessage(Message):
     """Sensor -> server: one body-tracker frame with the client's occlusion result.
 
     ``seq``: the sensor's frame counter; ``t_device_s``: capture on the device clock (s);
@@ -495,8 +497,8 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         CalibrationStart,
         CalibrationStop,
         WandSighting,
-        FloorPlane,
-        BodyFrame,
+        FloorPlaneMessage,
+        BodyFrameMessage,
         StatusRequest,
         Status,
         CalibrationResult,

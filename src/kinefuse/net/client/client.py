@@ -48,17 +48,17 @@ from typing import Any
 import numpy as np
 
 from kinefuse.errors import KinefuseError
+from kinefuse.frames.observations import DepthFrame
 from kinefuse.net.client.clocks import HostClock, Monotonic
 from kinefuse.net.client.depth import DepthWork
-from kinefuse.net.client.parts import Connection, Prefetch, Prepared, wait_event
+from kinefuse.net.client.parts import Prefetch, Prepared, ServerLink, wait_event
 from kinefuse.net.client.playback import Timed, Timeline
-from kinefuse.pipeline.sources import DepthFrame
 from kinefuse.protocol import auth
 from kinefuse.protocol.codec import check_version
 from kinefuse.protocol.errors import VersionError, WireError
 from kinefuse.protocol.messages import (
     AuthReply,
-    BodyFrame,
+    BodyFrameMessage,
     CalibrationStart,
     CalibrationStop,
     Challenge,
@@ -217,14 +217,14 @@ class SensorClient:
         self.m0: float | None = None
         self._stop = asyncio.Event()
         self._stop_reason = ""
-        self._body: deque[BodyFrame] = deque()
+        self._body: deque[BodyFrameMessage] = deque()
         self._sightings: deque[Message] = deque()
         self._urgent: deque[Message] = deque()  # floor planes: tiny, once per calibration
         self._wake = asyncio.Event()
         self._welcomed = asyncio.Event()
-        self._conn: Connection | None = None
+        self._conn: ServerLink | None = None
         self._source_done = False
-        self._held_probes: list[tuple[Connection, ClockProbe, float]] = []
+        self._held_probes: list[tuple[ServerLink, ClockProbe, float]] = []
         self._delivered = 0
         self._io = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kinefuse-source")
         self.depth = DepthWork(
@@ -310,7 +310,7 @@ class SensorClient:
         t = self.options.connect_timeout_s
         try:
             async with asyncio.timeout(t):
-                _tr, conn = await loop.create_connection(lambda: Connection(self), host, port)
+                _tr, conn = await loop.create_connection(lambda: ServerLink(self), host, port)
         except (OSError, TimeoutError) as e:
             raise _Outcome("connect", f"cannot connect ({e or 'timed out'})") from None
         self._conn = conn
@@ -329,7 +329,7 @@ class SensorClient:
             self._conn = None
             conn.close()
 
-    async def _next(self, conn: Connection, timeout: float) -> Message:
+    async def _next(self, conn: ServerLink, timeout: float) -> Message:
         """The next message from the server; what is queued comes before a close or a stop
         (a refusal and the close after it can arrive together: the refusal must be seen)."""
         if conn.inbox.empty():
@@ -362,7 +362,7 @@ class SensorClient:
             raise _Outcome("protocol", f"the server broke the protocol: {item}")
         return item
 
-    async def _handshake(self, conn: Connection) -> Welcome:
+    async def _handshake(self, conn: ServerLink) -> Welcome:
         tl, opt = self.timeline, self.options
         conn.send(
             Hello(
@@ -404,7 +404,7 @@ class SensorClient:
             raise ClientRefused("version", str(e)) from None
         return msg
 
-    async def _session(self, conn: Connection, welcome: Welcome) -> None:
+    async def _session(self, conn: ServerLink, welcome: Welcome) -> None:
         writer = asyncio.ensure_future(self._writer(conn, welcome.heartbeat_s))
         try:
             while True:
@@ -432,7 +432,7 @@ class SensorClient:
             with contextlib.suppress(asyncio.CancelledError):
                 await writer
 
-    def _handle(self, conn: Connection, msg: Message) -> None:
+    def _handle(self, conn: ServerLink, msg: Message) -> None:
         if isinstance(msg, CalibrationStart):
             self.depth.start(msg.calibration_id)
         elif isinstance(msg, CalibrationStop):
@@ -448,7 +448,7 @@ class SensorClient:
             raise _Outcome("protocol", f"the server sent {msg.TYPE} out of order")
         # other server messages (status, calibration_result) are not for a sensor: ignored
 
-    async def _writer(self, conn: Connection, heartbeat_s: float) -> None:
+    async def _writer(self, conn: ServerLink, heartbeat_s: float) -> None:
         while True:
             await conn.writable.wait()
             self._send_pending(conn)
@@ -459,7 +459,7 @@ class SensorClient:
             self._wake.clear()
             await wait_event(self._wake, max(0.01, heartbeat_s - idle))
 
-    def _send_pending(self, conn: Connection) -> None:
+    def _send_pending(self, conn: ServerLink) -> None:
         # a closing connection takes nothing: what is queued waits for the next connection
         while (
             conn.is_open
@@ -475,7 +475,7 @@ class SensorClient:
                 conn.send(self._body.popleft())
                 self.stats.body_sent += 1
 
-    async def _flush(self, conn: Connection, timeout: float = 2.0) -> None:
+    async def _flush(self, conn: ServerLink, timeout: float = 2.0) -> None:
         end = self.monotonic() + timeout
         while (self._urgent or self._sightings or self._body) and self.monotonic() < end:
             if conn.closed.done():
@@ -503,7 +503,7 @@ class SensorClient:
 
     # -- queues ----------------------------------------------------------------------------
 
-    def _enqueue_body(self, msg: BodyFrame) -> None:
+    def _enqueue_body(self, msg: BodyFrameMessage) -> None:
         if len(self._body) >= self.options.body_queue:
             self._body.popleft()  # the newest wins
             self.stats.body_dropped += 1
@@ -633,7 +633,7 @@ class SensorClient:
             return
         occluded, n_cross = occ if occ is not None else (None, None)
         self._enqueue_body(
-            BodyFrame(
+            BodyFrameMessage(
                 seq=f.seq,
                 t_device_s=f.t_device_s,
                 t_host_s=t_host,

@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from kinefuse.frames.observations import DepthFrame
 from kinefuse.net.client.parts import detect, fit_floor, warm_up
 from kinefuse.net.client.playback import Timeline
-from kinefuse.pipeline.sources import DepthFrame
-from kinefuse.protocol.messages import FloorPlane, Message, WandSighting
+from kinefuse.protocol.messages import FloorPlaneMessage, Message, WandSighting
 
 log = logging.getLogger("kinefuse.sensor")
 
@@ -44,7 +44,7 @@ class DepthWork:
     stats : ClientStats
         Counters (``depth_frames``, ``depth_detected``, ``depth_skipped_busy``).
     send_sighting, send_floor : callable
-        Called on the event loop with each WandSighting / the FloorPlane.
+        Called on the event loop with each WandSighting / the FloorPlaneMessage.
     report_floor_error : callable, optional
         Called on the event loop with the text of a failed floor fit (also kept in
         :attr:`floor_error` until the next calibration starts).
@@ -186,7 +186,7 @@ class DepthWork:
             return
         plane, t_dev = res
         self.send_floor(
-            FloorPlane(
+            FloorPlaneMessage(
                 normal=plane.normal,
                 offset_m=float(plane.offset_m),
                 n_inliers=int(plane.n_inliers),

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from kinefuse.frames.observations import DepthFrame
 from kinefuse.net.client.playback import Timed, Timeline
-from kinefuse.pipeline.sources import DepthFrame
 from kinefuse.protocol.codec import Decoder, encode
 from kinefuse.protocol.errors import WireError
 from kinefuse.protocol.messages import ClockProbe, ClockReply, Message
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from kinefuse.net.client.client import SensorClient
 
 
-class Connection(asyncio.Protocol):
+class ServerLink(asyncio.Protocol):
     """One TCP connection: decodes, answers probes inline, queues everything else."""
 
     def __init__(self, client: SensorClient) -> None:

@@ -32,16 +32,11 @@ from urllib.parse import parse_qsl
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError
+from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
+from kinefuse.frames.source import FrameSource
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.clocks import SimClockTruth
-from kinefuse.pipeline.sources import (
-    BodyFrame,
-    DepthFrame,
-    Frame,
-    FrameSource,
-    SessionReplay,
-    open_source,
-)
+from kinefuse.pipeline.sources import SessionReplay, open_source
 from kinefuse.sim.clock import ClockParams
 
 #: the entry-point group a driver package registers its sources under
@@ -146,7 +141,7 @@ class SimTimeline(Timeline):
 
 
 class SourceTimeline(Timeline):
-    """Any :class:`~kinefuse.pipeline.sources.FrameSource` of one sensor (a log, or a live
+    """Any :class:`~kinefuse.frames.source.FrameSource` of one sensor (a log, or a live
     driver)."""
 
     def __init__(

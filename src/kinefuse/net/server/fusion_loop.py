@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 from kinefuse.fusion.live import LiveFusion, LiveOptions
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.net.bus import FusedFrame, Publisher
-from kinefuse.net.server.sensor_state import Observation, SensorClient
+from kinefuse.net.server.sensor_state import Observation, SensorState
 from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync.device import NOMINAL_LATENCY_S
 
@@ -171,7 +171,7 @@ class FusionLoop:
     ----------
     fusion : FrameFusion
         Owned by this loop once it runs: change its poses through :meth:`set_poses`.
-    clients : mapping sensor id -> SensorClient
+    clients : mapping sensor id -> SensorState
         The server's (live) table of sensors (changes on the loop when a sensor joins).
     publisher : Publisher
     clock : callable
@@ -183,7 +183,7 @@ class FusionLoop:
     def __init__(
         self,
         fusion: FrameFusion,
-        clients: Mapping[str, SensorClient],
+        clients: Mapping[str, SensorState],
         publisher: Publisher,
         clock: Callable[[], float],
         *,

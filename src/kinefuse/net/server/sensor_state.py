@@ -1,6 +1,6 @@
 """What the server keeps per sensor: identity, clocks, the bounded queue of observations, stats.
 
-A :class:`SensorClient` lives as long as the server (keyed by sensor id), so a client that
+A :class:`SensorState` lives as long as the server (keyed by sensor id), so a client that
 reconnects finds its pose, its device clock and its statistics again; only the connection
 (:class:`Connection` in :mod:`kinefuse.net.server.server`) is per TCP connection.
 
@@ -84,7 +84,7 @@ def sanitize_joints(joints_m: Array, states: NDArray[np.int8]) -> tuple[Array, N
     return j, st
 
 
-class SensorClient:
+class SensorState:
     """One sensor as the server knows it, across its connections.
 
     Parameters

@@ -20,7 +20,7 @@ The parts live beside it: ``server_conn`` (one connection's bytes and messages),
 ``server_report`` (status snapshots, calibration outcomes, run figures), ``fusion_loop``,
 ``live_calibration`` and ``recorder``.
 
-Per sensor the server keeps a :class:`~kinefuse.net.server.sensor_state.SensorClient` across
+Per sensor the server keeps a :class:`~kinefuse.net.server.sensor_state.SensorState` across
 connections (pose, clocks, statistics): a client that dies is marked offline and fusion goes on
 with the others; when it comes back (same ``sensor_id``) it is re-synchronized and fused with its
 pose at once. A second connection claiming a connected sensor id is refused (``duplicate_id``).
@@ -63,16 +63,17 @@ from kinefuse.net.server.control import serve_control
 from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
 from kinefuse.net.server.recorder import Recorder
 from kinefuse.net.server.report import outcome_meta, result_message, run_stats, server_status
-from kinefuse.net.server.sensor_state import Observation, SensorClient, sanitize_joints
+from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_joints
 from kinefuse.protocol import (
     MAX_FRAME_BYTES,
     AuthReply,
-    BodyFrame,
+    BodyFrameMessage,
     CalibrationStart,
     CalibrationStop,
     Challenge,
     ClockProbe,
     ClockReply,
+    FloorPlaneMessage,
     Goodbye,
     Heartbeat,
     Hello,
@@ -80,9 +81,6 @@ from kinefuse.protocol import (
     Welcome,
     WireError,
     check_version,
-)
-from kinefuse.protocol import (
-    FloorPlane as FloorMsg,
 )
 from kinefuse.protocol.auth import new_nonce, verify_mac
 from kinefuse.protocol.errors import OutOfOrder
@@ -143,7 +141,7 @@ class Server:
         self.services: dict[str, object] = {}
         self.t0_monotonic = time.monotonic()
         self.clock = clock or (lambda: time.monotonic() - self.t0_monotonic)
-        self.clients: dict[str, SensorClient] = {}
+        self.clients: dict[str, SensorState] = {}
         self.calibration = LiveCalibration(options.calibration)
         self.publisher = Publisher()
         live = LiveOptions()
@@ -277,7 +275,7 @@ class Server:
         self._tg.create_task(self._connection(conn))
 
     async def _connection(self, conn: Connection) -> None:
-        sensor: SensorClient | None = None
+        sensor: SensorState | None = None
         try:
             hello = await self._handshake(conn)
             if hello.role == "control":
@@ -332,7 +330,7 @@ class Server:
             verify_mac(o.token, nonce, reply.mac, role=msg.role, sensor_id=msg.sensor_id)
         return msg
 
-    def _register(self, conn: Connection, hello: Hello) -> SensorClient:
+    def _register(self, conn: Connection, hello: Hello) -> SensorState:
         sid = hello.sensor_id
         if sid in self._sensor_conns:
             raise DuplicateSensor(
@@ -344,7 +342,7 @@ class Server:
         assert hello.intrinsics is not None  # Hello.check() requires it of a sensor
         client = self.clients.get(sid)
         if client is None:
-            client = SensorClient(sid, hello.serial, hello.intrinsics)
+            client = SensorState(sid, hello.serial, hello.intrinsics)
             self.clients[sid] = client
             if self.recorder is not None:
                 self.recorder.add_sensor(sid, hello.serial, hello.intrinsics)
@@ -389,7 +387,7 @@ class Server:
 
     # -- a sensor ----------------------------------------------------------------------------------
 
-    async def _serve_sensor(self, conn: Connection, client: SensorClient) -> None:
+    async def _serve_sensor(self, conn: Connection, client: SensorState) -> None:
         outstanding: dict[int, float] = {}
         prober = asyncio.ensure_future(self._probe_loop(conn, outstanding))
         try:
@@ -416,7 +414,7 @@ class Server:
             )
 
     async def _sensor_reader(
-        self, conn: Connection, client: SensorClient, outstanding: dict[int, float]
+        self, conn: Connection, client: SensorState, outstanding: dict[int, float]
     ) -> None:
         sid = client.sensor_id
         last_seq: int | None = None
@@ -431,7 +429,7 @@ class Server:
                         "(or with another t1)"
                     )
                 self._clock_reply(client, msg, t_arr)
-            elif isinstance(msg, BodyFrame):
+            elif isinstance(msg, BodyFrameMessage):
                 if last_seq is not None and msg.seq <= last_seq:
                     raise OutOfOrder(
                         f"body_frame seq {msg.seq} after {last_seq}: seq must increase"
@@ -440,7 +438,7 @@ class Server:
                 self._body(client, msg, t_arr)
             elif isinstance(msg, WandSighting):
                 self._sighting(client, msg, t_arr)
-            elif isinstance(msg, FloorMsg):
+            elif isinstance(msg, FloorPlaneMessage):
                 fl = FloorPlane(msg.normal, msg.offset_m, msg.n_inliers, msg.residual_m)
                 self.calibration.add_floor(sid, fl)
                 client.floor_error = None
@@ -454,7 +452,7 @@ class Server:
             else:
                 raise OutOfOrder(f"a sensor may not send {msg.TYPE} after the handshake")
 
-    def _floor_error(self, client: SensorClient, error: str | None) -> None:
+    def _floor_error(self, client: SensorState, error: str | None) -> None:
         """What a sensor's heartbeat says of its floor fit (None: it did not fail)."""
         if error == client.floor_error:
             return
@@ -464,7 +462,7 @@ class Server:
             self._event("floor_error", client.sensor_id, error=error)
         self._status_dirty = True
 
-    def _clock_reply(self, client: SensorClient, msg: ClockReply, t4: float) -> None:
+    def _clock_reply(self, client: SensorState, msg: ClockReply, t4: float) -> None:
         try:
             client.clock.add_probe(msg.t1, msg.t2, msg.t3, t4)
         except SyncError as e:
@@ -479,7 +477,7 @@ class Server:
                     client.sensor_id, t4, est.offset_s, est.drift_ppm, est.offset_se_s, est.epoch
                 )
 
-    def _body(self, client: SensorClient, msg: BodyFrame, t_arr: float) -> None:
+    def _body(self, client: SensorState, msg: BodyFrameMessage, t_arr: float) -> None:
         if not client.accept(msg.seq, msg.t_device_s, msg.t_host_s):
             return  # a frame seen before this connection (a restarted client replaying)
         joints, states = sanitize_joints(msg.joints_m, msg.states)
@@ -504,7 +502,7 @@ class Server:
         if math.isfinite(t_host):
             client.latency_s = t_arr - t_host
 
-    def _sighting(self, client: SensorClient, msg: WandSighting, t_arr: float) -> None:
+    def _sighting(self, client: SensorState, msg: WandSighting, t_arr: float) -> None:
         # sightings carry host arrival times too: they feed the device -> host fit
         client.device.add(msg.t_device_s, msg.t_host_s)
         t_srv = client.capture_to_server(msg.t_device_s)
