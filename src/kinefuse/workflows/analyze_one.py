@@ -25,9 +25,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.analysis.gaps import fill_short_gaps_all
 from kinefuse.analysis.kinematics import reconstruction_error
 from kinefuse.analysis.limbs import LIMB_NAMES, limb
-from kinefuse.io.formats.angles import write_angles_csv, write_angles_mot
+from kinefuse.io.formats.angles import plan_mot, write_angles_csv, write_angles_mot
 from kinefuse.pipeline.analysis import analyse_sequence
 
 if TYPE_CHECKING:
@@ -147,7 +148,8 @@ def analyse_one(
         truth = truth_figures(inp, res, phase, true_calibration=true_calibration)
         if truth is not None:
             report.update(truth["report"])
-    written = _write_outputs(folder, inp, res, plots, truth, plot_dpi)
+    written, mot = _write_outputs(folder, inp, res, plots, truth, plot_dpi)
+    report["angles_mot"] = mot
     report["written"] = [str(p) for p in written]
     return report, res
 
@@ -171,20 +173,23 @@ def _write_outputs(
     plots: bool,
     truth: dict[str, Any] | None,
     plot_dpi: int | None = None,
-) -> list[Path]:
+) -> tuple[list[Path], dict[str, Any]]:
     from kinefuse.workflows.analyze import write_limb_frames
 
     seq, norm, named = res["seq"], res["norm"], res["named"]
     t = seq.t_s
     names = sorted(named)
+    filled, flags = fill_short_gaps_all(t, {k: named[k] for k in names})
+    plan = plan_mot(t, filled)
     written = [
         write_angles_csv(
             folder / "angles.csv",
             t,
-            {k: named[k] for k in names},
+            filled,
             {k: angle_joint(k) for k in names},
+            filled=flags,
         ),
-        write_angles_mot(folder / "angles.mot", t, {k: named[k] for k in names}),
+        write_angles_mot(folder / "angles.mot", t, filled, plan=plan),
         write_limb_frames(folder / "limb_frames.csv", t, LIMB_NAMES, norm.transforms()),
     ]
     if plots:
@@ -216,7 +221,7 @@ def _write_outputs(
                 dpi=int(1.3 * plot_dpi) if plot_dpi else 70,
             )
         )
-    return written
+    return written, plan.summary()
 
 
 def consistency_report(results: list[dict[str, Any]]) -> dict[str, Any]:
