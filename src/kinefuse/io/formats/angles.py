@@ -122,6 +122,7 @@ def write_angles_csv(
     *,
     methods: Mapping[str, str] | None = None,
     filled: Mapping[str, ArrayLike] | None = None,
+    labels: Mapping[str, str] | None = None,
     overwrite: bool = False,
 ) -> Path:
     """Write ``angles.csv``: ``time_s,joint,angle,method,degrees,filled``, one row per frame
@@ -140,6 +141,9 @@ def write_angles_csv(
         Angle name -> ``"functional"`` or ``"anatomical"`` (default ``"functional"``).
     filled : mapping of str to (T,) bool, optional
         Angle name -> frames whose value was interpolated over a short gap.
+    labels : mapping of str to str, optional
+        Key -> the angle name written (default: the key); lets one name appear under two
+        methods.
     overwrite : bool
         Replace an existing file, only one kinefuse wrote as this kind of file.
 
@@ -156,7 +160,8 @@ def write_angles_csv(
     missing = [n for n in ang if n not in joints]
     if missing:
         raise InputError(f"no joint given for angle(s) {', '.join(missing)}")
-    for n in [*ang, *joints.values(), *meth.values()]:
+    label = {n: (labels or {}).get(n, n) for n in ang}
+    for n in [*label.values(), *joints.values(), *meth.values()]:
         if any(c in n for c in ',"\n\r'):
             raise InputError(f"angle and joint names cannot hold commas, quotes or newlines: {n!r}")
     buf = io.StringIO()
@@ -165,7 +170,7 @@ def write_angles_csv(
     if names:
         vals = np.stack([ang[n] for n in names], axis=1)  # (T, A)
         flags = np.stack([fl[n] for n in names], axis=1)
-        heads = [f"{joints[n]},{n},{meth[n]}" for n in names]
+        heads = [f"{joints[n]},{label[n]},{meth[n]}" for n in names]
         for k in range(t.size):
             tk = f"{t[k]:.6f}"
             for i, head in enumerate(heads):
