@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -272,6 +273,11 @@ def test_bvh_and_amc_rotations_carry_the_bones(shared_data: Path) -> None:
 # ------------------------------------------------------------------------------- angle files
 
 
+def storage_rows(opensim: Any, path: Path) -> int:
+    """Rows ``opensim.Storage`` reads (it stops a file at a value it cannot parse)."""
+    return int(opensim.Storage(str(path)).getSize())
+
+
 def test_mot_and_csv_round_trip_and_load_in_opensim(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -281,20 +287,47 @@ def test_mot_and_csv_round_trip_and_load_in_opensim(
     ang = {"knee_flexion_r": 30 * np.sin(t), "hip_flexion_r": np.where(t > 0.2, np.nan, 5.0)}
     mot = write_angles_mot(tmp_path / "a.mot", t, ang)
     _, a2, head = read_angles_mot(mot)
-    assert head["inDegrees"] == "yes" and head["nRows"] == "50" and head["nColumns"] == "3"
+    # hip_flexion_r is missing on 29 of 50 frames (> half): the column is left out, not the rows
+    assert head["inDegrees"] == "yes" and head["nRows"] == "50" and head["nColumns"] == "2"
     np.testing.assert_allclose(a2["knee_flexion_r"], ang["knee_flexion_r"], atol=1e-6)  # 6 dp
-    assert np.isnan(a2["hip_flexion_r"][30])
     table = opensim.TimeSeriesTable(str(mot))
     assert table.getNumRows() == 50
-    assert list(table.getColumnLabels()) == ["knee_flexion_r", "hip_flexion_r"]
+    assert list(table.getColumnLabels()) == ["knee_flexion_r"]
     assert opensim.Storage(str(mot)).isInDegrees()
+    assert storage_rows(opensim, mot) == 50
     csv = write_angles_csv(
         tmp_path / "a.csv", t, ang, {"knee_flexion_r": "KneeRight", "hip_flexion_r": "HipRight"}
     )
     lines = csv.read_text().splitlines()
-    assert lines[0] == "time_s,joint,angle,degrees"
+    assert lines[0] == "time_s,joint,angle,method,degrees,filled"
     assert len(lines) == 1 + 2 * 50
-    assert lines[-1] == "0.490000,HipRight,hip_flexion_r,"
+    assert lines[-1] == "0.490000,HipRight,hip_flexion_r,functional,,0"
+
+
+def test_mot_with_gaps_loads_whole_in_storage(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Short gaps are filled, long ones cut out: Storage reads every written row."""
+    opensim = pytest.importorskip("opensim", reason="opensim (the test extra) is not installed")
+    from kinefuse.io.formats.angles import plan_mot
+
+    monkeypatch.chdir(tmp_path)
+    t = np.arange(100) / 50.0  # 50 Hz, 2 s
+    a = 10 * np.sin(t)
+    b = 5 * np.cos(t)
+    a[10:14] = np.nan  # 4 frames = 0.08 s: filled
+    b[40:60] = np.nan  # 20 frames = 0.4 s: left out
+    b[0] = np.nan  # an edge: never extrapolated, left out
+    plan = plan_mot(t, {"a": a, "b": b})
+    assert plan.filled == {"a": 4, "b": 0}
+    gap = np.isin(plan.t_s, t[10:14])
+    np.testing.assert_allclose(plan.columns["a"][gap], 10 * np.sin(t[10:14]), atol=0.05)
+    assert plan.rows_left_out == [(0.0, 0.0), (0.8, pytest.approx(1.18))]
+    mot = write_angles_mot(tmp_path / "g.mot", t, {"a": a, "b": b}, plan=plan)
+    _, cols, head = read_angles_mot(mot)
+    assert int(head["nRows"]) == 100 - 21 == storage_rows(opensim, mot)
+    assert opensim.TimeSeriesTable(str(mot)).getNumRows() == 79
+    assert all(np.isfinite(v).all() for v in cols.values())
 
 
 def test_angle_writers_never_overwrite_and_fail_clearly(tmp_path: Path) -> None:

@@ -41,12 +41,16 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 
 
 def load_mot_in_opensim(path: Path, monkeypatch: pytest.MonkeyPatch) -> int:
+    """Rows of a .mot as OpenSim reads it; Storage (which stops at a value it cannot parse)
+    and TimeSeriesTable must both read every row the header declares."""
     opensim = pytest.importorskip("opensim", reason="opensim (the test extra) is not installed")
     monkeypatch.chdir(path.parent)  # OpenSim writes opensim.log into the working folder
     table = opensim.TimeSeriesTable(str(path))
     storage = opensim.Storage(str(path))
     assert storage.isInDegrees()
-    return int(table.getNumRows())
+    n_rows = int(read_angles_mot(path)[2]["nRows"])
+    assert int(storage.getSize()) == int(table.getNumRows()) == n_rows
+    return n_rows
 
 
 #: A static trial: nothing moves, so no axes are learned and every limb says so.
@@ -79,7 +83,11 @@ def test_analyze_every_shared_file(
         assert (out / "angles.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(tmp_path.glob(".out*"))  # the staging folder is gone
     t, ang, head = read_angles_mot(out / "angles.mot")
-    assert int(head["nRows"]) == t.size == report["frames"]
+    mot = report["angles_mot"]
+    assert int(head["nRows"]) == t.size == mot["rows"]
+    for a, b in mot["rows_left_out_s"]:  # the frames left out are not in the file
+        assert not ((t >= a - 1e-6) & (t <= b + 1e-6)).any()
+    assert mot["rows"] == report["frames"] or mot["rows_left_out_s"]
     assert load_mot_in_opensim(out / "angles.mot", monkeypatch) == t.size
     for a in report["axes"].values():
         np.testing.assert_allclose(np.linalg.norm(a, axis=1), 1.0, atol=1e-9)  # unit axes
@@ -96,8 +104,8 @@ def test_analyze_every_shared_file(
         if rel in WALKS:
             assert 25.0 < float(np.ptp(v)) < 100.0  # a gait cycle's swing (degrees)
     csv = (out / "angles.csv").read_text().splitlines()
-    assert csv[0] == "time_s,joint,angle,degrees"
-    assert any(",KneeLeft,knee_flexion_left," in line for line in csv[1:50])
+    assert csv[0] == "time_s,joint,angle,method,degrees,filled"
+    assert any(",KneeLeft,knee_flexion_left,functional," in line for line in csv[1:50])
 
 
 def test_several_takes_report_normalization_consistency(
@@ -139,7 +147,7 @@ def test_rom_session_end_to_end(
     assert set(r["axis_error_by_method_deg"]) == {"dj", "pca", "em"}
     assert {"median", "mean", "by_limb"} <= set(r["axis_error_deg"])
     assert "knee_flexion_left" in r["angle_rmse_deg"]
-    assert load_mot_in_opensim(out / "angles.mot", monkeypatch) == r["frames"]
+    assert load_mot_in_opensim(out / "angles.mot", monkeypatch) == r["angles_mot"]["rows"]
     code, stdout, err = run(capsys, "evaluate", str(s), "--true-calibration", "--methods",
                             "best", "--json")  # fmt: skip
     assert code == 0, err

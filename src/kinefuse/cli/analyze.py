@@ -37,6 +37,27 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         choices=METHODS,
         help="fusion method for sessions (best)",
     )
+    p.add_argument(
+        "--static",
+        type=Path,
+        metavar="STATIC.trc|.c3d",
+        help="static trial: ISB anatomical frames and joint angles beside the functional ones "
+        "(marker files; docs/analysis.md)",
+    )
+    p.add_argument(
+        "--static-window",
+        type=shared.phase,
+        metavar="START_S:END_S",
+        help="the still part of the static trial, or of the input itself when --static is not "
+        "given (seconds)",
+    )
+    p.add_argument(
+        "--names",
+        choices=["kinefuse", "opensim"],
+        default="kinefuse",
+        help="angles.mot columns: kinefuse names (both methods), or the anatomical angles "
+        "under OpenSim's gait-model coordinate names and signs",
+    )
     shared.add_calibration_args(p)
     p.add_argument("--out", type=Path, required=True, help="fresh output folder")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
@@ -61,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
         true_calibration=args.true_calibration,
         plots=not args.no_plots,
         progress=lambda m: print(m, file=sys.stderr),
+        static=args.static,
+        static_window=args.static_window,
+        names=args.names,
     )
     print(json_text(report) if args.json else format_analyze(report))
     return 0

@@ -30,6 +30,9 @@ class AnalysisInput:
     stored_phase_s: tuple[float, float] | None = None  # a session's ROM phase (metadata)
     fusion: dict[str, Any] | None = None  # method, calibration, frames (sessions)
     sensor_poses: dict[str, Array] | None = None  # sensor2world used by the fusion (sessions)
+    anatomical: dict[str, Array] | None = None  # ISB anatomical angles, degrees (static trial)
+    anatomical_status: dict[str, str] | None = None  # segment -> "ok" or why it was skipped
+    static_source: str | None = None  # the static trial used
 
 
 def analyse_sequence(seq: SkeletonSequence, phase: tuple[float, float]) -> dict[str, Any]:

@@ -117,6 +117,8 @@ def load_input(
     method: str = "best",
     calibration: Path | None = None,
     true_calibration: bool = False,
+    static: Path | None = None,
+    static_window: tuple[float, float] | None = None,
 ) -> AnalysisInput:
     """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc)."""
     from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
@@ -132,10 +134,50 @@ def load_input(
         return sequence_from_session(
             path, method=method, calibration=calibration, true_calibration=true_calibration
         )
+    if (static is not None or static_window is not None) and kind != "markers":
+        raise InputError(
+            f"{path}: --static/--static-window are for marker files (.trc, .c3d) so far; a "
+            f"{kind} is analysed with paper B's functional axes only"
+        )
     if kind == "motion":
         return AnalysisInput(path=path, kind=kind, seq=sequence_from_motion_file(path))
+    if static is None and static_window is None:
+        return AnalysisInput(
+            path=path, kind=kind, seq=sequence_from_markers(path, marker_map=marker_map)
+        )
+    return _markers_with_static(path, marker_map, static or path, static_window)
+
+
+def _markers_with_static(
+    path: Path, marker_map: Path | str | None, static: Path, window: tuple[float, float] | None
+) -> AnalysisInput:
+    """A marker file with its static trial: the functional sequence and the anatomical angles."""
+    from kinefuse.analysis.anatomical import anatomical_angles
+    from kinefuse.io.formats.sequences import resolve_marker_input, sequence_from_marker_data
+    from kinefuse.io.formats.static_trial import anatomical_frames, check_static
+
+    if not Path(static).exists():
+        raise InputError(f"{static}: no such static trial")
+    if _kind(Path(static)) != "markers":
+        raise InputError(
+            f"{static}: a static trial is a marker file (.trc, .c3d) here; sessions as static "
+            "trials are not supported yet"
+        )
+    markers, mmap, notes, st = resolve_marker_input(
+        path, marker_map=marker_map, static=static, static_window=window
+    )
+    assert st is not None  # a static path was given
+    check_static(st, markers, mmap)
+    seq = sequence_from_marker_data(markers, mmap, notes)
+    af = anatomical_frames(markers, st, mmap)
+    where = f"{static}" + (f" {window[0]:g}-{window[1]:g} s" if window else "")
     return AnalysisInput(
-        path=path, kind=kind, seq=sequence_from_markers(path, marker_map=marker_map)
+        path=path,
+        kind="markers",
+        seq=seq,
+        anatomical=anatomical_angles(af.frames, af.lab),
+        anatomical_status=af.status,
+        static_source=where,
     )
 
 
@@ -267,6 +309,9 @@ def run_analyze(
     plots: bool = True,
     plot_dpi: int | None = None,
     progress: Callable[[str], None] | None = None,
+    static: Path | None = None,
+    static_window: tuple[float, float] | None = None,
+    names: str = "kinefuse",
 ) -> dict[str, Any]:
     """Analyse one or several inputs into a fresh folder ``out``; returns the report.
 
@@ -291,6 +336,8 @@ def run_analyze(
                 method=method,
                 calibration=calibration if kind == "session" else None,
                 true_calibration=true_calibration and kind == "session",
+                static=static,
+                static_window=static_window,
             )
         )
     check_output_folder(out, "analysis folder")  # fail early, before any work
@@ -298,7 +345,7 @@ def run_analyze(
     # nothing, and only an empty folder or an earlier kinefuse output is ever replaced
     with atomic_dir(out, what="analysis folder") as stage:
         report = _analyse_all(
-            loaded, stage, calibration_phase, plots, true_calibration, say, plot_dpi
+            loaded, stage, calibration_phase, plots, true_calibration, say, plot_dpi, names
         )
         report["out"] = str(out)
         text = json_text(report).replace(str(stage), str(out))
@@ -315,6 +362,7 @@ def _analyse_all(
     true_calibration: bool,
     say: Callable[[str], None],
     plot_dpi: int | None = None,
+    names: str = "kinefuse",
 ) -> dict[str, Any]:
     from kinefuse.workflows.analyze_one import analyse_one, consistency_report
 
@@ -336,6 +384,7 @@ def _analyse_all(
             plots=plots,
             true_calibration=true_calibration,
             plot_dpi=plot_dpi,
+            names=names,
         )
         rep["wall_time_s"] = time.perf_counter() - t0
         reports.append(rep)

@@ -25,9 +25,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.analysis.gaps import fill_short_gaps_all
 from kinefuse.analysis.kinematics import reconstruction_error
 from kinefuse.analysis.limbs import LIMB_NAMES, limb
-from kinefuse.io.formats.angles import write_angles_csv, write_angles_mot
+from kinefuse.io.formats.angles import plan_mot, write_angles_csv, write_angles_mot
 from kinefuse.pipeline.analysis import analyse_sequence
 
 if TYPE_CHECKING:
@@ -90,6 +91,7 @@ def analyse_one(
     plots: bool = True,
     true_calibration: bool = False,
     plot_dpi: int | None = None,
+    names: str = "kinefuse",
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Analyse one input into ``folder`` (which exists and is empty); returns (report, result)."""
     seq = inp.seq
@@ -147,7 +149,18 @@ def analyse_one(
         truth = truth_figures(inp, res, phase, true_calibration=true_calibration)
         if truth is not None:
             report.update(truth["report"])
-    written = _write_outputs(folder, inp, res, plots, truth, plot_dpi)
+    if inp.anatomical is not None:
+        report["anatomical"] = {
+            "static_trial": inp.static_source,
+            "segment_status": inp.anatomical_status,
+            "skipped": {k: v for k, v in (inp.anatomical_status or {}).items() if v != "ok"},
+            "angle_names": sorted(inp.anatomical),
+            "present_fraction": {
+                k: float(np.isfinite(v).mean()) for k, v in sorted(inp.anatomical.items())
+            },
+        }
+    written, mot = _write_outputs(folder, inp, res, plots, truth, plot_dpi, names)
+    report["angles_mot"] = mot
     report["written"] = [str(p) for p in written]
     return report, res
 
@@ -171,20 +184,45 @@ def _write_outputs(
     plots: bool,
     truth: dict[str, Any] | None,
     plot_dpi: int | None = None,
-) -> list[Path]:
+    mot_names: str = "kinefuse",
+) -> tuple[list[Path], dict[str, Any]]:
+    from kinefuse.analysis.anatomical import opensim_angles
     from kinefuse.workflows.analyze import write_limb_frames
 
     seq, norm, named = res["seq"], res["norm"], res["named"]
     t = seq.t_s
     names = sorted(named)
+    filled, flags = fill_short_gaps_all(t, {k: named[k] for k in names})
+    anat, aflags = fill_short_gaps_all(t, inp.anatomical or {})
+    # angles.csv: both methods under their names; the method column tells them apart
+    rows = {f"{k}\tfunctional": v for k, v in filled.items()}
+    rows.update({f"{k}\tanatomical": v for k, v in anat.items()})
+    csv_flags = {f"{k}\tfunctional": v for k, v in flags.items()}
+    csv_flags.update({f"{k}\tanatomical": v for k, v in aflags.items()})
+    if mot_names == "opensim":
+        if inp.anatomical is None:
+            from kinefuse.errors import InputError
+
+            raise InputError(
+                f"{inp.path}: --names opensim writes the anatomical angles, which need a static "
+                "trial (--static STATIC.trc or --static-window START:END)"
+            )
+        mot_cols = opensim_angles(anat)
+    else:
+        mot_cols = dict(filled)
+        mot_cols.update({f"{k}_anatomical": v for k, v in anat.items()})
+    plan = plan_mot(t, mot_cols)
     written = [
         write_angles_csv(
             folder / "angles.csv",
             t,
-            {k: named[k] for k in names},
-            {k: angle_joint(k) for k in names},
+            rows,
+            {k: angle_joint(k.split("\t")[0]) for k in rows},
+            methods={k: k.split("\t")[1] for k in rows},
+            filled=csv_flags,
+            labels={k: k.split("\t")[0] for k in rows},
         ),
-        write_angles_mot(folder / "angles.mot", t, {k: named[k] for k in names}),
+        write_angles_mot(folder / "angles.mot", t, mot_cols, plan=plan),
         write_limb_frames(folder / "limb_frames.csv", t, LIMB_NAMES, norm.transforms()),
     ]
     if plots:
@@ -216,7 +254,7 @@ def _write_outputs(
                 dpi=int(1.3 * plot_dpi) if plot_dpi else 70,
             )
         )
-    return written
+    return written, plan.summary()
 
 
 def consistency_report(results: list[dict[str, Any]]) -> dict[str, Any]:

@@ -1,7 +1,10 @@
 """Joint angles out: ``angles.csv`` (long table) and ``angles.mot`` (OpenSim motion file).
 
-``angles.csv``: a header ``time_s,joint,angle,degrees`` and one row per frame and angle, frames
-in time order and angles in the order given; an empty ``degrees`` cell is a missing value.
+``angles.csv``: a header ``time_s,joint,angle,method,degrees,filled`` and one row per frame and
+angle, frames in time order and angles in the order given; ``method`` is ``functional`` (paper B's
+learned axes) or ``anatomical`` (ISB joint coordinate systems from a static trial); an empty
+``degrees`` cell is a missing value; ``filled`` is 1 where a short gap was filled by
+interpolation (:mod:`kinefuse.analysis.gaps`), else 0.
 
 ``angles.mot``: OpenSim's storage format, as ``opensim.Storage`` and ``TimeSeriesTable`` read it::
 
@@ -15,7 +18,13 @@ in time order and angles in the order given; an empty ``degrees`` cell is a miss
     time<TAB>hip_flexion_r<TAB>...
     0.000000<TAB>12.345678<TAB>...
 
-tab-separated, one row per frame; missing values are written ``NaN`` (OpenSim reads it as NaN).
+tab-separated, one row per written frame. ``opensim.Storage`` stops reading a row at the first
+value it cannot parse (``NaN``: a file with any NaN loads as one or two rows), so the file never
+holds one (:func:`plan_mot`): gaps of at most 0.1 s are filled by linear interpolation
+(:func:`kinefuse.analysis.gaps.fill_short_gaps`); a column with no value, or missing on more than
+half the frames after that, is left out; then every frame still missing a value in a kept column
+is left out (``nRows`` counts the written rows; the time column shows the holes). What was
+filled and left out is returned by :func:`plan_mot` for the report.
 Column names must be OpenSim-safe (letters, digits, ``_``, ``-``, ``.``): no blanks or tabs.
 
 Both writers go through a temporary file and an atomic rename (:mod:`kinefuse.io.outputs`) and
@@ -28,18 +37,21 @@ from __future__ import annotations
 import io
 import re
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse import __version__
+from kinefuse.analysis.gaps import MAX_GAP_S, fill_short_gaps, missing_runs
 from kinefuse.errors import InputError
 from kinefuse.io.outputs import atomic_write_text
 
 #: what each writer's file is, for messages
 _WHAT = {".csv": "angles file", ".mot": "OpenSim motion file"}
-_CSV_HEADER = "time_s,joint,angle,degrees"
+_CSV_HEADER = "time_s,joint,angle,method,degrees,filled"
+_CSV_HEADERS_OURS = (_CSV_HEADER, "time_s,joint,angle,degrees")  # this one and the earlier one
 _MOT_GENERATOR = "kinefuse"
 
 
@@ -47,7 +59,7 @@ def is_angles_csv(path: Path) -> bool:
     """True if ``path`` is an ``angles.csv`` kinefuse wrote (by its header line)."""
     try:
         with Path(path).open(encoding="utf-8") as f:
-            return f.readline().rstrip("\r\n") == _CSV_HEADER
+            return f.readline().rstrip("\r\n") in _CSV_HEADERS_OURS
     except (OSError, UnicodeDecodeError):
         return False
 
@@ -75,8 +87,10 @@ def _write(
 Array = NDArray[np.float64]
 
 __all__ = [
+    "MotPlan",
     "is_angles_csv",
     "is_angles_mot",
+    "plan_mot",
     "read_angles_mot",
     "write_angles_csv",
     "write_angles_mot",
@@ -106,9 +120,13 @@ def write_angles_csv(
     angles_deg: Mapping[str, ArrayLike],
     joints: Mapping[str, str],
     *,
+    methods: Mapping[str, str] | None = None,
+    filled: Mapping[str, ArrayLike] | None = None,
+    labels: Mapping[str, str] | None = None,
     overwrite: bool = False,
 ) -> Path:
-    """Write ``angles.csv``: ``time_s,joint,angle,degrees``, one row per frame and angle.
+    """Write ``angles.csv``: ``time_s,joint,angle,method,degrees,filled``, one row per frame
+    and angle.
 
     Parameters
     ----------
@@ -119,6 +137,13 @@ def write_angles_csv(
         Angle name -> degrees per frame, NaN where missing.
     joints : mapping of str to str
         Angle name -> the joint (or limb) it belongs to.
+    methods : mapping of str to str, optional
+        Angle name -> ``"functional"`` or ``"anatomical"`` (default ``"functional"``).
+    filled : mapping of str to (T,) bool, optional
+        Angle name -> frames whose value was interpolated over a short gap.
+    labels : mapping of str to str, optional
+        Key -> the angle name written (default: the key); lets one name appear under two
+        methods.
     overwrite : bool
         Replace an existing file, only one kinefuse wrote as this kind of file.
 
@@ -127,10 +152,16 @@ def write_angles_csv(
     Path
     """
     t, ang = _check(t_s, angles_deg)
+    meth = {n: (methods or {}).get(n, "functional") for n in ang}
+    fl = {
+        n: np.asarray((filled or {}).get(n, np.zeros(t.shape, bool)), dtype=bool).reshape(t.shape)
+        for n in ang
+    }
     missing = [n for n in ang if n not in joints]
     if missing:
         raise InputError(f"no joint given for angle(s) {', '.join(missing)}")
-    for n in [*ang, *joints.values()]:
+    label = {n: (labels or {}).get(n, n) for n in ang}
+    for n in [*label.values(), *joints.values(), *meth.values()]:
         if any(c in n for c in ',"\n\r'):
             raise InputError(f"angle and joint names cannot hold commas, quotes or newlines: {n!r}")
     buf = io.StringIO()
@@ -138,12 +169,102 @@ def write_angles_csv(
     names = list(ang)
     if names:
         vals = np.stack([ang[n] for n in names], axis=1)  # (T, A)
+        flags = np.stack([fl[n] for n in names], axis=1)
+        heads = [f"{joints[n]},{label[n]},{meth[n]}" for n in names]
         for k in range(t.size):
             tk = f"{t[k]:.6f}"
-            for i, n in enumerate(names):
+            for i, head in enumerate(heads):
                 v = vals[k, i]
-                buf.write(f"{tk},{joints[n]},{n},{'' if not np.isfinite(v) else f'{v:.4f}'}\n")
+                cell = "" if not np.isfinite(v) else f"{v:.4f}"
+                buf.write(f"{tk},{head},{cell},{int(flags[k, i])}\n")
     return _write(path, buf.getvalue(), overwrite, is_angles_csv)
+
+
+@dataclass(frozen=True, eq=False)
+class MotPlan:
+    """What an ``angles.mot`` holds: the rows and columns without a missing value.
+
+    Attributes
+    ----------
+    t_s : (R,) float
+        Times of the written rows, seconds.
+    columns : dict of str to (R,) float
+        The written columns (short gaps filled), degrees.
+    rows_left_out : list of (float, float)
+        Time intervals (first and last left-out frame, seconds) of the frames left out.
+    columns_left_out : dict of str to str
+        Column -> why it was left out.
+    filled : dict of str to int
+        Column -> number of frames filled by interpolation.
+    frames : int
+        Frames given.
+    """
+
+    t_s: Array
+    columns: dict[str, Array]
+    rows_left_out: list[tuple[float, float]] = field(default_factory=list)
+    columns_left_out: dict[str, str] = field(default_factory=dict)
+    filled: dict[str, int] = field(default_factory=dict)
+    frames: int = 0
+
+    def summary(self) -> dict[str, object]:
+        """JSON-able summary for the report."""
+        return {
+            "rows": int(self.t_s.size),
+            "frames": self.frames,
+            "rows_left_out_s": [[a, b] for a, b in self.rows_left_out],
+            "columns_left_out": dict(self.columns_left_out),
+            "filled_frames": {k: v for k, v in self.filled.items() if v},
+            "rule": f"gaps up to {MAX_GAP_S:g} s filled by linear interpolation; columns "
+            "missing on more than half the frames left out; then frames still missing a value "
+            "left out (opensim.Storage cannot read NaN)",
+        }
+
+
+def plan_mot(
+    t_s: ArrayLike, angles_deg: Mapping[str, ArrayLike], *, max_gap_s: float = MAX_GAP_S
+) -> MotPlan:
+    """Rows and columns of a ``.mot`` without missing values (rules in the module docstring).
+
+    Parameters
+    ----------
+    t_s : (T,) float
+        Frame times, seconds, strictly increasing.
+    angles_deg : mapping of str to (T,) float
+        Column name -> degrees per frame, NaN where missing.
+    max_gap_s : float
+        Longest gap filled by interpolation, seconds.
+
+    Returns
+    -------
+    MotPlan
+    """
+    t, ang = _check(t_s, angles_deg)
+    cols: dict[str, Array] = {}
+    left: dict[str, str] = {}
+    filled: dict[str, int] = {}
+    for n, v in ang.items():
+        f, flag = fill_short_gaps(t, v, max_gap_s=max_gap_s)
+        ok = np.isfinite(f)
+        if not ok.any():
+            left[n] = "no value in any frame"
+        elif ok.mean() < 0.5:
+            left[n] = f"missing on {100 * (1 - ok.mean()):.0f} % of the frames"
+        else:
+            cols[n] = f
+            filled[n] = int(flag.sum())
+    keep = np.ones(t.shape, dtype=bool)
+    for v in cols.values():
+        keep &= np.isfinite(v)
+    runs = [(float(t[a]), float(t[b - 1])) for a, b in missing_runs(keep)]
+    return MotPlan(
+        t_s=t[keep],
+        columns={n: v[keep] for n, v in cols.items()},
+        rows_left_out=runs,
+        columns_left_out=left,
+        filled=filled,
+        frames=int(t.size),
+    )
 
 
 def write_angles_mot(
@@ -153,8 +274,12 @@ def write_angles_mot(
     *,
     name: str = "Coordinates",
     overwrite: bool = False,
+    plan: MotPlan | None = None,
 ) -> Path:
     """Write an OpenSim ``.mot`` file of angles in degrees (layout in the module docstring).
+
+    The file holds no missing value, so ``opensim.Storage`` reads every row: short gaps are
+    filled, long ones left out (:func:`plan_mot`; pass its result as ``plan`` to report it).
 
     Parameters
     ----------
@@ -167,6 +292,8 @@ def write_angles_mot(
         The first header line (OpenSim's name of the storage).
     overwrite : bool
         Replace an existing file, only one kinefuse wrote as this kind of file.
+    plan : MotPlan, optional
+        :func:`plan_mot` of the same data (computed here when not given).
 
     Returns
     -------
@@ -179,18 +306,17 @@ def write_angles_mot(
             f"OpenSim column names must be letters, digits, '_', '-', '.' (and not 'time'); "
             f"got {bad}"
         )
-    names = list(ang)
+    pl = plan if plan is not None else plan_mot(t, ang)
+    names = list(pl.columns)
     buf = io.StringIO()
     buf.write(
-        f"{name}\nversion=1\nnRows={t.size}\nnColumns={len(names) + 1}\ninDegrees=yes\n"
+        f"{name}\nversion=1\nnRows={pl.t_s.size}\nnColumns={len(names) + 1}\ninDegrees=yes\n"
         f"generator={_MOT_GENERATOR} {__version__}\nendheader\n"
     )
     buf.write("\t".join(["time", *names]) + "\n")
-    cols = np.stack([t, *(ang[n] for n in names)], axis=1)
+    cols = np.stack([pl.t_s, *(pl.columns[n] for n in names)], axis=1)
     for row in cols:
-        buf.write(
-            "\t".join(["NaN" if not np.isfinite(v) else f"{v:.6f}" for v in row.tolist()]) + "\n"
-        )
+        buf.write("\t".join([f"{v:.6f}" for v in row.tolist()]) + "\n")
     return _write(path, buf.getvalue(), overwrite, is_angles_mot)
 
 

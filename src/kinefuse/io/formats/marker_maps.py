@@ -135,6 +135,8 @@ class MarkerMap:
     description: str = ""
     origin: str = "built-in"
     clusters: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    landmarks: dict[str, tuple[JointRule, str]] = field(default_factory=dict)
+    anatomy: dict[str, tuple[str, str]] = field(default_factory=dict)
 
 
 def _rule_error(where: str, joint: str, message: str) -> InputError:
@@ -193,11 +195,12 @@ def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> Mark
     InputError
         Unknown keys or joints, malformed rules, a hip joint centre without ``[pelvis]``.
     """
-    unknown = sorted(set(data) - {"name", "description", "up", "pelvis", "joints", "clusters"})
+    known = {"name", "description", "up", "pelvis", "joints", "clusters", "landmarks", "anatomy"}
+    unknown = sorted(set(data) - known)
     if unknown:
         raise InputError(
             f"{origin}: unknown keys {unknown}; a marker map has name, description, up, "
-            "[pelvis], [joints] and [clusters]"
+            "[pelvis], [joints], [clusters], [landmarks] and [anatomy]"
         )
     clusters: dict[str, tuple[str, ...]] = {}
     from kinefuse.analysis.limbs import LIMB_NAMES
@@ -210,13 +213,48 @@ def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> Mark
             )
         if (
             not isinstance(names, list)
-            or len(names) != 3
+            or len(names) < 3
             or not all(isinstance(n, str) and n for n in names)
         ):
             raise InputError(
-                f"{origin}: [clusters] {limb_name} must list three marker names, got {names!r}"
+                f"{origin}: [clusters] {limb_name} must list three or more marker names, got "
+                f"{names!r}"
             )
         clusters[limb_name] = tuple(names)
+    landmarks: dict[str, tuple[JointRule, str]] = {}
+    for lm_name, spec in dict(data.get("landmarks", {})).items():
+        if not isinstance(spec, Mapping) or "cluster" not in spec:
+            raise InputError(
+                f"{origin}: [landmarks] {lm_name!r} must be a rule with a cluster, e.g. "
+                '{ mean = ["R.Knee.Lat", "R.Knee.Med"], cluster = "thigh_right" }'
+            )
+        rest = {k: v for k, v in spec.items() if k != "cluster"}
+        cl = spec["cluster"]
+        if cl not in clusters:
+            raise InputError(
+                f"{origin}: [landmarks] {lm_name!r} is held by cluster {cl!r}, which [clusters] "
+                f"does not define (it has: {', '.join(clusters) or 'none'})"
+            )
+        landmarks[str(lm_name)] = (_parse_rule(rest, str(lm_name), origin), str(cl))
+    anatomy: dict[str, tuple[str, str]] = {}
+    anat_keys = {
+        f"{k}_{side}" for k in ("knee_axis", "ankle_axis", "foot", "elbow_axis", "wrist_axis")
+        for side in ("left", "right")
+    }  # fmt: skip
+    for key, names in dict(data.get("anatomy", {})).items():
+        if key not in anat_keys:
+            raise InputError(
+                f"{origin}: [anatomy] {key!r} is not known; the keys are "
+                f"{', '.join(sorted(anat_keys))}"
+            )
+        if not (
+            isinstance(names, list) and len(names) == 2 and all(isinstance(n, str) for n in names)
+        ):
+            raise InputError(
+                f"{origin}: [anatomy] {key} must list two marker names (medial, lateral; for "
+                f"the foot heel, toe), got {names!r}"
+            )
+        anatomy[key] = (names[0], names[1])
     joints_t = data.get("joints")
     if not isinstance(joints_t, Mapping) or not joints_t:
         raise InputError(
@@ -291,6 +329,8 @@ def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> Mark
         description=str(desc),
         origin=origin,
         clusters=clusters,
+        landmarks=landmarks,
+        anatomy=anatomy,
     )
 
 
@@ -342,14 +382,36 @@ class _Finder:
         return self.loose.get(_loose(name))
 
 
-def _resolve(mmap: MarkerMap, finder: _Finder) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
-    """(joint -> the first buildable rule, joint -> missing markers of each alternative)."""
+def _resolve(
+    mmap: MarkerMap, finder: _Finder, static: _Finder | None = None
+) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
+    """(joint -> the first buildable rule, joint -> missing markers of each alternative).
+
+    A landmark counts as present when the file has it, or its rule's markers, or (with the
+    static trial's names ``static``) the static trial has them and the file its cluster."""
     chosen: dict[str, JointRule] = {}
     missing: dict[str, list[str]] = {}
     for joint, rules in mmap.joints.items():
         why = []
         for rule in rules:
             lack = [n for n in rule.marker_names(mmap.pelvis) if finder(n) is None]
+            lack = [n for n in lack if n not in mmap.landmarks]
+            for lm in set(rule.marker_names(mmap.pelvis)) & set(mmap.landmarks):
+                if finder(lm) is not None:
+                    continue
+                lm_rule, cluster = mmap.landmarks[lm]
+                need = lm_rule.marker_names(mmap.pelvis)
+                here = [n for n in need if finder(n) is None]
+                if not here:
+                    continue
+                if static is not None:
+                    there = [n for n in need if static(n) is None]
+                    carrier = [n for n in mmap.clusters[cluster] if finder(n) is None]
+                    if not there and not carrier:
+                        continue
+                    lack += [f"{n} (static trial)" for n in there] + carrier
+                else:
+                    lack += [f"{n} (or a static trial with it)" for n in here]
             if not lack:
                 chosen[joint] = rule
                 break
@@ -359,8 +421,9 @@ def _resolve(mmap: MarkerMap, finder: _Finder) -> tuple[dict[str, JointRule], di
     return chosen, missing
 
 
-def select_marker_map(markers: MarkerData) -> MarkerMap:
-    """The shipped map whose every joint the file's markers can build.
+def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> MarkerMap:
+    """The shipped map whose every joint the file's markers (and the static trial's, for the
+    map's ``[landmarks]``) can build.
 
     Raises
     ------
@@ -368,9 +431,10 @@ def select_marker_map(markers: MarkerData) -> MarkerMap:
         No shipped map fits; names the best candidate's missing markers and how to pass a map.
     """
     finder = _Finder(markers.names)
+    sf = _Finder(static.names) if static is not None else None
     best: tuple[int, MarkerMap, dict[str, list[str]]] | None = None
     for m in shipped_marker_maps().values():
-        chosen, missing = _resolve(m, finder)
+        chosen, missing = _resolve(m, finder, sf)
         if not missing:
             return m
         if best is None or len(chosen) > best[0]:
@@ -380,6 +444,11 @@ def select_marker_map(markers: MarkerData) -> MarkerMap:
         f"{markers.path}: no shipped marker map fits its {len(markers.names)} markers "
         f"({', '.join(markers.names)}). The closest, {best[1].name!r}, lacks "
         + "; ".join(f"{j}: {' | '.join(w)}" for j, w in best[2].items())
+        + ". Per map, the joints it cannot build: "
+        + "; ".join(
+            f"{m.name}: {', '.join(_resolve(m, finder, sf)[1]) or 'none'}"
+            for m in shipped_marker_maps().values()
+        )
         + ". Write a marker map for this marker set and pass it with --map MAP.toml "
         "(docs/analysis.md, 'Marker maps')."
     )
@@ -523,7 +592,7 @@ def cluster_orientations(
     p = markers.positions
     out = []
     for names in mmap.clusters.values():
-        a, b, c = (p[:, int(finder(n) or 0)] for n in names)
+        a, b, c = (p[:, int(finder(n) or 0)] for n in names[:3])  # the first three
         e1 = b - a
         e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
         e3 = np.cross(e1, c - a)

@@ -34,7 +34,7 @@ from kinefuse.io.formats.marker_maps import (
     load_marker_map,
     select_marker_map,
 )
-from kinefuse.io.formats.markers import read_markers
+from kinefuse.io.formats.markers import MarkerData, read_markers
 from kinefuse.motion.source import END_SITE_SUFFIX, SourceMotion, motion_suffix
 from kinefuse.skeleton import JOINTS
 
@@ -122,8 +122,45 @@ def sequence_from_motion_file(
     )
 
 
+def resolve_marker_input(
+    path: str | Path,
+    *,
+    marker_map: MarkerMap | str | Path | None = None,
+    static: str | Path | None = None,
+    static_window: tuple[float, float] | None = None,
+) -> tuple[MarkerData, MarkerMap, tuple[str, ...], MarkerData | None]:
+    """Read a marker file, choose its map and append the map's landmarks (carried from the
+    ``static`` trial, its frames inside ``static_window``, where the file lacks their markers).
+
+    Returns (markers, map, notes, the static trial's window or None), both in the map's axes."""
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+    from kinefuse.io.formats.static_trial import static_window as window_of
+    from kinefuse.io.formats.static_trial import with_landmarks
+
+    markers = read_markers(path)
+    st = None if static is None else window_of(read_markers(static), static_window)
+    if marker_map is None:
+        mmap = select_marker_map(markers, st)
+    elif isinstance(marker_map, MarkerMap):
+        mmap = marker_map
+    else:
+        shipped = shipped_marker_maps()
+        text = str(marker_map)
+        mmap = shipped[text] if text in shipped else load_marker_map(Path(marker_map))
+    if mmap.up is not None:
+        markers = read_markers(path, up=mmap.up)
+        if static is not None:
+            st = window_of(read_markers(static, up=mmap.up), static_window)
+    markers, notes = with_landmarks(markers, mmap, st)
+    return markers, mmap, notes, st
+
+
 def sequence_from_markers(
-    path: str | Path, *, marker_map: MarkerMap | str | Path | None = None
+    path: str | Path,
+    *,
+    marker_map: MarkerMap | str | Path | None = None,
+    static: str | Path | None = None,
+    static_window: tuple[float, float] | None = None,
 ) -> SkeletonSequence:
     """A TRC or C3D marker file as a skeleton sequence through a marker map.
 
@@ -134,6 +171,10 @@ def sequence_from_markers(
     marker_map : MarkerMap, str or Path, optional
         A map, a shipped map's name or a TOML file; default: the shipped map whose joints the
         file's markers all build (:func:`~kinefuse.io.formats.marker_maps.select_marker_map`).
+    static : str or Path, optional
+        The static trial (``.trc``/``.c3d``), for the map's ``[landmarks]``.
+    static_window : (float, float), optional
+        Its still part, seconds (default: all of it).
 
     Returns
     -------
@@ -147,20 +188,18 @@ def sequence_from_markers(
     MotionFormatError
         The file is malformed (with the line).
     """
-    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+    markers, mmap, lm_notes, _ = resolve_marker_input(
+        path, marker_map=marker_map, static=static, static_window=static_window
+    )
+    return sequence_from_marker_data(markers, mmap, lm_notes)
 
-    markers = read_markers(path)
-    if marker_map is None:
-        mmap = select_marker_map(markers)
-    elif isinstance(marker_map, MarkerMap):
-        mmap = marker_map
-    else:
-        shipped = shipped_marker_maps()
-        text = str(marker_map)
-        mmap = shipped[text] if text in shipped else load_marker_map(Path(marker_map))
-    if mmap.up is not None:
-        markers = read_markers(path, up=mmap.up)
+
+def sequence_from_marker_data(
+    markers: MarkerData, mmap: MarkerMap, notes0: tuple[str, ...] = ()
+) -> SkeletonSequence:
+    """:func:`sequence_from_markers` on markers already read (and given their landmarks)."""
     pos, names, notes = apply_marker_map(markers, mmap)
+    notes = (*notes0, *notes)
     limbs, ori = cluster_orientations(markers, mmap)
     if limbs:
         notes = (*notes, f"cluster orientations for {', '.join(limbs)}")

@@ -1,0 +1,465 @@
+"""Anatomical joint angles: ISB segment frames from a static trial, joint coordinate systems.
+
+This is the layer gait labs compare with, beside paper B's functional axes
+(:mod:`kinefuse.analysis.parameterize`), which stay as they are.
+
+Segment frames (ISB: Wu et al. 2002 for the pelvis, hip, knee, ankle and spine; Wu et al. 2005
+for the shoulder and elbow). Every frame is a rotation ``(3, 3)`` whose columns are the
+segment's axes in world coordinates, in the ISB convention: ``X`` anterior, ``Y`` superior (along
+the segment, proximal), ``Z`` to the subject's **right** (on both sides; the left side's angles
+are mirrored by their signs, as ISB and OpenSim do):
+
+* pelvis: origin between the ASIS; ``Z`` from the left to the right ASIS; ``X`` anterior, in the
+  plane of the two ASIS and the PSIS midpoint (or sacral marker), perpendicular to ``Z``;
+  ``Y = Z x X``. From a skeleton (no ASIS): ``Z`` from the left to the right hip centre, ``Y``
+  from their midpoint towards the spine joint above, ``X = Y x Z``.
+* thigh (femur): ``Y`` from the knee centre to the hip centre; ``Z`` perpendicular to it in the
+  plane of ``Y`` and the epicondyles (lateral minus medial on the right, the reverse on the
+  left), so pointing right; ``X = Y x Z``. Without epicondyles: ``Z`` from the pelvis frame.
+* shank (tibia/fibula): ``Y`` from the ankle centre to the knee centre; ``Z`` from the malleoli
+  like the thigh's; ``X = Y x Z``. Without malleoli: ``Z`` from the thigh frame.
+* foot: ``X`` from the heel to the toe, projected onto the floor in the static trial (the foot
+  is taken as flat when standing, as Plug-in Gait's "foot flat" option does), ``Y`` up, ``Z``
+  ``= X x Y``. Dorsiflexion is 0 when that line is perpendicular to the shank's ``Y``.
+* trunk (thorax): ``Y`` from the pelvis origin (or the spine base) to the shoulder midpoint
+  (or the spine joint between the shoulders); ``Z`` along the shoulder line (left to right),
+  perpendicular to ``Y``; ``X = Y x Z``. (ISB's thorax uses C7, T8, IJ and PX; marker sets
+  without them, and skeletons, get this approximation.)
+* upper arm (humerus): ``Y`` from the elbow centre to the shoulder (glenohumeral) centre; ``Z``
+  from the epicondyles like the thigh (ISB 2005, first option); without them from the trunk.
+* forearm: ``Y`` from the wrist centre to the elbow centre; ``Z`` from the styloids (radial
+  minus ulnar on the right); without them from the upper arm.
+
+In the static trial each frame is built from these landmarks and expressed in the segment's
+*tracking frame* (a rigid marker cluster fitted by least squares, or, for skeletons, a frame
+built from the segment's joints); during the motion the tracking frame carries it
+(:func:`carry`). So landmarks only the static trial has (medial knee and ankle markers) define
+the frames of a motion that lacks them (the CAST idea, Cappozzo et al. 1995).
+
+Joint angles (Grood & Suntay 1983, ISB order): the rotation of the distal frame relative to the
+proximal one, ``R = Rp^T Rd``, decomposed ``R = Rz(a) Rx(b) Ry(c)``: ``a`` about the proximal
+segment's ``Z`` (flexion axis), ``b`` about the floating axis, ``c`` about the distal
+segment's ``Y`` (long axis). Pelvis angles use the lab frame as the proximal one: ``X`` the lab
+axis of progression (:func:`lab_frame`), ``Y`` up, ``Z`` to the right of progression. Names,
+signs and zeros: :data:`ANATOMICAL_ANGLES` (the zero of every angle is the pose in which the
+two frames coincide: standing upright with the feet flat for the frames above). The shoulder
+also gets ISB's elevation plane, elevation and axial rotation (``Y-X-Y``, Wu et al. 2005).
+
+Pure numpy; arrays in, arrays out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kinefuse.errors import InputError
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "ANATOMICAL_ANGLES",
+    "OPENSIM_NAMES",
+    "AnatomicalAngle",
+    "anatomical_angles",
+    "carry",
+    "frame_from_long_axis",
+    "jcs_zxy",
+    "lab_frame",
+    "opensim_angles",
+    "pelvis_frame",
+    "pelvis_frame_from_hips",
+    "progression_axis",
+    "rigid_fit",
+    "segment_poses",
+    "shoulder_yxy",
+]
+
+
+def _unit(v: Array) -> Array:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.where(n > 1e-12, n, np.nan)
+
+
+def _stack(x: Array, y: Array, z: Array) -> Array:
+    return np.stack([x, y, z], axis=-1)
+
+
+def frame_from_long_axis(y_axis: ArrayLike, z_hint: ArrayLike) -> Array:
+    """ISB segment frame from its long axis ``Y`` and a right-pointing hint for ``Z``.
+
+    Parameters
+    ----------
+    y_axis : (..., 3) float
+        Direction of the segment's ``Y`` (distal to proximal).
+    z_hint : (..., 3) float
+        A direction roughly to the subject's right (an epicondyle line, a parent's ``Z``).
+
+    Returns
+    -------
+    (..., 3, 3) float
+        Columns ``X = Y x Z`` (anterior), ``Y``, ``Z`` (``Z`` is the hint made perpendicular to
+        ``Y``); NaN where an input is NaN or the two are parallel.
+    """
+    y = _unit(np.asarray(y_axis, dtype=np.float64))
+    zh = np.asarray(z_hint, dtype=np.float64)
+    x = _unit(np.cross(y, zh))
+    z = np.cross(x, y)
+    return _stack(x, y, z)
+
+
+def pelvis_frame(rasis: ArrayLike, lasis: ArrayLike, back: ArrayLike) -> tuple[Array, Array]:
+    """ISB pelvis frame from the ASIS and the PSIS midpoint (or sacral marker).
+
+    Parameters
+    ----------
+    rasis, lasis, back : (..., 3) float
+        Metres, world.
+
+    Returns
+    -------
+    frame : (..., 3, 3) float
+    origin : (..., 3) float
+        The ASIS midpoint.
+    """
+    r, ll, b = (np.asarray(a, dtype=np.float64) for a in (rasis, lasis, back))
+    z = _unit(r - ll)
+    mid = 0.5 * (r + ll)
+    a = mid - b
+    x = _unit(a - (a * z).sum(-1, keepdims=True) * z)
+    return _stack(x, np.cross(z, x), z), mid
+
+
+def pelvis_frame_from_hips(hip_right: ArrayLike, hip_left: ArrayLike, up: ArrayLike) -> Array:
+    """Pelvis frame of a skeleton: ``Z`` left to right hip, ``Y`` towards ``up`` (the spine
+    joint above the hips, as a point), ``X = Y x Z``. Shapes ``(..., 3)`` -> ``(..., 3, 3)``."""
+    hr, hl, u = (np.asarray(a, dtype=np.float64) for a in (hip_right, hip_left, up))
+    z = _unit(hr - hl)
+    y = u - 0.5 * (hr + hl)
+    y = _unit(y - (y * z).sum(-1, keepdims=True) * z)
+    return _stack(np.cross(y, z), y, z)
+
+
+def lab_frame(forward: ArrayLike) -> Array:
+    """The lab frame pelvis angles are measured in: ``X`` = ``forward`` made horizontal, ``Y`` up
+    (world ``+z``), ``Z = X x Y`` (to the right of progression). ``(3,)`` -> ``(3, 3)``."""
+    f = np.asarray(forward, dtype=np.float64).copy()
+    f[2] = 0.0
+    x = _unit(f)
+    y = np.array([0.0, 0.0, 1.0])
+    return _stack(x, y, np.cross(x, y))
+
+
+def progression_axis(displacement: ArrayLike, facing: ArrayLike) -> Array:
+    """The world horizontal axis (``±x`` or ``±y``) closest to the direction of progression.
+
+    ``displacement`` (the pelvis's travel over the trial) decides when it is at least 0.5 m,
+    else ``facing`` (the pelvis's mean forward direction), as Plug-in Gait does. ``(3,)``."""
+    d = np.asarray(displacement, dtype=np.float64)
+    v = d if np.hypot(d[0], d[1]) >= 0.5 else np.asarray(facing, dtype=np.float64)
+    if not np.isfinite(v[:2]).all() or np.hypot(v[0], v[1]) == 0:
+        return np.array([1.0, 0.0, 0.0])
+    k = int(np.argmax(np.abs(v[:2])))
+    out = np.zeros(3)
+    out[k] = np.sign(v[k])
+    return out
+
+
+def rigid_fit(template: ArrayLike, moving: ArrayLike) -> tuple[Array, Array]:
+    """Least-squares rigid transform of a marker cluster (Söderkvist & Wedin 1993), per frame.
+
+    Parameters
+    ----------
+    template : (M, 3) float
+        The cluster's markers in the reference (static) pose; NaN markers are not used.
+    moving : (T, M, 3) float
+        The same markers over time, NaN where missing.
+
+    Returns
+    -------
+    rotation : (T, 3, 3) float
+    translation : (T, 3) float
+        ``moving[t] ≈ rotation[t] @ template + translation[t]``; NaN on frames with fewer than
+        three markers present.
+    """
+    a = np.asarray(template, dtype=np.float64)
+    b = np.asarray(moving, dtype=np.float64)
+    present_a = np.asarray(np.isfinite(a).all(-1))
+    w = (np.isfinite(b).all(-1) & present_a[None, :]).astype(np.float64)  # (T, M)
+    a0 = np.where(np.isfinite(a), a, 0.0)
+    b0 = np.where(np.isfinite(b), b, 0.0)
+    n = w.sum(1)  # (T,)
+    ok = n >= 3
+    ns = np.where(ok, n, 1.0)[:, None]
+    ca = np.einsum("tm,mc->tc", w, a0) / ns
+    cb = np.einsum("tm,tmc->tc", w, b0) / ns
+    h = np.einsum("tm,tmi,tmj->tij", w, a0[None] - ca[:, None], b0 - cb[:, None])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))
+    d = np.where(d == 0, 1.0, d)
+    s = np.ones((b.shape[0], 3))
+    s[:, 2] = d
+    r = np.einsum("tji,tj,tkj->tik", vt, s, u)
+    p = cb - np.einsum("tij,tj->ti", r, ca)
+    r[~ok] = np.nan
+    p[~ok] = np.nan
+    return r, p
+
+
+def carry(static_frame: ArrayLike, static_tracking: ArrayLike, tracking: ArrayLike) -> Array:
+    """An anatomical frame defined in the static trial, carried by the tracking frame.
+
+    Parameters
+    ----------
+    static_frame : (3, 3) float
+        The anatomical frame in the static trial (world).
+    static_tracking : (3, 3) float
+        The tracking frame in the static trial (world); the identity when ``tracking`` is a
+        rotation from the static pose (:func:`rigid_fit`).
+    tracking : (T, 3, 3) float
+        The tracking frame during the motion.
+
+    Returns
+    -------
+    (T, 3, 3) float
+        ``tracking @ static_tracking^T @ static_frame``.
+    """
+    offset = np.asarray(static_tracking, dtype=np.float64).T @ np.asarray(static_frame, float)
+    return np.einsum("tij,jk->tik", np.asarray(tracking, dtype=np.float64), offset)
+
+
+def jcs_zxy(proximal: ArrayLike, distal: ArrayLike) -> tuple[Array, Array, Array]:
+    """Joint coordinate system angles: ``Rp^T Rd = Rz(a) Rx(b) Ry(c)``, radians.
+
+    Parameters
+    ----------
+    proximal, distal : (..., 3, 3) float
+        Segment frames (columns X anterior, Y superior, Z right), world.
+
+    Returns
+    -------
+    a, b, c : (...) float
+        About the proximal ``Z`` (flexion axis), the floating axis, the distal ``Y``.
+    """
+    r = np.einsum("...ji,...jk->...ik", np.asarray(proximal, float), np.asarray(distal, float))
+    b = np.arcsin(np.clip(r[..., 2, 1], -1.0, 1.0))
+    a = np.arctan2(-r[..., 0, 1], r[..., 1, 1])
+    c = np.arctan2(-r[..., 2, 0], r[..., 2, 2])
+    return a, b, c
+
+
+def shoulder_yxy(thorax: ArrayLike, humerus: ArrayLike, right: bool) -> tuple[Array, Array, Array]:
+    """ISB shoulder angles (Wu et al. 2005, humerus relative to thorax), degrees.
+
+    ``Rp^T Rd = Ry(p) Rx(-e) Ry(r)`` on the right; the left side is mirrored through the
+    sagittal plane first (``M R M``, ``M = diag(1, 1, -1)``), so both sides read alike.
+
+    Returns
+    -------
+    plane, elevation, rotation : (...) float
+        The plane of elevation ``p`` (0 lifting out to the side, 90 forward), the elevation
+        ``e >= 0`` (0 hanging), the axial rotation ``r`` (positive internal).
+    """
+    r = np.einsum("...ji,...jk->...ik", np.asarray(thorax, float), np.asarray(humerus, float))
+    if not right:
+        m = np.array([1.0, 1.0, -1.0])
+        r = r * m[:, None] * m[None, :]
+    e = np.arccos(np.clip(r[..., 1, 1], -1.0, 1.0))
+    p = np.arctan2(-r[..., 0, 1], -r[..., 2, 1])
+    rot = np.arctan2(-r[..., 1, 0], r[..., 1, 2])
+    return np.degrees(p), np.degrees(e), np.degrees(rot)
+
+
+@dataclass(frozen=True)
+class AnatomicalAngle:
+    """One anatomical angle: ``sign * component`` of ``jcs_zxy(proximal, distal)``."""
+
+    name: str
+    proximal: str  # segment ("lab" for the pelvis)
+    distal: str
+    component: int  # 0 a (Z), 1 b (floating), 2 c (Y)
+    sign: float
+    meaning: str  # the sign and zero in words
+
+
+def _side_table() -> tuple[AnatomicalAngle, ...]:
+    out: list[AnatomicalAngle] = [
+        AnatomicalAngle("pelvis_tilt", "lab", "pelvis", 0, -1.0,
+                        "positive anterior tilt (the ASIS down); 0 with the ASIS-PSIS plane "
+                        "level"),
+        AnatomicalAngle("pelvis_obliquity", "lab", "pelvis", 1, -1.0,
+                        "positive when the right side is up; 0 level"),
+        AnatomicalAngle("pelvis_rotation", "lab", "pelvis", 2, 1.0,
+                        "positive when the pelvis turns to the left (counterclockwise seen from "
+                        "above); 0 facing the direction of progression"),
+        AnatomicalAngle("trunk_extension", "pelvis", "trunk", 0, 1.0,
+                        "trunk relative to pelvis, positive extension (leaning back)"),
+        AnatomicalAngle("trunk_lateral_bend", "pelvis", "trunk", 1, 1.0,
+                        "positive bending to the right"),
+        AnatomicalAngle("trunk_rotation", "pelvis", "trunk", 2, 1.0,
+                        "positive turning to the left"),
+    ]  # fmt: skip
+    for side, s in (("right", 1.0), ("left", -1.0)):
+        out += [
+            AnatomicalAngle(f"hip_flexion_{side}", "pelvis", f"thigh_{side}", 0, 1.0,
+                            "positive flexion (knee forward); 0 thigh along the pelvis's Y"),
+            AnatomicalAngle(f"hip_adduction_{side}", "pelvis", f"thigh_{side}", 1, s,
+                            "positive adduction (knee towards the midline)"),
+            AnatomicalAngle(f"hip_internal_rotation_{side}", "pelvis", f"thigh_{side}", 2, s,
+                            "positive internal rotation"),
+            AnatomicalAngle(f"knee_flexion_{side}", f"thigh_{side}", f"shank_{side}", 0, -1.0,
+                            "positive flexion; 0 with thigh and shank long axes aligned"),
+            AnatomicalAngle(f"knee_adduction_{side}", f"thigh_{side}", f"shank_{side}", 1, s,
+                            "positive adduction (varus)"),
+            AnatomicalAngle(f"knee_internal_rotation_{side}", f"thigh_{side}", f"shank_{side}",
+                            2, s, "positive internal rotation of the shank"),
+            AnatomicalAngle(f"ankle_dorsiflexion_{side}", f"shank_{side}", f"foot_{side}", 0,
+                            1.0, "positive dorsiflexion; 0 with the heel-toe line at right "
+                            "angles to the shank"),
+            AnatomicalAngle(f"ankle_inversion_{side}", f"shank_{side}", f"foot_{side}", 1, s,
+                            "positive inversion"),
+            AnatomicalAngle(f"shoulder_flexion_{side}", "trunk", f"upper_arm_{side}", 0, 1.0,
+                            "Z-X-Y like the hip: positive flexion (arm forward)"),
+            AnatomicalAngle(f"shoulder_adduction_{side}", "trunk", f"upper_arm_{side}", 1, s,
+                            "positive adduction (negative: abduction)"),
+            AnatomicalAngle(f"shoulder_internal_rotation_{side}", "trunk",
+                            f"upper_arm_{side}", 2, s, "positive internal rotation"),
+            AnatomicalAngle(f"elbow_flexion_{side}", f"upper_arm_{side}", f"forearm_{side}", 0,
+                            1.0, "positive flexion; 0 straight"),
+        ]  # fmt: skip
+    return tuple(out)
+
+
+#: Every anatomical angle: name, segments, component, sign and meaning (zero and sign).
+ANATOMICAL_ANGLES: Final[tuple[AnatomicalAngle, ...]] = _side_table()
+
+#: kinefuse anatomical name -> (OpenSim gait-model coordinate, sign factor). gait2354 (and
+#: gait2392, Rajagopal 2016) define every coordinate as a rotation about the axes above (Z
+#: flexion, X adduction, Y rotation, the left side's X and Y mirrored); knee_angle is negative
+#: in flexion; pelvis_tilt is a rotation about the lab's Z (positive: the pelvis's front up).
+OPENSIM_NAMES: Final[dict[str, tuple[str, float]]] = {
+    "pelvis_tilt": ("pelvis_tilt", -1.0),
+    "pelvis_obliquity": ("pelvis_list", -1.0),
+    "pelvis_rotation": ("pelvis_rotation", 1.0),
+    "trunk_extension": ("lumbar_extension", 1.0),
+    "trunk_lateral_bend": ("lumbar_bending", 1.0),
+    "trunk_rotation": ("lumbar_rotation", 1.0),
+    **{
+        f"{k}_{side}": (f"{v}_{side[0]}", f)
+        for side in ("right", "left")
+        for k, (v, f) in {
+            "hip_flexion": ("hip_flexion", 1.0),
+            "hip_adduction": ("hip_adduction", 1.0),
+            "hip_internal_rotation": ("hip_rotation", 1.0),
+            "knee_flexion": ("knee_angle", -1.0),
+            "ankle_dorsiflexion": ("ankle_angle", 1.0),
+            "shoulder_flexion": ("arm_flex", 1.0),
+            "shoulder_adduction": ("arm_add", 1.0),
+            "shoulder_internal_rotation": ("arm_rot", 1.0),
+            "elbow_flexion": ("elbow_flex", 1.0),
+        }.items()
+    },
+}
+
+
+def anatomical_angles(
+    frames: Mapping[str, Array], lab: ArrayLike | None = None
+) -> dict[str, Array]:
+    """Every angle of :data:`ANATOMICAL_ANGLES` whose two frames are given, degrees.
+
+    Parameters
+    ----------
+    frames : mapping of str to (T, 3, 3) float
+        Segment name (``pelvis``, ``trunk``, ``thigh_left``, ``shank_left``, ``foot_left``,
+        ``upper_arm_left``, ``forearm_left``, and the right side) -> its anatomical frame.
+    lab : (3, 3) float, optional
+        The lab frame of the pelvis angles (:func:`lab_frame`); without it no pelvis angle.
+
+    Returns
+    -------
+    dict of str to (T,) float
+        Degrees, NaN where a frame is NaN. Also ``shoulder_elevation_plane_<side>``,
+        ``shoulder_elevation_<side>``, ``shoulder_axial_rotation_<side>`` (ISB ``Y-X-Y``).
+    """
+    have = dict(frames)
+    if lab is not None:
+        some = next(iter(have.values()), None)
+        if some is None:
+            raise InputError("anatomical_angles needs at least one segment frame")
+        have["lab"] = np.broadcast_to(np.asarray(lab, dtype=np.float64), some.shape)
+    out: dict[str, Array] = {}
+    cache: dict[tuple[str, str], tuple[Array, Array, Array]] = {}
+    for ang in ANATOMICAL_ANGLES:
+        if ang.proximal not in have or ang.distal not in have:
+            continue
+        key = (ang.proximal, ang.distal)
+        if key not in cache:
+            cache[key] = jcs_zxy(have[ang.proximal], have[ang.distal])
+        out[ang.name] = ang.sign * np.degrees(cache[key][ang.component])
+    for side in ("right", "left"):
+        if "trunk" in have and f"upper_arm_{side}" in have:
+            p, e, r = shoulder_yxy(have["trunk"], have[f"upper_arm_{side}"], side == "right")
+            out[f"shoulder_elevation_plane_{side}"] = p
+            out[f"shoulder_elevation_{side}"] = e
+            out[f"shoulder_axial_rotation_{side}"] = r
+    return out
+
+
+def opensim_angles(angles: Mapping[str, Array]) -> dict[str, Array]:
+    """Anatomical angles under OpenSim's gait-model coordinate names and signs (degrees);
+    angles OpenSim's gait models do not have are left out."""
+    return {
+        OPENSIM_NAMES[k][0]: OPENSIM_NAMES[k][1] * np.asarray(v)
+        for k, v in angles.items()
+        if k in OPENSIM_NAMES
+    }
+
+
+def segment_poses(
+    templates: Mapping[str, Array],
+    moving: Mapping[str, Array],
+    joints: Sequence[tuple[str, str, Array]] = (),
+) -> dict[str, tuple[Array, Array]]:
+    """Rigid poses of marker clusters, each held to the joint centres its neighbours carry.
+
+    First every segment is fitted to its own markers (:func:`rigid_fit`). Then each segment is
+    fitted again to its markers **plus** every joint centre it shares with a neighbour, as that
+    neighbour's first fit carries it (the hip centre as the thigh sees it joins the pelvis's
+    markers; the knee centre as the shank sees it joins the thigh's): a joint stays one point for
+    both segments, as a ball joint does in a kinematic model, with the same weight as a marker.
+
+    Parameters
+    ----------
+    templates : mapping of str to (M, 3) float
+        Segment -> its markers in the static trial, metres.
+    moving : mapping of str to (T, M, 3) float
+        Segment -> the same markers during the motion (NaN where missing).
+    joints : sequence of (str, str, (3,) float)
+        ``(segment_a, segment_b, centre in the static trial)`` for each joint two segments share.
+
+    Returns
+    -------
+    dict of str to ((T, 3, 3), (T, 3))
+        Segment -> rotation and translation from the static trial to each frame.
+    """
+    first = {k: rigid_fit(templates[k], moving[k]) for k in templates}
+    out: dict[str, tuple[Array, Array]] = {}
+    for seg in templates:
+        tm = [np.asarray(templates[seg], dtype=np.float64)]
+        mv = [np.asarray(moving[seg], dtype=np.float64)]
+        for a, b, c in joints:
+            other = b if a == seg else a if b == seg else None
+            if other is None or other not in first:
+                continue
+            r, p = first[other]
+            tm.append(np.asarray(c, dtype=np.float64)[None])
+            mv.append((np.einsum("tij,j->ti", r, c) + p)[:, None])
+        out[seg] = (
+            rigid_fit(np.concatenate(tm), np.concatenate(mv, axis=1)) if len(tm) > 1 else first[seg]
+        )
+    return out

@@ -1,0 +1,341 @@
+"""A static trial: landmarks carried by marker clusters, ISB segment frames, and its checks.
+
+The map's ``[landmarks]`` (virtual markers: joint centres, epicondyle midpoints) are computed
+by their rule in the static trial and expressed in the frame of the named ``[clusters]`` entry
+(a least-squares rigid fit of all its markers, :func:`kinefuse.analysis.anatomical.rigid_fit`);
+during the motion the cluster carries them. A motion file with thigh and shank clusters but no
+knee markers so reaches the knee centre (the CAST idea).
+
+The anatomical frames (:mod:`kinefuse.analysis.anatomical`) are built in the static trial from
+the map's joint centres (Kinect joints ``HipRight``, ``KneeRight``, ...) and its ``[anatomy]``
+axis landmarks, and carried by the segment's cluster; every cluster is fitted to its own markers
+plus the joint centres its neighbours carry (:func:`~kinefuse.analysis.anatomical.segment_poses`).
+
+Checks (each an :class:`~kinefuse.errors.InputError` naming what came and what to do):
+
+* the static trial has every marker the landmarks, clusters and joints need;
+* it is of the same marker set (the motion's cluster markers are all in it) and subject: the
+  distance between every two markers of one pelvis, thigh, shank or foot cluster differs by at
+  most 10 % between the two trials (the median over frames of each; the trunk's and arms'
+  markers move with the shoulders, so they are not compared);
+* the subject stands still: no marker of those clusters moves more than 30 mm from its median
+  position over the static window (the largest is named).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinefuse.analysis import anatomical as an
+from kinefuse.analysis.limbs import limb
+from kinefuse.errors import InputError
+from kinefuse.io.formats.marker_maps import (
+    JointRule,
+    MarkerMap,
+    _Finder,
+    apply_marker_map,
+    hip_joint_centres,
+)
+from kinefuse.io.formats.markers import MarkerData
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "MAX_LENGTH_CHANGE",
+    "MAX_STATIC_MOTION_M",
+    "AnatomicalFrames",
+    "anatomical_frames",
+    "static_window",
+    "with_landmarks",
+]
+
+#: Largest relative change of an inter-marker distance between the static trial and the motion.
+MAX_LENGTH_CHANGE = 0.10
+#: Largest distance of a cluster marker from its median position in the static trial, metres.
+MAX_STATIC_MOTION_M = 0.030
+
+_LEG = ("thigh", "shank", "foot")
+#: clusters the checks compare (rigid enough: the trunk's and arms' markers move with the arms)
+_RIGID = ("pelvis", *_LEG)
+_ARM = ("upper_arm", "forearm")
+
+
+def static_window(markers: MarkerData, window: tuple[float, float] | None) -> MarkerData:
+    """The frames of ``markers`` inside ``window`` (seconds; all frames when None)."""
+    if window is None:
+        return markers
+    lo, hi = window
+    sel = (markers.t_s >= lo) & (markers.t_s <= hi)
+    if sel.sum() < 1:
+        raise InputError(
+            f"{markers.path}: the static window {lo:g}:{hi:g} s holds no frame (the file runs "
+            f"{markers.t_s[0]:.2f} to {markers.t_s[-1]:.2f} s); give START:END inside it"
+        )
+    return replace(markers, positions=markers.positions[sel], t_s=markers.t_s[sel])
+
+
+def _rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array | None:
+    """(T, 3) of a rule on ``markers``, None when a marker is missing from the file."""
+    f = _Finder(markers.names)
+    p = markers.positions
+    if rule.kind == "hjc":
+        pv = mmap.pelvis
+        assert pv is not None  # parse_marker_map checks it
+        cols = [f(n) for n in pv.marker_names()]
+        if any(c is None for c in cols):
+            return None
+        ci = [int(c) for c in cols if c is not None]
+        back = p[:, ci[2]] if pv.sacrum else 0.5 * (p[:, ci[2]] + p[:, ci[3]])
+        left, right = hip_joint_centres(p[:, ci[0]], p[:, ci[1]], back, pv.method)
+        return left if rule.side == "left" else right
+    idx = [f(n) for n, _ in rule.markers]
+    if any(i is None for i in idx):
+        return None
+    w = np.array([wt for _, wt in rule.markers])
+    return np.einsum("tkc,k->tc", p[:, [int(i) for i in idx if i is not None]], w)
+
+
+def _cluster_points(markers: MarkerData, names: tuple[str, ...]) -> Array | None:
+    f = _Finder(markers.names)
+    idx = [f(n) for n in names]
+    if any(i is None for i in idx):
+        return None
+    return markers.positions[:, [int(i) for i in idx if i is not None]]
+
+
+def _median(p: Array) -> Array:
+    return np.asarray(np.nanmedian(p, axis=0), dtype=np.float64)
+
+
+def check_static(static: MarkerData, motion: MarkerData, mmap: MarkerMap) -> None:
+    """Refuse a static trial of another marker set or subject, or one in which the subject
+    moves (rules in the module docstring)."""
+    sf, mf = _Finder(static.names), _Finder(motion.names)
+    wanted = {n for names in mmap.clusters.values() for n in names}
+    lack = sorted(n for n in wanted if mf(n) is not None and sf(n) is None)
+    if lack:
+        raise InputError(
+            f"{static.path}: not a static trial of this marker set: it lacks the cluster markers "
+            f"{', '.join(lack)} that {motion.path} has. Give the static trial recorded with the "
+            "same markers"
+        )
+    worst = (0.0, "")
+    for seg, names in mmap.clusters.items():
+        if not seg.startswith(_RIGID):
+            continue  # markers over the shoulder girdle move with the arms: not a rigid body
+        ps = _cluster_points(static, names)
+        pm = _cluster_points(motion, names)
+        if ps is None or pm is None:
+            continue
+        med = _median(ps)
+        d = np.linalg.norm(ps - med[None], axis=-1)
+        if np.isfinite(d).any():
+            k = int(np.nanargmax(np.nanmax(d, axis=0)))
+            dmax = float(np.nanmax(d[:, k]))
+            if dmax > worst[0]:
+                worst = (dmax, names[k])
+        for i in range(len(names)):
+            for j in range(i + 1, len(names)):
+                ls = float(np.nanmedian(np.linalg.norm(ps[:, i] - ps[:, j], axis=-1)))
+                lm = float(np.nanmedian(np.linalg.norm(pm[:, i] - pm[:, j], axis=-1)))
+                if np.isfinite(ls) and np.isfinite(lm) and abs(lm - ls) > MAX_LENGTH_CHANGE * ls:
+                    raise InputError(
+                        f"{static.path}: not a static trial of this subject: on the {seg} the "
+                        f"distance {names[i]}-{names[j]} is {1e3 * ls:.0f} mm, in "
+                        f"{motion.path} {1e3 * lm:.0f} mm (more than "
+                        f"{100 * MAX_LENGTH_CHANGE:.0f} % apart). Give this subject's static trial"
+                    )
+    if worst[0] > MAX_STATIC_MOTION_M:
+        raise InputError(
+            f"{static.path}: the subject moves during the static trial: marker {worst[1]} goes "
+            f"{1e3 * worst[0]:.0f} mm from its median position (at most "
+            f"{1e3 * MAX_STATIC_MOTION_M:.0f} mm allowed). Choose a still part with "
+            "--static-window START:END or STATIC.trc:START:END"
+        )
+
+
+def with_landmarks(
+    markers: MarkerData, mmap: MarkerMap, static: MarkerData | None = None
+) -> tuple[MarkerData, tuple[str, ...]]:
+    """``markers`` with the map's ``[landmarks]`` appended as virtual markers.
+
+    A landmark whose rule's markers the file has is computed from them; else, with a static
+    trial, it is computed there and carried by its cluster; else it is left out (a joint that
+    needs it then fails naming the markers). Returns the markers and notes.
+    """
+    names = list(markers.names)
+    cols = [markers.positions]
+    notes = []
+    f = _Finder(markers.names)
+    for lm, (rule, cluster) in mmap.landmarks.items():
+        if f(lm) is not None:
+            continue
+        direct = _rule_points(markers, rule, mmap)
+        if direct is not None and static is None:
+            names.append(lm)
+            cols.append(direct[:, None])
+            continue
+        if static is None:
+            continue
+        ps = _rule_points(static, rule, mmap)
+        if ps is None:
+            need = [n for n in rule.marker_names(mmap.pelvis) if _Finder(static.names)(n) is None]
+            raise InputError(
+                f"{static.path}: the landmark rule {lm!r} needs the markers {', '.join(need)}, "
+                "which the static trial does not have. Give a static trial with them, or fix "
+                "the map's [landmarks]"
+            )
+        tmpl = _cluster_points(static, mmap.clusters[cluster])
+        mov = _cluster_points(markers, mmap.clusters[cluster])
+        if tmpl is None or mov is None:
+            where = static.path if tmpl is None else markers.path
+            raise InputError(
+                f"{where}: the landmark {lm!r} is carried by cluster {cluster} "
+                f"({', '.join(mmap.clusters[cluster])}), whose markers this file lacks"
+            )
+        r, p = an.rigid_fit(_median(tmpl), mov)
+        carried = np.einsum("tij,j->ti", r, _median(ps)) + p
+        names.append(lm)
+        cols.append(carried[:, None])
+        notes.append(f"{lm} from the static trial, carried by {cluster}")
+    out = replace(markers, names=tuple(names), positions=np.concatenate(cols, axis=1))
+    return out, tuple(notes)
+
+
+@dataclass(frozen=True, eq=False)
+class AnatomicalFrames:
+    """ISB segment frames over the motion, the lab frame, and what was skipped and why."""
+
+    frames: dict[str, Array]  # segment -> (T, 3, 3)
+    lab: Array  # (3, 3)
+    status: dict[str, str] = field(default_factory=dict)  # segment -> "ok" or the reason
+
+
+def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Array | None:
+    pair = mmap.anatomy.get(f"{key}_{side}")
+    if pair is None:
+        return None
+    pts = _cluster_points(static, pair)
+    if pts is None:
+        raise InputError(
+            f"{static.path}: [anatomy] {key}_{side} needs the markers {', '.join(pair)}, which "
+            "the static trial does not have"
+        )
+    a, b = _median(pts[:, 0]), _median(pts[:, 1])
+    d = b - a  # medial -> lateral (heel -> toe for the foot)
+    return d if side == "right" or key == "foot" else -d
+
+
+def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -> AnatomicalFrames:
+    """ISB frames of every segment the map and the files allow (module docstring).
+
+    Parameters
+    ----------
+    motion, static : MarkerData
+        The motion (with the map's landmarks appended, :func:`with_landmarks`) and the static
+        trial (its still window).
+    mmap : MarkerMap
+
+    Returns
+    -------
+    AnatomicalFrames
+    """
+    st_aug, _ = with_landmarks(static, mmap, None)
+    pos, jn, _ = apply_marker_map(st_aug, mmap)
+    jp = {n: _median(pos[:, i]) for i, n in enumerate(jn)}
+    status: dict[str, str] = {}
+    static_frames: dict[str, Array] = {}
+    up = np.array([0.0, 0.0, 1.0])
+    pv = mmap.pelvis
+    pelvis_pts = None if pv is None else _cluster_points(static, pv.marker_names())
+    if pv is not None and pelvis_pts is not None:
+        pts = [_median(pelvis_pts[:, k]) for k in range(pelvis_pts.shape[1])]
+        back = pts[2] if pv.sacrum else 0.5 * (pts[2] + pts[3])
+        static_frames["pelvis"], _ = an.pelvis_frame(pts[0], pts[1], back)
+    elif {"HipLeft", "HipRight", "SpineMid"} <= set(jp):
+        static_frames["pelvis"] = an.pelvis_frame_from_hips(jp["HipRight"], jp["HipLeft"],
+                                                            jp["SpineMid"])  # fmt: skip
+    else:
+        status["pelvis"] = "skipped: no pelvis markers ([pelvis]) and no hip joints in the map"
+    if {"SpineBase", "SpineShoulder", "ShoulderLeft", "ShoulderRight"} <= set(jp):
+        static_frames["trunk"] = an.frame_from_long_axis(
+            jp["SpineShoulder"] - jp["SpineBase"], jp["ShoulderRight"] - jp["ShoulderLeft"]
+        )
+    else:
+        status["trunk"] = "skipped: the map has no SpineShoulder and shoulders"
+    for side in ("right", "left"):
+        cap = side.capitalize()
+        hip, knee, ankle = (jp.get(f"{j}{cap}") for j in ("Hip", "Knee", "Ankle"))
+        pz = static_frames.get("pelvis", np.eye(3))[:, 2]
+        if hip is not None and knee is not None:
+            h = _axis_hint(static, mmap, "knee_axis", side)
+            static_frames[f"thigh_{side}"] = an.frame_from_long_axis(
+                hip - knee, h if h is not None else pz
+            )
+        if knee is not None and ankle is not None:
+            h = _axis_hint(static, mmap, "ankle_axis", side)
+            tz = static_frames.get(f"thigh_{side}", np.eye(3))[:, 2]
+            static_frames[f"shank_{side}"] = an.frame_from_long_axis(
+                knee - ankle, h if h is not None else tz
+            )
+        foot = _axis_hint(static, mmap, "foot", side)
+        if foot is not None:
+            x = foot * np.array([1.0, 1.0, 0.0])
+            x = x / np.linalg.norm(x)
+            static_frames[f"foot_{side}"] = np.stack([x, up, np.cross(x, up)], axis=-1)
+        sh, el, wr = (jp.get(f"{j}{cap}") for j in ("Shoulder", "Elbow", "Wrist"))
+        trz = static_frames.get("trunk", np.eye(3))[:, 2]
+        if sh is not None and el is not None:
+            h = _axis_hint(static, mmap, "elbow_axis", side)
+            static_frames[f"upper_arm_{side}"] = an.frame_from_long_axis(
+                sh - el, h if h is not None else trz
+            )
+        if el is not None and wr is not None:
+            h = _axis_hint(static, mmap, "wrist_axis", side)
+            uz = static_frames.get(f"upper_arm_{side}", np.eye(3))[:, 2]
+            static_frames[f"forearm_{side}"] = an.frame_from_long_axis(
+                el - wr, h if h is not None else uz
+            )
+    templates: dict[str, Array] = {}
+    moving: dict[str, Array] = {}
+    for seg in list(static_frames):
+        names = mmap.clusters.get(seg)
+        if names is None:
+            status[seg] = "skipped: the map gives this segment no marker cluster ([clusters])"
+            del static_frames[seg]
+            continue
+        ts, tm = _cluster_points(static, names), _cluster_points(motion, names)
+        if ts is None or tm is None:
+            where = static.path if ts is None else motion.path
+            status[seg] = f"skipped: {where} lacks markers of its cluster ({', '.join(names)})"
+            del static_frames[seg]
+            continue
+        templates[seg], moving[seg] = _median(ts), tm
+    joints = []
+    for seg in templates:
+        if seg in ("pelvis", "trunk"):
+            continue
+        lb = limb(seg)
+        if lb.parent in templates and lb.proximal in jp:
+            joints.append((lb.parent, seg, jp[lb.proximal]))
+    poses = an.segment_poses(templates, moving, joints)
+    frames = {seg: an.carry(static_frames[seg], np.eye(3), poses[seg][0]) for seg in templates}
+    for seg in frames:
+        status[seg] = "ok"
+    for kind in (*_LEG, *_ARM):
+        for side in ("right", "left"):
+            seg = f"{kind}_{side}"
+            status.setdefault(seg, "skipped: the map or the files do not give its joint centres")
+    # the lab: the horizontal world axis of progression (pelvis travel; else its facing)
+    if "pelvis" in frames:
+        tr = poses["pelvis"][1]
+        ok = np.flatnonzero(np.isfinite(tr).all(-1))
+        disp = tr[ok[-1]] - tr[ok[0]] if ok.size else np.zeros(3)
+        facing = np.nanmean(frames["pelvis"][:, :, 0], axis=0)
+        lab = an.lab_frame(an.progression_axis(disp, facing))
+    else:
+        lab = an.lab_frame(np.array([1.0, 0.0, 0.0]))
+    return AnatomicalFrames(frames=frames, lab=lab, status=status)

@@ -1,0 +1,125 @@
+"""Anatomical angles (issue 20): the standing comparison with OpenSim's IK, the static trial's
+checks, and the math of the joint coordinate systems."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinefuse.analysis import anatomical as an
+from kinefuse.errors import InputError
+from kinefuse.geometry.rotations import rot_x, rot_y, rot_z
+
+GAIT = "markers/opensim/Pipelines_Gait2354_Simbody_"
+
+
+def test_jcs_round_trip(rng: np.random.Generator) -> None:
+    prox = rot_z(0.3) @ rot_x(-0.2)
+    for _ in range(20):
+        a, b, c = rng.uniform(-1.2, 1.2), rng.uniform(-0.6, 0.6), rng.uniform(-1.2, 1.2)
+        dist = prox @ rot_z(a) @ rot_x(b) @ rot_y(c)
+        got = an.jcs_zxy(prox, dist)
+        np.testing.assert_allclose(got, (a, b, c), atol=1e-9)  # radians
+
+
+def test_rigid_fit_recovers_a_known_motion(rng: np.random.Generator) -> None:
+    tmpl = rng.normal(size=(5, 3)) * 0.1
+    r = rot_z(0.7) @ rot_x(0.2)
+    moving = (tmpl @ r.T + [1.0, 2.0, 0.5])[None].repeat(3, 0)
+    moving[1, 0] = np.nan  # a missing marker: fitted on the other four
+    moving[2, :3] = np.nan  # two markers left: no fit
+    rot, tr = an.rigid_fit(tmpl, moving)
+    np.testing.assert_allclose(rot[:2], np.stack([r, r]), atol=1e-9)
+    np.testing.assert_allclose(tr[0], [1.0, 2.0, 0.5], atol=1e-9)  # metres
+    assert np.isnan(rot[2]).all()
+
+
+def test_hip_signs_follow_isb_on_both_sides() -> None:
+    pelvis = np.eye(3)[None]
+    flex = rot_z(np.radians(30))[None]  # knee forward
+    out = an.anatomical_angles({"pelvis": pelvis, "thigh_right": flex, "thigh_left": flex})
+    assert out["hip_flexion_right"][0] == pytest.approx(30) == out["hip_flexion_left"][0]
+    # the right thigh's distal end to the left (medial): right adduction; left abduction
+    add = rot_x(np.radians(10))[None]
+    out = an.anatomical_angles({"pelvis": pelvis, "thigh_right": add, "thigh_left": add})
+    assert out["hip_adduction_right"][0] == pytest.approx(10)
+    assert out["hip_adduction_left"][0] == pytest.approx(-10)
+    knee = an.anatomical_angles({"thigh_right": np.eye(3)[None], "shank_right": rot_z(-0.5)[None]})
+    assert knee["knee_flexion_right"][0] == pytest.approx(np.degrees(0.5))
+    assert an.opensim_angles(knee)["knee_angle_r"][0] == pytest.approx(-np.degrees(0.5))
+
+
+def _analyse(shared_data: Path, tmp_path: Path, walk: str, static: str, **kw: object) -> Path:
+    from kinefuse.workflows.analyze import run_analyze
+
+    out = tmp_path / "out"
+    run_analyze([shared_data / walk], out=out, static=shared_data / static, plots=False, **kw)
+    return out
+
+
+def test_gait2354_walk_against_opensim_ik(
+    shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 20's thresholds; nothing is fitted to this walk (ISB, Harrington, OpenSim's axes)."""
+    opensim = pytest.importorskip("opensim", reason="opensim (the test extra) is not installed")
+    from kinefuse.evaluation.opensim_ik import compare_with_ik
+    from kinefuse.io.formats.angles import read_angles_mot
+
+    out = _analyse(shared_data, tmp_path, f"{GAIT}subject01_walk1.trc",
+                   f"{GAIT}subject01_static.trc", names="opensim")  # fmt: skip
+    c = compare_with_ik(out / "angles.mot",
+                        shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot")  # fmt: skip
+    for s in "rl":
+        for n in (f"hip_flexion_{s}", f"knee_angle_{s}"):
+            assert c[n]["r"] >= 0.97, (n, c[n])
+            assert abs(c[n]["offset_deg"]) <= 5.0, (n, c[n])  # degrees
+            assert c[n]["rms_after_offset_deg"] <= 4.0, (n, c[n])
+        n = f"ankle_angle_{s}"
+        assert c[n]["r"] >= 0.9 and c[n]["rms_after_offset_deg"] <= 5.0, (n, c[n])
+        n = f"hip_adduction_{s}"
+        assert c[n]["present"] >= 0.95 and c[n]["r"] >= 0.7, (n, c[n])
+        assert c[n]["rms_after_offset_deg"] <= 4.0, (n, c[n])
+    for n in ("pelvis_list", "pelvis_rotation"):
+        assert c[n]["r"] >= 0.7, (n, c[n])
+    monkeypatch.chdir(tmp_path)  # OpenSim writes opensim.log into the working folder
+    mot = out / "angles.mot"
+    n_rows = int(read_angles_mot(mot)[2]["nRows"])
+    assert opensim.Storage(str(mot)).getSize() == n_rows == 151
+    assert opensim.TimeSeriesTable(str(mot)).getNumRows() == n_rows
+    csv = (out / "angles.csv").read_text().splitlines()
+    assert any(",hip_flexion_right,anatomical," in ln for ln in csv[:200])
+    assert any(",hip_flexion_right,functional," in ln for ln in csv[:200])
+
+
+def test_walk_without_its_static_trial_names_the_missing_knee_markers(
+    shared_data: Path,
+) -> None:
+    from kinefuse.io.formats.sequences import sequence_from_markers
+
+    with pytest.raises(InputError, match=r"R\.Knee\.Lat.*static trial"):
+        sequence_from_markers(shared_data / f"{GAIT}subject01_walk1.trc", marker_map="gait2354")
+
+
+def test_static_trial_of_another_marker_set_names_the_rule_and_markers(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    with pytest.raises(InputError, match=r"landmark rule 'R\.KJC' needs the markers R\.Knee\.Lat"):
+        _analyse(shared_data, tmp_path, f"{GAIT}subject01_walk1.trc",
+                 "markers/opensim/Pipelines_Rajagopal_ExpData_static_walk_1.trc",
+                 marker_map="gait2354")  # fmt: skip
+
+
+def test_a_moving_static_trial_is_refused_with_the_motion(shared_data: Path) -> None:
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+    from kinefuse.io.formats.markers import read_markers
+    from kinefuse.io.formats.static_trial import check_static
+
+    walk = read_markers(shared_data / f"{GAIT}subject01_walk1.trc", up="+y")
+    static = read_markers(shared_data / f"{GAIT}subject01_static.trc", up="+y")
+    mmap = shipped_marker_maps()["gait2354"]
+    check_static(static, walk, mmap)  # the real static trial passes
+    # the walk given as the static trial: the subject walks
+    with pytest.raises(InputError, match=r"moves during the static trial: marker .* \d+ mm"):
+        check_static(walk, walk, mmap)
