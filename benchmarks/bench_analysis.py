@@ -4,6 +4,10 @@
     python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
         [--no-subject-bias]
     python benchmarks/bench_analysis.py floor [--subjects 10] [--segment-fixed] [--json F]
+    python benchmarks/bench_analysis.py --smoke [MODE]
+
+``--smoke``: every mode (or MODE) on tiny inputs, through the same code, to check that it runs
+(seconds; the figures are then not the ones to quote).
 
 ``speed``: a full body (13 limbs) normalized and parameterized (angles and twist) for 24,000
 frames on one core, against a straightforward per-frame implementation of the same math
@@ -166,7 +170,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     from kinefuse.sim.rig import default_rig, load_rig
 
     d, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed)
-    cal_s = 15.0
+    cal_s = args.wand_s
     phase = (cal_s, cal_s + rom.duration_s)
     walk = (cal_s + walk[0], cal_s + walk[1])
     rigs = [
@@ -497,9 +501,19 @@ def speed(args: argparse.Namespace) -> dict[str, object]:
     return out
 
 
+#: ``--smoke``: each mode's options for a run of seconds (55 s is about the shortest ROM phase
+#: the generator accepts; one take, so the consistency across takes is not computed)
+SMOKE = {
+    "speed": ["--frames", "600", "--baseline-frames", "20"],
+    "accuracy": ["--rom-s", "55", "--takes", "1", "--wand-s", "6"],
+    "floor": ["--rom-s", "55", "--subjects", "1"],
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    sub = ap.add_subparsers(dest="mode", required=True)
+    ap.add_argument("--smoke", action="store_true", help="every mode (or MODE) on tiny inputs")
+    sub = ap.add_subparsers(dest="mode")
     sp = sub.add_parser("speed")
     sp.add_argument("--frames", type=int, default=24000)
     sp.add_argument("--baseline-frames", type=int, default=1000)
@@ -507,6 +521,7 @@ def main(argv: list[str] | None = None) -> int:
     ac.add_argument("--rom-s", type=float, default=120.0)
     ac.add_argument("--seed", type=int, default=0)
     ac.add_argument("--takes", type=int, default=3)
+    ac.add_argument("--wand-s", type=float, default=15.0, help="wand phase before the ROM, s")
     ac.add_argument("--save", type=Path, default=None, help="folder for the takes' arrays")
     ac.add_argument("--no-subject-bias", action="store_true",
                     help="simulate a tracker whose joint definitions are the truth's (no "
@@ -520,7 +535,15 @@ def main(argv: list[str] | None = None) -> int:
     for p in (sp, ac, fl):
         p.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    report = {"speed": speed, "accuracy": accuracy, "floor": floor}[args.mode](args)
+    modes = {"speed": speed, "accuracy": accuracy, "floor": floor}
+    if args.smoke:
+        for mode in [args.mode] if args.mode else list(modes):
+            print(f"== {mode} (smoke)", flush=True)
+            modes[mode](ap.parse_args([mode, *SMOKE[mode]]))
+        return 0
+    if args.mode is None:
+        ap.error("a mode is required: speed, accuracy or floor (or --smoke)")
+    report = modes[args.mode](args)
     if args.json is not None:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0

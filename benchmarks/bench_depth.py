@@ -1,6 +1,7 @@
 """Depth rendering speed: one 512x424 Kinect v2 frame of the full lab (room + person + wand).
 
-Run: ``python benchmarks/bench_depth.py``. Prints the median ms per frame over 30 frames on one
+Run: ``python benchmarks/bench_depth.py [--smoke]`` (``--smoke``: 3 frames and one naive frame,
+to check that it runs; too few to quote). Prints the median ms per frame over 30 frames on one
 core for the noisy ``render_depth`` (target: under 50 ms), the noise-free ``render_depth_m``, the
 first frame of a new sensor pose (the room is cast once per pose and cached), and a naive
 baseline that tests all pixels against all capsules with ``kinefuse.geometry.raycast`` in the
@@ -15,6 +16,7 @@ os.environ["OMP_NUM_THREADS"] = "1"
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 os.environ["MKL_NUM_THREADS"] = "1"
 
+import argparse
 import time
 
 import numpy as np
@@ -22,7 +24,7 @@ import numpy as np
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.geometry.raycast import ray_capsules, ray_plane
 from kinefuse.geometry.transforms import look_at
-from kinefuse.sim import depth
+from kinefuse.sim import depth_raycast
 from kinefuse.sim.depth import (
     Scene,
     render_depth,
@@ -84,6 +86,11 @@ def median_ms(fn, n: int) -> tuple[float, list[float]]:
 
 
 def main() -> None:
+    global FRAMES, BASELINE_FRAMES
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--smoke", action="store_true", help="3 frames (seconds to run)")
+    if ap.parse_args().smoke:
+        FRAMES, BASELINE_FRAMES = 3, 1
     intr = Intrinsics()
     s2w = look_at((2.5, 0.4, 1.1), (0.0, 0.0, 1.0))
     rng = np.random.default_rng(0)
@@ -93,10 +100,10 @@ def main() -> None:
     clean, _ = median_ms(lambda k: render_depth_m(scene_at(k), s2w, intr), FRAMES)
 
     def cold(k: int) -> None:
-        depth._room_cached.cache_clear()
+        depth_raycast._room_cached.cache_clear()
         render_depth(scene_at(k), s2w, intr, rng)
 
-    first, _ = median_ms(cold, 5)
+    first, _ = median_ms(cold, min(5, FRAMES))
     baseline, _ = median_ms(lambda k: naive_depth(scene_at(k), s2w, intr), BASELINE_FRAMES)
 
     geo = render_geometry(scene_at(0), s2w, intr)
@@ -106,7 +113,7 @@ def main() -> None:
     max_diff = float(np.abs(ref[fin] - geo.z_m[fin]).max())
     body_px = int((geo.label >= 3).sum())
     scene0 = scene_at(0)
-    pairs = depth._pairs(scene0, s2w[:3, :3], s2w[:3, 3], intr, 1.5)
+    pairs = depth_raycast._pairs(scene0, s2w[:3, :3], s2w[:3, 3], intr, 1.5)
     tested = 0 if pairs is None else int(pairs.pix.size)
     naive_tests = intr.width * intr.height * len(scene0.primitives()[2])
 

@@ -1,12 +1,13 @@
 """Can a sensor client keep up with its depth frames? Wand detection cost per frame.
 
-Run: ``python benchmarks/bench_sensor_detect.py``. Simulates a 2-sensor wand phase (bundled-style
-CMU clip, 4 s at 30 Hz depth) in a temporary folder, then times on one core, per depth frame:
-the robust detector (the client's default), the paper's detector, the floor-plane fit the client
-runs once per calibration (median of 15 frames), the 2-D occlusion test of one body frame, and,
-as the baseline measured in the same run, decoding one depth frame from the store. It prints
-each as ms per frame and as a fraction of the Kinect v2's 33.3 ms frame period, and what four
-clients on a two-core PC would need of it (the decision in docs/live.md, "Wand detection rate").
+Run: ``python benchmarks/bench_sensor_detect.py [--smoke]`` (``--smoke``: a 2 s wand phase, to check
+that it runs). Simulates a 2-sensor wand phase (bundled-style CMU clip, 4 s at 30 Hz depth) in a
+temporary folder, then times on one core, per depth frame: the robust detector (the client's
+default), the paper's detector, the floor-plane fit the client runs once per calibration (median of
+15 frames), the 2-D occlusion test of one body frame, and, as the baseline measured in the same run,
+decoding one depth frame from the store. It prints each as ms per frame and as a fraction of the
+Kinect v2's 33.3 ms frame period, and what four clients on a two-core PC would need of it (the
+decision in docs/live.md, "Wand detection rate").
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ os.environ["OMP_NUM_THREADS"] = "1"
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 os.environ["MKL_NUM_THREADS"] = "1"
 
+import argparse
 import tempfile
 import time
 from pathlib import Path
@@ -47,10 +49,13 @@ def _median_ms(fn, items) -> float:  # type: ignore[no-untyped-def]
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--smoke", action="store_true", help="a 2 s wand phase (seconds to run)")
+    wand_s = 2.0 if ap.parse_args().smoke else 4.0
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "s.sqlite"
         run_simulate(
-            clip=CLIP, out=path, sensors=2, seconds=1.0, calibration_s=4.0, depth_rate_hz=30.0
+            clip=CLIP, out=path, sensors=2, seconds=1.0, calibration_s=wand_s, depth_rate_hz=30.0
         )
         with SessionStore.open(path) as st:
             sid = st.sensors()[0].id

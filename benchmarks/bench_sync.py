@@ -1,28 +1,29 @@
 """Online clock estimation: accuracy, honesty of the uncertainty, recovery, and time per call.
 
-Run: ``python benchmarks/bench_sync.py`` (a few seconds). Probes come from the generator of
-``tests/test_sync_online.py`` (the simulator's clocks, asymmetric exponential queues, congestion
-spikes; the delays are stated there), so these are the figures the tests bound, on more seeds and
-longer sessions. Prints, per network, the offset error after a 5 s warm-up (p50, p99, max), the
-share of checks within 3 standard errors, the recovery time after +/-80 ms clock steps and after
-a reconnect, and microseconds per ``add_probe`` / ``to_server`` / ``estimate`` against a baseline
-measured in the same run (a Python function that only computes the probe's offset and delay).
+Run: ``python benchmarks/bench_sync.py [--smoke]`` (a few seconds). Probes come from
+:mod:`kinefuse.sim.probes`, the generator ``tests/test_sync_online.py`` uses (the simulator's
+clocks, asymmetric exponential queues, congestion spikes; the delays are stated there), so these
+are the figures the tests bound, on more seeds and longer sessions (``--smoke``: one seed, short
+sessions, to check that it runs). Prints, per network, the offset error after a 5 s warm-up
+(p50, p99, max), the share of checks within 3 standard errors, the recovery time after +/-80 ms
+clock steps and after a reconnect, and microseconds per ``add_probe`` / ``to_server`` /
+``estimate`` against a baseline measured in the same run (a Python function that only computes
+the probe's offset and delay).
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from kinefuse.sim.probes import NETWORKS, asymmetric_probes, random_clock, replay
 from kinefuse.sync import OnlineClock, estimate_clock
-from test_sync_online import NETWORKS, asymmetric_probes, random_clock, replay
 
 SEEDS = 10
 SESSION_S = 300.0
+SPEED_S = 600.0
 WARMUP_S = 5.0
 
 
@@ -111,7 +112,7 @@ def recovery() -> None:
 def speed() -> None:
     rng = np.random.default_rng(0)
     clock = random_clock(rng)
-    probes = asymmetric_probes(clock.to_sensor, 0.0, 600.0, rng)
+    probes = asymmetric_probes(clock.to_sensor, 0.0, SPEED_S, rng)
     rows = [tuple(map(float, q)) for q in probes]
 
     def baseline(t1: float, t2: float, t3: float, t4: float) -> tuple[float, float]:
@@ -138,7 +139,7 @@ def speed() -> None:
     t0 = time.perf_counter()
     estimate_clock(probes)
     t_off = time.perf_counter() - t0
-    print(f"time per call over {len(rows)} probes (10 min, 6-probe bursts each second):")
+    print(f"time per call over {len(rows)} probes ({SPEED_S:g} s, 6-probe bursts each second):")
     for name, t in (("add_probe", t_add), ("to_server", t_conv), ("estimate", t_est)):
         print(
             f"  {name:<10}{t * 1e6:8.2f} us  ({t / t_base:5.1f} x baseline {t_base * 1e6:.2f} us)"
@@ -146,7 +147,16 @@ def speed() -> None:
     print(f"  offline estimate_clock over the whole session: {t_off * 1e3:.1f} ms")
 
 
-if __name__ == "__main__":
+def main() -> None:
+    global SEEDS, SESSION_S, SPEED_S
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--smoke", action="store_true", help="one seed, short sessions (seconds)")
+    if ap.parse_args().smoke:
+        SEEDS, SESSION_S, SPEED_S = 1, 30.0, 60.0
     accuracy()
     recovery()
     speed()
+
+
+if __name__ == "__main__":
+    main()

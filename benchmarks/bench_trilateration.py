@@ -1,6 +1,8 @@
 """Throughput of the batched Gauss-Newton trilateration against scipy, on the same observations.
 
-Run: ``python benchmarks/bench_trilateration.py`` (one thread; prints numbers, asserts nothing).
+Run: ``python benchmarks/bench_trilateration.py [--smoke]`` (one thread; prints numbers, asserts
+nothing; ``--smoke``: 40 frames, 100 scipy problems and 10 s instead of 10 minutes, to check that
+it runs).
 
 1. batched ``solve_nonlinear`` on all problems at once vs ``scipy.optimize.least_squares`` called
    once per problem (same ranges, same linear start, analytic Jacobian), with the agreement of
@@ -17,6 +19,7 @@ os.environ["OMP_NUM_THREADS"] = "1"
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 os.environ["MKL_NUM_THREADS"] = "1"
 
+import argparse
 import json
 import time
 from pathlib import Path
@@ -124,12 +127,16 @@ def scipy_per_problem(centres, ranges, starts):
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--smoke", action="store_true", help="tiny inputs (seconds to run)")
+    smoke = ap.parse_args().smoke
     rng = np.random.default_rng(2026)
     s2w = rig((0.5, 2.0, 1.0, 2.4))
-    truth, obs = session(rng, 2000, s2w, noise_m=0.02)  # 2000 frames x 25 joints
+    n_problem_frames = 40 if smoke else 2000
+    truth, obs = session(rng, n_problem_frames, s2w, noise_m=0.02)  # frames x 25 joints
     centres, ranges, reference, truth_p = problems(truth, obs, s2w)
     n_batched = len(ranges)
-    n_scipy = 1000
+    n_scipy = 100 if smoke else 1000
     starts = solve_linear(centres, ranges, reference).positions
 
     print("== batched Gauss-Newton vs scipy.optimize.least_squares per joint (1 thread)")
@@ -157,7 +164,8 @@ def main() -> None:
         us = t / n_batched * 1e6
         print(f"{c:>14.0e} {mae * 1e3:>8.2f} {s.iterations.mean():>6.2f} {us:>12.3f}")
 
-    n_frames = int(600 * RATE_HZ)
+    minutes = 10 / 60 if smoke else 10
+    n_frames = int(60 * minutes * RATE_HZ)
     level = rig((1.0, 1.07, 1.13, 1.2))
     walk = real_poses(n_frames)
     if walk is None:
@@ -169,7 +177,8 @@ def main() -> None:
         obs10 = np.einsum("sij,tkj->tski", w2s[:, :3, :3], truth10) + w2s[None, :, None, :3, 3]
         obs10 = obs10 + rng.normal(0.0, 0.02, obs10.shape)
     print(
-        "\n== 10 minutes of 4 sensors at 30 Hz (real walk poses, level rig 1.0-1.2 m, 2 cm noise)"
+        f"\n== {minutes:.2g} minutes of 4 sensors at 30 Hz (real walk poses, level rig 1.0-1.2 m, "
+        "2 cm noise)"
     )
     intr = Intrinsics()
     t_occ = best_of(lambda: detect_occlusion_sensors(obs10, intr), repeats=1)
@@ -177,10 +186,12 @@ def main() -> None:
     print(f"occlusion detection (crossing): {t_occ:.2f} s")
     t_cov = best_of(lambda: detect_occlusion_sensors(obs10, intr, rule="coverage"), repeats=1)
     print(f"occlusion detection (coverage): {t_cov:.2f} s")
+    t_method = {}
     for method in ("linear", "geometric", "nonlinear"):
-        t = best_of(lambda m=method: trilaterate(obs10, level, m), repeats=1)
+        t = t_method[method] = best_of(lambda m=method: trilaterate(obs10, level, m), repeats=1)
         err = np.linalg.norm(trilaterate(obs10, level, method).positions - truth10, axis=-1)
-        print(f"{method:>9}: {t:.2f} s   mae {err.mean() * 1e3:.1f} mm")
+        print(f"{method:>9}: {t:.2f} s   mae {err.mean() * 1e3:.1f} mm   "
+              f"({t / t_method['linear']:.1f} x linear, the baseline)")  # fmt: skip
     occlusion = (occ.occluded, occ.n_intersections)
     t = best_of(lambda: trilaterate(obs10, level, "paper", occlusion=occlusion), repeats=1)
     print(f"    paper: {t:.2f} s (selection + nonlinear; detection above)")

@@ -1,7 +1,7 @@
 """What a connected viewer adds to the server's fused-frame latency (issue 13's acceptance).
 
     python benchmarks/bench_viewer.py [--sensors 8] [--rate 30] [--phase-s 8] [--rounds 2]
-                                      [--client browser|ws] [--json FILE]
+                                      [--client browser|ws] [--json FILE] [--smoke]
 
 A 30 Hz "server" loop publishes fused frames (the fused skeleton plus ``--sensors`` raw
 skeletons, the size a real 8-sensor frame has) through :class:`kinefuse.net.bus.Publisher`
@@ -21,6 +21,11 @@ Measured per frame, on the loop's clock:
 Printed: p50 and p99 of both, without and with the viewer, and the p99 difference (the
 acceptance asks for under 2 ms); and the CPU time of encoding one frame for a page, the work a
 page adds to the loop per frame besides the socket write.
+
+``--smoke``: 2 sensors, one round of 1 s phases, the WebSocket client (no browser start), to check
+that it runs. Every run is bounded in time: a viewer process that does not start within 60 s, or a
+run over its limit, is stopped (SIGTERM, then SIGKILL), and so is every viewer process on any way
+out.
 
 To measure the real server after the merge, replace :func:`synthetic_server` by the server's
 own loop publishing into the same ``Publisher`` (its ``latency_s`` is then client host receive
@@ -139,16 +144,26 @@ async def _start_client(kind: str, port: int) -> asyncio.subprocess.Process:
         sys.executable, "-c", code, url, stdin=subprocess.PIPE, stdout=subprocess.PIPE
     )
     assert proc.stdout is not None
-    line = await asyncio.wait_for(proc.stdout.readline(), 60)
-    if line.strip() != b"open":
-        raise RuntimeError(f"the {kind} viewer did not start")
+    try:
+        line = await asyncio.wait_for(proc.stdout.readline(), 60)
+        if line.strip() != b"open":
+            raise RuntimeError(f"the {kind} viewer did not start")
+    except BaseException:
+        await _stop_client(proc)
+        raise
     return proc
 
 
 async def _stop_client(proc: asyncio.subprocess.Process) -> None:
+    """SIGTERM, then SIGKILL after 10 s: a viewer process never outlives its phase."""
     with contextlib.suppress(ProcessLookupError):
         proc.terminate()
-    await proc.wait()
+    try:
+        await asyncio.wait_for(proc.wait(), 10)
+    except TimeoutError:
+        with contextlib.suppress(ProcessLookupError):
+            proc.kill()
+        await proc.wait()
 
 
 async def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -173,12 +188,14 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         for _ in range(args.rounds):
             for with_viewer in (False, True):
                 proc = await _start_client(args.client, port) if with_viewer else None
-                await asyncio.sleep(1.0)  # settle
-                phase.update(viewer=with_viewer, record=True)
-                await asyncio.sleep(args.phase_s)
-                phase["record"] = False
-                if proc is not None:
-                    await _stop_client(proc)
+                try:
+                    await asyncio.sleep(1.0)  # settle
+                    phase.update(viewer=with_viewer, record=True)
+                    await asyncio.sleep(args.phase_s)
+                    phase["record"] = False
+                finally:
+                    if proc is not None:
+                        await _stop_client(proc)
         stop.set()
         await server
         pub.close()
@@ -312,6 +329,7 @@ def main() -> int:
     p.add_argument("--rounds", type=int, default=2)
     p.add_argument("--client", choices=["browser", "ws"], default="browser")
     p.add_argument("--json", type=Path)
+    p.add_argument("--smoke", action="store_true", help="2 sensors, 1 s phases, ws (seconds)")
     p.add_argument(
         "--server",
         choices=["synthetic", "real"],
@@ -319,6 +337,8 @@ def main() -> int:
         help="real: kinefuse serve with real sensor processes (see real_server)",
     )
     args = p.parse_args()
+    if args.smoke:
+        args.sensors, args.phase_s, args.rounds, args.client = 2, 1.0, 1, "ws"
     if args.server == "real":
         r = real_server(args)
         w, v = r["without_viewer"], r["with_viewer"]
@@ -334,7 +354,9 @@ def main() -> int:
     if args.client == "browser" and not CHROMIUM.exists():
         print(f"{CHROMIUM} not found: measuring with a WebSocket client instead", file=sys.stderr)
         args.client = "ws"
-    r = asyncio.run(run(args))
+    # 2 phases a round (each: a viewer start of up to 60 s, 1 s settling, the phase) + margin
+    limit_s = 2 * args.rounds * (62.0 + args.phase_s) + 30.0
+    r = asyncio.run(asyncio.wait_for(run(args), limit_s))
     w, v = r["without_viewer"], r["with_viewer"]
     print(f"{r['sensors']} sensors at {r['rate_hz']:g} Hz, viewer: {r['client']} "
           f"({w['frames']} frames without, {v['frames']} with)")  # fmt: skip

@@ -1,15 +1,16 @@
 """``best`` and ``best-live`` over many simulated sessions: the failures a few seeds hide.
 
-Run: ``python benchmarks/fusion_sweep.py [--seeds 0 1 2 3 4 5 6] [--rigs level4 tiered4 tilted4]``
-(about 1 s a session). Each session is one of the three walking clips of ``../shared/data``
-on one rig with one seed, fused from the true sensor poses. Per session it prints the MAE of
-both methods, their ratio and the worst half second of each (a mirrored skeleton shows there as
-30-50 cm); then the summary over all sessions. ``paper_comparison.py`` and
-``live_vs_offline.py`` run seeds 0-2 on two rigs. This sweep found offline ``best``'s old swap
-consensus (a vote per second, :func:`kinefuse.fusion.best.correct_swaps`, which has no
-continuity) mirroring whole seconds where every view was ambiguous (four sensors that all see
-the walking body obliquely): 15 of the 63 default sessions had a half second over 15 cm.
-``best`` now uses ``best-live``'s causal vote (docs/fusion_live.md).
+Run: ``python benchmarks/fusion_sweep.py [--seeds 0 1 2 3 4 5 6] [--rigs level4 tiered4 tilted4]
+[--clips ...] [--smoke]`` (about 1 s a session; ``--smoke``: one session, to check that it runs).
+Each session is one of the three walking clips of ``../shared/data`` on one rig with one seed, fused
+from the true sensor poses. Per session it prints the MAE of both methods, their ratio and the worst
+half second of each (a mirrored skeleton shows there as 30-50 cm); then the summary over all
+sessions. ``paper_comparison.py`` and ``live_vs_offline.py`` run seeds 0-2 on two rigs. This sweep
+found offline ``best``'s old swap consensus (a vote per second,
+:func:`kinefuse.fusion.best.correct_swaps`, which has no continuity) mirroring whole seconds where
+every view was ambiguous (four sensors that all see the walking body obliquely): 15 of the 63
+default sessions had a half second over 15 cm. ``best`` now uses ``best-live``'s causal vote
+(docs/fusion_live.md).
 """
 
 from __future__ import annotations
@@ -59,14 +60,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4, 5, 6])
     ap.add_argument("--rigs", nargs="+", default=["level4", "tiered4", "tilted4"])
+    ap.add_argument("--clips", nargs="+", default=list(CLIPS), help="clips of --data")
+    ap.add_argument("--smoke", action="store_true", help="one session (seconds to run)")
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "motion" / "cmu")
     args = ap.parse_args()
+    if args.smoke:
+        args.seeds, args.rigs, args.clips = [0], ["level4"], [CLIPS[0]]
     print("| seed | clip | rig | best cm | best-live cm | live / best | worst 0.5 s cm |")
     print("|---|---|---|---|---|---|---|")
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for seed in args.seeds:
-            for clip in CLIPS:
+            for clip in args.clips:
                 for rig in args.rigs:
                     r = session(args.data / clip, ROOT / "rigs" / f"{rig}.toml", seed, Path(d))
                     rows.append(r)

@@ -1,8 +1,9 @@
 """Paper A's comparison rerun: linear, geometric, nonlinear, paper and best on simulated
 sessions of the real walking clips, with true calibration, and the ablation of best.
 
-Run: ``python benchmarks/paper_comparison.py [--seeds 0 1 2]``. Prints Markdown tables and a
-summary (the ones in docs/fusion.md). Reads the clips from ``../shared/data`` beside the project.
+Run: ``python benchmarks/paper_comparison.py [--seeds 0 1 2] [--clips ...] [--rigs ...] [--smoke]``
+(``--smoke``: one session, to check that it runs). Prints Markdown tables and a summary (the ones
+in docs/fusion.md). Reads the clips from ``../shared/data`` beside the project.
 
 Every gain comes with a 95 % interval (paired block bootstrap over frames,
 :func:`kinefuse.evaluation.metrics.gain_ci`): a difference whose interval holds 0 is one the
@@ -72,11 +73,17 @@ def bumped_robust_gain(store: SessionStore) -> dict:
     return {"gain_percent": gain, "gain_ci95_percent": [low, high]}
 
 
-def sessions(seeds: list[int], data: Path, folder: Path) -> list[tuple[int, str, str, dict, dict]]:
+def sessions(
+    seeds: list[int],
+    data: Path,
+    folder: Path,
+    clips: tuple[str, ...] | list[str] = CLIPS,
+    rigs: tuple[str, ...] | list[str] = RIGS,
+) -> list[tuple[int, str, str, dict, dict]]:
     out = []
     for seed in seeds:
-        for clip in CLIPS:
-            for rig in RIGS:
+        for clip in clips:
+            for rig in rigs:
                 path = folder / f"{clip}_{rig}_{seed}.sqlite"
                 run_simulate(clip=data / clip, out=path, rig=ROOT / "rigs" / f"{rig}.toml",
                              seed=seed, calibration_s=0.0)  # fmt: skip
@@ -120,10 +127,15 @@ def paper_error_model(data: Path, seed: int = 0) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--clips", nargs="+", default=list(CLIPS))
+    ap.add_argument("--rigs", nargs="+", default=list(RIGS))
+    ap.add_argument("--smoke", action="store_true", help="one session (seconds to run)")
     args = ap.parse_args()
+    if args.smoke:
+        args.seeds, args.clips, args.rigs = [0], [CLIPS[0]], [RIGS[0]]
     data = ROOT.parent / "shared" / "data" / "motion" / "cmu"
     with tempfile.TemporaryDirectory() as d:
-        runs = sessions(args.seeds, data, Path(d))
+        runs = sessions(args.seeds, data, Path(d), args.clips, args.rigs)
     n = len(runs)
 
     print("MAE in cm (true calibration, 4 sensors)\n")

@@ -1,15 +1,15 @@
 """The view-dependent measurement noise (``BestOptions.view_*``, ``far_*``) on one simulated take.
 
-Run: ``python benchmarks/view_noise.py [--rig default4] [--heading 20] [--seed 11]
-[--variants "0,4,0,4;0.1,4,0.05,4"]``. Simulates one take like those of ``bench_analysis.py
-accuracy`` (the same clip, a range-of-motion phase before the walk, the full calibration from
-the wand) on the given rig, heading and seed, then fuses it with ``best`` once per variant
-(``view_sigma_m,view_exponent,far_sigma_m,far_exponent``; default: off, then the shipped
-defaults) and prints the mean joint error (ROM phase and walk) and the walk's hip and knee
-flexion RMSE against the truth. The default take (default4 rig, heading 20 deg, seed 11,
-subject seed 11) is the one the defaults were chosen on (docs/fusion.md section 9);
-``bench_analysis.py accuracy`` (seeds 0-2, headings 0, 120, -75) and ``live_vs_offline.py``
-validate them.
+Run: ``python benchmarks/view_noise.py [--rig default4] [--heading 20] [--seed 11] [--variants
+"0,4,0,4;0.1,4,0.05,4"] [--smoke]`` (``--smoke``: a 55 s ROM phase after a 6 s wand phase instead of
+120 s after 15 s, to check that it runs). Simulates one take like those of ``bench_analysis.py
+accuracy`` (the same clip, a range-of-motion phase before the walk, the full calibration from the
+wand) on the given rig, heading and seed, then fuses it with ``best`` once per variant
+(``view_sigma_m,view_exponent,far_sigma_m,far_exponent``; default: off, then the shipped defaults)
+and prints the mean joint error (ROM phase and walk) and the walk's hip and knee flexion RMSE
+against the truth. The default take (default4 rig, heading 20 deg, seed 11, subject seed 11) is the
+one the defaults were chosen on (docs/fusion.md section 9); ``bench_analysis.py accuracy`` (seeds
+0-2, headings 0, 120, -75) and ``live_vs_offline.py`` validate them.
 """
 
 from __future__ import annotations
@@ -35,17 +35,17 @@ from kinefuse.motion.types import Motion
 _ANGLES = ("hip_flexion_left", "hip_flexion_right", "knee_flexion_left", "knee_flexion_right")
 
 
-def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Path):  # type: ignore[no-untyped-def]
+def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Path,  # type: ignore[no-untyped-def]
+          rom_s: float = 120.0, cal_s: float = 15.0):  # fmt: skip
     from kinefuse.sim.rig import default_rig, load_rig
 
     clip = load_motion(CLIP)
     d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
-    rom, _ = make_rom_motion(clip.positions[d], 120.0, np.random.default_rng(seed), rate_hz=60.0)
+    rom, _ = make_rom_motion(clip.positions[d], rom_s, np.random.default_rng(seed), rate_hz=60.0)
     combined = prepend_rom(rom, clip, blend_s=1.0)
     walk = (rom.duration_s + 1.0, combined.duration_s)
     hold = np.repeat(combined.positions[-1:], int(2.0 * combined.rate_hz), axis=0)
     combined = Motion(np.concatenate([combined.positions, hold]), combined.rate_hz, source="x")
-    cal_s = 15.0
     phase = (cal_s, cal_s + rom.duration_s)
     walk = (cal_s + walk[0], cal_s + walk[1])
     base = (
@@ -79,12 +79,19 @@ def main() -> None:
         default="0,4,0,4;0.1,4,0.05,4",
         help="';'-separated view_sigma_m,view_exponent,far_sigma_m,far_exponent",
     )
+    ap.add_argument("--rom-s", type=float, default=120.0, help="range-of-motion phase, s")
+    ap.add_argument("--wand-s", type=float, default=15.0, help="wand phase before it, s")
+    ap.add_argument("--smoke", action="store_true", help="a short take (seconds to run)")
     args = ap.parse_args()
+    if args.smoke:
+        args.rom_s, args.wand_s = 55.0, 6.0
     variants = [tuple(float(x) for x in v.split(",")) for v in args.variants.split(";") if v]
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "take.sqlite"
         t0 = time.perf_counter()
-        true_seq, phase, walk = _take(args.rig, args.heading, args.seed, args.subject_seed, path)
+        true_seq, phase, walk = _take(
+            args.rig, args.heading, args.seed, args.subject_seed, path, args.rom_s, args.wand_s
+        )
         took = time.perf_counter() - t0
         print(f"take: {CLIP.name}, rig {args.rig}, heading {args.heading:g} deg, seed "
               f"{args.seed}, subject seed {args.subject_seed} ({took:.0f} s)")  # fmt: skip
