@@ -21,7 +21,7 @@ Source names match exactly first, then ignoring case and any namespace prefix (`
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,54 +66,96 @@ def _spec_error(where: str, joint: str, message: str) -> InputError:
     )
 
 
-def _parse_one(spec: Any, joint: str, where: str) -> Term:
+def parse_term(
+    spec: Any, error: Callable[[str], InputError], *, noun: str = "joint", end_site: bool = True
+) -> Term | None:
+    """One entry of a name map or a marker map as a weighted sum of names.
+
+    The forms every map shares: ``"NAME"``; ``{ mean = [NAMES] }``; ``{ blend = { NAME = WEIGHT,
+    ... } }`` (weights adding up to 1); and, with ``end_site``, ``{ end_site = NAME }`` (the End
+    Site under a joint). ``noun`` names what a name is (joint, marker) in the messages.
+
+    Returns
+    -------
+    Term or None
+        None for a one-key table of another form (the caller's own, e.g. a hip joint centre).
+
+    Raises
+    ------
+    InputError
+        Made by ``error(message)``, for a malformed entry of the shared forms.
+    """
     if isinstance(spec, str):
         if not spec.strip():
-            raise _spec_error(where, joint, "the joint name is empty")
+            raise error(f"the {noun} name is empty")
         return ((spec, 1.0),)
-    if isinstance(spec, Mapping):
-        keys = set(spec)
-        if len(keys) != 1 or not keys <= {"end_site", "mean", "blend"}:
-            raise _spec_error(
-                where,
-                joint,
-                f"a table needs exactly one of end_site, mean, blend; got {sorted(keys)}",
-            )
-        if "end_site" in spec:
-            name = spec["end_site"]
-            if not isinstance(name, str) or not name:
-                raise _spec_error(where, joint, f"end_site must be a joint name, got {name!r}")
-            return ((name + END_SITE_SUFFIX, 1.0),)
-        if "mean" in spec:
-            names = spec["mean"]
-            if (
-                not isinstance(names, Sequence)
-                or isinstance(names, str)
-                or len(names) < 1
-                or not all(isinstance(n, str) and n for n in names)
-            ):
-                raise _spec_error(
-                    where, joint, f"mean must be a list of joint names, got {names!r}"
-                )
-            w = 1.0 / len(names)
-            return tuple((n, w) for n in names)
-        weights = spec["blend"]
-        if not isinstance(weights, Mapping) or not weights:
-            raise _spec_error(where, joint, f"blend must be a table NAME = WEIGHT, got {weights!r}")
+    if not isinstance(spec, Mapping):
+        raise error(f"cannot read {spec!r}")
+    if len(spec) != 1:
+        forms = "end_site, mean, blend" if end_site else "mean, blend"
+        raise error(f"a table needs exactly one of {forms}; got {sorted(spec)}")
+    ((key, val),) = spec.items()
+    if key == "end_site" and end_site:
+        if not isinstance(val, str) or not val:
+            raise error(f"end_site must be a {noun} name, got {val!r}")
+        return ((val + END_SITE_SUFFIX, 1.0),)
+    if key == "mean":
+        if (
+            not isinstance(val, Sequence)
+            or isinstance(val, str)
+            or len(val) < 1
+            or not all(isinstance(n, str) and n.strip() for n in val)
+        ):
+            raise error(f"mean must be a list of {noun} names, got {val!r}")
+        return tuple((n, 1.0 / len(val)) for n in val)
+    if key == "blend":
+        if not isinstance(val, Mapping) or not val:
+            raise error(f"blend must be a table {noun.upper()} = WEIGHT, got {val!r}")
         term: list[tuple[str, float]] = []
-        for n, w in weights.items():
+        for n, w in val.items():
             if isinstance(w, bool) or not isinstance(w, int | float):
-                raise _spec_error(
-                    where, joint, f"blend weight of {n!r} must be a number, got {w!r}"
-                )
+                raise error(f"blend weight of {n!r} must be a number, got {w!r}")
             term.append((str(n), float(w)))
         total = sum(w for _, w in term)
         if abs(total - 1.0) > 1e-6:
-            raise _spec_error(
-                where, joint, f"blend weights must add up to 1, they add up to {total:g}"
-            )
+            raise error(f"blend weights must add up to 1, they add up to {total:g}")
         return tuple(term)
-    raise _spec_error(where, joint, f"cannot read {spec!r}")
+    return None
+
+
+def alternatives(spec: Any, error: Callable[[str], InputError]) -> list[Any]:
+    """A map entry's alternatives: a list of forms, or one form (no nested lists)."""
+    alts = spec if isinstance(spec, list) else [spec]
+    if not alts:
+        raise error("the list of alternatives is empty")
+    if any(isinstance(a, list) for a in alts):
+        raise error("alternatives cannot be nested lists")
+    return alts
+
+
+def normalize_name(name: str) -> str:
+    """A name as found loosely: case-folded, without surrounding spaces or a namespace prefix
+    (``mixamorig:LeftArm`` -> ``leftarm``); an End Site keeps its ``/End``."""
+    base, sep, end = name.strip().partition(END_SITE_SUFFIX)
+    return (base.rsplit(":", 1)[-1].strip() + sep + end).casefold()
+
+
+class NameResolver:
+    """Finds names in a list (a clip's joints, a file's markers): exactly, else by
+    :func:`normalize_name` where that is unambiguous. Calling it gives the index or None."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.names = list(names)
+        self.exact = {n: i for i, n in enumerate(self.names)}
+        loose: dict[str, list[int]] = {}
+        for i, n in enumerate(self.names):
+            loose.setdefault(normalize_name(n), []).append(i)
+        self.loose = {k: v[0] for k, v in loose.items() if len(v) == 1}
+
+    def __call__(self, name: str) -> int | None:
+        if name in self.exact:
+            return self.exact[name]
+        return self.loose.get(normalize_name(name))
 
 
 def parse_name_map(
@@ -134,13 +176,17 @@ def parse_name_map(
                 f"{origin}: {joint!r} is not a Kinect v2 joint; the 25 names are: "
                 f"{', '.join(JOINTS)}"
             )
-        alts = spec if isinstance(spec, list) else [spec]
-        if not alts:
-            raise _spec_error(origin, joint, "the list of alternatives is empty")
-        for a in alts:
-            if isinstance(a, list):
-                raise _spec_error(origin, joint, "alternatives cannot be nested lists")
-        out[joint] = tuple(_parse_one(a, joint, origin) for a in alts)
+
+        def error(message: str, joint: str = joint) -> InputError:
+            return _spec_error(origin, joint, message)
+
+        terms = []
+        for a in alternatives(spec, error):
+            term = parse_term(a, error)
+            if term is None:
+                raise error(f"unknown form {a!r}")
+            terms.append(term)
+        out[joint] = tuple(terms)
     return NameMap(name=name, joints=out, origin=origin)
 
 

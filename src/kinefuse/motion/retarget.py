@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.errors import InputError, RetargetError
 from kinefuse.geometry.rotations import rot_z
 from kinefuse.io.toml import toml_str
-from kinefuse.motion.maps import BUILTIN_MAPS, NameMap
+from kinefuse.motion.maps import BUILTIN_MAPS, NameMap, NameResolver, normalize_name
 from kinefuse.motion.source import Array, SourceMotion
 from kinefuse.motion.types import Motion
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS
@@ -114,7 +114,7 @@ def _side(name: str) -> str | None:
     ``Knee_R``, ``l_hip``)."""
     import re
 
-    n = _normalize(name)
+    n = normalize_name(name)
     for word, letter in _SIDE_WORDS:
         if word in n or re.search(rf"(^|[^a-z]){letter}([^a-z]|$)|^{letter}(?=[a-z]{{3}})", n):
             return letter
@@ -125,32 +125,9 @@ def _sideless(name: str) -> str:
     """The normalized name without its side word or letter."""
     import re
 
-    n = _normalize(name)
+    n = normalize_name(name)
     n = re.sub(r"left|right", "", n)
     return re.sub(r"(^|[^a-z])[lr]([^a-z]|$)|^[lr](?=[a-z]{3})", r"\1\2", n)
-
-
-def _normalize(name: str) -> str:
-    """Case-folded name without any namespace prefix (``mixamorig:LeftArm`` -> ``leftarm``)."""
-    base, sep, end = name.partition("/End")
-    base = base.rsplit(":", 1)[-1]
-    return (base + sep + end).casefold()
-
-
-class _Resolver:
-    """Finds source joints by name: exactly, else ignoring case and namespace prefixes."""
-
-    def __init__(self, names: Sequence[str]) -> None:
-        self.exact = {n: i for i, n in enumerate(names)}
-        loose: dict[str, list[int]] = {}
-        for i, n in enumerate(names):
-            loose.setdefault(_normalize(n), []).append(i)
-        self.loose = {k: v[0] for k, v in loose.items() if len(v) == 1}
-
-    def __call__(self, name: str) -> int | None:
-        if name in self.exact:
-            return self.exact[name]
-        return self.loose.get(_normalize(name))
 
 
 Resolved = dict[str, tuple[tuple[int, float], ...]]
@@ -161,7 +138,7 @@ def resolve_map(names: Sequence[str], name_map: NameMap) -> Resolved:
 
     The first alternative whose joints all exist in ``names`` is taken.
     """
-    find = _Resolver(names)
+    find = NameResolver(names)
     out: Resolved = {}
     for joint, alts in name_map.joints.items():
         for term in alts:

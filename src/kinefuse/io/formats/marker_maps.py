@@ -60,8 +60,9 @@ The shipped maps (package data ``kinefuse/data/markermaps/``) are listed by
 from __future__ import annotations
 
 import difflib
+import functools
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -72,6 +73,7 @@ from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
 from kinefuse.io.formats.markers import MarkerData, up_rotation
+from kinefuse.motion.maps import NameResolver, alternatives, parse_term
 from kinefuse.skeleton import JOINTS
 
 Array = NDArray[np.float64]
@@ -149,42 +151,18 @@ def _rule_error(where: str, joint: str, message: str) -> InputError:
 
 
 def _parse_rule(spec: Any, joint: str, where: str) -> JointRule:
-    if isinstance(spec, str):
-        if not spec.strip():
-            raise _rule_error(where, joint, "the marker name is empty")
-        return JointRule("blend", ((spec, 1.0),))
-    if not isinstance(spec, Mapping) or len(spec) != 1:
-        raise _rule_error(where, joint, f"cannot read {spec!r}")
+    def error(message: str) -> InputError:
+        return _rule_error(where, joint, message)
+
+    term = parse_term(spec, error, noun="marker", end_site=False)
+    if term is not None:
+        return JointRule("blend", term)
     ((key, val),) = spec.items()
-    if key == "mean":
-        if (
-            not isinstance(val, list)
-            or not val
-            or not all(isinstance(n, str) and n.strip() for n in val)
-        ):
-            raise _rule_error(where, joint, f"mean must be a list of marker names, got {val!r}")
-        return JointRule("blend", tuple((n, 1.0 / len(val)) for n in val))
-    if key == "blend":
-        if not isinstance(val, Mapping) or not val:
-            raise _rule_error(where, joint, f"blend must be a table MARKER = WEIGHT, got {val!r}")
-        term = []
-        for n, w in val.items():
-            if isinstance(w, bool) or not isinstance(w, int | float):
-                raise _rule_error(where, joint, f"the weight of {n!r} must be a number, got {w!r}")
-            term.append((str(n), float(w)))
-        total = sum(w for _, w in term)
-        if abs(total - 1.0) > 1e-6:
-            raise _rule_error(
-                where, joint, f"blend weights must add up to 1, they add to {total:g}"
-            )
-        return JointRule("blend", tuple(term))
     if key == "hip_joint_centre":
         if val not in ("left", "right"):
-            raise _rule_error(
-                where, joint, f'hip_joint_centre must be "left" or "right", got {val!r}'
-            )
+            raise error(f'hip_joint_centre must be "left" or "right", got {val!r}')
         return JointRule("hjc", side=str(val))
-    raise _rule_error(where, joint, f"unknown rule {key!r}")
+    raise error(f"unknown rule {key!r}")
 
 
 def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> MarkerMap:
@@ -308,9 +286,7 @@ def parse_marker_map(data: Mapping[str, Any], *, name: str, origin: str) -> Mark
                 f"{origin}: {joint!r} is not a Kinect v2 joint{hint}; the 25 names are: "
                 f"{', '.join(JOINTS)}"
             )
-        alts = spec if isinstance(spec, list) else [spec]
-        if not alts:
-            raise _rule_error(origin, joint, "the list of alternatives is empty")
+        alts = alternatives(spec, functools.partial(_rule_error, origin, joint))
         rules = tuple(_parse_rule(a, joint, origin) for a in alts)
         if any(r.kind == "hjc" for r in rules) and pelvis is None:
             raise _rule_error(origin, joint, "hip_joint_centre needs a [pelvis] table")
@@ -363,27 +339,8 @@ def shipped_marker_maps() -> dict[str, MarkerMap]:
 # ------------------------------------------------------------------------------ resolution
 
 
-def _loose(name: str) -> str:
-    return name.rsplit(":", 1)[-1].strip().casefold()
-
-
-class _Finder:
-    def __init__(self, names: Sequence[str]) -> None:
-        self.names = list(names)
-        self.exact = {n: i for i, n in enumerate(names)}
-        groups: dict[str, list[int]] = {}
-        for i, n in enumerate(names):
-            groups.setdefault(_loose(n), []).append(i)
-        self.loose = {k: v[0] for k, v in groups.items() if len(v) == 1}
-
-    def __call__(self, name: str) -> int | None:
-        if name in self.exact:
-            return self.exact[name]
-        return self.loose.get(_loose(name))
-
-
 def _resolve(
-    mmap: MarkerMap, finder: _Finder, static: _Finder | None = None
+    mmap: MarkerMap, finder: NameResolver, static: NameResolver | None = None
 ) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
     """(joint -> the first buildable rule, joint -> missing markers of each alternative).
 
@@ -430,8 +387,8 @@ def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> 
     InputError
         No shipped map fits; names the best candidate's missing markers and how to pass a map.
     """
-    finder = _Finder(markers.names)
-    sf = _Finder(static.names) if static is not None else None
+    finder = NameResolver(markers.names)
+    sf = NameResolver(static.names) if static is not None else None
     best: tuple[int, MarkerMap, dict[str, list[str]]] | None = None
     for m in shipped_marker_maps().values():
         chosen, missing = _resolve(m, finder, sf)
@@ -517,7 +474,7 @@ def apply_marker_map(
         A joint of the map cannot be built: names the joint, the missing markers of each
         alternative, the file's markers and close matches.
     """
-    finder = _Finder(markers.names)
+    finder = NameResolver(markers.names)
     chosen, missing = _resolve(mmap, finder)
     if missing:
         lines = [
@@ -579,7 +536,7 @@ def cluster_orientations(
     """
     if not mmap.clusters:
         return (), None
-    finder = _Finder(markers.names)
+    finder = NameResolver(markers.names)
     lack = {k: [n for n in v if finder(n) is None] for k, v in mmap.clusters.items()}
     lack = {k: v for k, v in lack.items() if v}
     if lack:

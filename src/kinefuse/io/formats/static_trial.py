@@ -35,11 +35,11 @@ from kinefuse.errors import InputError
 from kinefuse.io.formats.marker_maps import (
     JointRule,
     MarkerMap,
-    _Finder,
     apply_marker_map,
     hip_joint_centres,
 )
 from kinefuse.io.formats.markers import MarkerData
+from kinefuse.motion.maps import NameResolver
 
 Array = NDArray[np.float64]
 
@@ -79,7 +79,7 @@ def static_window(markers: MarkerData, window: tuple[float, float] | None) -> Ma
 
 def _rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array | None:
     """(T, 3) of a rule on ``markers``, None when a marker is missing from the file."""
-    f = _Finder(markers.names)
+    f = NameResolver(markers.names)
     p = markers.positions
     if rule.kind == "hjc":
         pv = mmap.pelvis
@@ -99,7 +99,7 @@ def _rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array
 
 
 def _cluster_points(markers: MarkerData, names: tuple[str, ...]) -> Array | None:
-    f = _Finder(markers.names)
+    f = NameResolver(markers.names)
     idx = [f(n) for n in names]
     if any(i is None for i in idx):
         return None
@@ -113,7 +113,7 @@ def _median(p: Array) -> Array:
 def check_static(static: MarkerData, motion: MarkerData, mmap: MarkerMap) -> None:
     """Refuse a static trial of another marker set or subject, or one in which the subject
     moves (rules in the module docstring)."""
-    sf, mf = _Finder(static.names), _Finder(motion.names)
+    sf, mf = NameResolver(static.names), NameResolver(motion.names)
     wanted = {n for names in mmap.clusters.values() for n in names}
     lack = sorted(n for n in wanted if mf(n) is not None and sf(n) is None)
     if lack:
@@ -169,7 +169,7 @@ def with_landmarks(
     names = list(markers.names)
     cols = [markers.positions]
     notes = []
-    f = _Finder(markers.names)
+    f = NameResolver(markers.names)
     for lm, (rule, cluster) in mmap.landmarks.items():
         if f(lm) is not None:
             continue
@@ -182,7 +182,9 @@ def with_landmarks(
             continue
         ps = _rule_points(static, rule, mmap)
         if ps is None:
-            need = [n for n in rule.marker_names(mmap.pelvis) if _Finder(static.names)(n) is None]
+            need = [
+                n for n in rule.marker_names(mmap.pelvis) if NameResolver(static.names)(n) is None
+            ]
             raise InputError(
                 f"{static.path}: the landmark rule {lm!r} needs the markers {', '.join(need)}, "
                 "which the static trial does not have. Give a static trial with them, or fix "
