@@ -16,7 +16,7 @@ from kinefuse.calibration.body import (
     refine_registration,
     world_from_floor,
 )
-from kinefuse.cli import realdata_main as main
+from kinefuse.cli import main
 from kinefuse.errors import InputError, SyncError
 from kinefuse.evaluation.consistency import consistency
 from kinefuse.frames.observations import BodyFrames
@@ -459,7 +459,7 @@ def test_fuse_multitrack_bad_input(tmp_path) -> None:
 def test_main_prints_json(tmp_path, capsys) -> None:
     src = _real("Study_4_Kinect_1_*.csv")
     small = _subset_csv(src, tmp_path / "small.csv", rows=600)
-    assert main([str(small), "--json", "--no-motion-latency"]) == 0
+    assert main(["realdata", str(small), "--json", "--no-motion-latency"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["sensors"] == ["138.251.207.136", "138.251.213.82"]
     assert d["relative_latency_ms"] == 0.0
