@@ -7,6 +7,8 @@ RMS after removing it and the raw RMSE, degrees. Nothing is fitted to this walk:
 Harrington's hip centres, OpenSim's documented coordinate axes.
 
     python benchmarks/bench_opensim_ik.py [--data ../shared/data] [--plot docs/img/opensim_ik.png]
+
+``--smoke`` (CI) runs the same comparison: one short walk, a few seconds already.
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--plot", type=Path, help="write the overlay of knee and hip curves (PNG)")
+    ap.add_argument("--smoke", action="store_true", help="CI: the same run (it is short)")
     a = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "walk"

@@ -97,7 +97,7 @@ def test_force_replaces_a_simulated_session(tmp_path, clip, capsys) -> None:
 
 
 def _start_simulate(out: Path, clip: Path, *extra: str) -> subprocess.Popen[bytes]:
-    argv = [sys.executable, "-m", "kinefuse.cli", "simulate", "--clip", str(clip),
+    argv = [sys.executable, "-m", "kinefuse", "simulate", "--clip", str(clip),
             "--calibration-seconds", "20", "--out", str(out), *extra]  # fmt: skip
     return subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
