@@ -86,5 +86,8 @@ def run(args: argparse.Namespace) -> int:
         static_window=args.static_window,
         names=args.names,
     )
+    for r in report.get("inputs", [report]):
+        for w in r.get("warnings", []):
+            print(f"kinefuse: warning: {r['input']}: {w}", file=sys.stderr)
     print(json_text(report) if args.json else format_analyze(report))
     return 0

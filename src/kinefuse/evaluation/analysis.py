@@ -82,6 +82,8 @@ def truth_figures(
             "limb_status": tres["models"]["dj"].status,
         },
     }
+    if inp.limb_sensors is not None:
+        report.update(_seen_rmse(inp.limb_sensors, named, tnamed, after))
     inside: Any = np.flatnonzero((t >= phase[0]) & (t <= phase[1]))
     ang = res["angles"]
     true_axes = None
@@ -179,6 +181,48 @@ def _true_world(
         k: (rot @ np.asarray(v, dtype=np.float64).reshape(-1, 3).T).T
         for k, v in rom["axes_world"].items()
     }
+
+
+#: The limb an anatomical angle belongs to, by the name's first word.
+_ANGLE_LIMB = {"trunk": "trunk", "head": "head", "shoulder": "upper_arm", "elbow": "forearm",
+               "forearm": "forearm", "hip": "thigh", "knee": "shank", "ankle": "foot"}  # fmt: skip
+
+
+def _angle_limb(name: str) -> str:
+    kind = _ANGLE_LIMB.get(name.split("_", 1)[0], "")
+    side = name.rsplit("_", 1)[-1]
+    return f"{kind}_{side}" if side in ("left", "right") else kind
+
+
+def _seen_rmse(
+    counts: NDArray[np.int64],
+    named: dict[str, Array],
+    tnamed: dict[str, Array],
+    after: NDArray[np.bool_],
+) -> dict[str, Any]:
+    """``angle_rmse_seen_deg``: each angle's RMSE over the frames after the phase in which its
+    limb and the limb's parent were tracked by two or more sensors (inside the common volume),
+    and ``seen_fraction_after_phase`` (per angle, the share of those frames): separates the
+    analysis from what the fusion guesses where the subject leaves the sensors' volume."""
+    from kinefuse.analysis.consistency import angle_rmse_deg
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS
+
+    rmse: dict[str, float] = {}
+    share: dict[str, float] = {}
+    n_after = max(int(after.sum()), 1)
+    for name in named:
+        lname = _angle_limb(name)
+        if lname not in LIMB_INDEX or name not in tnamed:
+            continue
+        i = LIMB_INDEX[lname]
+        ok = counts[:, i] >= SEEN_MIN_SENSORS
+        if LIMB_PARENTS[i] >= 0:
+            ok &= counts[:, LIMB_PARENTS[i]] >= SEEN_MIN_SENSORS
+        sel: Any = np.flatnonzero(after & ok)
+        share[name] = float(sel.size / n_after)
+        rmse.update(angle_rmse_deg({name: named[name]}, {name: tnamed[name]}, sel))
+    return {"angle_rmse_seen_deg": rmse, "seen_fraction_after_phase": share}
 
 
 def _segment_angle_rmse(

@@ -1,5 +1,7 @@
 """The analysis chain (paper B) as the commands run it: one input as a skeleton sequence, and
-the chain on it (normalization, movement axes by every method, joint angles), timed."""
+the chain on it (normalization, movement axes by every method, joint angles), timed; for a
+session, how many sensors tracked each limb at each fused frame (:func:`limb_sensor_counts`),
+from which ``analyze`` judges whether the calibration phase was seen (:func:`phase_seen`)."""
 
 from __future__ import annotations
 
@@ -12,10 +14,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.analysis.kinematics import joint_angles
+from kinefuse.analysis.limbs import LIMBS
 from kinefuse.analysis.normalize import normalize
 from kinefuse.analysis.parameterize import METHODS as AXIS_METHODS
 from kinefuse.analysis.parameterize import learn_axes
 from kinefuse.analysis.sequence import SkeletonSequence
+from kinefuse.skeleton import TrackingState
 
 Array = NDArray[np.float64]
 
@@ -33,14 +37,92 @@ class AnalysisInput:
     anatomical: dict[str, Array] | None = None  # ISB anatomical angles, degrees (static trial)
     anatomical_status: dict[str, str] | None = None  # segment -> "ok" or why it was skipped
     static_source: str | None = None  # the static trial used
+    # sessions: (T, L) how many sensors tracked each limb (both its joints TRACKED) at each frame
+    limb_sensors: NDArray[np.int64] | None = None
 
 
-def analyse_sequence(seq: SkeletonSequence, phase: tuple[float, float]) -> dict[str, Any]:
-    """The chain on one sequence: normalization, axes by every method, angles (DJ), timing."""
+#: A limb is *seen* at a frame when at least this many sensors track it (both its joints
+#: TRACKED): what a fusion needs to triangulate it rather than take one sensor's guess.
+SEEN_MIN_SENSORS = 2
+#: Axes are not learned for a limb seen in less than this fraction of the calibration phase's
+#: frames: what the fusion delivers there is mostly one sensor's (or no sensor's) guess, and the
+#: axes it teaches are off by tens of degrees (issue 24: a walkway that saw the phase 4-15 % of
+#: the time gave a 25° axis error). A round number of ours: the sessions of
+#: ``benchmarks/analysis_sweep.py`` see every limb in 60 % of the phase or more.
+SEEN_MIN_FRACTION = 0.5
+
+
+def limb_sensor_counts(
+    t_s: Array, sensors: list[tuple[Array, NDArray[np.int8]]], rate_hz: float
+) -> NDArray[np.int64]:
+    """How many sensors track each limb at each frame time ``t_s (T,)``: ``(T, L)`` int.
+
+    ``sensors``: per sensor, its capture times on the same clock ``(N,)`` and joint tracking
+    states ``(N, 25)``. A sensor tracks a limb at a frame when its observation nearest in time
+    (within half a frame, ``0.5 / rate_hz``) has both the limb's joints TRACKED (not inferred).
+    """
+    t_s = np.asarray(t_s, dtype=np.float64)
+    out = np.zeros((t_s.size, len(LIMBS)), dtype=np.int64)
+    prox = np.array([lb.proximal_index for lb in LIMBS])
+    dist = np.array([lb.distal_index for lb in LIMBS])
+    for t_obs, states in sensors:
+        if t_obs.size == 0:
+            continue
+        order = np.argsort(t_obs)
+        t_o, st = t_obs[order], np.asarray(states)[order] == TrackingState.TRACKED
+        k = np.clip(np.searchsorted(t_o, t_s), 1, t_o.size - 1) if t_o.size > 1 else None
+        if k is None:
+            near = np.zeros(t_s.size, dtype=np.intp)
+        else:
+            near = np.where(np.abs(t_o[k - 1] - t_s) <= np.abs(t_o[k] - t_s), k - 1, k)
+        close = np.abs(t_o[near] - t_s) <= 0.5 / rate_hz
+        out += (close[:, None] & st[near][:, prox] & st[near][:, dist]).astype(np.int64)
+    return out
+
+
+def phase_seen(counts: NDArray[np.int64], t_s: Array, phase: tuple[float, float]) -> dict[str, Any]:
+    """How well the calibration phase was seen: per limb the fraction of the phase's frames in
+    which at least :data:`SEEN_MIN_SENSORS` sensors tracked it, and the limbs seen in less than
+    :data:`SEEN_MIN_FRACTION` of them (``not_seen``: limb -> the reason, for its status)."""
+    inside = (t_s >= phase[0]) & (t_s <= phase[1])
+    n = int(inside.sum())
+    frac = {
+        lb.name: float((counts[inside, i] >= SEEN_MIN_SENSORS).mean()) if n else 0.0
+        for i, lb in enumerate(LIMBS)
+    }
+    not_seen = {
+        k: (
+            f"not seen: tracked by {SEEN_MIN_SENSORS} or more sensors in {100 * v:.0f} % of the "
+            f"calibration phase (need {100 * SEEN_MIN_FRACTION:.0f} %); no axes learned. Perform "
+            "the phase where the sensors see the subject (the centre of the capture volume)"
+        )
+        for k, v in frac.items()
+        if v < SEEN_MIN_FRACTION and k != LIMBS[0].name
+    }
+    return {
+        "min_sensors": SEEN_MIN_SENSORS,
+        "min_fraction": SEEN_MIN_FRACTION,
+        "frames": n,
+        "fraction_by_limb": frac,
+        "fraction_min": min(frac.values()) if frac else 0.0,
+        "fraction_median": float(np.median(list(frac.values()))) if frac else 0.0,
+        "not_seen": not_seen,
+    }
+
+
+def analyse_sequence(
+    seq: SkeletonSequence,
+    phase: tuple[float, float],
+    *,
+    not_seen: dict[str, str] | None = None,
+) -> dict[str, Any]:
+    """The chain on one sequence: normalization, axes by every method, angles (DJ), timing.
+
+    ``not_seen``: limbs whose axes are not learned, with the reason (:func:`phase_seen`)."""
     t0 = time.perf_counter()
     norm = normalize(seq)
     t1 = time.perf_counter()
-    models = {m: learn_axes(seq, norm, phase, method=m) for m in AXIS_METHODS}
+    models = {m: learn_axes(seq, norm, phase, method=m, refuse=not_seen) for m in AXIS_METHODS}
     t2 = time.perf_counter()
     angles = joint_angles(seq, norm, models["dj"])
     named = angles.anatomical()

@@ -25,12 +25,13 @@ Positions are world metres, z up. Every sensor must stand inside the room.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import RigError
 from kinefuse.geometry.transforms import look_at
@@ -272,6 +273,57 @@ def rig_to_toml(rig: Rig) -> str:
     (x0, y0), (x1, y1) = rig.room_min_xy_m, rig.room_max_xy_m
     lines += ["[room]", f"min_xy_m = [{x0:.6f}, {y0:.6f}]", f"max_xy_m = [{x1:.6f}, {y1:.6f}]", ""]
     return "\n".join(lines)
+
+
+#: Heights at which a floor position must be in a sensor's view (and depth range) for the sensor
+#: to see a standing body there: feet, hips, head (metres).
+BODY_HEIGHTS_M = (0.15, 1.0, 1.7)
+#: Grid step of the search for the common capture volume, metres.
+VOLUME_STEP_M = 0.1
+
+
+def sensors_seeing(
+    rig: Rig, xy_m: ArrayLike, heights_m: Sequence[float] = BODY_HEIGHTS_M
+) -> NDArray[np.int64]:
+    """How many of the rig's sensors see a standing body at floor positions ``xy_m (n, 2)``:
+    every height of ``heights_m`` above the position inside the sensor's image and depth range
+    (default Kinect v2 depth intrinsics). Returns ``(n,)`` int."""
+    from kinefuse.camera.intrinsics import Intrinsics
+
+    intr = Intrinsics()
+    xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    count = np.zeros(xy.shape[0], dtype=np.int64)
+    for s in rig.sensors:
+        seen = np.ones(xy.shape[0], dtype=bool)
+        w2s = np.linalg.inv(s.sensor2world)
+        for h in heights_m:
+            p = np.column_stack([xy, np.full(xy.shape[0], float(h))]) @ w2s[:3, :3].T + w2s[:3, 3]
+            z = p[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = intr.fx * p[:, 0] / z + intr.cx
+                v = intr.fy * p[:, 1] / z + intr.cy
+            seen &= (z >= intr.min_range_m) & (z <= intr.max_range_m)
+            seen &= (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+        count += seen
+    return count
+
+
+def common_volume_centre(rig: Rig) -> tuple[float, float]:
+    """The floor position (x, y) at the centre of the sensors' common capture volume: of the
+    floor cells (:data:`VOLUME_STEP_M`) where the most sensors see a standing body
+    (:func:`sensors_seeing`), the one nearest to their centroid (so it lies inside that area
+    even when the area is not convex)."""
+    (x0, y0), (x1, y1) = rig.room_min_xy_m, rig.room_max_xy_m
+    gx = np.arange(x0 + VOLUME_STEP_M / 2, x1, VOLUME_STEP_M)
+    gy = np.arange(y0 + VOLUME_STEP_M / 2, y1, VOLUME_STEP_M)
+    xy = np.stack(np.meshgrid(gx, gy, indexing="ij"), -1).reshape(-1, 2)
+    n = sensors_seeing(rig, xy)
+    if n.max() == 0:
+        c = np.mean([s.position_m[:2] for s in rig.sensors], axis=0)
+        return float(c[0]), float(c[1])
+    best = xy[n == n.max()]
+    k = int(np.argmin(np.linalg.norm(best - best.mean(axis=0), axis=1)))
+    return float(best[k, 0]), float(best[k, 1])
 
 
 def place_actor(motion: Motion, rig: Rig, seconds: float | None = None) -> Motion:

@@ -79,6 +79,7 @@ def sequence_from_session(
     """
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
+    from kinefuse.pipeline.analysis import limb_sensor_counts
     from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
 
     if method not in METHODS:
@@ -94,10 +95,14 @@ def sequence_from_session(
     if isinstance(phase, list) and len(phase) == 2:
         stored = (float(phase[0]), float(phase[1]))
     t = res.t_server_s
+    rate = float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0
+    counts = limb_sensor_counts(
+        t, [(s.observations.t_server_s, s.observations.states) for s in sensors], rate
+    )
     seq = SkeletonSequence.from_kinect(
         res.positions,
         t_s=t,
-        rate_hz=float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0,
+        rate_hz=rate,
         source=f"{path} fused with {method} ({source})",
     )
     return AnalysisInput(
@@ -107,6 +112,7 @@ def sequence_from_session(
         stored_phase_s=stored,
         fusion={"method": method, "calibration": source, "frames": int(grid.size)},
         sensor_poses={k: np.asarray(v, dtype=np.float64) for k, v in poses.items()},
+        limb_sensors=counts,
     )
 
 

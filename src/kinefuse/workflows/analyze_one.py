@@ -94,8 +94,11 @@ def analyse_one(
     names: str = "kinefuse",
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Analyse one input into ``folder`` (which exists and is empty); returns (report, result)."""
+    from kinefuse.pipeline.analysis import phase_seen
+
     seq = inp.seq
-    res = analyse_sequence(seq, phase)
+    seen = None if inp.limb_sensors is None else phase_seen(inp.limb_sensors, seq.t_s, phase)
+    res = analyse_sequence(seq, phase, not_seen=None if seen is None else seen["not_seen"])
     norm, models, angles, named = res["norm"], res["models"], res["angles"], res["named"]
     dj = models["dj"]
     n = seq.n_frames
@@ -111,6 +114,7 @@ def analyse_one(
         "joints": list(seq.joint_names),
         "calibration_phase": {"start_s": phase[0], "end_s": phase[1], "source": phase_source},
         "statement": statement,
+        "warnings": [],
         "default_pose_frame": int(norm.default_frame),
         "default_pose_time_s": float(seq.t_s[norm.default_frame]),
         "normalization_status": dict(norm.status),
@@ -139,6 +143,28 @@ def analyse_one(
     }
     if inp.fusion is not None:
         report["fusion"] = inp.fusion
+    if seen is not None:
+        report["calibration_phase"]["seen"] = seen
+        if seen["not_seen"]:
+            unseen = sorted(seen["not_seen"])
+            report["warnings"].append(
+                f"the sensors did not see the calibration phase well: {len(unseen)} limb(s) "
+                f"tracked by {seen['min_sensors']} or more sensors in less than "
+                f"{100 * seen['min_fraction']:.0f} % of it ({', '.join(unseen)}; least "
+                f"{100 * seen['fraction_min']:.0f} %); their axes were not learned and their "
+                "angles are missing. Record the phase where the sensors see the subject"
+            )
+            report["statement"] += (
+                f" The calibration phase was not seen for {', '.join(unseen)}: no axes or "
+                "angles for them (their limb_status says why)."
+            )
+    # the generator's two-axis limbs that kept two axes (what a one-plane misjudgement loses)
+    two = [k for k, v in dj.limbs.items() if limb(k).n_axes == 2]
+    report["two_axis_limbs"] = {
+        "asked": len(two),
+        "learned_two": sum(1 for k in two if dj.limbs[k].axes.shape[0] == 2),
+        "one_or_none": sorted(k for k in two if dj.limbs[k].axes.shape[0] != 2),
+    }
     from kinefuse.analysis.plausibility import plausibility
 
     report["plausibility"] = _flag_summary(plausibility(angles, dj), seq.t_s, phase)
@@ -282,6 +308,19 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append(
             f"  calibration phase {_num(ph['start_s'])}-{_num(ph['end_s'])} s: {ph['source']}"
         )
+        seen = ph.get("seen")
+        if seen is not None:
+            lines.append(
+                f"  phase seen by {seen['min_sensors']}+ sensors: median "
+                f"{100 * seen['fraction_median']:.0f} % of its frames per limb, least "
+                f"{100 * seen['fraction_min']:.0f} %"
+            )
+        for w in r.get("warnings", []):
+            lines.append(f"  warning: {w}")
+        two = r.get("two_axis_limbs")
+        if two is not None:
+            lines.append(f"  two-axis limbs learned with two axes: {two['learned_two']} of "
+                         f"{two['asked']}")  # fmt: skip
         lines.append(f"  default pose: frame {r['default_pose_frame']}")
         rec = r["reconstruction_error_m"]
         lines.append(

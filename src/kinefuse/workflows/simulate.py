@@ -4,6 +4,7 @@ included)."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -95,19 +96,23 @@ def run_simulate(
     whole, so an interrupted or failed run leaves any old ``out`` byte-identical. ``force``
     replaces an existing simulated session, never another file or a live recording. ``rom_s``:
     a range-of-motion calibration phase of that many seconds before the motion
-    (:func:`kinefuse.workflows.analyze.add_rom_phase`).
+    (:func:`kinefuse.workflows.analyze.add_rom_phase`), performed at the rig's ``[actor]``
+    position, else at the centre of the sensors' common volume
+    (:func:`kinefuse.sim.rig.common_volume_centre`), whatever the clip's path; the clip then
+    starts from there (a clip that leaves the volume is warned about by the coverage check).
 
     Returns
     -------
     dict
-        ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`) and
-        ``warnings`` (list of str).
+        ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`),
+        ``warnings`` (list of str) and, with ``rom_s``, ``rom_position_m`` (x, y) and
+        ``rom_position_from`` (which rule placed it).
     """
     from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.io.outputs import atomic_file
     from kinefuse.motion import load_motion
     from kinefuse.sim.lab import LabConfig, simulate_session
-    from kinefuse.sim.rig import default_rig, load_rig, place_actor
+    from kinefuse.sim.rig import common_volume_centre, default_rig, load_rig, place_actor
 
     say = progress or (lambda _m: None)
     check_session_out(out, force)
@@ -119,6 +124,20 @@ def run_simulate(
             f"--seconds {seconds:g} is longer than the clip ({motion.duration_s:.2f} s); "
             "give at most the clip's length or leave --seconds out"
         )
+    rom_place = None
+    if rom_s is not None:
+        # the calibration phase happens where the sensors see it: at the rig's [actor] position,
+        # else at the centre of the sensors' common volume, whatever the clip's path (a walk's
+        # centred path put the phase at its start, at the edge of a walkway: issue 24); the
+        # clip then starts there
+        at = the_rig.actor_position_m
+        rom_place = "the rig's [actor] position"
+        if at is None:
+            at = common_volume_centre(the_rig)
+            the_rig = replace(the_rig, actor_position_m=at)
+            rom_place = "the centre of the sensors' common volume"
+        where = f"({at[0]:.2f}, {at[1]:.2f}) m"
+        say(f"range-of-motion phase at {rom_place}, {where}; the clip starts there")
     motion = place_actor(motion, the_rig, seconds)
     rom = None
     if rom_s is not None:
@@ -150,4 +169,8 @@ def run_simulate(
             coverage = tracking_coverage(store)
             store.mark_complete()
     warnings = coverage_warnings(coverage)
-    return {"out": out, "coverage": coverage, "warnings": warnings}
+    result: dict[str, Any] = {"out": out, "coverage": coverage, "warnings": warnings}
+    if rom is not None and the_rig.actor_position_m is not None:
+        result["rom_position_m"] = list(the_rig.actor_position_m)
+        result["rom_position_from"] = rom_place
+    return result
