@@ -23,6 +23,7 @@ def test_demo_runs_the_whole_pipeline(tmp_path, capsys) -> None:
         "fused.c3d",
         "fused.trc",
         "fused.csv",
+        "fused.bvh",
         "calibration/calibration_errors_full.png",
         "evaluation/trajectories.png",
         "evaluation/table1_c_threshold.md",

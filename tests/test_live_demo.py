@@ -61,7 +61,8 @@ def test_live_demo_runs_the_whole_system_and_reports(tmp_path, capsys) -> None:
     for p in r["outputs"]:
         assert Path(p).exists(), p
     for name in ("recording.sqlite", "sim.sqlite", "calibration.toml", "fused.c3d", "fused.trc",
-                 "fused.csv", "live_eval.json", "evaluation/evaluate.json"):  # fmt: skip
+                 "fused.csv", "fused.bvh", "live_eval.json",
+                 "evaluation/evaluate.json"):  # fmt: skip
         assert (out / name).stat().st_size > 0, name
     # the HTML report shows the latencies the live server recorded
     assert "latency distribution" in (out / "evaluation" / "report.html").read_text()

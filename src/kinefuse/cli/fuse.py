@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         choices=METHODS,
         help="fusion method (best; best-live is the causal fusion a live server runs)",
     )
-    p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc or .csv)")
+    p.add_argument("--out", type=Path, help="export the fused skeleton (.c3d, .trc, .csv or .bvh)")
     p.add_argument(
         "--trc-axes",
         choices=["y-up", "z-up"],

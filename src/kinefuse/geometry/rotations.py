@@ -10,6 +10,7 @@ Euler angle sequences of the BVH and ASF/AMC channel orders.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -207,3 +208,79 @@ def chordal_mean(r: Array) -> Array:
     if rot is None:  # nothing to average: the identity (the projection of a zero sum)
         return np.eye(3)
     return np.asarray(rot.mean().as_matrix(), dtype=np.float64)
+
+
+# -- rotations fitted to directions, and Euler channels over time -------------------------------
+
+
+def frames_from_vectors(primary: Array, reference: Array) -> Array:
+    """Orthonormal right-handed frames ``(..., 3, 3)`` (columns: ``e1, e2, e3``) with ``e1``
+    along ``primary`` and ``e2`` the part of ``reference`` orthogonal to it, batched.
+
+    NaN where either vector is NaN, zero, or the two are parallel (under 1e-9 of their lengths).
+    """
+    a = np.asarray(primary, dtype=np.float64)
+    b = np.asarray(reference, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e1 = a / np.linalg.norm(a, axis=-1, keepdims=True)
+        b_perp = b - np.einsum("...i,...i->...", b, e1)[..., None] * e1
+        n = np.linalg.norm(b_perp, axis=-1, keepdims=True)
+        e2 = np.where(n > 1e-9 * np.linalg.norm(b, axis=-1, keepdims=True), b_perp / n, np.nan)
+    e3 = np.cross(e1, e2)
+    return np.stack([e1, e2, e3], axis=-1)
+
+
+def rotations_between_frames(rest: Array, actual: Array) -> Array:
+    """The rotations ``R = actual @ rest^T`` taking orthonormal frames ``rest`` onto ``actual``
+    (both ``(..., 3, 3)``, columns the axes)."""
+    return np.einsum("...ij,...kj->...ik", actual, rest)
+
+
+def slerp_rotations(r_a: Array, r_b: Array, weight: ArrayLike) -> Array:
+    """``r_a`` moved toward ``r_b`` by ``weight`` in [0, 1] along the shortest path, batched
+    ``(..., 3, 3)``; NaN where either is NaN (scipy's rotation vector: exact near 0 and 180)."""
+    a = np.asarray(r_a, dtype=np.float64)
+    b = np.asarray(r_b, dtype=np.float64)
+    w = np.broadcast_to(np.asarray(weight, dtype=np.float64), a.shape[:-2])
+    rel = np.einsum("...ji,...jk->...ik", a, b).reshape(-1, 3, 3)
+    out = np.full(rel.shape, np.nan)
+    rot, ok = _rotations(rel)
+    if rot is not None:
+        step = Rotation.from_rotvec(rot.as_rotvec() * w.reshape(-1)[ok][:, None])
+        out[ok] = step.as_matrix()
+    return np.asarray(a @ out.reshape(a.shape), dtype=np.float64)
+
+
+def continuous_euler_deg(r: Array, seq: str) -> Array:
+    """Euler angles ``(T, ..., 3)`` in degrees of rotations ``r (T, ..., 3, 3)``, continuous
+    over the first axis (time).
+
+    ``seq`` is an intrinsic sequence (upper case, e.g. ``"ZXY"``: ``R = Rz Rx Ry``, a BVH joint
+    with channels ``Zrotation Xrotation Yrotation``). A Tait-Bryan sequence has two solutions,
+    ``(a, b, c)`` and ``(a + 180, 180 - b, c + 180)``; frame by frame the one nearer the previous
+    frame is taken and each angle is moved by whole turns to within 180 degrees of the previous
+    frame, so no channel jumps by 360 degrees (angles may leave [-180, 180]). Rotations must be
+    finite.
+    """
+    m = np.asarray(r, dtype=np.float64)
+    if m.ndim < 3 or m.shape[-2:] != (3, 3):
+        raise ValueError(f"continuous_euler_deg takes rotations (T, ..., 3, 3), got {m.shape}")
+    shape = m.shape[:-2]
+    with warnings.catch_warnings():  # at gimbal lock scipy sets the third angle to 0: one of
+        warnings.simplefilter("ignore", UserWarning)  # the solutions, which is all we need
+        a = np.asarray(
+            Rotation.from_matrix(m.reshape(-1, 3, 3)).as_euler(seq, degrees=True),
+            dtype=np.float64,
+        ).reshape(*shape, 3)
+    b = np.stack([a[..., 0] + 180.0, 180.0 - a[..., 1], a[..., 2] + 180.0], axis=-1)
+    out = np.empty_like(a)
+    if shape[0] == 0:
+        return out
+    prev = a[0]
+    for k in range(shape[0]):
+        ca = a[k] - 360.0 * np.round((a[k] - prev) / 360.0)
+        cb = b[k] - 360.0 * np.round((b[k] - prev) / 360.0)
+        take_b = np.abs(cb - prev).sum(-1) < np.abs(ca - prev).sum(-1)
+        prev = np.where(take_b[..., None], cb, ca)
+        out[k] = prev
+    return out

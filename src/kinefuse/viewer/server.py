@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import secrets
 import weakref
 from collections.abc import AsyncIterator
 from importlib import resources
@@ -103,8 +104,15 @@ class LiveSource:
             self.dropped += sub.dropped
 
 
-def make_app(source: Source) -> web.Application:
-    """The aiohttp application: ``/`` (the page), ``/static/*``, ``/ws``."""
+def make_app(
+    source: Source, *, token: str | None = None, publisher: Publisher | None = None
+) -> web.Application:
+    """The aiohttp application: ``/`` (the page), ``/static/*``, ``/ws``, and with a live
+    ``publisher`` the subscription API (:mod:`kinefuse.viewer.api`). WebSockets from another
+    origin are refused; with a ``token`` the page's ``/ws`` asks for it first (``auth_required``
+    with a nonce; the page answers with the HMAC or the token itself, ``docs/api.md``)."""
+    from kinefuse.viewer.api import API_PATH, api_handler, check_token, refuse, same_origin
+
     app = web.Application()
     sockets: weakref.WeakSet[web.WebSocketResponse] = weakref.WeakSet()
     files = {name: (resources.files("kinefuse.viewer") / "static" / name) for name in _STATIC}
@@ -119,10 +127,19 @@ def make_app(source: Source) -> web.Application:
         return _file_response(files[name].read_bytes(), name)
 
     async def websocket(request: web.Request) -> web.WebSocketResponse:
+        if not same_origin(request):
+            raise web.HTTPForbidden(text="cross-origin WebSocket refused")
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=1 << 16)
         await ws.prepare(request)
         sockets.add(ws)
         try:
+            if token is not None:
+                nonce = secrets.token_hex(16)
+                await ws.send_str(json.dumps({"type": "auth_required", "nonce": nonce}))
+                error = await check_token(ws, token, nonce)
+                if error is not None:
+                    await refuse(ws, error)
+                    return ws
             await ws.send_str(json.dumps(source.hello()))
             await source.serve(ws)
         except (ConnectionResetError, ConnectionError):
@@ -138,6 +155,8 @@ def make_app(source: Source) -> web.Application:
     app.router.add_get("/", page)
     app.router.add_get("/static/{name}", static)
     app.router.add_get("/ws", websocket)
+    if publisher is not None:
+        app.router.add_get(API_PATH, api_handler(publisher, token))
     app.on_shutdown.append(close_sockets)
     return app
 
@@ -148,9 +167,18 @@ def _file_response(body: bytes, name: str) -> web.Response:
 
 
 @contextlib.asynccontextmanager
-async def serve(source: Source, *, host: str = DEFAULT_HOST, port: int = 0) -> AsyncIterator[int]:
-    """Serve ``source`` on the running loop; yields the bound port; stops on exit."""
-    runner = web.AppRunner(make_app(source), handle_signals=False, access_log=None)
+async def serve(
+    source: Source,
+    *,
+    host: str = DEFAULT_HOST,
+    port: int = 0,
+    token: str | None = None,
+    publisher: Publisher | None = None,
+) -> AsyncIterator[int]:
+    """Serve ``source`` on the running loop; yields the bound port; stops on exit (no access
+    log: nothing a client sends is logged)."""
+    app = make_app(source, token=token, publisher=publisher)
+    runner = web.AppRunner(app, handle_signals=False, access_log=None)
     await runner.setup()
     try:
         site = web.TCPSite(runner, host, port, reuse_address=True)
@@ -165,7 +193,12 @@ async def serve(source: Source, *, host: str = DEFAULT_HOST, port: int = 0) -> A
 
 @contextlib.asynccontextmanager
 async def live_viewer(
-    publisher: Publisher, host: str = DEFAULT_HOST, port: int = 0, *, maxsize: int = 2
+    publisher: Publisher,
+    host: str = DEFAULT_HOST,
+    port: int = 0,
+    *,
+    maxsize: int = 2,
+    token: str | None = None,
 ) -> AsyncIterator[int]:
     """Serve the live viewer of ``publisher`` on the running loop.
 
@@ -184,12 +217,15 @@ async def live_viewer(
         TCP port; 0 picks a free one.
     maxsize : int
         Items a page keeps queued while it is busy; older ones are skipped.
+    token : str, optional
+        The server's token: the page and the subscription API ask for it.
 
     Yields
     ------
     bound_port : int
     """
-    async with serve(LiveSource(publisher, maxsize=maxsize), host=host, port=port) as p:
+    source = LiveSource(publisher, maxsize=maxsize)
+    async with serve(source, host=host, port=port, token=token, publisher=publisher) as p:
         yield p
 
 

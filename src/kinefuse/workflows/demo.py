@@ -13,7 +13,8 @@
    and the demo fails naming it; none is left behind, also on Ctrl-C;
 5. **evaluate** offline (:mod:`kinefuse.evaluation.live`): the truth is written into the
    recording's truth tables, the recording is re-fused with ``best`` and the paper's chain,
-   exported (``.c3d``, ``.trc``, ``.csv``) and scored; clock, calibration and latency figures.
+   exported (``.c3d``, ``.trc``, ``.csv``, ``.bvh``) and scored; clock, calibration and latency
+   figures.
 
 Outputs go to a folder built beside ``--out`` and swapped in only when the run is complete
 (:func:`kinefuse.io.outputs.atomic_dir`), so an interrupted demo leaves the previous one as it was.
@@ -47,6 +48,8 @@ DEMO_CALIBRATION_S = 15.0
 
 #: Default length of the captured motion, seconds (at most the clip's).
 DEMO_SECONDS = 20.0
+#: The formats the demo exports the offline fusion in (one fusion, every file).
+EXPORTS = (".c3d", ".trc", ".csv", ".bvh")
 
 #: Time from starting the sensor processes to the instant every one starts playing, seconds:
 #: long enough for N Python processes to start and connect on a busy 2-core machine (about
@@ -499,18 +502,18 @@ def run_live_demo(
 
         say("\n== 3/4 offline: the recording re-fused with best, exported")
         write_live_truth(live.recording, sim, live.sidecars)
-        outputs = []
-        for ext in (".c3d", ".trc", ".csv"):
-            fused = run_fuse(
-                session=live.recording,
-                method="best",
-                out=tmp / f"fused{ext}",
-                calibration=None,
-                true_calibration=False,
-            )
-            outputs.append(f"fused{ext}")
-        say(f"   {fused['frames']} frames ({fused['calibration']}) -> fused.c3d, fused.trc, "
-            "fused.csv")  # fmt: skip
+        outputs = [f"fused{ext}" for ext in EXPORTS]
+        fused = run_fuse(
+            session=live.recording,
+            method="best",
+            out=tmp / outputs[0],
+            also_out=tuple(tmp / o for o in outputs[1:]),
+            calibration=None,
+            true_calibration=False,
+        )
+        say(f"   {fused['frames']} frames ({fused['calibration']}) -> {', '.join(outputs)}")
+        for w in fused["warnings"]:  # type: ignore[attr-defined]
+            say(f"   warning: {w}")
 
         say("\n== 4/4 evaluate: live and offline against the simulator's truth")
         methods = ("paper", "best")
@@ -540,7 +543,8 @@ def run_live_demo(
         say(f"\noutputs in {out_dir}/: recording.sqlite (the live recording, with the truth added "
             "after the run), sim.sqlite (the simulated session the clients played), "
             "calibration.toml (the live calibration), fused.c3d, fused.trc, fused.csv, "
-            "evaluation/ (tables I-III, trajectories.png), live_eval.json, logs/")  # fmt: skip
+            "fused.bvh, evaluation/ (tables I-III, trajectories.png), live_eval.json, "
+            "logs/")  # fmt: skip
     return 0
 
 
@@ -613,16 +617,16 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
             raise CalibrationError("the demo's calibration failed; see the reasons above")
 
         say("\n== 3/4 fuse: one skeleton from the four sensors (method best)")
-        for ext in (".c3d", ".trc", ".csv"):
-            fused = run_fuse(
-                session=session,
-                method="best",
-                out=tmp / f"fused{ext}",
-                calibration=None,
-                true_calibration=False,
-            )
-        say(f"   {fused['frames']} frames in {fused['seconds']:.2f} s -> fused.c3d, fused.trc, "
-            "fused.csv")  # fmt: skip
+        names = [f"fused{ext}" for ext in EXPORTS]
+        fused = run_fuse(
+            session=session,
+            method="best",
+            out=tmp / names[0],
+            also_out=tuple(tmp / o for o in names[1:]),
+            calibration=None,
+            true_calibration=False,
+        )
+        say(f"   {fused['frames']} frames in {fused['seconds']:.2f} s -> {', '.join(names)}")
 
         say("\n== 4/4 evaluate: the paper's methods and ours against the truth")
         report = run_evaluate(
@@ -634,6 +638,6 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
         )
         say(format_evaluate(report, METHODS))
     say(f"\noutputs in {out_dir}/: session.sqlite, inspect.json, calibration.toml, "
-        "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, evaluation/ (report.html, "
-        "tables I-III, trajectories.png, evaluate.json)")  # fmt: skip
+        "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, fused.bvh, evaluation/ "
+        "(report.html, tables I-III, trajectories.png, evaluate.json)")  # fmt: skip
     return 0

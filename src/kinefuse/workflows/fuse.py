@@ -25,21 +25,24 @@ def run_fuse(
     trc_axes: str = "y-up",
     start_s: float | None = None,
     end_s: float | None = None,
+    also_out: tuple[Path, ...] = (),
 ) -> dict[str, object]:
     """Fuse a session with one method and export the result.
 
     The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
     (the one case that writes to the session). The export's folder and kind are checked before
-    the work starts, so a bad ``out`` fails fast.
+    the work starts, so a bad ``out`` fails fast. ``also_out``: more exports of the same
+    result (the demo writes every format from one fusion).
     """
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
     from kinefuse.pipeline.session import clip_grid, frame_grid, load_sensors, run_method
 
-    if out is not None:
-        check_export_path(out)
-        check_output_folder(out, "export")
+    outs = ([out] if out is not None else []) + list(also_out)
+    for o in outs:
+        check_export_path(o)
+        check_output_folder(o, "export")
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
@@ -53,10 +56,17 @@ def run_fuse(
         res = run_method(sensors, grid, method)
         if store_result:
             store.write_fused(method, res.t_server_s, res.positions, res.status)
-    if out is not None:
+    for o in outs:
+        notes: list[str] = []
         export_skeleton(
-            out, res.t_server_s, res.positions, residual_m=res.residual_m, trc_axes=trc_axes
+            o,
+            res.t_server_s,
+            res.positions,
+            residual_m=res.residual_m,
+            trc_axes=trc_axes,
+            notes=notes,
         )
+        warnings += [f"{o.name}: {n}" for n in notes]
     return {
         "method": method,
         "calibration": source,
@@ -64,6 +74,7 @@ def run_fuse(
         "seconds": res.seconds,
         "status": status_counts(res.status),
         "out": str(out) if out is not None else None,
+        "also_out": [str(o) for o in also_out],
         "stored_in_session": store_result,
         "warnings": warnings,
     }

@@ -90,7 +90,9 @@ def run_serve(
     if viewer_port is not None:  # the live web viewer, on the server's publisher
         from kinefuse.viewer import live_viewer
 
-        services["viewer"] = functools.partial(live_viewer, host=host, port=viewer_port)
+        services["viewer"] = functools.partial(
+            live_viewer, host=host, port=viewer_port, token=token
+        )
     server = Server(options, services=services)
     if calibration is not None:
         from kinefuse.calibration.calib_file import read_calibration

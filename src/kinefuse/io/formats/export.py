@@ -12,7 +12,8 @@ writes ``k0 + 1`` as its (1-based) first frame number, so frame ``n`` is at ``(n
 Axes and units (``docs/formats.md``): CSV in metres in the world frame (z up); C3D in
 millimetres in the world frame (z up, the usual lab convention of C3D files); TRC in
 millimetres and, by default, OpenSim's axes (Y up: ``X = x, Y = z, Z = -y``), or the world
-frame with ``trc_axes="z-up"``.
+frame with ``trc_axes="z-up"``; BVH in metres on those same Y-up axes, as joint rotations on
+the Kinect v2 rig (:mod:`kinefuse.motion.bvh_pose`; no time column: frame 0 is ``t_0``).
 """
 
 from __future__ import annotations
@@ -177,6 +178,30 @@ def is_c3d_export(path: Path) -> bool:
         return False
 
 
+def _write_bvh(
+    path: Path, t_s: Array, positions: Array, *, notes: list[str] | None = None, **_: object
+) -> None:
+    """BVH (``docs/formats.md``, "BVH export"): the Kinect v2 rig with the session's bone
+    lengths, rotations solved per frame (:func:`kinefuse.motion.bvh_pose.solve_pose`), metres,
+    Y up; the frame time from the grid's rate. What was held is appended to ``notes``."""
+    from kinefuse.io.formats.bvh_export import bvh_text
+    from kinefuse.motion.bvh_pose import solve_pose
+
+    _t, p, rate, _k0 = _check(t_s, positions)
+    if not np.isfinite(p).all(axis=-1).any():
+        raise InputError("a BVH export needs at least one joint position; every frame is empty")
+    pose = solve_pose(p)
+    if notes is not None:
+        notes.extend(pose.notes)
+    path.write_text(bvh_text(pose, 1.0 / rate), encoding="utf-8")
+
+
+def _is_bvh_export(path: Path) -> bool:
+    from kinefuse.io.formats.bvh_export import is_bvh_export
+
+    return is_bvh_export(path)
+
+
 Exporter = Callable[..., None]
 
 #: extension -> (writer of a new file, recognizer of a file of that kind written by kinefuse);
@@ -185,6 +210,7 @@ EXPORTERS: dict[str, tuple[Exporter, Callable[[Path], bool]]] = {
     ".csv": (_write_csv, is_csv_export),
     ".trc": (_write_trc, is_trc_export),
     ".c3d": (_write_c3d, is_c3d_export),
+    ".bvh": (_write_bvh, _is_bvh_export),
 }
 
 
@@ -233,8 +259,11 @@ def export_skeleton(
     *,
     residual_m: Array | None = None,
     trc_axes: str = "y-up",
+    notes: list[str] | None = None,
 ) -> Path:
-    """Write a fused skeleton; the extension picks the format (``.csv``, ``.trc``, ``.c3d``).
+    """Write a fused skeleton; the extension picks the format (``.csv``, ``.trc``, ``.c3d``,
+    ``.bvh``). A writer appends what the reader should know (a BVH's held rotations) to
+    ``notes``.
 
     Raises
     ------
@@ -245,4 +274,11 @@ def export_skeleton(
         (missing or read-only folder, disk full...). An old file is left untouched.
     """
     p = check_export_path(path)
-    return _export(p, p.suffix.lower(), t_s, positions, residual_m=residual_m, trc_axes=trc_axes)
+    return _export(
+        p, p.suffix.lower(), t_s, positions, residual_m=residual_m, trc_axes=trc_axes, notes=notes
+    )
+
+
+def export_bvh(path: str | Path, t_s: Array, positions: Array, **kw: object) -> Path:
+    """Write a BVH export (layout: :func:`_write_bvh`), safely (:func:`_export`)."""
+    return _export(path, ".bvh", t_s, positions, **kw)

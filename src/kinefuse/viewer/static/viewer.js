@@ -92,8 +92,28 @@ function connect() {
 }
 function send(cmd) { if (ws && ws.readyState === 1) ws.send(JSON.stringify(cmd)); }
 
+// a server with a token asks for it first (docs/api.md): the HMAC where the browser can compute
+// one (a secure context: https or 127.0.0.1), else the token itself; kept for this tab only
+async function answerAuth(m) {
+  let token = sessionStorage.getItem("kinefuse-token");
+  if (token === null) token = window.prompt("This kinefuse server needs its token:") || "";
+  sessionStorage.setItem("kinefuse-token", token);
+  if (window.crypto && crypto.subtle) {
+    const enc = new TextEncoder();
+    const key = await crypto.subtle.importKey("raw", enc.encode(token),
+      {name: "HMAC", hash: "SHA-256"}, false, ["sign"]);
+    const mac = await crypto.subtle.sign("HMAC", key, enc.encode("kinefuse-live/1|" + m.nonce));
+    const hex = Array.from(new Uint8Array(mac), (b) => b.toString(16).padStart(2, "0")).join("");
+    send({type: "auth", mac: hex});
+  } else {
+    send({type: "auth", token});
+  }
+}
+
 function onText(m) {
-  if (m.type === "hello") onHello(m);
+  if (m.type === "auth_required") answerAuth(m);
+  else if (m.type === "error") { sessionStorage.removeItem("kinefuse-token"); }
+  else if (m.type === "hello") onHello(m);
   else if (m.type === "status") { S.status = m; renderStatus(); dirty(); }
   else if (m.type === "player") { S.player = m; renderPlayer(); }
 }

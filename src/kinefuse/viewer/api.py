@@ -1,0 +1,176 @@
+"""The live subscription API: a versioned WebSocket for third-party programs (``docs/api.md``).
+
+``GET /api/v1/stream[?format=json|binary]`` on the viewer's HTTP server (``kinefuse serve
+--viewer-port``) upgrades to a WebSocket that carries, after an optional token handshake, a
+``welcome``, then every published status (per-sensor state and calibration poses) as JSON and
+every fused frame as JSON or as the viewer's compact binary frame (:mod:`kinefuse.viewer.wire`).
+
+Each subscriber has a lossy subscription on the server's publisher (the newest 2 items): a slow
+one skips frames and fusion never waits. One whose socket accepts nothing for
+:data:`STALL_LIMIT_S` (its send buffer is capped at :data:`SEND_BUFFER_BYTES`) is disconnected.
+Cross-origin WebSockets are refused (the ``Origin`` header, when a browser sends one, must be
+the server's own host), here and on the viewer's ``/ws``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import hmac
+import json
+import math
+import secrets
+import socket
+from typing import Any
+from urllib.parse import urlsplit
+
+from aiohttp import WSMsgType, web
+
+from kinefuse.net.bus import FusedFrame, Publisher, Status
+from kinefuse.skeleton import JOINTS
+from kinefuse.viewer.wire import fused_frame_bytes, status_message
+
+API_NAME = "kinefuse-live"
+API_VERSION = 1
+API_PATH = f"/api/v{API_VERSION}/stream"
+FORMATS = ("json", "binary")
+#: a subscriber whose socket takes nothing for this long is disconnected (close code 4408)
+STALL_LIMIT_S = 5.0
+#: the kernel send buffer of each subscriber's socket: a stalled reader blocks sends soon
+SEND_BUFFER_BYTES = 64 * 1024
+#: the client must answer the token challenge within this time
+AUTH_TIMEOUT_S = 10.0
+#: close codes (the reason is also sent first as an ``error`` message when possible)
+CLOSE_UNAUTHORIZED = 4401
+CLOSE_MALFORMED = 4400
+CLOSE_TOO_SLOW = 4408
+
+
+def api_mac(token: str, nonce: str) -> str:
+    """The answer to a challenge: hex HMAC-SHA256 keyed by the token over
+    ``"kinefuse-live/1|" + nonce`` (the token itself never crosses the wire)."""
+    msg = f"{API_NAME}/{API_VERSION}|{nonce}".encode()
+    return hmac.new(token.encode(), msg, hashlib.sha256).hexdigest()
+
+
+def same_origin(request: web.Request) -> bool:
+    """False for a browser's cross-origin request: an ``Origin`` whose host:port is not the
+    ``Host`` the request was sent to. Programs that send no ``Origin`` pass."""
+    origin = request.headers.get("Origin")
+    if origin is None:
+        return True
+    parts = urlsplit(origin)
+    return parts.scheme in ("http", "https") and parts.netloc.lower() == request.host.lower()
+
+
+async def check_token(ws: web.WebSocketResponse, token: str | None, nonce: str) -> str | None:
+    """Read the client's ``auth`` message; None when it proves the token, else the error."""
+    if token is None:
+        return None
+    try:
+        msg = await ws.receive(timeout=AUTH_TIMEOUT_S)
+    except TimeoutError:
+        return "malformed: no auth message within the time limit"
+    if msg.type != WSMsgType.TEXT:
+        return "malformed: the first message must be a JSON auth message"
+    try:
+        auth = json.loads(msg.data)
+    except ValueError:
+        return "malformed: the auth message is not JSON"
+    if not isinstance(auth, dict) or auth.get("type") != "auth":
+        return 'malformed: expected {"type": "auth", "mac": ...} or {"type": "auth", "token": ...}'
+    mac, bearer = auth.get("mac"), auth.get("token")
+    if isinstance(mac, str) and hmac.compare_digest(mac, api_mac(token, nonce)):
+        return None
+    if isinstance(bearer, str) and hmac.compare_digest(bearer.encode(), token.encode()):
+        return None
+    return "unauthorized: wrong token"
+
+
+async def refuse(ws: web.WebSocketResponse, error: str) -> None:
+    """Send an ``error`` message and close with the matching code."""
+    code = CLOSE_UNAUTHORIZED if error.startswith("unauthorized") else CLOSE_MALFORMED
+    with contextlib.suppress(ConnectionError, RuntimeError):
+        await ws.send_str(json.dumps({"type": "error", "error": error}))
+        await ws.close(code=code, message=error[:100].encode())
+
+
+def _num(x: float) -> float | None:
+    return None if not math.isfinite(x) else round(float(x), 6)
+
+
+def frame_message(frame: FusedFrame) -> dict[str, Any]:
+    """A fused frame as JSON: positions in metres (world, z up; null = not solved)."""
+    return {
+        "type": "frame",
+        "seq": frame.seq,
+        "t_server_s": frame.t_server_s,
+        "positions_m": [
+            [round(float(v), 6) for v in p] if bool(all(math.isfinite(v) for v in p)) else None
+            for p in frame.positions_m
+        ],
+        "status": [int(s) for s in frame.status],
+        "latency_ms": _num(frame.latency_s * 1e3),
+    }
+
+
+def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) -> Any:
+    """The aiohttp handler of :data:`API_PATH` on ``publisher``."""
+
+    async def handler(request: web.Request) -> web.StreamResponse:
+        if not same_origin(request):
+            raise web.HTTPForbidden(text="cross-origin WebSocket refused")
+        fmt = request.query.get("format", "json")
+        if fmt not in FORMATS or set(request.query) - {"format"}:
+            raise web.HTTPBadRequest(text=f"format must be one of {', '.join(FORMATS)}")
+        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=1 << 14)
+        await ws.prepare(request)
+        sock = request.transport.get_extra_info("socket") if request.transport else None
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+        nonce = secrets.token_hex(16)
+        await ws.send_str(json.dumps({
+            "type": "hello", "api": API_NAME, "version": API_VERSION,
+            "auth": "hmac-sha256" if token is not None else "none", "nonce": nonce,
+        }))  # fmt: skip
+        error = await check_token(ws, token, nonce)
+        if error is not None:
+            await refuse(ws, error)
+            return ws
+        await ws.send_str(json.dumps({
+            "type": "welcome", "api": API_NAME, "version": API_VERSION, "format": fmt,
+            "joints": list(JOINTS), "stall_limit_s": STALL_LIMIT_S,
+        }))  # fmt: skip
+        sub = publisher.subscribe(maxsize=maxsize)
+
+        async def read() -> None:
+            async for _msg in ws:  # nothing to say after auth; reading notices the close
+                pass
+            sub.close()
+
+        async def send() -> None:
+            async for item in sub:
+                async with asyncio.timeout(STALL_LIMIT_S):
+                    if isinstance(item, Status):
+                        await ws.send_str(json.dumps(status_message(item)))
+                    elif fmt == "json":
+                        await ws.send_str(json.dumps(frame_message(item)))
+                    else:
+                        await ws.send_bytes(fused_frame_bytes(item))
+            await ws.close()
+
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(read())
+                tg.create_task(send())
+        except* TimeoutError:  # the subscriber stopped reading: cut it off
+            if request.transport is not None:
+                request.transport.abort()
+        except* (ConnectionResetError, ConnectionError):
+            pass
+        finally:
+            sub.close()
+        return ws
+
+    return handler
