@@ -57,7 +57,13 @@ def _add_live_args(p: argparse.ArgumentParser) -> None:
         type=shared.positive_float,
         help="(--live) stop the wand phase after this long (default: when the wand is put away)",
     )
-    p.add_argument("--token", help="(--live) the server's token (default: KINEFUSE_TOKEN)")
+    p.add_argument(
+        "--token-file",
+        type=Path,
+        metavar="FILE",
+        help="(--live) read the server's token from FILE (default: KINEFUSE_TOKEN)",
+    )
+    p.add_argument("--token", help="(--live) the token itself (visible in ps: prefer a file)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,7 +112,10 @@ def _run_live(args: argparse.Namespace) -> int:
     if args.session is not None:
         raise KinefuseError("give either a session or --live HOST:PORT, not both")
     r = run_calibrate_live(
-        address=args.live, method=args.method, seconds=args.seconds, token=token_from(args.token)
+        address=args.live,
+        method=args.method,
+        seconds=args.seconds,
+        token=token_from(args.token, args.token_file),
     )
     print(json.dumps(r, indent=2) if args.json else format_calibrate_live(r))
     return 0 if r["accepted"] else 3

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 from kinefuse.calibration.session import DETECTORS
@@ -28,10 +27,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "driver:MODULE:FACTORY[?KEY=VALUE&...][#SENSOR_ID] or an installed driver NAME:ARG",
     )
     p.add_argument(
-        "--token",
-        default=os.environ.get("KINEFUSE_TOKEN"),
-        help="the server's shared token (default: $KINEFUSE_TOKEN); it never crosses the wire",
+        "--token-file",
+        type=Path,
+        metavar="FILE",
+        help="read the server's shared token from FILE (default: $KINEFUSE_TOKEN); it never "
+        "crosses the wire",
     )
+    p.add_argument("--token", help="the token itself (visible in ps: prefer --token-file)")
     p.add_argument(
         "--truth-out",
         type=Path,
@@ -85,6 +87,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def run(args: argparse.Namespace) -> int:
     from kinefuse.workflows.sensor import run_sensor
+    from kinefuse.workflows.serve import token_from
 
     return run_sensor(
         clock_drift_ppm=args.clock_drift_ppm,
@@ -98,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         server=args.server,
         source=args.source,
         speed=args.speed,
-        token=args.token,
+        token=token_from(args.token, args.token_file),
         truth_out=args.truth_out,
         verbose=args.verbose,
     )

@@ -15,7 +15,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p = sub.add_parser("serve", help="run the live server: sensor clients in, fused frames out")
     p.add_argument("--host", default="127.0.0.1", help="bind address (127.0.0.1: this PC only)")
     p.add_argument("--port", type=int, default=7400, help="TCP port (7400; 0: a free one)")
-    p.add_argument("--token", help="shared secret clients must prove (default: KINEFUSE_TOKEN)")
+    p.add_argument(
+        "--token-file",
+        type=Path,
+        metavar="FILE",
+        help="read the shared secret clients must prove from FILE (default: KINEFUSE_TOKEN)",
+    )
+    p.add_argument("--token", help="the shared secret itself (visible in ps: prefer --token-file)")
     p.add_argument("--record", type=Path, help="record everything into this NEW session file")
     p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
     p.add_argument(
@@ -59,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     return run_serve(
         host=args.host,
         port=args.port,
-        token=token_from(args.token),
+        token=token_from(args.token, args.token_file),
         record=args.record,
         calibration=args.calibration,
         method=args.method,

@@ -28,6 +28,7 @@ from kinefuse.protocol.errors import (
     FieldError,
     FrameTooLarge,
     FramingError,
+    LimitExceeded,
     MalformedMessage,
     TruncatedFrame,
     UnknownMessageType,
@@ -50,6 +51,8 @@ MAX_FRAME_BYTES = 1 << 20
 HEADER = struct.Struct(">I")
 
 _MAX_CONTAINER = 4096  # msgpack list/map entries in one container
+#: distinct unknown type names :attr:`Decoder.ignored` keeps by name
+MAX_IGNORED_NAMES = 32
 
 
 def _no_ext(code: int, data: bytes) -> Any:
@@ -157,6 +160,11 @@ class Decoder:
     ----------
     max_frame_bytes : int
         Frames announcing a larger body raise :class:`FrameTooLarge` (from the prefix alone).
+        An attribute: a server lowers it until a peer is authenticated.
+    max_ignored_run : int
+        Unknown message types skipped in a row (no known message between them) above which
+        :class:`LimitExceeded` is raised: a newer peer's new messages come among the ones we
+        know, a stream of nothing but unknown ones is a flood.
 
     Attributes
     ----------
@@ -164,15 +172,20 @@ class Decoder:
         The version the peer announced in its Hello or Welcome (recorded when decoded; or set
         it). Unknown message types from a newer minor version are skipped and counted.
     ignored : collections.Counter
-        Skipped unknown message types by name.
+        Skipped unknown message types by name (at most ``MAX_IGNORED_NAMES`` names; the
+        others are counted under ``"..."``).
     """
 
-    def __init__(self, *, max_frame_bytes: int = MAX_FRAME_BYTES) -> None:
+    def __init__(
+        self, *, max_frame_bytes: int = MAX_FRAME_BYTES, max_ignored_run: int = 256
+    ) -> None:
         if max_frame_bytes < 1:
             raise ValueError(f"max_frame_bytes must be >= 1, got {max_frame_bytes}")
         self.max_frame_bytes = max_frame_bytes
         self.peer_version: tuple[int, int] | None = None
         self.ignored: Counter[str] = Counter()
+        self.max_ignored_run = max_ignored_run
+        self._ignored_run = 0
         self._buf = bytearray()
         self._broken: FramingError | None = None
         self.n_frames = 0
@@ -229,8 +242,19 @@ class Decoder:
         self.n_frames += 1
         msg = decode_body(body, peer_version=self.peer_version)
         if msg is None:
-            self.ignored[_peek_type(body)] += 1
-        elif isinstance(msg, Hello | Welcome):
+            name = _peek_type(body)
+            if name not in self.ignored and len(self.ignored) >= MAX_IGNORED_NAMES:
+                name = "..."
+            self.ignored[name] += 1
+            self._ignored_run += 1
+            if self._ignored_run > self.max_ignored_run:
+                raise LimitExceeded(
+                    f"{self._ignored_run} unknown messages in a row (at most "
+                    f"{self.max_ignored_run}): a flood, not a newer peer"
+                )
+            return msg, True
+        self._ignored_run = 0
+        if isinstance(msg, Hello | Welcome):
             self.peer_version = msg.protocol_version
         return msg, True
 

@@ -16,6 +16,8 @@ Every error carries a short machine-readable :attr:`~WireError.code`, the ``code
         ├── VersionError             "version"    the peer speaks another major version
         ├── AuthError                "auth"       a wrong or missing HMAC
         ├── OutOfOrder               "order"      a message not allowed in this state/role
+        ├── LimitExceeded            "limit"      too many messages a second, too many unknown
+        │                                         ones in a row, requests too often
         └── RemoteError              (the peer's)  the peer sent an Error message
 
 After a :class:`FramingError` the stream cannot be resynchronized and the connection must be
@@ -122,6 +124,12 @@ class OutOfOrder(WireError):
     code = "order"
 
 
+class LimitExceeded(WireError):
+    """The peer exceeded a rate or count limit (a flood: see docs/protocol.md, "Limits")."""
+
+    code = "limit"
+
+
 class RemoteError(WireError):
     """The peer sent an ``Error`` message; :attr:`code` is the peer's code."""
 
@@ -143,6 +151,7 @@ ERROR_CODES: dict[str, str] = {
     "order": "a message not allowed from this role or in this connection state",
     "duplicate_id": "a sensor with this id is already connected",
     "timeout": "nothing heard for the agreed timeout (or no Hello in time)",
+    "limit": "the peer sent too much: messages too fast, unknown ones in a row, requests too often",
     "busy": "the server accepts no more peers",
     "internal": "the sender failed (a bug); the connection closes, the process goes on",
 }

@@ -302,7 +302,8 @@ class Array(Kind):
             )
         a = np.frombuffer(data, dtype=dtype).reshape(shape)
         self._check_values(a, msg, name)
-        out = a.astype(np.dtype(self.out))
+        with np.errstate(invalid="ignore"):  # a signalling NaN (allowed as missing) stays NaN
+            out = a.astype(np.dtype(self.out))
         out.flags.writeable = False
         return out
 

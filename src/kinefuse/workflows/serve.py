@@ -34,11 +34,24 @@ def _setup_logging(verbose: bool) -> None:
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
 
 
-def token_from(arg: str | None) -> str | None:
-    """``--token`` or else the ``KINEFUSE_TOKEN`` environment variable (None: no token)."""
+def token_from(arg: str | None, file: Path | None = None) -> str | None:
+    """The shared token: ``--token-file`` (its first line), else ``--token``, else the
+    ``KINEFUSE_TOKEN`` environment variable (None: no token). A file or the environment keep
+    the token out of ``ps``; ``--token`` on the command line does not."""
+    if file is not None and arg is not None:
+        raise InputError("give either --token-file or --token, not both")
+    if file is not None:
+        try:
+            lines = Path(file).read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as e:
+            raise InputError(f"cannot read the token file {file}: {e}") from None
+        tok: str | None = lines[0].strip() if lines else ""
+        if not tok:
+            raise InputError(f"the token file {file} is empty; put the token on its first line")
+        return tok
     tok = arg if arg is not None else os.environ.get("KINEFUSE_TOKEN")
     if tok is not None and not tok:
-        raise InputError("the token is empty; give a non-empty --token (or KINEFUSE_TOKEN)")
+        raise InputError("the token is empty; give a non-empty --token-file (or KINEFUSE_TOKEN)")
     return tok
 
 

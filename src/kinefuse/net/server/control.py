@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from kinefuse.errors import CalibrationError
 from kinefuse.net.server.conn import Connection
+from kinefuse.net.server.guard import TokenBucket
 from kinefuse.net.server.report import status_message
 from kinefuse.protocol import (
     CalibrationResult,
@@ -21,7 +22,7 @@ from kinefuse.protocol import (
     StatusRequest,
     Welcome,
 )
-from kinefuse.protocol.errors import OutOfOrder
+from kinefuse.protocol.errors import LimitExceeded, OutOfOrder
 
 if TYPE_CHECKING:
     from kinefuse.net.server.server import Server
@@ -44,10 +45,18 @@ async def serve_control(srv: Server, conn: Connection) -> None:
     srv._controls.add(conn)
     log.info("control peer connected from %s", conn.peer)
     beat = asyncio.ensure_future(_heartbeat_loop(srv, conn))
+    o = srv.options
+    # requests cost the event loop (a status snapshot, a calibration): a peer gets so many
+    requests = TokenBucket(o.control_rate, o.control_burst, srv.clock())
     try:
         while True:
-            msg, _ = await conn.recv(srv.options.timeout_s)
+            msg, t = await conn.recv(srv.options.timeout_s)
             conn.check_sender(msg)
+            if not isinstance(msg, Heartbeat | Goodbye) and not requests.take(t):
+                raise LimitExceeded(
+                    f"{conn.name} sends more than {o.control_rate:g} requests a second "
+                    f"(bursts of {o.control_burst:g})"
+                )
             if isinstance(msg, CalibrationStart):
                 try:
                     srv._start_calibration(

@@ -66,11 +66,14 @@ def run_stats(srv: Server) -> dict[str, object]:
         "fusion_ms_per_frame": 1e3 * lp.fuse_seconds / lp.frames if lp.frames else None,
         "stop_reason": srv._stop_reason,
         "refused": [{"code": c, "reason": r} for c, r in srv.refused],
+        "refused_total": srv.refusals.total,
+        "refused_by_code": dict(srv.refusals.counts),
         "sensors": {
             sid: {
                 "connections": c.connections,
                 "queue_dropped": c.dropped,
                 "stale_frames": c.stale,
+                "late_dropped": c.late_dropped,
             }
             for sid, c in srv.clients.items()
         },

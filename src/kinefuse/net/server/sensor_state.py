@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import SyncError
 from kinefuse.skeleton import N_JOINTS, TrackingState
-from kinefuse.sync.device import DeviceClockEstimate, estimate_device_clock
+from kinefuse.sync.device import NOMINAL_LATENCY_S, DeviceClockEstimate, estimate_device_clock
 from kinefuse.sync.online import OnlineClock, OnlineClockParams
 
 Array = NDArray[np.float64]
@@ -117,6 +117,12 @@ class SensorState:
         self.dropped = 0
         self.last_seq: int | None = None
         self.stale = 0  # frames not newer than last_seq (a restarted client replaying)
+        #: body frames dropped as too late (a stalled sensor's backlog)
+        self.late_dropped = 0
+        #: server time the current run of late frames began (None: the last frame was on time)
+        self.late_since: float | None = None
+        #: a run of late frames arriving for this long means the device clock was reset, s
+        self.max_late_run_s = 3.0
         self.rtt_s = float("nan")
         self.latency_s = float("nan")
         #: why the client's floor fit of this calibration failed (its heartbeats say), or None
@@ -154,16 +160,44 @@ class SensorState:
 
     # -- observations ----------------------------------------------------------------------------
 
-    def accept(self, seq: int, t_device_s: float, t_host_s: float) -> bool:
+    def accept(self, seq: int) -> bool:
         """Whether a body frame is new (its seq above every one seen, across connections)."""
         if self.last_seq is not None and seq <= self.last_seq:
             self.stale += 1
             return False
         self.last_seq = seq
-        self.device.add(t_device_s, t_host_s)
         return True
 
+    def lateness(self, t_device_s: float, t_host_s: float, t_arrival_s: float) -> float:
+        """How much later than its clocks say a body frame is here, seconds (-inf: unknown).
+
+        Two delays, the larger counts: its arrival at the server after its host stamp (mapped
+        by the online clock: a frame held in a queue or a socket), and its host stamp after its
+        capture (device stamp through the device clock fit, plus the nominal latency: a frame
+        handed over late, as a stalled sensor's player does with its backlog when it resumes).
+        """
+        late = -math.inf
+        t_host_srv = self.host_to_server(t_host_s)
+        if math.isfinite(t_host_srv):
+            late = t_arrival_s - t_host_srv
+        cap_host = self.device.to_host(t_device_s)
+        if math.isfinite(cap_host):
+            late = max(late, t_host_s - cap_host - NOMINAL_LATENCY_S)
+        return late
+
+    def drop_late(self, t_arrival_s: float) -> None:
+        """A body frame dropped as late. A backlog arrives in a burst; late frames that go on
+        arriving for ``max_late_run_s`` mean the fit is wrong (the device clock was reset), not
+        the frames: the device fit starts anew."""
+        self.late_dropped += 1
+        if self.late_since is None:
+            self.late_since = t_arrival_s
+        elif t_arrival_s - self.late_since > self.max_late_run_s:
+            self.device = DeviceClockTracker()
+            self.late_since = None
+
     def enqueue(self, obs: Observation, t_receive_server_s: float) -> None:
+        self.late_since = None
         if len(self.queue) == self.queue.maxlen:
             self.dropped += 1
         self.queue.append(obs)

@@ -39,6 +39,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import socket
 import time
 from collections.abc import Callable, Mapping
 from contextlib import AbstractAsyncContextManager
@@ -61,6 +62,7 @@ from kinefuse.net.server.calibration import (
 from kinefuse.net.server.conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
 from kinefuse.net.server.control import serve_control
 from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
+from kinefuse.net.server.guard import RefusalLog, StampGate
 from kinefuse.net.server.recorder import Recorder
 from kinefuse.net.server.report import outcome_meta, result_message, run_stats, server_status
 from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_joints
@@ -110,6 +112,23 @@ class ServerOptions:
     max_frame_bytes: int = MAX_FRAME_BYTES
     max_sensors: int = 64
     session: str = "kinefuse-live"
+    # what a hostile peer may cost (issue 23; docs/protocol.md "Limits"):
+    #: frames before the Welcome (a Hello is a few kB): an unauthenticated peer buffers no MiB
+    handshake_frame_bytes: int = 64 << 10
+    #: connections accepted but not welcomed yet; more are refused at once (busy)
+    max_pending: int = 32
+    max_controls: int = 8
+    #: frames a peer may send per second on average, and at once
+    msg_rate: float = 600.0
+    msg_burst: float = 1200.0
+    #: control requests (status, calibration, shutdown) a peer may send per second, and at once
+    control_rate: float = 10.0
+    control_burst: float = 20.0
+    #: a sensor's stamps: how far they may jump on one connection, and the largest clock offset
+    stamp_window_s: float = 30.0
+    max_clock_offset_s: float = 1e9
+    #: a body frame this much later than its clock says (a stalled sensor's backlog) is dropped
+    max_backlog_s: float = 0.5
 
 
 class Server:
@@ -160,8 +179,15 @@ class Server:
         self._status_dirty = True
         self._last_status = -math.inf
         self._probe_id = 0
-        self.refused: list[tuple[str, str]] = []  # (code, reason) of refused/closed connections
+        #: refused connections: counted, the last 100 kept, logged and recorded rate-limited
+        self.refusals = RefusalLog()
+        self._pending: set[Connection] = set()
         self.last_outcome: CalibrationOutcome | None = None
+
+    @property
+    def refused(self) -> list[tuple[str, str]]:
+        """(code, reason) of the last refused connections (at most 100; reasons name the peer)."""
+        return list(self.refusals.recent)
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
@@ -270,15 +296,52 @@ class Server:
         if self._tg is None or self._stop.is_set():
             writer.close()
             return
-        conn = Connection(reader, writer, self.clock, max_frame_bytes=self.options.max_frame_bytes)
+        o = self.options
+        sock = writer.get_extra_info("socket")
+        if sock is not None:  # a bounded kernel send buffer: a peer that never reads shows soon
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 256 << 10)
+        conn = Connection(
+            reader,
+            writer,
+            self.clock,
+            max_frame_bytes=o.handshake_frame_bytes,
+            stall_s=o.timeout_s,
+            msg_rate=o.msg_rate,
+            msg_burst=o.msg_burst,
+        )
+        if len(self._pending) >= o.max_pending:
+            # refused before any task or buffer is spent on it
+            self._refused(conn, "busy", f"{o.max_pending} connections are in their handshake")
+            conn.refuse("busy", "the server has too many connections in their handshake")
+            return
+        self._pending.add(conn)
         self._conns.add(conn)
         self._tg.create_task(self._connection(conn))
+
+    def _refused(
+        self, conn: Connection, code: str, reason: str, sensor_id: str | None = None
+    ) -> None:
+        """Count a refusal; log and record it unless too many came lately (then summarized)."""
+        text = f"closing {conn.name}: {reason} ({code})"
+        if self.refusals.add(self.clock(), code, text):
+            log.warning("%s", text)
+            self._event("refused", sensor_id, code=code, reason=reason[:300], peer=conn.peer)
+
+    def _welcomed(self, conn: Connection) -> None:
+        """The handshake is done: full-size frames from now on."""
+        self._pending.discard(conn)
+        conn.decoder.max_frame_bytes = self.options.max_frame_bytes
 
     async def _connection(self, conn: Connection) -> None:
         sensor: SensorState | None = None
         try:
             hello = await self._handshake(conn)
             if hello.role == "control":
+                n = self.options.max_controls
+                if len(self._controls) >= n:
+                    raise TooSlow(f"the server takes at most {n} control peers")
+                self._welcomed(conn)
                 await self._serve_control(conn)
             else:
                 sensor = self._register(conn, hello)
@@ -287,22 +350,15 @@ class Server:
         except ConnectionClosed as e:
             log.info("%s: %s", conn.name, e)
         except WireError as e:
-            log.warning("closing %s: %s (%s)", conn.name, e, e.code)
-            self.refused.append((e.code, str(e)))
-            self._event(
-                "refused",
-                sensor.sensor_id if sensor else None,
-                code=e.code,
-                reason=str(e),
-                peer=conn.peer,
-            )
+            self._refused(conn, e.code, str(e), sensor.sensor_id if sensor else None)
             conn.refuse(e.code, str(e))
         except Exception as e:  # a bug serving this peer: close it, keep serving the others
             log.exception("internal error serving %s; closing it", conn.name)
-            self.refused.append(("internal", repr(e)))
+            self.refusals.add(self.clock(), "internal", f"{conn.name}: {e!r}")
             conn.refuse("internal", f"server error: {type(e).__name__}")
         finally:
             conn.close()
+            self._pending.discard(conn)
             self._conns.discard(conn)
             self._controls.discard(conn)
             if sensor is not None and self._sensor_conns.get(sensor.sensor_id) is conn:
@@ -314,20 +370,25 @@ class Server:
             await conn.wait_closed()
 
     async def _handshake(self, conn: Connection) -> Hello:
+        """Hello (and the challenge when there is a token), all within ``handshake_timeout_s``
+        of the accept: a peer cannot stretch it by answering slowly."""
         o = self.options
-        msg, _ = await conn.recv(o.handshake_timeout_s)
+        deadline = self.clock() + o.handshake_timeout_s
+        msg, _ = await conn.recv(o.handshake_timeout_s, deadline=deadline)
         if not isinstance(msg, Hello):
             raise OutOfOrder(f"the first message must be hello, got {msg.TYPE}")
         check_version(msg.protocol_version)
         conn.role = msg.role
-        conn.name = f"{msg.role} {msg.sensor_id or conn.peer}".strip()
+        who = f"{msg.role} {msg.sensor_id}".strip()
+        conn.name = f"{who} from {conn.peer}" + (", not authenticated" if o.token else "")
         if o.token:
             nonce = new_nonce()
             conn.send(Challenge(nonce=nonce))
-            reply, _ = await conn.recv(o.handshake_timeout_s)
+            reply, _ = await conn.recv(o.handshake_timeout_s, deadline=deadline)
             if not isinstance(reply, AuthReply):
                 raise OutOfOrder(f"expected auth_reply after the challenge, got {reply.TYPE}")
             verify_mac(o.token, nonce, reply.mac, role=msg.role, sensor_id=msg.sensor_id)
+            conn.name = f"{who} from {conn.peer}"
         return msg
 
     def _register(self, conn: Connection, hello: Hello) -> SensorState:
@@ -348,6 +409,7 @@ class Server:
                 self.recorder.add_sensor(sid, hello.serial, hello.intrinsics)
         client.connect()
         self._sensor_conns[sid] = conn
+        self._welcomed(conn)
         cal = self.calibration
         if cal.collecting:
             cal.add_target(sid)
@@ -418,6 +480,9 @@ class Server:
     ) -> None:
         sid = client.sensor_id
         last_seq: int | None = None
+        o = self.options
+        # time stamps outside a plausible window are refused at the door (guard.StampGate)
+        gate = StampGate(window_s=o.stamp_window_s, max_offset_s=o.max_clock_offset_s)
         while True:
             msg, t_arr = await conn.recv(self.options.timeout_s)
             conn.check_sender(msg)
@@ -428,6 +493,7 @@ class Server:
                         f"clock_reply to probe {msg.probe_id}, which was not sent "
                         "(or with another t1)"
                     )
+                gate.reply(msg.t1, msg.t2, msg.t3, t_arr)
                 self._clock_reply(client, msg, t_arr)
             elif isinstance(msg, BodyFrameMessage):
                 if last_seq is not None and msg.seq <= last_seq:
@@ -435,8 +501,12 @@ class Server:
                         f"body_frame seq {msg.seq} after {last_seq}: seq must increase"
                     )
                 last_seq = msg.seq
+                gate.host(msg.TYPE, "t_host_s", msg.t_host_s, t_arr)
+                gate.device(msg.TYPE, msg.t_device_s, msg.t_host_s)
                 self._body(client, msg, t_arr)
             elif isinstance(msg, WandSighting):
+                gate.host(msg.TYPE, "t_host_s", msg.t_host_s, t_arr)
+                gate.device(msg.TYPE, msg.t_device_s, msg.t_host_s)
                 self._sighting(client, msg, t_arr)
             elif isinstance(msg, FloorPlaneMessage):
                 fl = FloorPlane(msg.normal, msg.offset_m, msg.n_inliers, msg.residual_m)
@@ -478,8 +548,15 @@ class Server:
                 )
 
     def _body(self, client: SensorState, msg: BodyFrameMessage, t_arr: float) -> None:
-        if not client.accept(msg.seq, msg.t_device_s, msg.t_host_s):
+        if not client.accept(msg.seq):
             return  # a frame seen before this connection (a restarted client replaying)
+        late = client.lateness(msg.t_device_s, msg.t_host_s, t_arr)
+        if late > self.options.max_backlog_s:
+            # a stalled sensor's backlog (or a frame held in a queue): fused it would be late,
+            # and its stamps would bend the device clock fit; dropped and counted
+            client.drop_late(t_arr)
+            return
+        client.device.add(msg.t_device_s, msg.t_host_s)
         joints, states = sanitize_joints(msg.joints_m, msg.states)
         t_cap = client.capture_to_server(msg.t_device_s)
         t_host = client.host_to_server(msg.t_host_s)
@@ -617,6 +694,15 @@ class Server:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stop.wait(), 0.1)
             now = self.clock()
+            suppressed = self.refusals.summary(now)
+            if suppressed:
+                log.warning(
+                    "%d more connections refused in the last %g s (%s)",
+                    sum(suppressed.values()),
+                    self.refusals.window_s,
+                    ", ".join(f"{c}: {n}" for c, n in sorted(suppressed.items())),
+                )
+                self._event("refused_summary", None, **suppressed)
             why = self.calibration.should_stop(now)
             if why is not None:
                 self._finish_calibration(abort=False, why=why)

@@ -1,0 +1,335 @@
+"""Hostile peers against a live server: is fusion still 30 Hz and on time? (issue 23)
+
+Run: ``python benchmarks/bench_hostile.py [--phase-s 6] [--smoke]`` (``--smoke``: 2 s phases,
+a tenth of the unknown-message flood: checks that it runs). Starts ``kinefuse serve`` (a
+token, a calibration of two sensors, a recording) on 127.0.0.1 and two well-behaved sensors in
+this process (30 Hz body frames, probes answered). Then, one phase at a time after a quiet
+baseline: 20 slowloris handshakes (a byte every 0.5 s), 5 slow 1 MiB frames from an
+authenticated sensor, a control peer that asks for status at its allowed rate and never reads,
+a control-request flood, 200 idle connections, and 400,000 unknown messages from a peer that
+announces a newer minor version. Per phase it prints the fused rate and the latency p50/p99 of
+the published frames (from the recording, server clock), the server's peak RSS against the
+baseline, and how the attackers were closed (error codes, and the latest close after the
+phase began). Every connection is to 127.0.0.1, every wait bounded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import datetime as _dt
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+
+from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration, write_calibration
+from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.io.store.live import live_fused
+from kinefuse.io.store.session import SessionStore
+from kinefuse.protocol import (
+    AuthReply,
+    BodyFrameMessage,
+    ClockProbe,
+    ClockReply,
+    Decoder,
+    Error,
+    Hello,
+    StatusRequest,
+    Welcome,
+    encode,
+)
+from kinefuse.protocol.auth import compute_mac
+from kinefuse.skeleton import N_JOINTS, standing_pose
+
+TOKEN = "bench-hostile-token"
+
+
+def pose(d: float) -> np.ndarray:
+    p = np.eye(4)
+    p[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
+    p[:3, 3] = [0.0, -d, 1.0]
+    return p
+
+
+class Peer:
+    def __init__(self, r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        self.r, self.w, self.dec, self.inbox = r, w, Decoder(), []
+
+    @classmethod
+    async def open(cls, port: int) -> Peer:
+        return cls(*await asyncio.wait_for(asyncio.open_connection("127.0.0.1", port), 5))
+
+    async def recv(self, timeout: float = 5.0):
+        while not self.inbox:
+            data = await asyncio.wait_for(self.r.read(65536), timeout)
+            if not data:
+                raise ConnectionError("closed")
+            self.inbox.extend(self.dec.feed(data))
+        return self.inbox.pop(0)
+
+    async def auth(self, role: str, sid: str = "", version=(1, 0)) -> None:
+        intr = Intrinsics() if role == "sensor" else None
+        self.w.write(
+            encode(Hello(role=role, sensor_id=sid, intrinsics=intr, protocol_version=version))
+        )
+        m = await self.recv()
+        self.w.write(encode(AuthReply(mac=compute_mac(TOKEN, m.nonce, role=role, sensor_id=sid))))
+        assert isinstance(await self.recv(), Welcome)
+
+    async def closed(self, limit_s: float) -> tuple[str, float]:
+        """Read until the server closes; (its error code, the time it took)."""
+        t0, code = time.monotonic(), "none"
+        try:
+            while time.monotonic() - t0 < limit_s:
+                data = await asyncio.wait_for(self.r.read(65536), limit_s)
+                if not data:
+                    break
+                with contextlib.suppress(Exception):  # a bad frame from the server: keep reading
+                    code = next((m.code for m in self.dec.feed(data) if isinstance(m, Error)), code)
+        except (ConnectionError, TimeoutError, OSError):
+            code = code if code != "none" else "reset"
+        return code, time.monotonic() - t0
+
+
+async def sensor(port: int, sid: str, p: np.ndarray, stop: asyncio.Event) -> None:
+    peer = await Peer.open(port)
+    await peer.auth("sensor", sid)
+    joints = (standing_pose() - p[:3, 3]) @ p[:3, :3]
+    h0 = 40.0
+
+    async def answer() -> None:
+        while True:
+            m = await peer.recv(30.0)
+            if isinstance(m, ClockProbe):
+                t = time.monotonic() + h0
+                peer.w.write(encode(ClockReply(probe_id=m.probe_id, t1=m.t1, t2=t, t3=t)))
+
+    task = asyncio.ensure_future(answer())
+    seq = 0
+    t_next = time.monotonic()
+    try:
+        while not stop.is_set():
+            t = time.monotonic() + h0
+            msg = BodyFrameMessage(
+                seq=seq,
+                t_device_s=t - h0 - 0.06,
+                t_host_s=t,
+                joints_m=joints,
+                states=np.full(N_JOINTS, 2, np.int8),
+            )
+            peer.w.write(encode(msg))
+            seq += 1
+            t_next += 1 / 30
+            await asyncio.sleep(max(0.0, t_next - time.monotonic()))
+    finally:
+        task.cancel()
+        peer.w.close()
+
+
+# -- the attacks (each returns the codes and close times of its peers) --------------------------
+
+
+async def slowloris(port: int, seconds: float, n: int = 20) -> list[tuple[str, float]]:
+    hello = encode(Hello(role="sensor", sensor_id="slow", intrinsics=Intrinsics()))
+    peers = [await Peer.open(port) for _ in range(n)]
+
+    async def drip(p: Peer) -> None:
+        for b in hello:
+            if p.w.is_closing():
+                return
+            p.w.write(bytes([b]))
+            await asyncio.sleep(0.5)
+
+    tasks = [asyncio.ensure_future(drip(p)) for p in peers]
+    out = await asyncio.gather(*(p.closed(seconds + 10) for p in peers))
+    for t in tasks:
+        t.cancel()
+    return out
+
+
+async def slow_giant(port: int, seconds: float, n: int = 5) -> list[tuple[str, float]]:
+    async def one(k: int) -> tuple[str, float]:
+        p = await Peer.open(port)
+        await p.auth("sensor", f"giant{k}")
+        p.w.write(struct.pack(">I", 1 << 20))
+
+        async def drip() -> None:
+            while not p.w.is_closing():
+                p.w.write(b"\x00" * 1024)
+                await asyncio.sleep(0.05)
+
+        t = asyncio.ensure_future(drip())
+        try:
+            return await p.closed(seconds + 10)
+        finally:
+            t.cancel()
+
+    return await asyncio.gather(*(one(k) for k in range(n)))
+
+
+async def never_reads(port: int, seconds: float) -> list[tuple[str, float]]:
+    p = await Peer.open(port)
+    await p.auth("control")
+    t0 = time.monotonic()
+    k = 0
+    while time.monotonic() - t0 < seconds and not p.w.is_closing():
+        k += 1
+        p.w.write(encode(StatusRequest(request_id=k)))  # at the allowed rate; never reads
+        await asyncio.sleep(0.12)
+    state = "cut by the server" if p.w.is_closing() else "still open (its buffers hold it)"
+    p.w.close()
+    return [(state, time.monotonic() - t0)]
+
+
+async def control_flood(port: int, seconds: float) -> list[tuple[str, float]]:
+    p = await Peer.open(port)
+    await p.auth("control")
+    p.w.write(b"".join(encode(StatusRequest(request_id=i + 1)) for i in range(20_000)))
+    return [await p.closed(seconds + 10)]
+
+
+async def idle(port: int, seconds: float, n: int = 200) -> list[tuple[str, float]]:
+    peers = [await Peer.open(port) for _ in range(n)]
+    return await asyncio.gather(*(p.closed(seconds + 10) for p in peers))
+
+
+async def unknown_flood(port: int, seconds: float, n: int = 400_000) -> list[tuple[str, float]]:
+    p = await Peer.open(port)
+    await p.auth("control", version=(1, 99))
+    body = msgpack.packb({"type": "future_message", "x": 1})
+    frame = struct.pack(">I", len(body)) + body
+    sent, t0 = 0, time.monotonic()
+    while sent < n and not p.w.is_closing() and time.monotonic() - t0 < seconds:
+        p.w.write(frame * 2000)
+        sent += 2000
+        await asyncio.sleep(0)
+        if p.w.transport.get_write_buffer_size() > 1 << 20:
+            await asyncio.sleep(0.01)
+    return [await p.closed(seconds + 10)]
+
+
+def rss_kib(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return -1
+
+
+async def run(port: int, pid: int, phase_s: float, smoke: bool) -> list[dict]:
+    stop = asyncio.Event()
+    sensors = [
+        asyncio.ensure_future(sensor(port, sid, pose(d), stop))
+        for sid, d in (("s0", 2.5), ("s1", 3.2))
+    ]
+    await asyncio.sleep(3.0)  # synchronized, fusing
+    phases: list[dict] = []
+    attacks = [
+        ("baseline", None),
+        ("slowloris x20", slowloris),
+        ("slow 1 MiB frames x5", slow_giant),
+        ("never-reading control", never_reads),
+        ("control-request flood", control_flood),
+        ("200 idle connections", idle),
+        ("unknown messages", unknown_flood),
+    ]
+    for name, attack in attacks:
+        peak = [rss_kib(pid)]
+
+        async def watch(peak: list[int] = peak) -> None:
+            while True:
+                peak.append(rss_kib(pid))
+                await asyncio.sleep(0.1)
+
+        w = asyncio.ensure_future(watch())
+        t0 = time.monotonic()
+        if attack is None:
+            await asyncio.sleep(phase_s)
+            closed: list[tuple[str, float]] = []
+        elif attack is unknown_flood and smoke:
+            closed = await unknown_flood(port, phase_s, 40_000)
+        else:
+            closed = await asyncio.wait_for(attack(port, phase_s), phase_s + 30)
+        await asyncio.sleep(max(0.0, phase_s - (time.monotonic() - t0)))
+        t1 = time.monotonic()
+        w.cancel()
+        phases.append({"name": name, "t0": t0, "t1": t1, "rss_peak": max(peak), "closed": closed})
+        await asyncio.sleep(0.5)
+    stop.set()
+    await asyncio.gather(*sensors, return_exceptions=True)
+    return phases
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--phase-s", type=float, default=6.0, help="seconds per phase")
+    ap.add_argument("--smoke", action="store_true", help="2 s phases, a smaller flood")
+    a = ap.parse_args()
+    if a.smoke:
+        a.phase_s = 2.0
+    with tempfile.TemporaryDirectory() as d:
+        cal = CalibrationFile(
+            "full",
+            _dt.datetime.now(_dt.UTC),
+            tuple(
+                SensorCalibration(s, "", pose(dd), Intrinsics(), 0.001, 100)
+                for s, dd in (("s0", 2.5), ("s1", 3.2))
+            ),
+        )
+        cal_path = write_calibration(Path(d) / "cal.toml", cal)
+        rec = Path(d) / "rec.sqlite"
+        env = {**os.environ, "KINEFUSE_TOKEN": TOKEN}
+        cmd = [sys.executable, "-m", "kinefuse", "serve", "--port", "0", "--record", str(rec)]
+        server = subprocess.Popen(
+            [*cmd, "--calibration", str(cal_path)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            env=env,
+        )
+        try:
+            assert server.stdout is not None
+            line = server.stdout.readline()
+            port = int(line.rsplit(":", 1)[1])
+            phases = asyncio.run(run(port, server.pid, a.phase_s, a.smoke))
+            server.send_signal(2)
+            server.wait(30)
+        finally:
+            if server.poll() is None:
+                server.kill()
+                server.wait(10)
+        with SessionStore.open(rec) as st:
+            t0_server = float(st.meta()["server_t0_monotonic"])  # type: ignore[arg-type]
+            lf = live_fused(st)
+    offset = -t0_server  # the recording's server clock is CLOCK_MONOTONIC - t0
+    base_rss = phases[0]["rss_peak"]
+    base_p99 = None
+    print(f"{'phase':<24} {'fused Hz':>8} {'p50 ms':>7} {'p99 ms':>7} {'RSS %':>6}  closed")
+    for ph in phases:
+        sel = (lf.t_server_s >= ph["t0"] + offset) & (lf.t_server_s < ph["t1"] + offset)
+        n = int(sel.sum())
+        lat = lf.latency_s[sel]
+        lat = lat[np.isfinite(lat)] * 1e3
+        p50 = float(np.percentile(lat, 50)) if lat.size else float("nan")
+        p99 = float(np.percentile(lat, 99)) if lat.size else float("nan")
+        base_p99 = p99 if base_p99 is None else base_p99
+        codes: dict[str, int] = {}
+        for code, _ in ph["closed"]:
+            codes[code] = codes.get(code, 0) + 1
+        latest = max((t for _, t in ph["closed"]), default=0.0)
+        print(
+            f"{ph['name']:<24} {n / (ph['t1'] - ph['t0']):8.1f} {p50:7.1f} {p99:7.1f} "
+            f"{100 * (ph['rss_peak'] / base_rss - 1):+6.1f}  {codes} latest {latest:.1f} s"
+        )
+    print(f"(p99 change is against the baseline's {base_p99:.1f} ms)")
+
+
+if __name__ == "__main__":
+    main()
