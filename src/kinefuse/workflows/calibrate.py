@@ -39,7 +39,7 @@ def run_calibrate(
     from kinefuse.calibration.grade import grade_calibration
     from kinefuse.calibration.session import METHODS, calibrate
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline.session import gather_calibration as gather
+    from kinefuse.pipeline.session import gather_usable_calibration
 
     if method not in METHODS:
         raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")
@@ -48,9 +48,9 @@ def run_calibrate(
             check_output_folder(target, what)
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
-        infos = {s.id: s for s in store.sensors()}
         det = detector or ("paper" if method == "paper" else "robust")
-        cal_in = gather(store, detector=det)
+        cal_in, screen = gather_usable_calibration(store, detector=det)
+        infos = {s.id: s for s in store.sensors() if s.id in screen.usable}
         reg = calibrate(cal_in, method)
         grade = grade_calibration(reg, cal_in.floors)
         cal = calibration_from_registration(
@@ -83,6 +83,8 @@ def run_calibrate(
                 for k, sid in enumerate(reg.sensor_ids)
             ],
             "out": str(out) if out is not None and usable else None,
+            "left_out": [{"id": k, "reason": v} for k, v in screen.left_out.items()],
+            "notes": screen.notes(),
         }
         if store.has_truth():
             from kinefuse.evaluation.calibration import calibration_errors, write_calibration_report
@@ -116,6 +118,7 @@ def format_calibrate(r: dict[str, Any]) -> str:
         f"grade: {r['grade']}",
     ]
     lines += [f"  {why}" for why in r["reasons"]]
+    lines += [f"note: {n}" for n in r.get("notes", [])]
     if r["grade"] == "failed":
         lines.append(
             "  the calibration was accepted anyway (--accept)"

@@ -34,7 +34,7 @@ def run_evaluate(
     """
     from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline.session import METHODS, load_sensors
+    from kinefuse.pipeline.session import METHODS, load_usable_sensors
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -51,7 +51,8 @@ def run_evaluate(
                 "evaluate simulated sessions (kinefuse simulate)"
             )
         poses, source = resolve_poses(store, calibration, true_calibration)
-        sensors = load_sensors(store, poses)
+        sensors, screen = load_usable_sensors(store, poses)
+        poses = {s.id: poses[s.id] for s in sensors}
         truth2world = None
         if not true_calibration:
             truth2world, cal_error = calibration_alignment(store, poses)
@@ -67,6 +68,8 @@ def run_evaluate(
 
             facts = session_facts(store, sensors, poses, source)
     report["calibration"] = source
+    report["left_out"] = [{"id": k, "reason": v} for k, v in screen.left_out.items()]
+    report["notes"] = screen.notes()
     if truth2world is not None:
         report["calibration_alignment"] = {
             "note": "truth moved into the calibration's world by a translation and a rotation "
@@ -95,7 +98,10 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
     """A short text table of an evaluation."""
     common = report.get("common")
     frac = common.get("joint_fraction", float("nan")) if isinstance(common, dict) else float("nan")
-    lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}", ""]
+    lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}"]
+    notes = report.get("notes")
+    lines += [f"note: {n}" for n in notes] if isinstance(notes, list) else []
+    lines.append("")
     lines.append(
         f"{'method':<10} {'MAE cm':>8} {'common':>8} {'RMSE cm':>8} {'p95 cm':>8} "
         f"{'coverage':>9} {'bias cm':>8} {'noise cm':>9}"

@@ -35,7 +35,7 @@ def run_fuse(
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
-    from kinefuse.pipeline.session import clip_grid, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import clip_grid, frame_grid, load_usable_sensors, run_method
 
     if out is not None:
         check_export_path(out)
@@ -43,8 +43,8 @@ def run_fuse(
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
-        sensors = load_sensors(store, poses)
-        warnings = [
+        sensors, screen = load_usable_sensors(store, poses)
+        warnings = screen.notes() + [
             f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
             for s in sensors
             if not s.observations.has_body.any()
@@ -66,4 +66,6 @@ def run_fuse(
         "out": str(out) if out is not None else None,
         "stored_in_session": store_result,
         "warnings": warnings,
+        "sensors": [s.id for s in sensors],
+        "left_out": [{"id": k, "reason": v} for k, v in screen.left_out.items()],
     }
