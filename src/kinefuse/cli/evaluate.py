@@ -13,7 +13,7 @@ from kinefuse.fusion.session import METHODS
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse evaluate``."""
     p = sub.add_parser("evaluate", help="compare fusion methods against the simulator's truth")
-    p.add_argument("session", type=Path)
+    p.add_argument("session", type=Path, help="simulated session store (.sqlite)")
     shared.add_calibration_args(p)
     p.add_argument(
         "--methods",

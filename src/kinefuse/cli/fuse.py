@@ -14,7 +14,7 @@ from kinefuse.fusion.session import METHODS
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse fuse``."""
     p = sub.add_parser("fuse", help="fuse a session's joints into one skeleton")
-    p.add_argument("session", type=Path)
+    p.add_argument("session", type=Path, help="session store (.sqlite) to fuse")
     shared.add_calibration_args(p)
     p.add_argument(
         "--method",

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from kinefuse.errors import InputError
+from kinefuse.errors import CalibrationError, CalibrationFailed, InputError
 from kinefuse.io.store.session import SessionStore
 
 
@@ -51,7 +51,10 @@ def run_calibrate(
         det = detector or ("paper" if method == "paper" else "robust")
         cal_in, screen = gather_usable_calibration(store, detector=det)
         infos = {s.id: s for s in store.sensors() if s.id in screen.usable}
-        reg = calibrate(cal_in, method)
+        try:
+            reg = calibrate(cal_in, method)
+        except CalibrationError as e:
+            raise CalibrationFailed(_why_failed(e, det, cal_in.protocol)) from None
         grade = grade_calibration(reg, cal_in.floors)
         cal = calibration_from_registration(
             reg,
@@ -110,6 +113,22 @@ def run_calibrate(
                 "none (a live recording)"
             )
     return result
+
+
+def _why_failed(e: CalibrationError, detector: str, protocol: dict[str, object]) -> str:
+    """What a registration that could not be computed says, with the likely cause: the paper's
+    detector takes the nearest object in view for the wand, and when that object stays put while
+    the wand moves the registration sees (almost) no move."""
+    text = f"calibration failed: {e}"
+    if detector == "paper" and "saw the wand move only" in str(e):
+        length = protocol.get("axis_length_m")
+        moved = f" (the protocol moves it {length:g} m)" if isinstance(length, int | float) else ""
+        text += (
+            f"{moved}. The paper's wand detector takes the nearest object in each depth frame for "
+            "the wand, and here it found something else, an object that did not move with the "
+            "wand; calibrate with --detector robust (a sphere of the wand's size) or --method full"
+        )
+    return text + "; nothing was written"
 
 
 def format_calibrate(r: dict[str, Any]) -> str:
