@@ -42,19 +42,22 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def run(args: argparse.Namespace) -> int:
     from kinefuse.workflows.fuse import run_fuse
+    from kinefuse.workflows.progress import TerminalProgress
 
-    info = run_fuse(
-        session=args.session,
-        method=args.method,
-        out=args.out,
-        calibration=args.calibration,
-        true_calibration=args.true_calibration,
-        store_result=args.store,
-        allow_incomplete=args.partial,
-        trc_axes=args.trc_axes,
-        start_s=args.start,
-        end_s=args.end,
-    )
+    with TerminalProgress("fuse", enabled=not args.json) as progress:
+        info = run_fuse(
+            session=args.session,
+            method=args.method,
+            out=args.out,
+            calibration=args.calibration,
+            true_calibration=args.true_calibration,
+            store_result=args.store,
+            allow_incomplete=args.partial,
+            trc_axes=args.trc_axes,
+            start_s=args.start,
+            end_s=args.end,
+            progress=progress,
+        )
     for w in info["warnings"]:  # type: ignore[attr-defined]
         print(f"kinefuse: warning: {w}", file=sys.stderr)
     if args.json:

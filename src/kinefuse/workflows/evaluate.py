@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,12 +27,16 @@ def run_evaluate(
     allow_incomplete: bool = False,
     start_s: float | None = None,
     end_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> dict[str, object]:
     """Compare fusion methods against the truth of a simulated session (opened read-only).
 
     ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
     swapped in on success (an existing folder is replaced only if kinefuse made it).
+    ``progress(message)`` hears of each step (:class:`kinefuse.workflows.progress.
+    TerminalProgress` shows them on a terminal).
     """
+    say = progress or (lambda _msg: None)
     from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
     from kinefuse.io.outputs import atomic_dir, check_output_folder
     from kinefuse.pipeline.session import METHODS, load_usable_sensors
@@ -51,14 +56,22 @@ def run_evaluate(
                 "evaluate simulated sessions (kinefuse simulate)"
             )
         poses, source = resolve_poses(store, calibration, true_calibration)
+        say("reading the sensors' streams and clocks")
         sensors, screen = load_usable_sensors(store, poses)
         poses = {s.id: poses[s.id] for s in sensors}
         truth2world = None
         if not true_calibration:
             truth2world, cal_error = calibration_alignment(store, poses)
         report, results, truth = evaluate(
-            store, sensors, methods, truth2world=truth2world, start_s=start_s, end_s=end_s
+            store,
+            sensors,
+            methods,
+            truth2world=truth2world,
+            start_s=start_s,
+            end_s=end_s,
+            progress=say,
         )
+        say("scoring plausibility")
         from kinefuse.evaluation.plausibility import plausibility_vs_errors
 
         report["plausibility"] = plausibility_vs_errors(store, results, truth)
@@ -79,6 +92,7 @@ def run_evaluate(
             "calibration_mean_position_error_m": cal_error,
         }
     if out_dir is not None:
+        say(f"writing tables, plots and the report to {out_dir}")
         with atomic_dir(out_dir, what="evaluation folder") as tmp:
             written = write_tables(tmp, report, results, sensors, truth, methods)
             if facts is not None:

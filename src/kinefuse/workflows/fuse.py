@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -25,13 +26,15 @@ def run_fuse(
     trc_axes: str = "y-up",
     start_s: float | None = None,
     end_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> dict[str, object]:
     """Fuse a session with one method and export the result.
 
     The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
     (the one case that writes to the session). The export's folder and kind are checked before
-    the work starts, so a bad ``out`` fails fast.
+    the work starts, so a bad ``out`` fails fast. ``progress(message)`` hears of each step.
     """
+    say = progress or (lambda _msg: None)
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
@@ -43,6 +46,7 @@ def run_fuse(
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
+        say("reading the sensors' streams and clocks")
         sensors, screen = load_usable_sensors(store, poses)
         warnings = screen.notes() + [
             f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
@@ -50,10 +54,12 @@ def run_fuse(
             if not s.observations.has_body.any()
         ]
         grid = clip_grid(frame_grid(sensors), start_s, end_s)
+        say(f"fusing {grid.size} frames with {method}")
         res = run_method(sensors, grid, method)
         if store_result:
             store.write_fused(method, res.t_server_s, res.positions, res.status)
     if out is not None:
+        say(f"writing {out}")
         export_skeleton(
             out, res.t_server_s, res.positions, residual_m=res.residual_m, trc_axes=trc_axes
         )
