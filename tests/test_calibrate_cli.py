@@ -67,9 +67,14 @@ def test_full_calibration_of_a_tilted_rig(tilted, tmp_path, capsys) -> None:
 
 def test_paper_method_on_level_and_tilted_rigs(level, tilted, tmp_path, capsys) -> None:
     # the paper's registration on the paper's own detector: its "nearest object" is not always
-    # the wand, and the move between the holds comes out far too short
-    assert main(["calibrate", str(level), "--method", "paper"]) == 2
-    assert "saw the wand move only" in capsys.readouterr().err
+    # the wand, and the move between the holds comes out far too short: a failed calibration
+    # (exit 3, as for one graded failed) that says the detector found the wrong object
+    out = tmp_path / "nothing.toml"
+    assert main(["calibrate", str(level), "--method", "paper", "--out", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "saw the wand move only" in err and "(the protocol moves it 1 m)" in err
+    assert "paper's wand detector takes the nearest object" in err and "found something else" in err
+    assert "--detector robust" in err and not out.exists()
     # the paper's registration on our detector
     r = calibrate_json(capsys, level, "paper", "--detector", "robust")
     assert r["detector"] == "robust"

@@ -133,3 +133,13 @@ def test_host_stamps_arrivals_on_its_own_clock(rng) -> None:
     own = capture_times(clocks.device, 0.0, 2.0, rng, params)
     lat_own = clocks.device.to_true(own.t_receive_host_s) - own.t_true_s
     assert lat_own.min() >= params.latency_min_s - 1e-9
+
+
+def test_two_sensors_at_the_same_spot_are_refused(tmp_path) -> None:
+    sensor = '[[sensor]]\nid = "{}"\nposition_m = [{}, 0.0, 1.1]\nlook_at_m = [0.0, 0.0, 1.0]\n'
+    path = tmp_path / "rig.toml"
+    path.write_text(sensor.format("a", 3.0) + sensor.format("b", -3.0) + sensor.format("c", 3.01))
+    with pytest.raises(RigError, match=r"sensors 'a' and 'c' stand at the same spot .*1\.0 cm"):
+        load_rig(path)
+    path.write_text(sensor.format("a", 3.0) + sensor.format("c", 2.9))  # 10 cm: side by side
+    assert len(load_rig(path).sensors) == 2

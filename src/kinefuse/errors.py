@@ -46,6 +46,11 @@ class CalibrationError(KinefuseError):
     """Sensor poses could not be estimated."""
 
 
+class CalibrationFailed(CalibrationError):
+    """The calibration ran on the session's data and could not register the sensors (the
+    commands exit with 3, as for a calibration graded failed)."""
+
+
 class FusionError(KinefuseError):
     """Joint observations could not be fused."""
 

@@ -67,20 +67,25 @@ def _add_live_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from kinefuse.errors import CalibrationFailed
     from kinefuse.workflows.calibrate import format_calibrate, run_calibrate
 
     if args.live is not None or args.session is None:
         return _run_live(args)
-    r = run_calibrate(
-        session=args.session,
-        method=args.method,
-        out=args.out,
-        report_dir=args.report,
-        store_result=args.store,
-        accept=args.accept,
-        allow_incomplete=args.partial,
-        detector=args.detector,
-    )
+    try:
+        r = run_calibrate(
+            session=args.session,
+            method=args.method,
+            out=args.out,
+            report_dir=args.report,
+            store_result=args.store,
+            accept=args.accept,
+            allow_incomplete=args.partial,
+            detector=args.detector,
+        )
+    except CalibrationFailed as e:  # a failed calibration, not a user error: exit 3
+        print(f"kinefuse: error: {e}", file=sys.stderr)
+        return 3
     if args.json:
         print(json.dumps(r, indent=2))
     else:

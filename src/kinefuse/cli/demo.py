@@ -23,7 +23,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="output folder (kinefuse-demo in the current folder; replaced only if an earlier "
         "demo made it)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="random seed of the simulation and the network jitter (0)",
+    )
     p.add_argument("--sensors", type=int, default=4, help="simulated sensors (4)")
     p.add_argument(
         "--seconds", type=shared.positive_float, help="length of the captured motion (20 s at most)"

@@ -13,7 +13,7 @@ from kinefuse.fusion.session import METHODS
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse evaluate``."""
     p = sub.add_parser("evaluate", help="compare fusion methods against the simulator's truth")
-    p.add_argument("session", type=Path)
+    p.add_argument("session", type=Path, help="simulated session store (.sqlite)")
     shared.add_calibration_args(p)
     p.add_argument(
         "--methods",
@@ -30,17 +30,20 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def run(args: argparse.Namespace) -> int:
     from kinefuse.workflows.evaluate import format_evaluate, run_evaluate
+    from kinefuse.workflows.progress import TerminalProgress
 
-    report = run_evaluate(
-        session=args.session,
-        methods=args.methods,
-        out_dir=args.out,
-        calibration=args.calibration,
-        true_calibration=args.true_calibration,
-        allow_incomplete=args.partial,
-        start_s=args.start,
-        end_s=args.end,
-    )
+    with TerminalProgress("evaluate", enabled=not args.json) as progress:
+        report = run_evaluate(
+            session=args.session,
+            methods=args.methods,
+            out_dir=args.out,
+            calibration=args.calibration,
+            true_calibration=args.true_calibration,
+            allow_incomplete=args.partial,
+            start_s=args.start,
+            end_s=args.end,
+            progress=progress,
+        )
     if args.json:
         print(json.dumps(report, indent=2))
     else:

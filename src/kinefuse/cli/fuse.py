@@ -14,7 +14,7 @@ from kinefuse.fusion.session import METHODS
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse fuse``."""
     p = sub.add_parser("fuse", help="fuse a session's joints into one skeleton")
-    p.add_argument("session", type=Path)
+    p.add_argument("session", type=Path, help="session store (.sqlite) to fuse")
     shared.add_calibration_args(p)
     p.add_argument(
         "--method",
@@ -42,19 +42,22 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def run(args: argparse.Namespace) -> int:
     from kinefuse.workflows.fuse import run_fuse
+    from kinefuse.workflows.progress import TerminalProgress
 
-    info = run_fuse(
-        session=args.session,
-        method=args.method,
-        out=args.out,
-        calibration=args.calibration,
-        true_calibration=args.true_calibration,
-        store_result=args.store,
-        allow_incomplete=args.partial,
-        trc_axes=args.trc_axes,
-        start_s=args.start,
-        end_s=args.end,
-    )
+    with TerminalProgress("fuse", enabled=not args.json) as progress:
+        info = run_fuse(
+            session=args.session,
+            method=args.method,
+            out=args.out,
+            calibration=args.calibration,
+            true_calibration=args.true_calibration,
+            store_result=args.store,
+            allow_incomplete=args.partial,
+            trc_axes=args.trc_axes,
+            start_s=args.start,
+            end_s=args.end,
+            progress=progress,
+        )
     for w in info["warnings"]:  # type: ignore[attr-defined]
         print(f"kinefuse: warning: {w}", file=sys.stderr)
     if args.json:

@@ -10,7 +10,7 @@ from pathlib import Path
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse inspect``."""
     p = sub.add_parser("inspect", help="summarize a session store")
-    p.add_argument("session", type=Path)
+    p.add_argument("session", type=Path, help="session store (.sqlite)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 

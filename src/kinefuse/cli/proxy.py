@@ -35,7 +35,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         p.add_argument(
             f"--{d}-jitter-ms", type=shared.nonneg_float, default=0.0, help=f"{what} mean jitter"
         )
-    p.add_argument("--jitter", choices=JITTER_KINDS, default="exponential")
+    p.add_argument(
+        "--jitter",
+        choices=JITTER_KINDS,
+        default="exponential",
+        help="distribution of the jitter delays (exponential)",
+    )
     p.add_argument("--cut-after-bytes", type=int, help="cut a connection after N bytes up")
     p.add_argument(
         "--cut-after-s", type=shared.nonneg_float, help="cut a connection after S seconds"

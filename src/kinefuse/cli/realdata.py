@@ -15,8 +15,20 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument("paths", nargs="+", help="KinectMultiTrack CSV logs")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    p.add_argument("--registration", choices=("refined", "logged"), default="refined")
-    p.add_argument("--other-offaxis-deg", type=float, default=0.0)
+    p.add_argument(
+        "--registration",
+        choices=("refined", "logged"),
+        default="refined",
+        help="the other sensor re-registered from the trunk joints (refined) or as the log has "
+        "it (logged)",
+    )
+    p.add_argument(
+        "--other-offaxis-deg",
+        type=float,
+        default=0.0,
+        help="assumed angle of the body's initial centre off the other sensor's optical axis, "
+        "toward its image right, degrees (0)",
+    )
     p.add_argument(
         "--no-motion-latency",
         action="store_true",

@@ -19,7 +19,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "(docs/live.md). Stops cleanly on SIGINT/SIGTERM (exit 0); exit 3 when the server "
         "refuses (token, version, duplicate sensor id), 2 on bad input.",
     )
-    p.add_argument("--server", type=shared.host_port, required=True, metavar="HOST:PORT")
+    p.add_argument(
+        "--server",
+        type=shared.host_port,
+        required=True,
+        metavar="HOST:PORT",
+        help="address of the `kinefuse serve` to send to",
+    )
     p.add_argument(
         "--source",
         required=True,

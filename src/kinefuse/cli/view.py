@@ -9,7 +9,7 @@ from pathlib import Path
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse view``."""
     p = sub.add_parser("view", help="replay a session in the web viewer (docs/viewer.md)")
-    p.add_argument("session", type=Path)
+    p.add_argument("session", type=Path, help="session store (.sqlite) to replay")
     p.add_argument("--host", default="127.0.0.1", help="interface to serve on (127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="TCP port (0: a free one)")
     p.set_defaults(func=run)

@@ -14,7 +14,6 @@ from numpy.typing import NDArray
 
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import TrackingState
-from kinefuse.sync import sensor_timebase
 
 Array = NDArray[np.float64]
 
@@ -47,23 +46,34 @@ def tracking_coverage(store: SessionStore) -> dict[str, Any]:
         the sensor reported a body; ``tracked_joint_fraction``: share of TRACKED joints in its
         frames with a body); ``span_server_s``; ``min_sensors``; ``outside_common_volume_s``:
         ``[[start, end], ...]`` server-clock seconds in which fewer than ``min_sensors`` sensors
-        saw the body; ``outside_fraction``. Figures with no data are None.
+        saw the body; ``outside_fraction``; ``left_out`` (``{id: why}``: sensors whose time
+        stamps are not the recording's, :func:`kinefuse.pipeline.screen.screen_sensors`, counted
+        nowhere) and ``notes`` (one line each, with frames dropped). Figures with no data are
+        None.
     """
+    from kinefuse.pipeline.screen import screen_sensors, server_times
+
+    screen = screen_sensors(store, need_clock=False)
     times: dict[str, Array] = {}
     tracked: dict[str, float | None] = {}
-    for info in store.sensors():
-        obs = store.observations(info.id)
-        probes = store.clock_probes(info.id)
+    for sid in screen.usable:
+        obs = store.observations(sid)
         body = obs.has_body
-        if len(probes) and obs.n_frames:
+        if sid in screen.stray_seq:  # frames stamped outside the recording: not counted
+            body = body & ~np.isin(obs.seq, screen.stray_seq[sid])
+        if obs.n_frames:
             # device stamps -> the client's clock (from the host receive times) -> server
-            tb = sensor_timebase(probes, obs.t_sensor_s, obs.t_receive_host_s)
-            t = tb.to_server(obs.t_sensor_s)
+            t = server_times(
+                store.clock_probes(sid),
+                obs.t_sensor_s,
+                obs.t_receive_host_s,
+                obs.t_receive_server_s,
+            )
         else:
             t = obs.t_sensor_s
-        times[info.id] = t[body]
+        times[sid] = t[body]
         states = obs.states[body]
-        tracked[info.id] = float((states == TrackingState.TRACKED).mean()) if body.any() else None
+        tracked[sid] = float((states == TrackingState.TRACKED).mean()) if body.any() else None
     seen = [t for t in times.values() if t.size]
     result: dict[str, Any] = {
         "sensors": {},
@@ -71,6 +81,8 @@ def tracking_coverage(store: SessionStore) -> dict[str, Any]:
         "min_sensors": MIN_SENSORS,
         "outside_common_volume_s": [],
         "outside_fraction": None,
+        "left_out": dict(screen.left_out),
+        "notes": screen.notes(),
     }
     if not seen:
         for sid in times:
@@ -100,7 +112,7 @@ def tracking_coverage(store: SessionStore) -> dict[str, Any]:
 
 def coverage_warnings(cov: dict[str, Any]) -> list[str]:
     """Plain-language warnings for a :func:`tracking_coverage` result (empty when all is well)."""
-    out = []
+    out = list(cov.get("notes", []))
     for sid, s in cov["sensors"].items():
         frac = s["body_fraction"]
         if frac == 0.0:

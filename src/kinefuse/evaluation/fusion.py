@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -158,20 +159,27 @@ def evaluate(
     truth2world: Array | None = None,
     start_s: float | None = None,
     end_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, Any], dict[str, MethodResult], Array]:
     """Run the methods, score them against the truth; returns (report, results, truth).
 
     ``truth2world`` (4, 4) maps the simulator's world into the world of the calibration in use
     when they differ by the protocol's arbitrary choices (origin, heading); see
     :func:`calibration_alignment`. The truth returned is in the calibration's world.
+    ``progress(message)`` hears of each method and ablation run as it starts.
     """
+    say = progress or (lambda _msg: None)
     grid = clip_grid(frame_grid(sensors), start_s, end_s)
     truth = truth_at(store, grid)
     if truth2world is not None:
         truth = apply_transform(truth2world, truth)
     keep = np.isfinite(truth).all((1, 2))
     grid, truth = grid[keep], truth[keep]
-    results = {m: run_method(sensors, grid, m) for m in methods}
+    n_runs = len(methods) + (len(ABLATION) if ablation and "best" in methods else 0)
+    results = {}
+    for i, m in enumerate(methods):
+        say(f"fusing {grid.size} frames with {m} ({i + 1}/{n_runs})")
+        results[m] = run_method(sensors, grid, m)
     # every method is also scored on the frames and joints that all of them solved
     common = np.logical_and.reduce([np.isfinite(r.positions).all(-1) for r in results.values()])
     report: dict[str, Any] = {m: _summary(r, truth, common) for m, r in results.items()}
@@ -187,7 +195,8 @@ def evaluate(
     }
     if ablation and "best" in results:
         abl = {}
-        for part, off in ABLATION.items():
+        for i, (part, off) in enumerate(ABLATION.items()):
+            say(f"ablation of best without {part} ({len(methods) + i + 1}/{n_runs})")
             r = run_method(sensors, grid, "best", best_options=off)
             abl[part] = {
                 "mae_without_m": position_errors(r.positions, truth)["mae_m"],

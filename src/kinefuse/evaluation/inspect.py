@@ -66,7 +66,9 @@ def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]
         matched frames with a body) or None without truth; ``complete`` (the writer finished);
         ``storage_bytes`` (``file``, ``depth_frames``, ``observations``); ``coverage``
         (:func:`kinefuse.evaluation.coverage.tracking_coverage`: how much of the time each sensor
-        saw the body, when fewer than 2 did; no truth used) and its ``warnings``;
+        saw the body, when fewer than 2 did; no truth used) and its ``warnings``; ``left_out``
+        (``[{id, reason}]``: sensors whose time stamps are not the recording's, left out of the
+        coverage and the duration; each sensor's entry has its ``left_out`` reason or None);
         ``calibrations``; ``fused_methods``. Distances in metres; a figure with no data is None.
     """
     if isinstance(store, SessionStore):
@@ -159,6 +161,10 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
     from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
 
     coverage = tracking_coverage(store)
+    left_out = coverage["left_out"]
+    for entry in sensors:
+        entry["left_out"] = left_out.get(entry["id"])
+    spans = [sp for sp, e in zip(spans, sensors, strict=True) if e["left_out"] is None]
     return {
         "path": str(store.path),
         "schema_version": meta.get("schema_version"),
@@ -166,6 +172,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
         "storage_bytes": store.storage_bytes(),
         "coverage": coverage,
         "warnings": coverage_warnings(coverage),
+        "left_out": [{"id": k, "reason": v} for k, v in left_out.items()],
         "meta": meta,
         "sensors": sensors,
         "duration_s": max(spans) if spans else 0.0,

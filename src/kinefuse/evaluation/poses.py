@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.errors import InputError
+from kinefuse.errors import InputError, StoreError
 from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
@@ -30,7 +30,13 @@ def resolve_poses(
                 "for simulated sessions; calibrate it with `kinefuse calibrate`"
             )
         truth = store.truth()
-        return {s.id: truth.sensor(s.id)[0] for s in store.sensors()}, "true poses (simulator)"
+        poses = {}
+        for s in store.sensors():
+            try:
+                poses[s.id] = truth.sensor(s.id)[0]
+            except StoreError:  # a sensor added to the recording, not simulated: no true pose
+                continue
+        return poses, "true poses (simulator)"
     if calibration is not None:
         return read_calibration(calibration).sensor2world, str(calibration)
     for name in ("full", "paper"):

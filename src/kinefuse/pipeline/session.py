@@ -33,8 +33,9 @@ from kinefuse.fusion.session import (
 )
 from kinefuse.fusion.session import run_method as _run_method
 from kinefuse.io.store import live as store_live
-from kinefuse.io.store.session import SessionStore
+from kinefuse.io.store.session import SensorInfo, SessionStore
 from kinefuse.occlusion.segments import detect_occlusion
+from kinefuse.pipeline.screen import SensorScreen, screen_sensors
 from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync import sensor_timebase
 
@@ -47,7 +48,9 @@ __all__ = [
     "clip_grid",
     "frame_grid",
     "gather_calibration",
+    "gather_usable_calibration",
     "load_sensors",
+    "load_usable_sensors",
     "run_method",
 ]
 
@@ -71,40 +74,124 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[Calibrate
             "session again (kinefuse calibrate) or pass a calibration that covers every sensor"
         )
     for s in sensors:
-        obs = store.observations(s.id)
-        probes = store.clock_probes(s.id)
-        if len(probes) == 0:
-            raise FusionError(
-                f"sensor {s.id}: no clock probes in the session, so its timestamps cannot be put "
-                "on the server clock; record with clock sync enabled"
-            )
-        # device timestamps -> the client's clock (from each frame's arrival) -> the server's
-        timebase = sensor_timebase(probes, obs.t_device_s, obs.t_host_s)
-        if obs.occluded is None or obs.n_crossings is None:
-            if obs.n_frames:
-                # the client sent none (simulated sessions): run its test here, on its data only
-                occ = detect_occlusion(obs.joints_m, s.intrinsics)
-                obs = obs.with_occlusion(occ.occluded, occ.n_intersections)
-            else:
-                obs = obs.with_occlusion(np.zeros((0, N_JOINTS), bool), np.zeros(0, np.int64))
-        out.append(
-            CalibratedSensor(
-                observations=obs.on_server(timebase.to_server(obs.t_device_s)),
-                intrinsics=s.intrinsics,
-                sensor2world=np.asarray(poses[s.id], dtype=np.float64),
-                timebase=timebase,
-            )
-        )
+        out.append(_load_one(store, s, poses[s.id]))
     return out
 
 
-def gather_calibration(
+def _load_one(
+    store: SessionStore,
+    s: SensorInfo,
+    pose: Array,
+    drop_seq: NDArray[np.int64] | None = None,
+) -> CalibratedSensor:
+    """One sensor's stream on the server clock, with its occlusion flags and pose (frames whose
+    seq is in ``drop_seq`` left out before its clock is fitted)."""
+    obs = store.observations(s.id)
+    if drop_seq is not None and len(drop_seq):
+        obs = obs.take(np.flatnonzero(~np.isin(obs.seq, drop_seq)))
+    probes = store.clock_probes(s.id)
+    if len(probes) == 0:
+        raise FusionError(
+            f"sensor {s.id}: no clock probes in the session, so its timestamps cannot be put "
+            "on the server clock; record with clock sync enabled"
+        )
+    # device timestamps -> the client's clock (from each frame's arrival) -> the server's
+    timebase = sensor_timebase(probes, obs.t_device_s, obs.t_host_s)
+    if obs.occluded is None or obs.n_crossings is None:
+        if obs.n_frames:
+            # the client sent none (simulated sessions): run its test here, on its data only
+            occ = detect_occlusion(obs.joints_m, s.intrinsics)
+            obs = obs.with_occlusion(occ.occluded, occ.n_intersections)
+        else:
+            obs = obs.with_occlusion(np.zeros((0, N_JOINTS), bool), np.zeros(0, np.int64))
+    return CalibratedSensor(
+        observations=obs.on_server(timebase.to_server(obs.t_device_s)),
+        intrinsics=s.intrinsics,
+        sensor2world=np.asarray(pose, dtype=np.float64),
+        timebase=timebase,
+    )
+
+
+def load_usable_sensors(
+    store: SessionStore, poses: dict[str, Array]
+) -> tuple[list[CalibratedSensor], SensorScreen]:
+    """:func:`load_sensors` on the sensors that can be used, and the screen that says which were
+    left out and why (``left_out``): stamps far outside the recording or no clock
+    (:func:`kinefuse.pipeline.screen.screen_sensors`), or no pose in the calibration (a sensor
+    that never calibrated). A usable sensor's few frames stamped outside the recording are
+    dropped (``stray_seq``). Refuses only when no sensor is left.
+    """
+    infos = store.sensors()
+    if not infos:
+        raise FusionError(f"{store.path}: the session has no sensors")
+    screen = screen_sensors(store)
+    screen = screen.without(
+        {
+            sid: "the calibration has no pose for it (it never calibrated, or joined later); "
+            "calibrate the session again to use it"
+            for sid in screen.usable
+            if sid not in poses
+        }
+    )
+    if not screen.usable:
+        raise FusionError(
+            f"{store.path}: no sensor can be used: "
+            + "; ".join(f"{sid}: {why}" for sid, why in screen.left_out.items())
+        )
+    by_id = {s.id: s for s in infos}
+    sensors = [
+        _load_one(store, by_id[sid], poses[sid], screen.stray_seq.get(sid)) for sid in screen.usable
+    ]
+    return sensors, screen
+
+
+def gather_usable_calibration(
     store: SessionStore, *, floor_frames: int = 15, detector: str = "robust"
+) -> tuple[CalibrationInput, SensorScreen]:
+    """:func:`gather_calibration` on the sensors that can be calibrated, and the screen that
+    says which were left out and why: stamps far outside the recording or no clock
+    (:func:`kinefuse.pipeline.screen.screen_sensors`), or no calibration data at all (no depth
+    frames and no wand sightings: a sensor that never took part in the wand phase). A session in
+    which no sensor has calibration data is refused as before (it has no calibration phase)."""
+    screen = screen_sensors(store)
+    no_data = {
+        sid: "it recorded no calibration data (no depth frames, no wand sightings): it never "
+        "took part in the wand phase"
+        for sid in screen.usable
+        if store.depth_frame_count(sid) == 0 and len(store_live.sightings(store, sid).seq) == 0
+    }
+    if len(no_data) < len(screen.usable):
+        screen = screen.without(no_data)
+    if not screen.usable:
+        raise CalibrationError(
+            f"{store.path}: no sensor can be calibrated: "
+            + "; ".join(f"{sid}: {why}" for sid, why in screen.left_out.items())
+        )
+    cal = gather_calibration(
+        store,
+        floor_frames=floor_frames,
+        detector=detector,
+        sensor_ids=screen.usable,
+        drop_seq=screen.stray_seq,
+    )
+    return cal, screen
+
+
+def gather_calibration(
+    store: SessionStore,
+    *,
+    floor_frames: int = 15,
+    detector: str = "robust",
+    sensor_ids: Sequence[str] | None = None,
+    drop_seq: dict[str, NDArray[np.int64]] | None = None,
 ) -> CalibrationInput:
     """Read a session's calibration phase and run :func:`kinefuse.calibration.session.gather`
     on it: every sensor's depth frames (read chunk by chunk as the detector goes), its clock
     (device timestamps -> server, from the body stream's arrivals and the probes), the wand and
-    protocol the operator was given (the session's metadata)."""
+    protocol the operator was given (the session's metadata).
+
+    ``sensor_ids`` limits it to those sensors (default: all); ``drop_seq`` (id -> seq) names body
+    frames whose stamps the clock fit must not use (:func:`gather_usable_calibration`)."""
     from kinefuse.calibration.session import CalibrationSensor, gather
     from kinefuse.camera.wand import Wand
 
@@ -114,16 +201,19 @@ def gather_calibration(
     protocol = meta.get("wand_protocol")
     live_floors = store_live.floors(store)
     sensors = []
+    drop = drop_seq or {}
     for s in store.sensors():
+        if sensor_ids is not None and s.id not in sensor_ids:
+            continue
         # depth frames carry device timestamps: the body stream's arrival times (same device
         # clock) map them to the client's clock, the probes to the server's
         if store.depth_frame_count(s.id) == 0:
             # a live recording: the clients sent their wand sightings and floors, not depth
-            live = _live_sightings(store, s.id, live_floors.get(s.id))
+            live = _live_sightings(store, s.id, live_floors.get(s.id), drop.get(s.id))
             sensors.append(CalibrationSensor(s.id, s.intrinsics, None, (), live))
             continue
-        obs = store.observations(s.id)
-        clock = sensor_timebase(store.clock_probes(s.id), obs.t_device_s, obs.t_host_s)
+        t_device, t_host = _body_stamps(store, s.id, drop.get(s.id))
+        clock = sensor_timebase(store.clock_probes(s.id), t_device, t_host)
         depth = ((t, frames) for _seq, t, frames in store.iter_depth_frames(s.id))
         sensors.append(CalibrationSensor(s.id, s.intrinsics, clock, depth))
     try:
@@ -143,8 +233,23 @@ def gather_calibration(
         raise
 
 
+def _body_stamps(
+    store: SessionStore, sensor_id: str, drop_seq: NDArray[np.int64] | None
+) -> tuple[Array, Array]:
+    """A sensor's body frames' device and host stamps (the time columns only; frames in
+    ``drop_seq`` left out)."""
+    seq, t_device, _t_server, t_host = store.observation_times(sensor_id)
+    if drop_seq is not None and len(drop_seq):
+        keep = ~np.isin(seq, drop_seq)
+        t_device, t_host = t_device[keep], t_host[keep]
+    return t_device, t_host
+
+
 def _live_sightings(
-    store: SessionStore, sensor_id: str, floor: FloorPlane | None
+    store: SessionStore,
+    sensor_id: str,
+    floor: FloorPlane | None,
+    drop_seq: NDArray[np.int64] | None = None,
 ) -> LiveSightings | None:
     """A live recording's sightings of one sensor (None: it has none), with their device times
     mapped to the server clock as the body frames' are: device -> host from the arrival times of
@@ -155,11 +260,11 @@ def _live_sightings(
     n = len(live.seq)
     if n == 0:
         return None
-    obs = store.observations(sensor_id)
+    t_device, t_host = _body_stamps(store, sensor_id, drop_seq)
     clock = sensor_timebase(
         store.clock_probes(sensor_id),
-        np.concatenate([obs.t_device_s, live.t_device_s]),
-        np.concatenate([obs.t_host_s, live.t_host_s]),
+        np.concatenate([t_device, live.t_device_s]),
+        np.concatenate([t_host, live.t_host_s]),
     )
     t_server = clock.to_server(live.t_device_s)
     track = WandTrack(

@@ -48,6 +48,9 @@ DEFAULT_HEIGHTS_M = (1.0, 1.2)
 DEFAULT_TARGET_HEIGHT_M = 1.0
 DEFAULT_ROOM_MIN_XY_M = (-4.0, -4.0)
 DEFAULT_ROOM_MAX_XY_M = (4.0, 4.0)
+#: Two sensors closer than this stand in the same spot: no two cameras fit there (a Kinect v2 is
+#: 25 x 6.6 x 6.7 cm), so it is a copied position in the rig file, not a layout.
+MIN_SENSOR_SEPARATION_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,18 @@ class Rig:
                     f"(floor from {lo.tolist()} to {hi.tolist()} m, above z = 0); move it inside, "
                     "or make the room larger ([room] in the rig file, or --room)"
                 )
+        pos = np.array([s.position_m for s in self.sensors], dtype=np.float64)
+        for i in range(len(pos)):
+            for j in range(i + 1, len(pos)):
+                d = float(np.linalg.norm(pos[i] - pos[j]))
+                if d < MIN_SENSOR_SEPARATION_M:
+                    a, b = self.sensors[i].id, self.sensors[j].id
+                    raise RigError(
+                        f"{where}sensors {a!r} and {b!r} stand at the same spot "
+                        f"([{', '.join(f'{v:.2f}' for v in pos[i])}] m, {100 * d:.1f} cm apart; "
+                        f"two cameras need at least {100 * MIN_SENSOR_SEPARATION_M:.0f} cm): give "
+                        "each sensor its own position_m"
+                    )
         object.__setattr__(self, "room_min_xy_m", (float(lo[0]), float(lo[1])))
         object.__setattr__(self, "room_max_xy_m", (float(hi[0]), float(hi[1])))
 

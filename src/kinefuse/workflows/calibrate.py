@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from kinefuse.errors import InputError
+from kinefuse.errors import CalibrationError, CalibrationFailed, InputError
 from kinefuse.io.store.session import SessionStore
 
 
@@ -39,7 +39,7 @@ def run_calibrate(
     from kinefuse.calibration.grade import grade_calibration
     from kinefuse.calibration.session import METHODS, calibrate
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline.session import gather_calibration as gather
+    from kinefuse.pipeline.session import gather_usable_calibration
 
     if method not in METHODS:
         raise InputError(f"unknown calibration method {method!r}; choose from {', '.join(METHODS)}")
@@ -48,10 +48,13 @@ def run_calibrate(
             check_output_folder(target, what)
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
-        infos = {s.id: s for s in store.sensors()}
         det = detector or ("paper" if method == "paper" else "robust")
-        cal_in = gather(store, detector=det)
-        reg = calibrate(cal_in, method)
+        cal_in, screen = gather_usable_calibration(store, detector=det)
+        infos = {s.id: s for s in store.sensors() if s.id in screen.usable}
+        try:
+            reg = calibrate(cal_in, method)
+        except CalibrationError as e:
+            raise CalibrationFailed(_why_failed(e, det, cal_in.protocol)) from None
         grade = grade_calibration(reg, cal_in.floors)
         cal = calibration_from_registration(
             reg,
@@ -83,6 +86,8 @@ def run_calibrate(
                 for k, sid in enumerate(reg.sensor_ids)
             ],
             "out": str(out) if out is not None and usable else None,
+            "left_out": [{"id": k, "reason": v} for k, v in screen.left_out.items()],
+            "notes": screen.notes(),
         }
         if store.has_truth():
             from kinefuse.evaluation.calibration import calibration_errors, write_calibration_report
@@ -110,12 +115,29 @@ def run_calibrate(
     return result
 
 
+def _why_failed(e: CalibrationError, detector: str, protocol: dict[str, object]) -> str:
+    """What a registration that could not be computed says, with the likely cause: the paper's
+    detector takes the nearest object in view for the wand, and when that object stays put while
+    the wand moves the registration sees (almost) no move."""
+    text = f"calibration failed: {e}"
+    if detector == "paper" and "saw the wand move only" in str(e):
+        length = protocol.get("axis_length_m")
+        moved = f" (the protocol moves it {length:g} m)" if isinstance(length, int | float) else ""
+        text += (
+            f"{moved}. The paper's wand detector takes the nearest object in each depth frame for "
+            "the wand, and here it found something else, an object that did not move with the "
+            "wand; calibrate with --detector robust (a sphere of the wand's size) or --method full"
+        )
+    return text + "; nothing was written"
+
+
 def format_calibrate(r: dict[str, Any]) -> str:
     lines = [
         f"calibration ({r['method']}, wand detector {r['detector']}): {r['world']}",
         f"grade: {r['grade']}",
     ]
     lines += [f"  {why}" for why in r["reasons"]]
+    lines += [f"note: {n}" for n in r.get("notes", [])]
     if r["grade"] == "failed":
         lines.append(
             "  the calibration was accepted anyway (--accept)"

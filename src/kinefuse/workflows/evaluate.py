@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +27,19 @@ def run_evaluate(
     allow_incomplete: bool = False,
     start_s: float | None = None,
     end_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> dict[str, object]:
     """Compare fusion methods against the truth of a simulated session (opened read-only).
 
     ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
     swapped in on success (an existing folder is replaced only if kinefuse made it).
+    ``progress(message)`` hears of each step (:class:`kinefuse.workflows.progress.
+    TerminalProgress` shows them on a terminal).
     """
+    say = progress or (lambda _msg: None)
     from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline.session import METHODS, load_sensors
+    from kinefuse.pipeline.session import METHODS, load_usable_sensors
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -51,13 +56,22 @@ def run_evaluate(
                 "evaluate simulated sessions (kinefuse simulate)"
             )
         poses, source = resolve_poses(store, calibration, true_calibration)
-        sensors = load_sensors(store, poses)
+        say("reading the sensors' streams and clocks")
+        sensors, screen = load_usable_sensors(store, poses)
+        poses = {s.id: poses[s.id] for s in sensors}
         truth2world = None
         if not true_calibration:
             truth2world, cal_error = calibration_alignment(store, poses)
         report, results, truth = evaluate(
-            store, sensors, methods, truth2world=truth2world, start_s=start_s, end_s=end_s
+            store,
+            sensors,
+            methods,
+            truth2world=truth2world,
+            start_s=start_s,
+            end_s=end_s,
+            progress=say,
         )
+        say("scoring plausibility")
         from kinefuse.evaluation.plausibility import plausibility_vs_errors
 
         report["plausibility"] = plausibility_vs_errors(store, results, truth)
@@ -67,6 +81,8 @@ def run_evaluate(
 
             facts = session_facts(store, sensors, poses, source)
     report["calibration"] = source
+    report["left_out"] = [{"id": k, "reason": v} for k, v in screen.left_out.items()]
+    report["notes"] = screen.notes()
     if truth2world is not None:
         report["calibration_alignment"] = {
             "note": "truth moved into the calibration's world by a translation and a rotation "
@@ -76,6 +92,7 @@ def run_evaluate(
             "calibration_mean_position_error_m": cal_error,
         }
     if out_dir is not None:
+        say(f"writing tables, plots and the report to {out_dir}")
         with atomic_dir(out_dir, what="evaluation folder") as tmp:
             written = write_tables(tmp, report, results, sensors, truth, methods)
             if facts is not None:
@@ -95,7 +112,10 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
     """A short text table of an evaluation."""
     common = report.get("common")
     frac = common.get("joint_fraction", float("nan")) if isinstance(common, dict) else float("nan")
-    lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}", ""]
+    lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}"]
+    notes = report.get("notes")
+    lines += [f"note: {n}" for n in notes] if isinstance(notes, list) else []
+    lines.append("")
     lines.append(
         f"{'method':<10} {'MAE cm':>8} {'common':>8} {'RMSE cm':>8} {'p95 cm':>8} "
         f"{'coverage':>9} {'bias cm':>8} {'noise cm':>9}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,18 +27,21 @@ def run_fuse(
     start_s: float | None = None,
     end_s: float | None = None,
     also_out: tuple[Path, ...] = (),
+    progress: Callable[[str], None] | None = None,
 ) -> dict[str, object]:
     """Fuse a session with one method and export the result.
 
     The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
     (the one case that writes to the session). The export's folder and kind are checked before
     the work starts, so a bad ``out`` fails fast. ``also_out``: more exports of the same
-    result (the demo writes every format from one fusion).
+    result (the demo writes every format from one fusion). ``progress(message)`` hears of each
+    step.
     """
+    say = progress or (lambda _msg: None)
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
-    from kinefuse.pipeline.session import clip_grid, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import clip_grid, frame_grid, load_usable_sensors, run_method
 
     outs = ([out] if out is not None else []) + list(also_out)
     for o in outs:
@@ -46,17 +50,20 @@ def run_fuse(
     with SessionStore.open(session, writable=store_result) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
-        sensors = load_sensors(store, poses)
-        warnings = [
+        say("reading the sensors' streams and clocks")
+        sensors, screen = load_usable_sensors(store, poses)
+        warnings = screen.notes() + [
             f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
             for s in sensors
             if not s.observations.has_body.any()
         ]
         grid = clip_grid(frame_grid(sensors), start_s, end_s)
+        say(f"fusing {grid.size} frames with {method}")
         res = run_method(sensors, grid, method)
         if store_result:
             store.write_fused(method, res.t_server_s, res.positions, res.status)
     for o in outs:
+        say(f"writing {o}")
         notes: list[str] = []
         export_skeleton(
             o,
@@ -77,4 +84,6 @@ def run_fuse(
         "also_out": [str(o) for o in also_out],
         "stored_in_session": store_result,
         "warnings": warnings,
+        "sensors": [s.id for s in sensors],
+        "left_out": [{"id": k, "reason": v} for k, v in screen.left_out.items()],
     }

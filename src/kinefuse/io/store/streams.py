@@ -231,6 +231,20 @@ class SensorStreams(StorePart):
             n_crossings=crossings,
         )
 
+    def observation_times(self, sensor_id: str) -> tuple[NDArray[np.int64], Array, Array, Array]:
+        """``seq, t_sensor_s, t_receive_server_s, t_receive_host_s`` of one sensor's frames, in
+        sequence order (NaN where unknown): the time stamps alone, without reading the joints, for
+        checks of a whole recording that must not load it all."""
+        key = self._key(sensor_id, f"observation times of sensor {sensor_id!r}")
+        host = ", t_receive_host_s" if self._has_host_time else ", NULL"
+        rows = self._db.execute(
+            f"SELECT seq, t_sensor_s, t_receive_server_s{host} FROM observations "
+            "WHERE sensor_key = ? ORDER BY seq",
+            (key,),
+        ).fetchall()
+        seq = np.array([r[0] for r in rows], dtype=np.int64)
+        return seq, _column(rows, 1), _column(rows, 2), _column(rows, 3)
+
     def observation_count(self, sensor_id: str) -> int:
         """Number of observation frames stored for one sensor."""
         key = self._key(sensor_id, "observation_count")
