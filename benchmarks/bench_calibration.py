@@ -26,10 +26,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from kinefuse.calibration import WandDetection, detect_wand, detect_wand_paper, register_full
+from kinefuse.calibration.common import WandDetection
 from kinefuse.calibration.evaluate import pose_errors
 from kinefuse.calibration.floor import FloorPlane
+from kinefuse.calibration.register import register_full
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.calibration.wand_paper import detect_wand_paper
+from kinefuse.calibration.wand_robust import detect_wand
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.geometry.transforms import invert_transform

@@ -31,7 +31,7 @@ from kinefuse.camera.wand import Wand
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.parts import fit_floor
 from kinefuse.net.client.playback import SimTimeline
-from kinefuse.occlusion import detect_occlusion
+from kinefuse.occlusion.segments import detect_occlusion
 from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -28,14 +28,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.fusion import (
-    sensor_centres,
-    solve_linear,
-    solve_nonlinear,
-    trilaterate,
-)
+from kinefuse.fusion.trilateration import sensor_centres, solve_linear, solve_nonlinear, trilaterate
 from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.occlusion import detect_occlusion_sensors
+from kinefuse.occlusion.segments import detect_occlusion_sensors
 from kinefuse.skeleton import N_JOINTS
 
 RATE_HZ = 30.0

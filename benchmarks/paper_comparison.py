@@ -29,12 +29,13 @@ import numpy as np
 from kinefuse.evaluation.fusion import ABLATION, COMPARISONS, evaluate, truth_at
 from kinefuse.evaluation.metrics import gain_ci
 from kinefuse.fusion.best import BestOptions
+from kinefuse.fusion.methods import METHODS
 from kinefuse.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
 from kinefuse.geometry.rotations import rot_z
 from kinefuse.geometry.transforms import make_transform
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion import load_motion
-from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 from kinefuse.sim.rig import load_rig, place_actor
 from kinefuse.workflows.simulate import run_simulate
 

@@ -12,19 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration import (
-    RobustDetectorParams,
-    WandDetection,
-    detect_wand,
-    detect_wand_paper,
-    detect_wand_sequence,
-    paper_filter,
-)
+from kinefuse.calibration.common import WandDetection
 from kinefuse.calibration.wand_paper import (
     binarize_nearest,
+    detect_wand_paper,
     detect_wand_paper_sequence,
+    paper_filter,
     standardize_depth_cm,
 )
+from kinefuse.calibration.wand_robust import RobustDetectorParams, detect_wand, detect_wand_sequence
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration import register_full
 from kinefuse.calibration.evaluate import (
     align_worlds,
     binned,
@@ -17,6 +16,7 @@ from kinefuse.calibration.evaluate import (
     pose_errors,
     wand_errors,
 )
+from kinefuse.calibration.register import register_full
 from kinefuse.calibration.synthetic import (
     make_rig,
     simulate_sightings,

@@ -10,16 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration import (
+from kinefuse.calibration.calib_file import (
     CalibrationFile,
     calibration_from_registration,
     dumps_calibration,
     loads_calibration,
     read_calibration,
-    register_full,
     write_calibration,
 )
-from kinefuse.calibration.register import Registration
+from kinefuse.calibration.register import Registration, register_full
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration import FloorPlane, fit_floor_plane
+from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError, InputError
 from kinefuse.geometry.transforms import invert_transform, look_at

@@ -10,15 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration import (
-    FloorPlane,
+from kinefuse.calibration.evaluate import pose_errors
+from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
+from kinefuse.calibration.register import (
     Sightings,
-    fit_floor_plane,
     paper_positions_from_sightings,
     register_full,
     register_paper,
 )
-from kinefuse.calibration.evaluate import pose_errors
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError, InputError

@@ -19,7 +19,7 @@ from kinefuse.frames.observations import BodyFrame as SourceBody
 from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
 from kinefuse.net.client.clocks import HostClock, real_host_clock
 from kinefuse.net.client.playback import SourceTimeline
-from kinefuse.occlusion import detect_occlusion
+from kinefuse.occlusion.segments import detect_occlusion
 from kinefuse.protocol import (
     PROTOCOL_VERSION,
     AuthReply,

@@ -194,7 +194,8 @@ def sim_and_blind(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -
 def _calibrate_and_fuse(path: Path) -> dict[str, dict[str, np.ndarray]]:
     """Both calibrations, and every fusion method on the ``full`` one, through the library."""
     from kinefuse.calibration.session import calibrate
-    from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.fusion.methods import METHODS
+    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
     from kinefuse.pipeline.session import gather_calibration as gather
 
     out: dict[str, dict[str, np.ndarray]] = {}
@@ -218,7 +219,7 @@ def test_calibration_and_fusion_never_read_the_truth(
 ) -> None:
     """Issue 10: with every truth table emptied and the truth accessor raising, both
     calibrations and every fusion method give bit-identical results."""
-    from kinefuse.fusion.session import METHODS
+    from kinefuse.fusion.methods import METHODS
 
     session, blind = sim_and_blind
     seen = _calibrate_and_fuse(session)
@@ -261,7 +262,7 @@ def test_the_commands_give_the_same_files_without_the_truth(
     """``kinefuse calibrate --out`` and ``kinefuse fuse --out x.csv`` (every method) write
     byte-identical files from the session and from its blind copy with the truth forbidden;
     the printed figures differ only by the errors against the truth, which need it."""
-    from kinefuse.fusion.session import METHODS
+    from kinefuse.fusion.methods import METHODS
 
     session, blind = sim_and_blind
 

@@ -13,15 +13,15 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.raycast import ray_capsules
 from kinefuse.geometry.rotations import rot_y
-from kinefuse.occlusion import (
+from kinefuse.occlusion.segments import (
     crossing_parameters,
     detect_occlusion,
     detect_occlusion_sensors,
     non_adjacent_bone_pairs,
     occlusion_precision_recall,
     segments_intersect,
-    select_sensors,
 )
+from kinefuse.occlusion.select import select_sensors
 from kinefuse.skeleton import (
     BONES,
     JOINT_INDEX,

@@ -7,20 +7,18 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.fusion import (
+from kinefuse.fusion.status import FusionStatus, is_solved, status_counts
+from kinefuse.fusion.trilateration import (
     METHODS,
-    FusionStatus,
     fuse_geometric,
     fuse_linear,
     fuse_nonlinear,
     fuse_paper,
-    is_solved,
     sensor_centres,
     sensor_ranges,
     solve_geometric,
     solve_linear,
     solve_nonlinear,
-    status_counts,
     to_world,
     trilaterate,
 )
@@ -205,7 +203,7 @@ def test_paper_detects_occlusion_with_intrinsics():
     selection written out here and scipy's least squares on the selected spheres."""
     from scipy.optimize import least_squares
 
-    from kinefuse.occlusion import detect_occlusion_sensors
+    from kinefuse.occlusion.segments import detect_occlusion_sensors
 
     rng = np.random.default_rng(17)
     s2w = rig(SPREAD)

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.common import WandTrack
 from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
+from kinefuse.calibration.methods import DETECTORS
 from kinefuse.calibration.register import (
     Registration,
     Sightings,
@@ -36,8 +37,6 @@ from kinefuse.sync import SensorTimebase
 
 Array = NDArray[np.float64]
 
-METHODS = ("paper", "full")
-
 
 @dataclass(frozen=True)
 class CalibrationInput:
@@ -49,10 +48,6 @@ class CalibrationInput:
     protocol: dict[str, object]
     phase_server_s: tuple[float, float]
     frame_period_s: float  # median interval between a sensor's calibration depth frames
-
-
-#: The wand detectors: the paper's nearest-object binarization and our sphere fit.
-DETECTORS = ("paper", "robust")
 
 
 @dataclass(frozen=True, eq=False)

@@ -91,8 +91,8 @@ def phase(text: str) -> tuple[float, float]:
 
 
 def methods(text: str) -> tuple[str, ...]:
-    """Comma-separated fusion methods, each one of ``kinefuse.fusion.session.METHODS``."""
-    from kinefuse.fusion.session import METHODS
+    """Comma-separated fusion methods, each one of ``kinefuse.fusion.methods.METHODS``."""
+    from kinefuse.fusion.methods import METHODS
 
     names = tuple(m.strip() for m in text.split(",") if m.strip())
     bad = [m for m in names if m not in METHODS]

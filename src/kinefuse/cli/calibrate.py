@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from kinefuse.calibration.session import DETECTORS, METHODS
+from kinefuse.calibration.methods import DETECTORS, METHODS
 from kinefuse.cli import args as shared
 
 

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from kinefuse.cli import args as shared
-from kinefuse.fusion.session import METHODS
+from kinefuse.fusion.methods import METHODS
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from kinefuse.calibration.session import DETECTORS
+from kinefuse.calibration.methods import DETECTORS
 from kinefuse.cli import args as shared
-from kinefuse.occlusion.segments import OCCLUSION_RULES
+from kinefuse.occlusion.rules import OCCLUSION_RULES
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

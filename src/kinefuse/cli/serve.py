@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from kinefuse.calibration.session import METHODS as CALIBRATION_METHODS
+from kinefuse.calibration.methods import METHODS as CALIBRATION_METHODS
 from kinefuse.cli import args as shared
+from kinefuse.fusion.methods import LIVE_METHODS
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -24,9 +25,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--token", help="the shared secret itself (visible in ps: prefer --token-file)")
     p.add_argument("--record", type=Path, help="record everything into this NEW session file")
     p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
-    p.add_argument(
-        "--method", choices=["best-live", "paper"], default="best-live", help="live fusion"
-    )
+    p.add_argument("--method", choices=LIVE_METHODS, default="best-live", help="live fusion")
     p.add_argument(
         "--latency-budget-ms",
         type=shared.nonneg_float,

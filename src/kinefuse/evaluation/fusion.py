@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from kinefuse.evaluation.metrics import bias_noise, gain, position_errors
 from kinefuse.fusion.best import BestOptions
+from kinefuse.fusion.methods import METHODS
 from kinefuse.fusion.status import status_counts
 from kinefuse.fusion.trilateration import solve_nonlinear
 from kinefuse.geometry.transforms import apply_transform, invert_transform
@@ -24,7 +25,6 @@ from kinefuse.io.outputs import atomic_file, atomic_write_text, never_replace, r
 from kinefuse.io.store.session import SessionStore
 from kinefuse.occlusion.segments import occlusion_precision_recall
 from kinefuse.pipeline.session import (
-    METHODS,
     CalibratedSensor,
     MethodResult,
     clip_grid,

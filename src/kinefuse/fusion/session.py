@@ -20,6 +20,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import FusionError
 from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.best import BestOptions, fuse_best
+from kinefuse.fusion.methods import METHODS
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
 from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest
@@ -28,7 +29,6 @@ Array = NDArray[np.float64]
 
 #: The methods ``kinefuse fuse`` and ``evaluate`` know, in the paper's order, then ours (offline
 #: ``best`` and the causal ``best-live`` a live server runs).
-METHODS = ("linear", "geometric", "nonlinear", "paper", "best", "best-live")
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
+from kinefuse.fusion.methods import TRILATERATION_METHODS
 from kinefuse.geometry.transforms import check_rigid
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
@@ -25,7 +26,7 @@ _G = TypeVar("_G", bound=np.generic)
 
 OutOfPlane = Literal["auto", "lstsq", "ranges"]
 #: The trilateration methods, in the order of the paper's comparison.
-METHODS: tuple[str, ...] = ("linear", "geometric", "nonlinear", "paper")
+METHODS = TRILATERATION_METHODS
 
 #: Minimum number of sensors to trilaterate a joint.
 MIN_SENSORS = 3

@@ -35,13 +35,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
+from kinefuse.occlusion.rules import OCCLUSION_RULES, OcclusionRule
 from kinefuse.skeleton import N_JOINTS, bone_index_array, capsule_radii
 from kinefuse.skeleton.kinect_v2 import REFERENCE_HEIGHT_M
 
@@ -52,9 +52,6 @@ BoolArray = NDArray[np.bool_]
 DEFAULT_NEAR_M = 0.10
 #: A covering bone must be nearer than the joint by this fraction of its capsule radius.
 COVERAGE_DEPTH_FRACTION = 0.5
-OcclusionRule = Literal["crossing", "coverage"]
-#: The occlusion rules: the paper's 2D bone crossing, and capsule coverage.
-OCCLUSION_RULES: tuple[OcclusionRule, ...] = ("crossing", "coverage")
 _CHUNK_FRAMES = 2048
 
 

@@ -24,13 +24,7 @@ from numpy.typing import NDArray
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.session import CalibrationInput, LiveSightings
 from kinefuse.errors import CalibrationError, FusionError
-from kinefuse.fusion.session import (
-    METHODS,
-    CalibratedSensor,
-    MethodResult,
-    clip_grid,
-    frame_grid,
-)
+from kinefuse.fusion.session import CalibratedSensor, MethodResult, clip_grid, frame_grid
 from kinefuse.fusion.session import run_method as _run_method
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SensorInfo, SessionStore
@@ -42,7 +36,6 @@ from kinefuse.sync import sensor_timebase
 Array = NDArray[np.float64]
 
 __all__ = [
-    "METHODS",
     "CalibratedSensor",
     "MethodResult",
     "clip_grid",

@@ -78,9 +78,10 @@ def sequence_from_session(
     stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
     """
     from kinefuse.evaluation.poses import resolve_poses
+    from kinefuse.fusion.methods import METHODS
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.analysis import limb_sensor_counts
-    from kinefuse.pipeline.session import METHODS, frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
 
     if method not in METHODS:
         raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")

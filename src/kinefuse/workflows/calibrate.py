@@ -37,7 +37,8 @@ def run_calibrate(
         write_calibration,
     )
     from kinefuse.calibration.grade import grade_calibration
-    from kinefuse.calibration.session import METHODS, calibrate
+    from kinefuse.calibration.methods import METHODS
+    from kinefuse.calibration.session import calibrate
     from kinefuse.io.outputs import atomic_dir, check_output_folder
     from kinefuse.pipeline.session import gather_usable_calibration
 

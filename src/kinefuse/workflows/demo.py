@@ -576,7 +576,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
     """
     from kinefuse.errors import CalibrationError
     from kinefuse.evaluation.inspect import format_inspect, inspect_session
-    from kinefuse.fusion.session import METHODS
+    from kinefuse.fusion.methods import METHODS
     from kinefuse.io.outputs import atomic_dir
     from kinefuse.io.store.session import SessionStore
     from kinefuse.workflows.evaluate import format_evaluate, run_evaluate

@@ -38,8 +38,9 @@ def run_evaluate(
     """
     say = progress or (lambda _msg: None)
     from kinefuse.evaluation.fusion import calibration_alignment, evaluate, write_tables
+    from kinefuse.fusion.methods import METHODS
     from kinefuse.io.outputs import atomic_dir, check_output_folder
-    from kinefuse.pipeline.session import METHODS, load_usable_sensors
+    from kinefuse.pipeline.session import load_usable_sensors
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:

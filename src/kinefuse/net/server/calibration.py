@@ -50,6 +50,7 @@ from kinefuse.calibration.calib_file import (
 )
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.grade import Grade, grade_calibration
+from kinefuse.calibration.methods import METHODS
 from kinefuse.calibration.register import Registration, Sightings, register_full
 from kinefuse.calibration.register_full import _match_in_time, _robust_kabsch
 from kinefuse.calibration.session import CalibrationInput, calibrate
@@ -57,8 +58,6 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import CalibrationError, KinefuseError
 
 Array = NDArray[np.float64]
-
-METHODS = ("full", "paper")
 
 
 @dataclass(frozen=True)

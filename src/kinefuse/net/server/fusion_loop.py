@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.live import LiveFusion, LiveOptions
+from kinefuse.fusion.methods import LIVE_METHODS
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.net.bus import FusedFrame, Publisher
 from kinefuse.net.server.sensor_state import Observation, SensorState
@@ -57,7 +58,7 @@ log = logging.getLogger("kinefuse.serve")
 
 Array = NDArray[np.float64]
 
-METHODS = ("best-live", "paper")
+METHODS = LIVE_METHODS
 
 
 class FrameFusion:
