@@ -152,7 +152,7 @@ def main() -> None:
         k: max(real_s[k]["limb_rate_hz"] - sim_s[k]["limb_rate_hz"], 0.0) / 2.0 / reach / moving
         for k in real_s
     }
-    rate = float(np.mean(list(per_layout.values())))  # the three layouts alike
+    rate = per_layout["0"]  # where the model's view-dependent errors make no runs
     body = max(r0["whole_rate_hz"] - s0["whole_rate_hz"], 0.0) / 2.0 / moving
     legs = float(np.mean([real_s[k]["leg_share"] for k in real_s]))
     dur_sigma = float(np.log(r0["dur_p90"] / r0["dur_p50"]) / 1.2816)
@@ -173,7 +173,7 @@ def main() -> None:
         (
             "gross_limb_rate_hz",
             f"{rate:.3f}",
-            "mean over layouts of (real - model runs/s) / 2 sensors / P(size > 20 cm) "
+            "(real - model runs/s) / 2 sensors / P(size > 20 cm) "
             f"{reach:.2f} / moving share {moving:.2f}: "
             + ", ".join(f"{k} deg {v:.2f}" for k, v in per_layout.items()),
         ),
