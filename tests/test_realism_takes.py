@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from kinefuse.evaluation.realism_takes import (
 )
 from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 from kinefuse.motion.types import Motion
+from kinefuse.sim.tracker_params import TrackerParams
 from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 
@@ -208,8 +210,12 @@ def test_failures_name_what_is_missed() -> None:
 
 @pytest.fixture(scope="module")
 def compared(takes: dict[str, Path], walk: Motion) -> dict[str, TakeResult]:
-    # 3 seeds keep the suite fast; `kinefuse realism --seeds 5` gives the documented figures
-    return {k: compare_take(v, walk, range(3)) for k, v in takes.items()}
+    # 3 seeds keep the suite fast; `kinefuse realism --seeds 5` gives the documented figures.
+    # One real person against the model's typical person (the person level of issue 21 off):
+    # a random simulated person is held to the population (`kinefuse realism --population`), not to
+    # one participant's +/-25 %
+    typical = dataclasses.replace(TrackerParams(), person_log_sigma=0.0)
+    return {k: compare_take(v, walk, range(3), typical) for k, v in takes.items()}
 
 
 @pytest.mark.slow
@@ -293,3 +299,26 @@ def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "no such file" in capsys.readouterr().err
     assert cli_main(["realism", "--seeds", "0"]) == 2
     assert "--seeds must be at least 1, got 0" in capsys.readouterr().err
+
+
+def test_cli_population_on_a_small_folder(
+    takes: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--population DIR: the per-take layout plus a per-layout population block (bounded: two
+    takes cut to their stand, one seed)."""
+    folder = tmp_path / "pop"
+    folder.mkdir()
+    _standing_copy(takes["0"], folder / "a.csv")
+    _standing_copy(takes["90"], folder / "b.csv")
+    rc = cli_main(["realism", "--population", str(folder), "--seeds", "1", "--json"])
+    assert rc in (0, 1)
+    out = json.loads(capsys.readouterr().out)
+    assert {t["file"] for t in out["takes"]} == {str(folder / "a.csv"), str(folder / "b.csv")}
+    assert set(out["population"]) == {"0", "90"}
+    block = out["population"]["90"]
+    assert block["n_real_takes"] == 1 and block["n_simulated"] == 1
+    assert block["iqr_of_medians"]["real"] == 0.0  # one take: no spread
+    for stat in ("median_of_medians", "median_of_p95", "median_bone_cv"):
+        e = block[stat]
+        assert e["real_interval"][0] <= e["real"] <= e["real_interval"][1]
+        assert e["ratio"] == pytest.approx(e["simulated"] / e["real"])

@@ -59,6 +59,9 @@ def quiet(**changes: object) -> TrackerParams:
         bone_hold_tracked=0.0,
         bone_hold_inferred=0.0,
         side_inferred_max=0.0,
+        gross_limb_rate_hz=0.0,  # the failure processes and the person level (issue 21)
+        gross_body_rate_hz=0.0,
+        person_log_sigma=0.0,
     )
     base.update(changes)
     return dataclasses.replace(TrackerParams(), **base)  # type: ignore[arg-type]

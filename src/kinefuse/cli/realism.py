@@ -28,6 +28,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="CSV",
         help="KinectMultiTrack take(s) (default: every CSV in DATA/kinect/kinect_multitrack)",
     )
+    p.add_argument(
+        "--population",
+        type=Path,
+        nargs="?",
+        const=_DEFAULT_POPULATION,
+        default=None,
+        metavar="DIR",
+        help="compare per layout the distribution of per-take figures over real participants "
+        "with simulated subjects (default DIR: DATA/kinect/kinect_multitrack_population; with "
+        "--take, over those takes)",
+    )
     p.add_argument("--seeds", type=int, default=5, help="simulations per take (seeds 0..N-1)")
     p.add_argument("--clip", type=Path, default=None, help="walking clip (default CMU 02_walk_a)")
     p.add_argument("--per-joint", action="store_true", help="also print per-joint medians")
@@ -38,9 +49,18 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.set_defaults(func=run)
 
 
+#: stands for DATA/kinect/kinect_multitrack_population (resolved once --data is known)
+_DEFAULT_POPULATION = Path("<population>")
+
+
 def run(args: argparse.Namespace) -> int:
     """Exit 1 on a missed target."""
-    from kinefuse.workflows.realism import run_realism
+    from kinefuse.workflows.realism import DEFAULT_DATA, run_realism
+
+    population = args.population
+    if population == _DEFAULT_POPULATION:
+        data = DEFAULT_DATA if args.data is None else args.data
+        population = data / "kinect" / "kinect_multitrack_population"
 
     return run_realism(
         data=args.data,
@@ -50,4 +70,5 @@ def run(args: argparse.Namespace) -> int:
         per_joint=args.per_joint,
         single=args.single,
         as_json=args.json,
+        population=population,
     )

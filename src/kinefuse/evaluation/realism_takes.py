@@ -37,7 +37,7 @@ This is evaluation code (it reads the simulator's truth through ``simulate_pair`
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -325,6 +325,8 @@ class TakeResult:
     seeds: tuple[int, ...]
     real_per_joint_m: tuple[float, ...]
     sim_per_joint_m: tuple[float, ...]
+    #: every seed's figures (one simulated subject each), for the population comparison
+    per_seed: tuple[dict[str, float], ...] = field(default=())
 
     def failures(self) -> list[str]:
         """The acceptance items this take misses (empty when all hold)."""
@@ -383,6 +385,7 @@ def compare_take(
         seeds=tuple(int(s) for s in seeds),
         real_per_joint_m=tuple(float(v) for v in np.asarray(real_f["per_joint_median_m"])),
         sim_per_joint_m=tuple(float(v) for v in sim_joint),
+        per_seed=tuple({k: float(f[k]) for k in keys} for f in sims),
     )
 
 

@@ -155,12 +155,13 @@ def _seeds(seed: int, n_sensors: int, config: LabConfig) -> _Seeds:
     seq_subject, seq_wand, *seq_sensors = root.spawn(2 + n_sensors)
     subject = draw_subject_bias(np.random.default_rng(seq_subject), config.errors.tracker)
     if config.subject_seed is not None:
-        # the same person in another session: own joint offsets, this session's latents
+        # the same person in another session: own joint offsets and tracking quality (how well
+        # this body is tracked), this session's latents
         own = draw_subject_bias(
             np.random.default_rng(np.random.SeedSequence([int(config.subject_seed), 1])),
             config.errors.tracker,
         )
-        subject = replace(subject, offsets_body_m=own.offsets_body_m)
+        subject = replace(subject, offsets_body_m=own.offsets_body_m, quality=own.quality)
     wand = make_wand_path(
         float(config.calibration_s), np.random.default_rng(seq_wand), config.protocol
     )

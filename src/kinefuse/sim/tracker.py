@@ -35,6 +35,10 @@ positions into what such a tracker reports, with these components (every number 
     the body mirrored is zero up to a side view, rises with the facing angle beyond it and
     persists over runs of frames.
 (e) **Dropouts**: occasional runs of frames where the body is lost (all joints ``NOT_TRACKED``).
+(g) **Gross failures and the person level** (:mod:`kinefuse.sim.tracker_failures`): per sensor,
+    thrown limbs and whole-body jumps (Poisson events, log-normal lengths, 15-50 cm); per
+    subject, a tracking-quality factor that scales the per-sensor errors and the failure rates.
+    Both draw from child random streams, so the other components' draws are as before.
 
 The inferred-joint errors, the side-view offsets and the swap decisions are smooth random
 functions of time and of the viewing direction in the body frame (:class:`SessionLatent`), drawn
@@ -67,6 +71,7 @@ from kinefuse.sim.tracker_body import (
     hold_to_body,
     joint_radii,
 )
+from kinefuse.sim.tracker_failures import draw_quality, gross_failures
 from kinefuse.sim.tracker_params import (
     JOINT_GROUPS,
     TrackerParams,
@@ -174,12 +179,16 @@ class SubjectBias:
         of ``TrackerParams.view_bias_sigma_m``, as a function of the view angle.
         ``None`` latents are drawn per sensor inside :func:`simulate_tracker` (independent
         sensors).
+    quality : float
+        How badly this subject is tracked (1: typical): multiplies the per-sensor continuous
+        errors and the gross-failure rates (``TrackerParams.person_log_sigma``).
     """
 
     offsets_body_m: Array
     swap_latent: SessionLatent | None = None
     inferred_latent: SessionLatent | None = None
     view_latent: SessionLatent | None = None
+    quality: float = 1.0
 
     def __post_init__(self) -> None:
         a = np.asarray(self.offsets_body_m, dtype=np.float64)
@@ -188,6 +197,8 @@ class SubjectBias:
                 f"SubjectBias.offsets_body_m must be a finite ({N_JOINTS}, 3) array, got {a.shape}"
             )
         object.__setattr__(self, "offsets_body_m", a)
+        if not (np.isfinite(self.quality) and self.quality > 0):
+            raise InputError(f"SubjectBias.quality must be a positive number, got {self.quality}")
         if self.swap_latent is not None and self.swap_latent.n_fields != 1:
             raise InputError("SubjectBias.swap_latent must have exactly 1 field")
         if self.inferred_latent is not None and self.inferred_latent.n_fields != 3 * N_JOINTS:
@@ -217,7 +228,11 @@ def draw_subject_bias(rng: np.random.Generator, params: TrackerParams | None = N
     sigma = np.asarray(p.subject_bias_sigma_m, dtype=np.float64)
     offsets = mean + rng.normal(size=(N_JOINTS, 3)) * sigma[:, None]
     swap, inferred, view = _draw_latents(rng, p)
-    return SubjectBias(offsets, swap_latent=swap, inferred_latent=inferred, view_latent=view)
+    # the person level from a child stream: the draws above are those of the model without it
+    quality = draw_quality(rng.spawn(1)[0], p)
+    return SubjectBias(
+        offsets, swap_latent=swap, inferred_latent=inferred, view_latent=view, quality=quality
+    )
 
 
 def _draw_latents(
@@ -349,6 +364,7 @@ def simulate_tracker(
     view_latent = subj.view_latent if subj.view_latent is not None else own[2]
     rot = s2w[:3, :3]
     ones = np.arange(N_JOINTS)
+    q = float(subj.quality)  # how badly this subject is tracked (1: typical)
 
     # truth in the sensor frame: p_sensor = R^T (p_world - c)
     p_true = (truth - s2w[:3, 3]) @ rot
@@ -406,7 +422,7 @@ def simulate_tracker(
     # growing from nothing (front or back view) to view_bias_sigma_m (side view)
     vb = view_latent(np.zeros(n_t), view).reshape(n_t, N_JOINTS, 3)
     vb *= np.asarray(p.view_bias_sigma_m)[None, :, None]
-    vb *= (side_view**p.view_bias_exponent)[:, None, None]
+    vb *= (q * side_view**p.view_bias_exponent)[:, None, None]
     tracked_pos += np.einsum("tik,tjk->tji", axes_b, vb)
 
     # per-sensor errors, smoothed as the SDK's output is: a slow pose-dependent offset, a
@@ -418,26 +434,28 @@ def simulate_tracker(
         rel = vel - vel[:, JOINT_INDEX["SpineBase"]][:, None, :]
         speed_true = np.linalg.norm(rel, axis=-1)
         body_speed = np.linalg.norm(vel, axis=-1).mean(axis=1)
+        pelvis_speed = np.linalg.norm(vel[:, JOINT_INDEX["SpineBase"]], axis=-1)
     else:
         speed_true = np.zeros((n_t, N_JOINTS))
         body_speed = np.zeros(n_t)
+        pelvis_speed = np.zeros(n_t)
     # the pose-dependent offset changes as the depth image changes: it runs on a "pose clock"
     # that ticks with the body's movement (and slowly while the person holds still)
     pose_clock = np.cumsum(dt * (p.pose_clock_floor + body_speed / p.pose_clock_speed_m_s))
-    pose_sigma = np.asarray(p.pose_bias_sigma_m)
+    pose_sigma = q * np.asarray(p.pose_bias_sigma_m)
     pose_err = _smooth_along(rng, pose_clock, (N_JOINTS, 3), p.pose_bias_tau_s)
     tracked_pos += pose_err * pose_sigma[None, :, None]
     speed = np.take_along_axis(speed_true, perm, axis=1)
     range_factor = (rng_dist / p.noise_reference_range_m) ** p.noise_range_exponent
     axis_factor = np.array([1.0, 1.0, p.depth_axis_factor])
     static = np.asarray(p.jitter_sigma_m)[None, :]
-    moving = np.asarray(p.motion_noise_gain_s)[None, :] * speed
+    moving = q * np.asarray(p.motion_noise_gain_s)[None, :] * speed
     jitter = _smooth(rng, shape, dt, p.jitter_tau_s) * static[..., None]
     jitter += _smooth(rng, shape, dt, p.motion_noise_tau_s) * moving[..., None]
     jitter += rng.standard_normal(shape) * p.hf_jitter_sigma_m
     tracked_pos += jitter * range_factor[..., None] * axis_factor
     far = far_side(view, perm)  # (T, J) 0 near side or centre, 1 far side seen from the side
-    far_sigma = np.asarray(p.far_limb_sigma_m)[None, :] * far**p.far_limb_exponent
+    far_sigma = q * np.asarray(p.far_limb_sigma_m)[None, :] * far**p.far_limb_exponent
     far_err = _smooth(rng, shape, dt, p.far_limb_tau_s) * far_sigma[..., None]
     tracked_pos += np.einsum("tik,tjk->tji", axes_b, far_err)
 
@@ -456,7 +474,7 @@ def simulate_tracker(
         np.where((last[:, twin] >= 0)[..., None], mirrored, _default_local(tb, origin)),
     )
     guess = origin[:, None, :] + np.einsum("tik,tjk->tji", axes_b, guess_local) + bias
-    infer_body = inferred_latent(times, view).reshape(n_t, N_JOINTS, 3) * p.inferred_sigma_m
+    infer_body = inferred_latent(times, view).reshape(n_t, N_JOINTS, 3) * (q * p.inferred_sigma_m)
     infer_noise = np.einsum("tik,tjk->tji", axes_b, infer_body)
     # the guess pulls the joint, but the body seen around it keeps it near: the pull is at most
     # inferred_max_offset_m from where the tracker would have put it
@@ -479,6 +497,11 @@ def simulate_tracker(
         not_tracked = np.broadcast_to(lost[:, None], (n_t, N_JOINTS))
     else:
         not_tracked = ~in_view_b | lost[:, None]
+    # (g) gross failures of this sensor (thrown limbs, whole-body jumps), from a child stream
+    # they start only while the person moves (none of the real runs starts in a still stand)
+    moving = pelvis_speed > p.gross_moving_above_m_s
+    gross = gross_failures(rng.spawn(1)[0], n_t, dt, p, q, moving)
+    out = out + np.einsum("tik,tjk->tji", axes_b, gross)
     # the reported skeleton keeps plausible bone lengths: every bone is pulled toward the
     # body's own length (fully for a guessed joint), its subtree moving with it
     nominal = bone_lengths(tb + bias, seen)  # the body's size, from what was seen

@@ -91,6 +91,10 @@ def _meta(unit: str, kind: str, source: str) -> dict[str, str]:
 
 _WANG = "Wang et al. 2015 (Kinect v2 vs optical mocap: most joints 5-10 cm, feet/ankles worst)"
 _KMT = "KinectMultiTrack real two-Kinect recording (../shared/data/kinect/kinect_multitrack)"
+_POP = (
+    "KinectMultiTrack population, participants 0-9, 25 main takes at 0/45/90 deg "
+    "(../shared/data/kinect/kinect_multitrack_population), fitted by tools/fit_tracker_tails.py"
+)
 _WALKER = "kinect2-tracking walker.json (real Kinect v2 walk with tracking states)"
 
 
@@ -601,6 +605,114 @@ class TrackerParams:
         ),
     )
 
+    # (g) gross failures and the person level (kinefuse.sim.tracker_failures) ---------------
+    gross_limb_rate_hz: float = field(
+        default=0.98,
+        metadata=_meta(
+            "1/s of motion per sensor",
+            "measurement",
+            "rate of thrown limbs (an arm or a leg placed 20-50 cm off for a few frames): "
+            "the runs of a limb more than 20 cm off in the real two-sensor disagreement, less "
+            "those the model without them already makes, at 0 degrees (the layout where the "
+            "model's view-dependent errors make no such runs; 45 and 90 degrees ask for 0.70 "
+            "and 0.34 because those errors already make runs there), shared between the two "
+            "sensors, per second of motion (a third of the real frames are still); 0 switches "
+            "the process off. " + _POP,
+        ),
+    )
+    gross_moving_above_m_s: float = field(
+        default=0.03,
+        metadata=_meta(
+            "m/s",
+            "measurement",
+            "failures start only while the true pelvis moves faster than this: of the real "
+            "runs at 0 degrees none starts in a frame where the reported pelvis moves slower "
+            "(the still-frame definition of docs/realism.md), " + _POP,
+        ),
+    )
+    gross_leg_share: float = field(
+        default=0.65,
+        metadata=_meta(
+            "1",
+            "measurement",
+            "share of thrown limbs that are legs (the rest arms), over every layout, " + _POP,
+        ),
+    )
+    gross_duration_median_s: float = field(
+        default=0.1,
+        metadata=_meta(
+            "s",
+            "measurement",
+            "median length of a thrown limb (log-normal): the real runs above 20 cm, " + _POP,
+        ),
+    )
+    gross_duration_log_sigma: float = field(
+        default=1.36,
+        metadata=_meta(
+            "1 (natural log)",
+            "measurement",
+            "log-spread of that length, from the real runs' 50th and 90th percentiles, " + _POP,
+        ),
+    )
+    gross_size_min_m: float = field(
+        default=0.15,
+        metadata=_meta(
+            "m",
+            "assumption",
+            "smallest displacement of a failure's distal joints (a gross failure is large by "
+            "definition; smaller errors are the continuous processes)",
+        ),
+    )
+    gross_size_scale_m: float = field(
+        default=0.12,
+        metadata=_meta(
+            "m",
+            "measurement",
+            "mean excess of the displacement over gross_size_min_m (exponential): the real runs' "
+            "peak disagreement above 20 cm has an exponential tail of this scale, " + _POP,
+        ),
+    )
+    gross_ramp_s: float = field(
+        default=0.067,
+        metadata=_meta(
+            "s",
+            "measurement",
+            "onset and end of a failure, a linear ramp: real runs start with a jump of the "
+            "disagreement of several cm in one frame (median 4-7 cm, the largest quarter "
+            "11-16 cm), " + _POP,
+        ),
+    )
+    gross_body_rate_hz: float = field(
+        default=0.025,
+        metadata=_meta(
+            "1/s of motion per sensor",
+            "measurement",
+            "rate of whole-body jumps (every joint moved by one vector): runs in which the "
+            "spine and neck are all more than 15 cm off, at 0 degrees, shared between the two "
+            "sensors; 0 switches the process off. " + _POP,
+        ),
+    )
+    person_log_sigma: float = field(
+        default=0.12,
+        metadata=_meta(
+            "1 (natural log)",
+            "measurement",
+            "spread of the subject-level tracking quality q (log-normal, median 1) that "
+            "multiplies a subject's per-sensor continuous errors: the participants' spread of "
+            "per-take median disagreement (log, robust), less the spread the model has without "
+            "it; 0 switches the person level off. " + _POP,
+        ),
+    )
+    person_rate_exponent: float = field(
+        default=0.8,
+        metadata=_meta(
+            "1",
+            "measurement",
+            "failure rates scale as q^exponent: slope of the log rate of real runs over 20 cm "
+            "on the log per-take median, per layout, " + _POP,
+        ),
+    )
+
     def __post_init__(self) -> None:
         for name in (
             "subject_bias_sigma_m",
@@ -629,6 +741,7 @@ class TrackerParams:
             "side_inferred_max",
             "bone_hold_tracked",
             "bone_hold_inferred",
+            "gross_leg_share",
         ):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
@@ -647,6 +760,7 @@ class TrackerParams:
             "side_inferred_tau_s",
             "far_limb_tau_s",
             "view_correlation_deg",
+            "gross_duration_median_s",
         ):
             v = getattr(self, name)
             if not v > 0:
@@ -667,6 +781,15 @@ class TrackerParams:
             "hf_jitter_sigma_m",
             "side_inferred_onset_deg",
             "swap_min_facing_deg",
+            "gross_limb_rate_hz",
+            "gross_duration_log_sigma",
+            "gross_size_min_m",
+            "gross_size_scale_m",
+            "gross_ramp_s",
+            "gross_body_rate_hz",
+            "gross_moving_above_m_s",
+            "person_log_sigma",
+            "person_rate_exponent",
         ):
             v = getattr(self, name)
             if not v >= 0:

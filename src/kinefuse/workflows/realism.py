@@ -4,6 +4,7 @@ the options are in :mod:`kinefuse.cli.realism`)."""
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -15,6 +16,11 @@ from kinefuse.evaluation.realism import (
     default_walk_path,
     load_walk,
     walking_passes,
+)
+from kinefuse.evaluation.realism_population import (
+    format_population,
+    population_failures,
+    population_summary,
 )
 from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
 from kinefuse.evaluation.realism_takes import compare_take, format_take, format_take_joints
@@ -32,14 +38,26 @@ def run_realism(
     per_joint: bool = False,
     single: bool = False,
     as_json: bool = False,
+    population: Path | None = None,
+    progress: bool | None = None,
 ) -> int:
-    """Print real against simulated figures per take; 0 if every target holds, else 1."""
+    """Print real against simulated figures per take; 0 if every target holds, else 1.
+
+    ``population`` (a folder of takes) compares per layout the distribution of per-take figures
+    over its real participants with the same over simulated subjects (``--take`` narrows it to
+    the given takes); the exit status is then the population acceptance's. ``progress`` prints
+    one line per take on stderr (default: when stdout is a terminal and not ``as_json``).
+    """
     data = DEFAULT_DATA if data is None else data
     takes_arg = takes
     clip_arg = clip
     if seeds < 1:
         raise InputError(f"--seeds must be at least 1, got {seeds}")
-    if takes_arg is None:
+    if takes_arg is None and population is not None:
+        takes = sorted(Path(population).glob("*.csv"))
+        if not takes:
+            raise InputError(f"no KinectMultiTrack takes in {population}; pass --population DIR")
+    elif takes_arg is None:
         folder = data / "kinect" / "kinect_multitrack"
         takes = sorted(folder.glob("*.csv"))
         if not takes:
@@ -50,7 +68,23 @@ def run_realism(
     if not Path(clip).is_file():
         raise InputError(f"walking clip not found: {clip}; pass --clip or --data")
     walk = load_walk(clip)
-    results = [compare_take(t, walk, range(seeds)) for t in takes]
+    if progress is None:
+        progress = sys.stdout.isatty() and not as_json
+    results = []
+    for i, t in enumerate(takes):
+        if progress:
+            print(f"[{i + 1}/{len(takes)}] {Path(t).name} ({seeds} seeds)", file=sys.stderr)
+        results.append(compare_take(t, walk, range(seeds)))
+    if population is not None:
+        summary = population_summary(results)
+        if as_json:
+            doc = {"takes": [r.to_json() for r in results], "population": summary}
+            print(json.dumps(doc, indent=2))
+        else:
+            print(format_population(summary))
+            if per_joint:
+                print("\n" + format_take_joints(results))
+        return 0 if not population_failures(summary) else 1
     if as_json:
         print(json.dumps({"takes": [r.to_json() for r in results]}, indent=2))
     else:

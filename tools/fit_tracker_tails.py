@@ -1,0 +1,202 @@
+"""Measure the heavy tails of real Kinect v2 tracking and fit the tracker's failure processes.
+
+    PYTHONPATH=src python tools/fit_tracker_tails.py [--seeds 1] [--cache tests/data/...json]
+
+Reads every take of the KinectMultiTrack population (participants 0-9,
+``../shared/data/kinect/kinect_multitrack_population``), prints per take and per layout what the
+gross failures look like (:mod:`kinefuse.evaluation.realism_tails`), simulates every take with
+the new processes switched off (``--seeds`` seeds: what the model makes without them), and prints
+the values of ``TrackerParams.gross_*`` and ``person_*`` that the data asks for, with how each was
+obtained. The values in ``src/kinefuse/sim/tracker_params.py`` are these, rounded. ``--cache``
+writes the real per-take figures (the test cache). About 2 minutes with ``--seeds 1``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from kinefuse.evaluation.realism_population import layout_key
+from kinefuse.evaluation.realism_tails import GROSS_M, Tails, take_tails
+from kinefuse.evaluation.realism_takes import (
+    EXTRA_KEYS,
+    FIGURE_KEYS,
+    layout_angle_deg,
+    pair_figures,
+    real_pair,
+    simulated_pair,
+    take_layout,
+)
+from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.motion import load_motion
+from kinefuse.sim.tracker_params import TrackerParams
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+POPULATION = DATA / "kinect" / "kinect_multitrack_population"
+
+
+def off_params() -> TrackerParams:
+    """The model without the processes of issue 21 (the ablation)."""
+    return replace(
+        TrackerParams(), gross_limb_rate_hz=0.0, gross_body_rate_hz=0.0, person_log_sigma=0.0
+    )
+
+
+def robust_log_spread(values: dict[str, list[float]]) -> float:
+    """IQR / 1.349 of log(value / its layout's median), pooled over layouts."""
+    logs = []
+    for v in values.values():
+        a = np.log(np.asarray(v))
+        logs += list(a - np.median(a))
+    q75, q25 = np.percentile(logs, [75, 25])
+    return float((q75 - q25) / 1.349)
+
+
+def summarize(tails: list[Tails]) -> dict[str, float]:
+    runs = [r for t in tails for r in t.runs]
+    dur = np.array([r.duration_s for r in runs])
+    peak = np.array([r.peak_m for r in runs])
+    return {
+        "limb_rate_hz": float(np.median([t.limb_rate_hz for t in tails])),
+        "whole_rate_hz": float(
+            sum(t.whole_body_runs for t in tails) / sum(t.duration_s for t in tails)
+        ),
+        "whole_fraction": float(np.mean([t.whole_body_fraction for t in tails])),
+        "mirrored": float(np.median([t.mirrored_fraction for t in tails])),
+        "frozen": float(np.median([t.frozen_fraction for t in tails])),
+        "dur_p50": float(np.median(dur)),
+        "dur_p90": float(np.percentile(dur, 90)),
+        "dur_mean": float(dur.mean()),
+        "peak_excess_mean": float(np.mean(peak - GROSS_M)),
+        "peak_p50": float(np.median(peak)),
+        "peak_p90": float(np.percentile(peak, 90)),
+        "onset_jump_p50": float(np.nanmedian([r.onset_jump_m for r in runs])),
+        "onset_jump_p75": float(np.nanpercentile([r.onset_jump_m for r in runs], 75)),
+        "end_jump_p50": float(np.nanmedian([r.end_jump_m for r in runs])),
+        "one_sensor": float(np.mean([r.one_sensor for r in runs])),
+        "leg_share": float(np.mean([r.limb.startswith("Leg") for r in runs])),
+        "left_share": float(np.mean([r.limb.endswith("Left") for r in runs])),
+        "n_runs": float(len(runs)),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[1])
+    ap.add_argument("--population", type=Path, default=POPULATION)
+    ap.add_argument("--seeds", type=int, default=1, help="simulations per take (processes off)")
+    ap.add_argument("--cache", type=Path, default=None, help="write the real per-take figures")
+    args = ap.parse_args()
+    walk = load_motion(DATA / "motion" / "cmu" / "02_walk_a.amc")
+    takes = sorted(args.population.glob("*.csv"))
+    real_t: dict[str, list[Tails]] = {}
+    sim_t: dict[str, list[Tails]] = {}
+    real_med: dict[str, list[float]] = {}
+    sim_med: dict[str, list[float]] = {}
+    rate_pairs: list[tuple[str, float, float]] = []
+    cache = []
+    off = off_params()
+    for path in takes:
+        rec = read_kinect_multitrack(path)
+        rp = real_pair(rec)
+        lay = take_layout(rec, rp)
+        key = layout_key(layout_angle_deg(lay))
+        fig = pair_figures(rp)
+        tails = take_tails(rp)
+        real_t.setdefault(key, []).append(tails)
+        real_med.setdefault(key, []).append(fig["median_m"])
+        rate_pairs.append((key, fig["median_m"], tails.limb_rate_hz))
+        cache.append(
+            {
+                "file": path.name,
+                "layout": key,
+                "angle_deg": layout_angle_deg(lay),
+                **{k: float(fig[k]) for k in (*FIGURE_KEYS, *EXTRA_KEYS)},
+            }
+        )
+        print(
+            f"{path.name:40s} {key:>2} deg  median {fig['median_m'] * 100:5.1f} cm  p95 "
+            f"{fig['p95_m'] * 100:5.1f} cm  limb runs {tails.limb_rate_hz:4.2f}/s  whole-body "
+            f"runs {tails.whole_body_runs}  mirrored {tails.mirrored_fraction * 100:4.1f} %  "
+            f"frozen {tails.frozen_fraction * 100:4.2f} %",
+            flush=True,
+        )
+        for s in range(args.seeds):
+            sp = simulated_pair(rec, walk, s, lay, off)
+            sim_t.setdefault(key, []).append(take_tails(sp))
+            sim_med.setdefault(key, []).append(pair_figures(sp)["median_m"])
+    if args.cache:
+        args.cache.write_text(json.dumps({"source": str(args.population.name), "takes": cache},
+                                         indent=1) + "\n")  # fmt: skip
+        print(f"wrote {args.cache}")
+
+    print("\nper layout (real | model without the new processes):")
+    real_s = {k: summarize(v) for k, v in real_t.items()}
+    sim_s = {k: summarize(v) for k, v in sim_t.items()}
+    for k in real_s:
+        print(f"  {k} deg")
+        for name in real_s[k]:
+            print(f"    {name:18s} {real_s[k][name]:8.3f} | {sim_s[k][name]:8.3f}")
+
+    r0, s0 = real_s["0"], sim_s["0"]
+    p = TrackerParams()
+    size_min = p.gross_size_min_m
+    scale = r0["peak_excess_mean"]  # exponential tail above 20 cm: its mean excess
+    reach = float(np.exp(-max(GROSS_M - size_min, 0.0) / scale))
+    moving = 1.0 - float(np.mean([c["still_fraction"] for c in cache if c["layout"] == "0"]))
+    per_layout = {
+        k: max(real_s[k]["limb_rate_hz"] - sim_s[k]["limb_rate_hz"], 0.0) / 2.0 / reach / moving
+        for k in real_s
+    }
+    rate = per_layout["0"]  # where the model's view-dependent errors make no runs
+    body = max(r0["whole_rate_hz"] - s0["whole_rate_hz"], 0.0) / 2.0 / moving
+    legs = float(np.mean([real_s[k]["leg_share"] for k in real_s]))
+    dur_sigma = float(np.log(r0["dur_p90"] / r0["dur_p50"]) / 1.2816)
+    s_real = robust_log_spread(real_med)
+    s_sim = robust_log_spread(sim_med)
+    person = float(np.sqrt(max(s_real**2 - s_sim**2, 0.0)))
+    x, y = [], []
+    for key in real_med:
+        m = np.median([m for k, m, _ in rate_pairs if k == key])
+        r = np.median([r for k, _, r in rate_pairs if k == key])
+        for k, mm, rr in rate_pairs:
+            if k == key and rr > 0:
+                x.append(np.log(mm / m))
+                y.append(np.log(rr / r))
+    slope = float(np.polyfit(x, y, 1)[0])
+    rows = [
+        ("gross_size_scale_m", f"{scale:.3f}", "mean excess of real 0-deg run peaks over 20 cm"),
+        (
+            "gross_limb_rate_hz",
+            f"{rate:.3f}",
+            "(real - model runs/s) / 2 sensors / P(size > 20 cm) "
+            f"{reach:.2f} / moving share {moving:.2f}: "
+            + ", ".join(f"{k} deg {v:.2f}" for k, v in per_layout.items()),
+        ),
+        (
+            "gross_body_rate_hz",
+            f"{body:.3f}",
+            "whole-body runs at 0 deg / 2 sensors / moving share",
+        ),
+        ("gross_leg_share", f"{legs:.2f}", "legs among real runs, mean of layouts"),
+        ("gross_duration_median_s", f"{r0['dur_p50']:.3f}", "real 0-deg runs"),
+        ("gross_duration_log_sigma", f"{dur_sigma:.2f}", "ln(p90 / p50) / 1.2816"),
+        (
+            "person_log_sigma",
+            f"{person:.3f}",
+            f"sqrt(real {s_real:.3f}^2 - model {s_sim:.3f}^2): robust log-spread of per-take "
+            "medians about their layout's median",
+        ),
+        ("person_rate_exponent", f"{slope:.2f}", "slope of log run rate on log median"),
+    ]
+    print("\nfitted (TrackerParams):")
+    for name, value, how in rows:
+        print(f"  {name:25s} = {value:7s} {how}")
+
+
+if __name__ == "__main__":
+    main()
