@@ -12,8 +12,9 @@ import pytest
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.geometry.transforms import look_at
-from kinefuse.sim.tracker import TrackerParams, draw_subject_bias, simulate_tracker
+from kinefuse.sim.tracker import draw_subject_bias, simulate_tracker
 from kinefuse.sim.tracker_failures import LIMB_CHAINS, draw_quality, gross_failures
+from kinefuse.sim.tracker_params import population_tracker
 from kinefuse.skeleton import JOINT_INDEX, capsule_radii, standing_pose
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,7 +30,7 @@ def _glide(n: int = 900) -> np.ndarray:
 
 
 def test_gross_failures_rates_sizes_and_limbs() -> None:
-    p = TrackerParams()
+    p = population_tracker()
     n, dt = 30 * 600, 1 / 30  # ten minutes of one sensor
     d = gross_failures(
         np.random.default_rng(1), n, dt, dataclasses.replace(p, gross_body_rate_hz=0)
@@ -54,7 +55,7 @@ def test_gross_failures_rates_sizes_and_limbs() -> None:
 
 
 def test_whole_body_jumps_move_every_joint_alike() -> None:
-    p = dataclasses.replace(TrackerParams(), gross_limb_rate_hz=0.0, gross_body_rate_hz=0.5)
+    p = dataclasses.replace(population_tracker(), gross_limb_rate_hz=0.0, gross_body_rate_hz=0.5)
     d = gross_failures(np.random.default_rng(2), 3000, 1 / 30, p)
     moved = np.linalg.norm(d, axis=-1).max(axis=1) > 0
     assert moved.any()
@@ -67,17 +68,18 @@ def test_processes_switch_off_and_keep_the_other_draws() -> None:
     truth = _glide()
     s2w = look_at([2.4, 0.0, 1.0], [0.0, 0.0, 1.0])
     radii = capsule_radii(1.71)
-    off = dataclasses.replace(TrackerParams(), **OFF)  # type: ignore[arg-type]
+    off = dataclasses.replace(population_tracker(), **OFF)  # type: ignore[arg-type]
     a = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), off)
     b = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), off)
     np.testing.assert_array_equal(a.joints_sensor, b.joints_sensor)  # deterministic
-    on = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4))
-    again = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4))
+    pop = population_tracker()
+    on = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), pop)
+    again = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), pop)
     np.testing.assert_array_equal(on.joints_sensor, again.joints_sensor)
     diff = np.linalg.norm(on.joints_sensor - a.joints_sensor, axis=-1)
     assert np.nanmax(diff) > 0.15  # a failure happened in 30 s
     still = np.repeat(truth[:1], 900, axis=0)  # no failure starts in a still stand
-    s_on = simulate_tracker(still, s2w, Intrinsics(), radii, np.random.default_rng(4))
+    s_on = simulate_tracker(still, s2w, Intrinsics(), radii, np.random.default_rng(4), pop)
     s_off = simulate_tracker(
         still, s2w, Intrinsics(), radii, np.random.default_rng(4), dataclasses.replace(off)
     )
@@ -85,22 +87,27 @@ def test_processes_switch_off_and_keep_the_other_draws() -> None:
     assert np.nanmax(np.linalg.norm(s_on.joints_sensor - s_off.joints_sensor, axis=-1)) < 0.05
     # the subject's draws are those of the model without the person level, plus its quality
     sa = draw_subject_bias(np.random.default_rng(9), off)
-    sb = draw_subject_bias(np.random.default_rng(9))
+    sb = draw_subject_bias(np.random.default_rng(9), pop)
     np.testing.assert_array_equal(sa.offsets_body_m, sb.offsets_body_m)
     assert sa.quality == 1.0 and sb.quality != 1.0
+    # the default model has them off: what every published figure stands on
+    assert draw_subject_bias(np.random.default_rng(9)).quality == 1.0
+    plain = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4))
+    np.testing.assert_array_equal(plain.joints_sensor, a.joints_sensor)
 
 
 def test_quality_is_log_normal_with_the_fitted_spread() -> None:
-    p = TrackerParams()
+    p = population_tracker()
     q = np.array([draw_quality(np.random.default_rng(s), p) for s in range(2000)])
     assert np.median(q) == pytest.approx(1.0, abs=0.03)
     assert np.log(q).std() == pytest.approx(p.person_log_sigma, rel=0.1)
 
 
 def test_a_subject_seed_keeps_its_quality_across_sessions() -> None:
-    from kinefuse.sim.lab import LabConfig, _seeds
+    from kinefuse.sim.lab import ErrorModel, LabConfig, _seeds
 
-    base = LabConfig(seed=3, calibration_s=0.0, subject_seed=11)
+    errors = ErrorModel(tracker=population_tracker())
+    base = LabConfig(seed=3, calibration_s=0.0, subject_seed=11, errors=errors)
     a = _seeds(3, 2, base).subject
     b = _seeds(4, 2, dataclasses.replace(base, seed=4)).subject
     assert a.quality == b.quality

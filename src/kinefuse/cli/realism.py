@@ -46,6 +46,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--single", action="store_true", help="also check one simulated sensor against the truth"
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
+    p.add_argument(
+        "--tracker",
+        choices=("default", "population"),
+        help="the simulated body-tracker model (default: population with --population, else "
+        "the default model every published figure stands on; docs/realism.md)",
+    )
     p.set_defaults(func=run)
 
 
@@ -71,4 +77,5 @@ def run(args: argparse.Namespace) -> int:
         single=args.single,
         as_json=args.json,
         population=population,
+        tracker=args.tracker or ("population" if population is not None else "default"),
     )

@@ -51,6 +51,14 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
         "takes of the same person (default: drawn from --seed, a new person every session)",
     )
     p.add_argument(
+        "--tracker",
+        choices=("default", "population"),
+        default="default",
+        help="body-tracker model: the default one every published figure stands on, or with "
+        "the gross failures and person level fitted on the KinectMultiTrack population "
+        "(docs/realism.md)",
+    )
+    p.add_argument(
         "--calibration-seconds",
         type=shared.nonneg_float,
         default=20.0,
@@ -97,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         progress=lambda m: print(m, file=sys.stderr),
         rom_s=args.rom,
         subject_seed=args.subject_seed,
+        tracker=args.tracker,
     )
     for w in r["warnings"]:
         print(f"kinefuse: warning: {w}", file=sys.stderr)

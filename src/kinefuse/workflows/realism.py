@@ -24,6 +24,7 @@ from kinefuse.evaluation.realism_population import (
 )
 from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
 from kinefuse.evaluation.realism_takes import compare_take, format_take, format_take_joints
+from kinefuse.workflows.simulate import tracker_model
 
 #: ../shared/data beside the project checkout (where the repository's data lives)
 DEFAULT_DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
@@ -40,6 +41,7 @@ def run_realism(
     as_json: bool = False,
     population: Path | None = None,
     progress: bool | None = None,
+    tracker: str = "default",
 ) -> int:
     """Print real against simulated figures per take; 0 if every target holds, else 1.
 
@@ -68,13 +70,14 @@ def run_realism(
     if not Path(clip).is_file():
         raise InputError(f"walking clip not found: {clip}; pass --clip or --data")
     walk = load_walk(clip)
+    params = tracker_model(tracker)
     if progress is None:
         progress = sys.stdout.isatty() and not as_json
     results = []
     for i, t in enumerate(takes):
         if progress:
             print(f"[{i + 1}/{len(takes)}] {Path(t).name} ({seeds} seeds)", file=sys.stderr)
-        results.append(compare_take(t, walk, range(seeds)))
+        results.append(compare_take(t, walk, range(seeds), params=params))
     if population is not None:
         summary = population_summary(results)
         if as_json:

@@ -7,13 +7,16 @@ from collections.abc import Callable
 from dataclasses import replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError, OutputError
 from kinefuse.io.store.session import SessionStore, is_simulated_session
+
+if TYPE_CHECKING:
+    from kinefuse.sim.tracker_params import TrackerParams
 
 Array = NDArray[np.float64]
 
@@ -88,6 +91,7 @@ def run_simulate(
     progress: Callable[[str], None] | None = None,
     rom_s: float | None = None,
     subject_seed: int | None = None,
+    tracker: str = "default",
 ) -> dict[str, Any]:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
@@ -111,7 +115,7 @@ def run_simulate(
     from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.io.outputs import atomic_file
     from kinefuse.motion import load_motion
-    from kinefuse.sim.lab import LabConfig, simulate_session
+    from kinefuse.sim.lab import ErrorModel, LabConfig, simulate_session
     from kinefuse.sim.rig import common_volume_centre, default_rig, load_rig, place_actor
 
     say = progress or (lambda _m: None)
@@ -155,6 +159,7 @@ def run_simulate(
         depth_rate_hz=depth_rate_hz,
         motion_s=seconds,
         subject_seed=subject_seed,
+        errors=ErrorModel(tracker=tracker_model(tracker)),
     )
     with atomic_file(
         out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
@@ -174,3 +179,17 @@ def run_simulate(
         result["rom_position_m"] = list(the_rig.actor_position_m)
         result["rom_position_from"] = rom_place
     return result
+
+
+#: The body-tracker models a simulation can use (``--tracker``).
+TRACKER_MODELS = ("default", "population")
+
+
+def tracker_model(name: str) -> TrackerParams:
+    """``"default"``: the model every published figure stands on; ``"population"``: with the
+    gross failures and person level fitted on the KinectMultiTrack population (issue 21)."""
+    from kinefuse.sim.tracker_params import TrackerParams, population_tracker
+
+    if name not in TRACKER_MODELS:
+        raise InputError(f"unknown tracker model {name!r}; choose {', '.join(TRACKER_MODELS)}")
+    return population_tracker() if name == "population" else TrackerParams()
