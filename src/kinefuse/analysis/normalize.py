@@ -26,6 +26,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,11 @@ REQUIRED_JOINTS = (
     "SpineBase", "SpineMid", "SpineShoulder", "ShoulderLeft", "ShoulderRight", "HipLeft",
     "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight",
 )  # fmt: skip
+#: A partial body (an upper- or lower-body-only capture) needs the root and one of these two
+#: groups whole: the body frame's left-right line then comes from the shoulders or the hips
+#: alone, and the limbs whose joints are absent get no frame (their status says which joint).
+UPPER_BODY_JOINTS = ("SpineMid", "SpineShoulder", "ShoulderLeft", "ShoulderRight")
+LOWER_BODY_JOINTS = ("HipLeft", "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight")
 #: Below this angle between a limb and its twist reference the twist weight is 0, above the
 #: second it is 1 (degrees; a straight elbow or knee leaves the twist unobservable).
 TWIST_WEIGHT_DEG = (15.0, 35.0)
@@ -180,12 +186,31 @@ def find_default_pose(seq: SkeletonSequence, /) -> int:
 def _body_joints(seq: SkeletonSequence) -> tuple[str, ...]:
     """The :data:`BODY_JOINTS` the sequence has; a clear error if a required one is absent."""
     missing = [n for n in REQUIRED_JOINTS if not seq.has(n)]
-    if missing:
+    if missing and not partial_body(seq.joint_names):
+        lack_up = [n for n in ("SpineBase", *UPPER_BODY_JOINTS) if not seq.has(n)]
+        lack_low = [n for n in ("SpineBase", *LOWER_BODY_JOINTS) if not seq.has(n)]
         raise InputError(
             f"normalization needs the body joints {', '.join(missing)}, which "
-            f"{seq.source or 'the sequence'} lacks; map them (a marker map, a name map) first"
+            f"{seq.source or 'the sequence'} lacks; map them (a marker map, a name map) first. "
+            f"An upper-body-only input needs {', '.join(('SpineBase', *UPPER_BODY_JOINTS))} "
+            f"(missing: {', '.join(lack_up)}); a lower-body-only input needs "
+            f"{', '.join(('SpineBase', *LOWER_BODY_JOINTS))} (missing: {', '.join(lack_low)})"
         )
     return tuple(n for n in BODY_JOINTS if seq.has(n) and seq.mask[:, seq.index(n)].any())
+
+
+def partial_body(joints: Sequence[str]) -> str | None:
+    """``"upper"`` or ``"lower"`` when ``joints`` lack some :data:`REQUIRED_JOINTS` but hold
+    SpineBase and the :data:`UPPER_BODY_JOINTS` (or the :data:`LOWER_BODY_JOINTS`): a partial
+    body normalization can work on; ``None`` for a full body or too little."""
+    have = set(joints)
+    if set(REQUIRED_JOINTS) <= have or "SpineBase" not in have:
+        return None
+    if set(UPPER_BODY_JOINTS) <= have:
+        return "upper"
+    if set(LOWER_BODY_JOINTS) <= have:
+        return "lower"
+    return None
 
 
 def _default(seq: SkeletonSequence) -> tuple[int, Array]:
@@ -211,9 +236,12 @@ def body_frame(joints: Array, /, up: Array | None = None) -> Array:
     _, _, vt = np.linalg.svd(q - q.mean(axis=0))
     x = vt[2]
     j = JOINT_INDEX
-    left = (joints[j["HipLeft"]] - joints[j["HipRight"]]) + (
-        joints[j["ShoulderLeft"]] - joints[j["ShoulderRight"]]
-    )
+    hips = joints[j["HipLeft"]] - joints[j["HipRight"]]
+    shoulders = joints[j["ShoulderLeft"]] - joints[j["ShoulderRight"]]
+    if np.isfinite(hips).all() and np.isfinite(shoulders).all():
+        left = hips + shoulders
+    else:  # a partial body (upper or lower only): the line it has
+        left = hips if np.isfinite(hips).all() else shoulders
     if dot(x, np.cross(left, up_v)) < 0:  # forward = left x up
         x = -x
     z = unit(up_v - dot(up_v, x) * x)
@@ -283,6 +311,19 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         body = body_frame(np.where(seen > 0, np.nansum(p[win], axis=0) / seen, np.nan))
     if not np.isfinite(body).all():
         raise InputError(f"the default-pose frame {d} lacks body joints; choose another frame")
+    root_note = ""
+    sb, sm = JOINT_INDEX["SpineBase"], JOINT_INDEX["SpineMid"]
+    if partial_body(seq.joint_names) == "lower" and not np.isfinite(p[:, sm]).any():
+        # a lower-body-only input has no SpineMid: the pelvis's long axis is then the line from
+        # the hip centres' midpoint through SpineBase (both rigid with the pelvis), put where
+        # SpineMid would be for the root's frame only
+        p = p.copy()
+        hip_mid = 0.5 * (p[:, JOINT_INDEX["HipLeft"]] + p[:, JOINT_INDEX["HipRight"]])
+        p[:, sm] = p[:, sb] + (p[:, sb] - hip_mid)
+        root_note = (
+            "SpineMid missing (lower body only): the long axis runs from the hip centres' "
+            "midpoint through SpineBase"
+        )
     n = len(LIMBS)
     frames = np.full((t, n, 3, 3), np.nan)
     origins = np.full((t, n, 3), np.nan)
@@ -349,6 +390,8 @@ def normalize(seq: SkeletonSequence, /, default_frame: int | None = None) -> Nor
         }
         if np.isfinite(noise):
             observable[lb.name]["twist_noise_deg"] = float(np.degrees(noise))
+        if root_note and LIMB_PARENTS[i] < 0:
+            observable[lb.name]["long_axis"] = root_note
         msg = []
         if frac_missing > 0:
             msg.append(f"joints missing in {int((~present).sum())} of {t} frames")

@@ -39,6 +39,8 @@ class AnalysisInput:
     static_source: str | None = None  # the static trial used
     # sessions: (T, L) how many sensors tracked each limb (both its joints TRACKED) at each frame
     limb_sensors: NDArray[np.int64] | None = None
+    # partial bodies (marker files): the map's joints the file cannot build -> missing markers
+    unbuilt_joints: dict[str, str] | None = None
 
 
 #: A limb is *seen* at a frame when at least this many sensors track it (both its joints

@@ -128,7 +128,7 @@ def load_input(
     static_window: tuple[float, float] | None = None,
 ) -> AnalysisInput:
     """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc)."""
-    from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
+    from kinefuse.io.formats.sequences import sequence_from_motion_file
 
     if not path.exists():
         raise InputError(f"{path}: no such file")
@@ -149,8 +149,13 @@ def load_input(
     if kind == "motion":
         return AnalysisInput(path=path, kind=kind, seq=sequence_from_motion_file(path))
     if static is None and static_window is None:
+        from kinefuse.io.formats.marker_maps import unbuilt_joints
+        from kinefuse.io.formats.sequences import resolve_marker_input, sequence_from_marker_data
+
+        markers, mmap, notes, _ = resolve_marker_input(path, marker_map=marker_map)
+        seq = sequence_from_marker_data(markers, mmap, notes)
         return AnalysisInput(
-            path=path, kind=kind, seq=sequence_from_markers(path, marker_map=marker_map)
+            path=path, kind=kind, seq=seq, unbuilt_joints=unbuilt_joints(markers, mmap) or None
         )
     return _markers_with_static(path, marker_map, static or path, static_window)
 

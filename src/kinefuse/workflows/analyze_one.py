@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from kinefuse.analysis.gaps import fill_short_gaps_all
 from kinefuse.analysis.kinematics import reconstruction_error
-from kinefuse.analysis.limbs import LIMB_NAMES, limb
+from kinefuse.analysis.limbs import LIMB_NAMES, LIMBS, limb
 from kinefuse.io.formats.angles import plan_mot, write_angles_csv, write_angles_mot
 from kinefuse.pipeline.analysis import analyse_sequence
 
@@ -61,6 +61,31 @@ def angle_joint(name: str) -> str:
         return limb(lname).proximal
     except KeyError:
         return "unknown"
+
+
+def angle_limb(name: str) -> str | None:
+    """The limb an anatomical angle belongs to (``knee_flexion_left`` -> ``shank_left``)."""
+    kind = _ANGLE_LIMB.get(name.split("_", 1)[0])
+    if kind is None:
+        return None
+    side = name.rsplit("_", 1)[-1]
+    return f"{kind}_{side}" if side in ("left", "right") else kind
+
+
+def skipped_limbs(unbuilt: dict[str, str] | None, joints: tuple[str, ...]) -> dict[str, str]:
+    """Limb -> ``"skipped: ..."`` for the limbs of a partial body: those with a joint the
+    marker map names but the file cannot build (``unbuilt``: joint -> its missing markers)."""
+    out: dict[str, str] = {}
+    for lb in LIMBS:
+        # the root's SpineMid may be missing: normalization then uses the hips (lower body)
+        ends = (lb.proximal,) if lb.parent is None else (lb.proximal, lb.distal)
+        gone = [j for j in ends if j not in joints]
+        why = [f"{j} (markers {unbuilt[j]})" for j in gone if unbuilt and j in unbuilt]
+        if why:
+            out[lb.name] = (
+                f"skipped: the input has no {' and no '.join(why)}; this limb is not analysed"
+            )
+    return out
 
 
 def _wrap_deg(d: Array) -> Array:
@@ -99,6 +124,9 @@ def analyse_one(
     seq = inp.seq
     seen = None if inp.limb_sensors is None else phase_seen(inp.limb_sensors, seq.t_s, phase)
     res = analyse_sequence(seq, phase, not_seen=None if seen is None else seen["not_seen"])
+    skipped = skipped_limbs(inp.unbuilt_joints, seq.joint_names)
+    if skipped:  # a partial body: the angles of the skipped limbs are not written
+        res["named"] = {k: v for k, v in res["named"].items() if angle_limb(k) not in skipped}
     norm, models, angles, named = res["norm"], res["models"], res["angles"], res["named"]
     dj = models["dj"]
     n = seq.n_frames
@@ -141,6 +169,23 @@ def analyse_one(
         "timing_ms": {k: 1e3 * v for k, v in sec.items()},
         "angle_names": sorted(named),
     }
+    if skipped:
+        report["limb_status"] = {**dj.status, **skipped}
+        report["skipped_limbs"] = skipped
+        report["analysed_limbs"] = [  # the limbs with normalized frames
+            lm
+            for i, lm in enumerate(LIMB_NAMES)
+            if lm not in skipped and np.isfinite(norm.frames[:, i]).any()
+        ]
+        report["warnings"].append(
+            "partial body: "
+            + "; ".join(f"{k} {v}" for k, v in skipped.items())
+            + f". Analysed: {', '.join(report['analysed_limbs']) or 'nothing'}"
+        )
+        report["statement"] += (
+            f" Partial body: {', '.join(skipped)} skipped (their joints' markers are not in the "
+            "input); their angles are not written."
+        )
     if inp.fusion is not None:
         report["fusion"] = inp.fusion
     if seen is not None:

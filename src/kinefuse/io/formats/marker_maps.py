@@ -90,6 +90,7 @@ __all__ = [
     "parse_marker_map",
     "select_marker_map",
     "shipped_marker_maps",
+    "unbuilt_joints",
 ]
 
 #: Hip joint centre regressions (see the module docstring for the equations and sources).
@@ -378,6 +379,17 @@ def _resolve(
     return chosen, missing
 
 
+def _partial_ok(chosen: Mapping[str, JointRule], missing: Mapping[str, list[str]]) -> bool:
+    """A partial body (:func:`kinefuse.analysis.normalize.partial_body`) whose missing joints
+    lack markers the file does not have at all: not landmarks a static trial would give (then
+    the error that asks for the static trial stands)."""
+    from kinefuse.analysis.normalize import partial_body
+
+    if any("static trial" in w for why in missing.values() for w in why):
+        return False
+    return partial_body(tuple(chosen)) is not None
+
+
 def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> MarkerMap:
     """The shipped map whose every joint the file's markers (and the static trial's, for the
     map's ``[landmarks]``) can build.
@@ -390,12 +402,17 @@ def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> 
     finder = NameResolver(markers.names)
     sf = NameResolver(static.names) if static is not None else None
     best: tuple[int, MarkerMap, dict[str, list[str]]] | None = None
+    part: tuple[int, MarkerMap] | None = None
     for m in shipped_marker_maps().values():
         chosen, missing = _resolve(m, finder, sf)
         if not missing:
             return m
         if best is None or len(chosen) > best[0]:
             best = (len(chosen), m, missing)
+        if _partial_ok(chosen, missing) and (part is None or len(chosen) > part[0]):
+            part = (len(chosen), m)
+    if part is not None:  # an upper- or lower-body-only capture of a shipped marker set
+        return part[1]
     assert best is not None  # the package ships maps
     raise InputError(
         f"{markers.path}: no shipped marker map fits its {len(markers.names)} markers "
@@ -449,8 +466,15 @@ def hip_joint_centres(
     return base - cz * z, base + cz * z
 
 
+def unbuilt_joints(markers: MarkerData, mmap: MarkerMap) -> dict[str, str]:
+    """The map's joints the file's markers cannot build: joint -> the missing markers of each
+    alternative (``"LKNE"``, ``"L.Knee, L.MKnee | L.Knee"``), in the map's order."""
+    _, missing = _resolve(mmap, NameResolver(markers.names))
+    return {j: " | ".join(w) for j, w in missing.items()}
+
+
 def apply_marker_map(
-    markers: MarkerData, mmap: MarkerMap
+    markers: MarkerData, mmap: MarkerMap, *, partial: bool = False
 ) -> tuple[Array, tuple[str, ...], tuple[str, ...]]:
     """Joint centres from markers through a map.
 
@@ -458,6 +482,11 @@ def apply_marker_map(
     ----------
     markers : MarkerData
     mmap : MarkerMap
+    partial : bool
+        Accept a partial body: when the joints the file cannot build leave SpineBase and the
+        upper body (or the lower body) of
+        :func:`kinefuse.analysis.normalize.partial_body`, those joints are left out (absent
+        from the result; :func:`unbuilt_joints` says why) instead of failing.
 
     Returns
     -------
@@ -476,7 +505,7 @@ def apply_marker_map(
     """
     finder = NameResolver(markers.names)
     chosen, missing = _resolve(mmap, finder)
-    if missing:
+    if missing and not (partial and _partial_ok(chosen, missing)):
         lines = [
             f"{markers.path}: the marker map {mmap.name!r} ({mmap.origin}) names markers the "
             "file does not have:"
@@ -487,6 +516,12 @@ def apply_marker_map(
             hint = f" (close: {', '.join(sorted(close))})" if close else ""
             lines.append(f"  {joint}: missing {' | or | '.join(why)}{hint}")
         lines.append(f"The file's {len(markers.names)} markers: {', '.join(markers.names)}.")
+        if partial:
+            lines.append(
+                "Nothing can be analysed without them: a partial body needs SpineBase and either "
+                "the upper body (SpineMid, SpineShoulder, ShoulderLeft, ShoulderRight) or the "
+                "lower body (HipLeft, KneeLeft, AnkleLeft, HipRight, KneeRight, AnkleRight)."
+            )
         lines.append("Fix the map (docs/analysis.md, 'Marker maps') or pass another with --map.")
         raise InputError("\n".join(lines))
     p = markers.positions
@@ -519,7 +554,7 @@ def apply_marker_map(
 
 
 def cluster_orientations(
-    markers: MarkerData, mmap: MarkerMap
+    markers: MarkerData, mmap: MarkerMap, *, partial: bool = False
 ) -> tuple[tuple[str, ...], Array | None]:
     """Limb orientations from the map's rigid marker clusters (see the module docstring).
 
@@ -539,7 +574,12 @@ def cluster_orientations(
     finder = NameResolver(markers.names)
     lack = {k: [n for n in v if finder(n) is None] for k, v in mmap.clusters.items()}
     lack = {k: v for k, v in lack.items() if v}
-    if lack:
+    clusters = dict(mmap.clusters)
+    if lack and partial:  # a partial body: the absent segments' clusters are left out
+        clusters = {k: v for k, v in clusters.items() if k not in lack}
+        if not clusters:
+            return (), None
+    elif lack:
         raise InputError(
             f"{markers.path}: the marker map {mmap.name!r} ({mmap.origin}) names cluster markers "
             "the file does not have: "
@@ -548,11 +588,11 @@ def cluster_orientations(
         )
     p = markers.positions
     out = []
-    for names in mmap.clusters.values():
+    for names in clusters.values():
         a, b, c = (p[:, int(finder(n) or 0)] for n in names[:3])  # the first three
         e1 = b - a
         e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
         e3 = np.cross(e1, c - a)
         e3 = e3 / np.linalg.norm(e3, axis=-1, keepdims=True)
         out.append(np.stack([e1, np.cross(e3, e1), e3], axis=-1))
-    return tuple(mmap.clusters), np.stack(out, axis=1)
+    return tuple(clusters), np.stack(out, axis=1)

@@ -198,9 +198,12 @@ def sequence_from_marker_data(
     markers: MarkerData, mmap: MarkerMap, notes0: tuple[str, ...] = ()
 ) -> SkeletonSequence:
     """:func:`sequence_from_markers` on markers already read (and given their landmarks)."""
-    pos, names, notes = apply_marker_map(markers, mmap)
+    pos, names, notes = apply_marker_map(markers, mmap, partial=True)
     notes = (*notes0, *notes)
-    limbs, ori = cluster_orientations(markers, mmap)
+    partial = len(names) < len(mmap.joints)
+    if partial:
+        notes = (*notes, f"partial body: no {', '.join(j for j in mmap.joints if j not in names)}")
+    limbs, ori = cluster_orientations(markers, mmap, partial=partial)
     if limbs:
         notes = (*notes, f"cluster orientations for {', '.join(limbs)}")
     return SkeletonSequence.from_kinect(
