@@ -142,6 +142,10 @@ def limb_samples(seq: SkeletonSequence, norm: Normalization, limb: str) -> Array
     return tmv(norm.frames[:, par], v)
 
 
+#: The fewest frames a calibration phase must hold to learn axes from.
+MIN_PHASE_FRAMES = 10
+
+
 def _phase_frames(seq: SkeletonSequence, phase: tuple[float, float] | None) -> NDArray[np.intp]:
     if phase is None:
         return np.arange(seq.n_frames)
@@ -151,7 +155,7 @@ def _phase_frames(seq: SkeletonSequence, phase: tuple[float, float] | None) -> N
             f"the calibration phase must be START_S:END_S with END > START, got {phase}"
         )
     f = np.flatnonzero((seq.t_s >= lo) & (seq.t_s <= hi))
-    if f.size < 10:
+    if f.size < MIN_PHASE_FRAMES:
         raise InputError(
             f"the calibration phase {lo:g}:{hi:g} s holds {f.size} frames; the sequence spans "
             f"{seq.t_s[0]:.2f} to {seq.t_s[-1]:.2f} s: give a phase of a few seconds inside it"

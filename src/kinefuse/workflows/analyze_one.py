@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from kinefuse.analysis.gaps import fill_short_gaps_all
 from kinefuse.analysis.kinematics import reconstruction_error
 from kinefuse.analysis.limbs import LIMB_NAMES, LIMBS, limb
+from kinefuse.errors import InputError
 from kinefuse.io.formats.angles import plan_mot, write_angles_csv, write_angles_mot
 from kinefuse.pipeline.analysis import analyse_sequence
 
@@ -119,10 +120,20 @@ def analyse_one(
     names: str = "kinefuse",
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Analyse one input into ``folder`` (which exists and is empty); returns (report, result)."""
+    from kinefuse.analysis.parameterize import MIN_PHASE_FRAMES
     from kinefuse.pipeline.analysis import phase_seen
 
     seq = inp.seq
     seen = None if inp.limb_sensors is None else phase_seen(inp.limb_sensors, seq.t_s, phase)
+    if seen is not None and seen["frames"] < MIN_PHASE_FRAMES:
+        # no sensor saw the subject during the phase, so the fusion has (almost) no frame there:
+        # say so, rather than ask for another phase as for a clip (issue 24)
+        raise InputError(
+            f"{inp.path.name}: the sensors saw the subject in {seen['frames']} fused frame(s) "
+            f"of the calibration phase {phase[0]:g}:{phase[1]:g} s (the fused frames span "
+            f"{seq.t_s[0]:.2f} to {seq.t_s[-1]:.2f} s): no axes can be learned. Perform the "
+            "phase where the sensors see the subject (the centre of the capture volume)"
+        )
     res = analyse_sequence(seq, phase, not_seen=None if seen is None else seen["not_seen"])
     skipped = skipped_limbs(inp.unbuilt_joints, seq.joint_names)
     if skipped:  # a partial body: the angles of the skipped limbs are not written

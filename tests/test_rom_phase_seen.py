@@ -1,0 +1,249 @@
+"""Issue 24: ``simulate --rom`` performs the range-of-motion phase where the sensors see it (the
+rig's [actor] position, else the centre of the sensors' common volume, whatever the clip's
+path), and ``analyze`` reports how well the phase was seen and learns no axes for a limb the
+sensors did not see in it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kinefuse.cli import main
+from kinefuse.geometry.transforms import look_at
+from kinefuse.io.store.session import SessionStore
+from kinefuse.pipeline.analysis import SEEN_MIN_FRACTION
+from kinefuse.sim.rig import Rig, SensorSpec, common_volume_centre, load_rig, sensors_seeing
+from kinefuse.skeleton import JOINT_INDEX
+
+#: A walk (about 3.7 m in 2.5 s): its own path is far from where the phase must happen.
+WALK = "motion/cmu/02_walk_a.amc"
+#: The shortest phase the generator accepts (its movements need this long at human speeds).
+ROM_S = "55"
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def sensor(sid: str, pos: tuple[float, float, float], at: tuple[float, float, float]) -> str:
+    return f'[[sensor]]\nid = "{sid}"\nposition_m = {list(pos)}\nlook_at_m = {list(at)}\n'
+
+
+def rig_file(path: Path, *sensors: str, actor: tuple[float, float] | None = None) -> Path:
+    text = "\n".join(sensors)
+    if actor is not None:
+        text += f"\n[actor]\nposition_m = {list(actor)}\n"
+    path.write_text(text)
+    return path
+
+
+def simulate(capsys: pytest.CaptureFixture[str], clip: Path, rig: Path, out: Path) -> str:
+    code, _, err = run(
+        capsys,
+        "simulate",
+        "--clip",
+        str(clip),
+        "--rig",
+        str(rig),
+        "--rom",
+        ROM_S,
+        "--seconds",
+        "1",
+        "--calibration-seconds",
+        "0",
+        "--out",
+        str(out),
+    )
+    assert code == 0, err
+    return err
+
+
+def phase_pelvis_xy(session: Path) -> np.ndarray:
+    """The true SpineBase floor position at every frame of the stored ROM phase."""
+    with SessionStore.open(session) as st:
+        a, b = st.meta()["rom_phase_server_s"]  # type: ignore[misc]
+        t, joints, _ = st.truth().motion()
+        assert st.truth().info("rom_truth") is not None
+    inside = (t >= a) & (t <= b)
+    assert inside.sum() > 100
+    return joints[inside, JOINT_INDEX["SpineBase"], :2]
+
+
+# --- 1. the common volume on a synthetic rig ------------------------------------------------
+
+
+def spec(sid: str, pos: tuple[float, float, float], at: tuple[float, float, float]) -> SensorSpec:
+    return SensorSpec(id=sid, serial=sid, sensor2world=look_at(np.array(pos), np.array(at)))
+
+
+def test_common_volume_centre_is_seen_by_every_sensor_and_behind_is_not() -> None:
+    # two sensors looking at (2, 1): the common volume is around there, not at the origin
+    target = (2.0, 1.0, 1.0)
+    rig = Rig(
+        sensors=(spec("east", (3.8, 1.0, 1.1), target), spec("north", (2.0, 3.8, 1.2), target))
+    )
+    c = common_volume_centre(rig)
+    assert sensors_seeing(rig, [c]).tolist() == [2]  # every sensor sees the centre
+    # in front of both, toward where they look (feet and head need 2 m or more of distance)
+    assert c[0] < 3.8 - 2.0 and c[1] < 3.8 - 2.0 and np.hypot(c[0] - 2.0, c[1] - 1.0) < 1.5
+    assert np.hypot(*c) > 1.0  # not the origin, not a default
+    # the mean of the sensors' positions is no answer either: it is too close to both of them
+    assert np.hypot(c[0] - 2.9, c[1] - 2.4) > 0.3
+    # a standing body behind a sensor (or beside it, out of its image) is not seen by it
+    east = Rig(sensors=(spec("east", (3.8, 1.0, 1.1), target),))
+    assert sensors_seeing(east, [(2.0, 1.0)]).tolist() == [1]
+    assert sensors_seeing(east, [(5.0, 1.0), (3.9, 1.0), (3.8, 3.5)]).tolist() == [0, 0, 0]
+    # too close to see feet and head, and beyond the depth range
+    assert sensors_seeing(east, [(3.5, 1.0), (-2.0, 1.0)]).tolist() == [0, 0]
+    # counts add up over sensors, per position: both; east only; north only; neither
+    pts = [(1.0, 0.0), (0.0, 1.0), (2.0, -0.5), (1.0, -1.0)]
+    assert sensors_seeing(east, pts).tolist() == [1, 1, 0, 0]
+    assert sensors_seeing(rig, pts).tolist() == [2, 1, 1, 0]
+
+
+# --- 2. where simulate --rom performs the phase ----------------------------------------------
+
+
+def test_rom_phase_at_the_rigs_actor_position(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # sensors around the origin; the [actor] mark is well away from their common volume centre
+    ring = [sensor("k0", (3.0, 0.0, 1.0), (0, 0, 1)), sensor("k1", (-1.5, 2.6, 1.1), (0, 0, 1)),
+            sensor("k2", (-1.5, -2.6, 1.2), (0, 0, 1))]  # fmt: skip
+    rig = rig_file(tmp_path / "rig.toml", *ring, actor=(1.2, -0.8))
+    assert np.hypot(*np.subtract(common_volume_centre(load_rig(rig)), (1.2, -0.8))) > 1.0
+    out = tmp_path / "s.sqlite"
+    err = simulate(capsys, shared_data / WALK, rig, out)
+    assert "range-of-motion phase at the rig's [actor] position, (1.20, -0.80) m" in err
+    xy = phase_pelvis_xy(out)
+    np.testing.assert_allclose(xy, np.broadcast_to([1.2, -0.8], xy.shape), atol=0.05)
+
+
+def test_rom_phase_without_actor_at_the_common_volume_centre(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a rig off the origin, no [actor]: the walk's own (centred) path would start near
+    # (-1.8, 0) m, far outside these sensors' volume around (1.5, 1.0) m
+    c3 = (1.5, 1.0, 1.0)
+    rig = rig_file(
+        tmp_path / "rig.toml",
+        sensor("k0", (3.7, 1.0, 1.0), c3),
+        sensor("k1", (1.5, 3.2, 1.1), c3),
+        sensor("k2", (-0.7, 1.0, 1.2), c3),
+    )
+    centre = common_volume_centre(load_rig(rig))
+    assert np.hypot(centre[0] - 1.5, centre[1] - 1.0) < 0.5 and np.hypot(*centre) > 1.5
+    out = tmp_path / "s.sqlite"
+    err = simulate(capsys, shared_data / WALK, rig, out)
+    assert "range-of-motion phase at the centre of the sensors' common volume" in err
+    xy = phase_pelvis_xy(out)
+    np.testing.assert_allclose(xy, np.broadcast_to(centre, xy.shape), atol=0.05)
+    assert (sensors_seeing(load_rig(rig), xy[::50]) == 3).all()  # every sensor sees it there
+
+
+# --- 3. analyze: was the phase seen? -----------------------------------------------------------
+
+
+def analyze(capsys: pytest.CaptureFixture[str], session: Path, out: Path) -> dict:
+    code, stdout, err = run(capsys, "analyze", str(session), "--true-calibration", "--out",
+                            str(out), "--json", "--no-plots")  # fmt: skip
+    assert code == 0, err
+    report: dict = json.loads(stdout)
+    report["_stderr"] = err
+    return report
+
+
+def test_analyze_a_phase_the_sensors_saw(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    s = tmp_path / "seen.sqlite"
+    code, _, err = run(capsys, "simulate", "--clip", str(shared_data / WALK), "--rom", ROM_S,
+                       "--seconds", "1", "--sensors", "4", "--calibration-seconds", "0",
+                       "--out", str(s))  # fmt: skip
+    assert code == 0, err
+    r = analyze(capsys, s, tmp_path / "out")
+    seen = r["calibration_phase"]["seen"]
+    assert seen["frames"] > 1000 and seen["min_sensors"] == 2
+    assert seen["min_fraction"] == SEEN_MIN_FRACTION
+    frac = seen["fraction_by_limb"]
+    assert len(frac) == 13 and min(frac.values()) >= SEEN_MIN_FRACTION
+    assert seen["fraction_min"] == pytest.approx(min(frac.values()))
+    assert seen["not_seen"] == {} and r["warnings"] == []
+    assert "not seen" not in " ".join(r["limb_status"].values())
+    assert "not seen" not in r["statement"] and "did not see" not in r["_stderr"]
+    # axes learned for every limb, by every method, and measured against the truth
+    limbs = set(r["limb_status"])
+    assert len(limbs) == 12 and set(r["axes"]) == limbs
+    for m in ("dj", "pca", "em"):
+        assert set(r["methods"][m]["axes"]) == limbs
+    assert set(r["axis_error_deg"]["by_limb"]) == limbs and r["axis_error_deg"]["median"] < 30
+
+
+def test_analyze_a_phase_no_two_sensors_saw(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the [actor] mark is in front of one sensor; the other looks away from it: the fusion has
+    # one sensor's view of the phase, never two
+    rig = rig_file(
+        tmp_path / "rig.toml",
+        sensor("sees", (2.8, 0.3, 1.1), (0, 0, 1)),
+        sensor("away", (-2.5, 0.5, 1.2), (-3.9, 1.5, 1.0)),
+        actor=(0.0, 0.0),
+    )
+    assert sensors_seeing(load_rig(rig), [(0.0, 0.0)]).tolist() == [1]
+    s = tmp_path / "unseen.sqlite"
+    simulate(capsys, shared_data / WALK, rig, s)
+    r = analyze(capsys, s, tmp_path / "out")
+    seen = r["calibration_phase"]["seen"]
+    assert seen["frames"] > 1000  # the phase was fused (from one sensor): not skipped as empty
+    assert max(seen["fraction_by_limb"].values()) < SEEN_MIN_FRACTION
+    limbs = set(r["limb_status"])
+    assert len(limbs) == 12 and set(seen["not_seen"]) == limbs
+    for limb in limbs:  # each limb says why it has no axes
+        assert r["limb_status"][limb].startswith("not seen: ")
+        assert "no axes learned" in r["limb_status"][limb]
+    # a warning, in the report and on stderr, naming the limbs
+    assert len(r["warnings"]) == 1 and "did not see the calibration phase" in r["warnings"][0]
+    assert "did not see the calibration phase" in r["_stderr"]
+    assert all(limb in r["warnings"][0] for limb in limbs)
+    assert "was not seen" in r["statement"]
+    # no axes, by any method, and no axis figures against the truth
+    assert r["axes"] == {} and r["axis_names"] == {}
+    for m in ("dj", "pca", "em"):
+        assert r["methods"][m]["axes"] == {}
+        assert set(r["methods"][m]["status"]) == limbs
+        assert all(v.startswith("not seen: ") for v in r["methods"][m]["status"].values())
+        e = r["axis_error_by_method_deg"][m]
+        assert e["by_limb"] == {} and e["median"] is None and set(e["skipped"]) == limbs
+    assert r["axis_error_deg"]["by_limb"] == {} and r["twist_error_deg"]["by_limb"] == {}
+    assert r["two_axis_limbs"]["learned_two"] == 0
+    # no angle that needs learned axes (knees, elbows, ...) is reported
+    assert not [a for a in r["angle_names"] if a.startswith(("knee", "elbow", "hip"))]
+
+
+def test_analyze_a_phase_no_sensor_saw_fails_clearly(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the [actor] mark is beyond both sensors' depth range; the walk then comes into their view:
+    # the fusion has frames, none of them in the phase
+    at = (0.5, 0.0, 1.0)
+    rig = rig_file(tmp_path / "rig.toml", sensor("a", (3.5, 1.0, 1.1), at),
+                   sensor("b", (3.5, -1.0, 1.2), at), actor=(-2.5, 0.0))  # fmt: skip
+    assert sensors_seeing(load_rig(rig), [(-2.5, 0.0), (0.5, 0.0)]).tolist() == [0, 2]
+    s = tmp_path / "unseen.sqlite"
+    code, _, err = run(capsys, "simulate", "--clip", str(shared_data / WALK), "--rig", str(rig),
+                       "--rom", ROM_S, "--calibration-seconds", "0", "--out", str(s))  # fmt: skip
+    assert code == 0, err
+    out = tmp_path / "out"
+    code, stdout, err = run(capsys, "analyze", str(s), "--true-calibration", "--out", str(out),
+                            "--json", "--no-plots")  # fmt: skip
+    # refused, saying why (not asking for another phase as for a clip), and nothing written
+    assert code == 2 and stdout == "" and "Traceback" not in err
+    assert "the sensors saw the subject in 0 fused frame(s) of the calibration phase" in err
+    assert "where the sensors see the subject" in err
+    assert not out.exists()
