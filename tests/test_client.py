@@ -112,7 +112,13 @@ class TestServer:
                         peer.hello = m
                         if self.token is not None:
                             nonce = auth.new_nonce()
-                            writer.write(encode(Challenge(nonce)))
+                            proof = None
+                            if m.client_nonce is not None:  # the server's proof (1.1)
+                                proof = auth.compute_server_mac(
+                                    self.token, m.client_nonce, nonce, role="sensor",
+                                    sensor_id=m.sensor_id,
+                                )  # fmt: skip
+                            writer.write(encode(Challenge(nonce, server_mac=proof)))
                             stage = "auth"
                         else:
                             stage = self._admit(writer)
@@ -357,7 +363,11 @@ def test_right_token_is_accepted_and_the_token_never_crosses_the_wire():
 
 @pytest.mark.parametrize(
     ("token", "match"),
-    [("wrong", "refused the token"), (None, "requires a token: start the sensor with --token")],
+    [
+        # with another token the server's own proof fails first: the client refuses the server
+        ("wrong", "could not prove that it knows the token"),
+        (None, "requires a token: start the sensor with --token"),
+    ],
 )
 def test_wrong_or_missing_token_is_a_clear_refusal(token, match):
     async def go() -> None:

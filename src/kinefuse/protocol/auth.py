@@ -6,6 +6,14 @@ The server sends ``Challenge(nonce)`` with a fresh random nonce per connection; 
 the reply to this protocol, the peer's role and its sensor id (so a reply recorded for one
 sensor is worthless for another, and a fresh nonce makes it worthless a second time). The server
 compares with :func:`hmac.compare_digest` (constant time).
+
+Since protocol 1.1 the authentication is mutual: a peer that has a token sends its own fresh
+``client_nonce`` in its Hello, and the server's Challenge carries ``server_mac`` =
+:func:`compute_server_mac`, keyed with a key derived from the token for this direction only
+(:func:`server_key`), over both nonces, the role and the sensor id. The peer checks it
+(:func:`verify_server_mac`) before it answers or sends anything else, so a server that does not
+know the token (an impostor) gets no data and no MAC. The separate key keeps the two directions
+apart: a peer's MAC is never a valid server proof, nor the other way round.
 """
 
 from __future__ import annotations
@@ -21,6 +29,8 @@ NONCE_BYTES = 32
 #: the longest token accepted, characters
 MAX_TOKEN_CHARS = 1024
 _DOMAIN = b"kinefuse-auth-v1\x00"
+#: the label the server-to-peer key is derived with (protocol 1.1)
+SERVER_PROOF_LABEL = b"kinefuse-server-proof-v1"
 
 
 def check_token(token: str) -> bytes:
@@ -56,3 +66,69 @@ def verify_mac(token: str, nonce: bytes, mac: bytes, *, role: str, sensor_id: st
             "authentication failed: the reply does not match this server's token; "
             "start the client with the server's --token"
         )
+
+
+def server_key(token: str) -> bytes:
+    """The key of the server's proof: ``HMAC-SHA256(token, "kinefuse-server-proof-v1")``.
+
+    A peer's MAC is keyed with the token itself and its message always holds
+    ``kinefuse-auth-v1``, so no peer MAC can stand in for this key or for a server proof.
+    """
+    return hmac.new(check_token(token), SERVER_PROOF_LABEL, hashlib.sha256).digest()
+
+
+def server_proof_message(
+    client_nonce: bytes, server_nonce: bytes, *, role: str, sensor_id: str
+) -> bytes:
+    """What the server's proof covers: ``len(client_nonce) || client_nonce ||
+    len(server_nonce) || server_nonce || role || 0x00 || sensor_id`` (lengths one byte each)."""
+    cn, sn = bytes(client_nonce), bytes(server_nonce)
+    if not (0 < len(cn) < 256 and 0 < len(sn) < 256):
+        raise ValueError("nonces must have 1 to 255 bytes")
+    return (
+        bytes([len(cn)]) + cn + bytes([len(sn)]) + sn
+        + role.encode("utf-8") + b"\x00" + sensor_id.encode("utf-8")
+    )  # fmt: skip
+
+
+def compute_server_mac(
+    token: str, client_nonce: bytes, server_nonce: bytes, *, role: str, sensor_id: str
+) -> bytes:
+    """The server's proof that it knows the token (32 bytes): ``HMAC-SHA256(server_key(token),
+    server_proof_message(client_nonce, server_nonce, role, sensor_id))``."""
+    msg = server_proof_message(client_nonce, server_nonce, role=role, sensor_id=sensor_id)
+    return hmac.new(server_key(token), msg, hashlib.sha256).digest()
+
+
+def verify_server_mac(
+    token: str,
+    client_nonce: bytes,
+    server_nonce: bytes,
+    mac: bytes | None,
+    *,
+    role: str,
+    sensor_id: str,
+) -> None:
+    """Raise :class:`AuthError` unless ``mac`` proves the server knows ``token`` for this very
+    handshake (our fresh ``client_nonce``); a missing proof (nil) is refused too."""
+    if mac is None:
+        raise AuthError(
+            "the server did not prove that it knows the token (its challenge has no server_mac): "
+            "it is not the kinefuse server you meant, or one older than protocol 1.1 (upgrade "
+            "it); nothing was sent to it"
+        )
+    want = compute_server_mac(token, client_nonce, server_nonce, role=role, sensor_id=sensor_id)
+    if not hmac.compare_digest(want, bytes(mac)):
+        raise AuthError(
+            "the server could not prove that it knows the token (wrong server_mac): a server "
+            "with another --token, or an impostor; nothing was sent to it"
+        )
+
+
+def no_challenge_error() -> AuthError:
+    """The refusal of a peer with a token whose server offers no authentication at all."""
+    return AuthError(
+        "the server offers no authentication (it welcomed us without a challenge) but this "
+        "peer has a token: it is not the kinefuse server you meant, or one started without "
+        "the token; nothing was sent to it"
+    )

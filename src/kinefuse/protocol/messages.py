@@ -1,4 +1,4 @@
-"""The wire messages: one frozen dataclass per message type (protocol version 1.0).
+"""The wire messages: one frozen dataclass per message type (protocol version 1.1).
 
 Each class names its wire ``TYPE`` (the ``type`` field of the msgpack map), the roles that may
 send it (``SENDERS``: ``"sensor"``, ``"control"``, ``"server"``) and, in its fields' metadata,
@@ -44,7 +44,7 @@ from kinefuse.protocol.fields import (
 )
 
 #: (major, minor) this code speaks; see docs/protocol.md "Versioning"
-PROTOCOL_VERSION: tuple[int, int] = (1, 0)
+PROTOCOL_VERSION: tuple[int, int] = (1, 1)
 
 N_JOINTS = 25
 ROLES = ("sensor", "control")
@@ -88,6 +88,9 @@ class Hello(Message):
 
     A ``sensor`` peer must give ``sensor_id`` (unique among connected sensors, kept across
     reconnects) and the depth camera's ``intrinsics``; a ``control`` peer leaves both empty.
+    ``client_nonce`` (since 1.1): a peer that has a token sends a fresh random nonce here and
+    the server must prove it knows the token over it (``Challenge.server_mac``); nil from a
+    peer without a token or an older one.
     """
 
     TYPE: ClassVar[str] = "hello"
@@ -100,6 +103,7 @@ class Hello(Message):
     capabilities: tuple[str, ...] = _f(StrList(), ())
     software: str = _f(Str(max_len=128), "")
     protocol_version: tuple[int, int] = _f(Version(), PROTOCOL_VERSION)
+    client_nonce: bytes | None = _f(Optional(Bytes(16, 64)), None)
 
     def check(self) -> None:
         if self.role == "sensor":
@@ -111,13 +115,20 @@ class Hello(Message):
 
 @dataclass(frozen=True)
 class Challenge(Message):
-    """Server -> peer when the server has a token: prove it with HMAC over ``nonce``."""
+    """Server -> peer when the server has a token: prove it with HMAC over ``nonce``.
+
+    ``server_mac`` (since 1.1; nil when the Hello had no ``client_nonce``): the server's own
+    proof, HMAC-SHA256 keyed with ``HMAC-SHA256(token, "kinefuse-server-proof-v1")`` over both
+    nonces, the role and the sensor id (protocol.auth.compute_server_mac). A peer that sent a
+    ``client_nonce`` checks it before it answers and refuses the server if it is nil or wrong.
+    """
 
     TYPE: ClassVar[str] = "challenge"
     SENDERS: ClassVar[frozenset[str]] = _SERVER
 
     nonce: bytes = _f(Bytes(16, 64))
     algorithm: str = _f(Str(choices=("hmac-sha256",)), "hmac-sha256")
+    server_mac: bytes | None = _f(Optional(Bytes(32, 32)), None)
 
 
 @dataclass(frozen=True)

@@ -155,7 +155,8 @@ async def _control_calibrate(
         Welcome,
         encode,
     )
-    from kinefuse.protocol.auth import compute_mac
+    from kinefuse.protocol.auth import compute_mac, new_nonce, no_challenge_error, verify_server_mac
+    from kinefuse.protocol.errors import AuthError
 
     try:
         reader, writer = await asyncio.wait_for(asyncio.open_connection(host, port), 10.0)
@@ -177,13 +178,25 @@ async def _control_calibrate(
         writer.write(encode(m))
 
     try:
-        send(Hello(role="control", software="kinefuse calibrate --live"))
+        # with a token, the server proves it knows it over our fresh nonce before we answer
+        client_nonce = new_nonce() if token is not None else None
+        send(Hello(role="control", software="kinefuse calibrate --live", client_nonce=client_nonce))
         msg = await recv(10.0)
         if isinstance(msg, Challenge):
-            if token is None:
+            if token is None or client_nonce is None:
                 raise KinefuseError("the server requires a token: pass --token (or KINEFUSE_TOKEN)")
+            try:
+                verify_server_mac(
+                    token, client_nonce, msg.nonce, msg.server_mac, role="control", sensor_id=""
+                )
+            except AuthError as e:
+                send(Error("auth", "the server did not prove that it knows the token"))
+                raise KinefuseError(f"refusing the server at {host}:{port}: {e}") from None
             send(AuthReply(mac=compute_mac(token, msg.nonce, role="control", sensor_id="")))
             msg = await recv(10.0)
+        elif token is not None and isinstance(msg, Welcome):
+            send(Error("auth", "this peer has a token and the server asked for none"))
+            raise KinefuseError(f"refusing the server at {host}:{port}: {no_challenge_error()}")
         if isinstance(msg, Error):
             raise KinefuseError(f"the server refused: {msg.reason} ({msg.code})")
         if not isinstance(msg, Welcome):

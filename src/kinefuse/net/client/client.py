@@ -1,7 +1,9 @@
 """The sensor client: plays one sensor's frames to the server in real time, as the sensor would.
 
 One client per sensor (paper A's client PC). It connects, says Hello, answers the challenge if
-the server has a token, and after the Welcome:
+the server has a token (after checking the server's own proof that it knows the token: a client
+with a token refuses a server that cannot prove it, or that asks for no token at all), and
+after the Welcome:
 
 - plays its :class:`~kinefuse.net.client.playback.Timeline`: each frame is handed over when its time
   comes on the monotonic clock (``m0 + t_play / speed``), stamped ``t_host_s`` with the host
@@ -55,7 +57,7 @@ from kinefuse.net.client.parts import Prefetch, Prepared, ServerLink, wait_event
 from kinefuse.net.client.playback import Timed, Timeline
 from kinefuse.protocol import auth
 from kinefuse.protocol.codec import check_version
-from kinefuse.protocol.errors import VersionError, WireError
+from kinefuse.protocol.errors import AuthError, VersionError, WireError
 from kinefuse.protocol.messages import (
     AuthReply,
     BodyFrameMessage,
@@ -364,6 +366,9 @@ class SensorClient:
 
     async def _handshake(self, conn: ServerLink) -> Welcome:
         tl, opt = self.timeline, self.options
+        # with a token, the server must prove it knows it too (over this fresh nonce) before
+        # this client answers or sends anything else (docs/protocol.md, Authentication)
+        client_nonce = auth.new_nonce() if opt.token is not None else None
         conn.send(
             Hello(
                 role="sensor",
@@ -372,18 +377,30 @@ class SensorClient:
                 intrinsics=tl.intrinsics,
                 capabilities=("wand", "floor", "occlusion"),
                 software=opt.software,
+                client_nonce=client_nonce,
             )
         )
         msg = await self._next(conn, opt.connect_timeout_s)
         if isinstance(msg, Challenge):
-            if opt.token is None:
+            if opt.token is None or client_nonce is None:
                 conn.send(Goodbye("no token"))
                 raise ClientRefused(
                     "auth", "the server requires a token: start the sensor with --token TOKEN"
                 )
+            try:
+                auth.verify_server_mac(
+                    opt.token, client_nonce, msg.nonce, msg.server_mac,
+                    role="sensor", sensor_id=tl.sensor_id,
+                )  # fmt: skip
+            except AuthError as e:
+                conn.send(Error("auth", "the server did not prove that it knows the token"))
+                raise ClientRefused("auth", f"refusing the server: {e}") from None
             mac = auth.compute_mac(opt.token, msg.nonce, role="sensor", sensor_id=tl.sensor_id)
             conn.send(AuthReply(mac))
             msg = await self._next(conn, opt.connect_timeout_s)
+        elif opt.token is not None and isinstance(msg, Welcome):
+            conn.send(Error("auth", "this sensor has a token and the server asked for none"))
+            raise ClientRefused("auth", f"refusing the server: {auth.no_challenge_error()}")
         if isinstance(msg, Error):
             if msg.code == "auth":
                 raise ClientRefused(

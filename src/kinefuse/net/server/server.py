@@ -4,9 +4,10 @@ Structure (all tasks in one :class:`asyncio.TaskGroup`, so an unexpected error a
 the whole server loudly instead of leaving half of it running):
 
 - one task per accepted connection (:meth:`Server._connection`): the handshake (Hello, the HMAC
-  challenge when a token is set, Welcome or a refusal), then for a sensor its reader and its
-  clock prober (bursts of ``probe_burst`` probes ``probe_spacing_s`` apart every
-  ``probe_interval_s``), for a control peer its requests. A protocol error or a silent peer
+  challenge when a token is set, with the server's own proof over the peer's nonce, Welcome
+  or a refusal), then for a sensor its reader and its clock prober (bursts of
+  ``probe_burst`` probes ``probe_spacing_s`` apart every ``probe_interval_s``), for a control
+  peer its requests. A protocol error or a silent peer
   closes only that connection, with the reason logged; a bug while serving one peer is logged
   and closes that peer only;
 - the fusion loop (:class:`~kinefuse.net.server.fusion_loop.FusionLoop`, 30 Hz on the server clock);
@@ -84,7 +85,7 @@ from kinefuse.protocol import (
     WireError,
     check_version,
 )
-from kinefuse.protocol.auth import new_nonce, verify_mac
+from kinefuse.protocol.auth import compute_server_mac, new_nonce, verify_mac
 from kinefuse.protocol.errors import OutOfOrder
 
 log = logging.getLogger("kinefuse.serve")
@@ -383,7 +384,12 @@ class Server:
         conn.name = f"{who} from {conn.peer}" + (", not authenticated" if o.token else "")
         if o.token:
             nonce = new_nonce()
-            conn.send(Challenge(nonce=nonce))
+            proof = None  # a peer older than 1.1 (or without a token) asks for no proof
+            if msg.client_nonce is not None:
+                proof = compute_server_mac(
+                    o.token, msg.client_nonce, nonce, role=msg.role, sensor_id=msg.sensor_id
+                )
+            conn.send(Challenge(nonce=nonce, server_mac=proof))
             reply, _ = await conn.recv(o.handshake_timeout_s, deadline=deadline)
             if not isinstance(reply, AuthReply):
                 raise OutOfOrder(f"expected auth_reply after the challenge, got {reply.TYPE}")
