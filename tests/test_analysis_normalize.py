@@ -121,18 +121,30 @@ def test_observable_dof_are_stated(rom) -> None:  # type: ignore[no-untyped-def]
     assert norm.status["foot_left"] == "twist not observable from positions"
 
 
-def test_missing_body_joint_is_a_clear_error() -> None:
+def _without(names_out: set[str]) -> an.SkeletonSequence:
     p = np.repeat(standing_pose()[None], 5, axis=0)
-    names = [
-        n for n in an.SkeletonSequence.from_kinect(p, rate_hz=30).joint_names if n != "KneeLeft"
-    ]
-    keep = [
-        i
-        for i, n in enumerate(an.SkeletonSequence.from_kinect(p, rate_hz=30).joint_names)
-        if n != "KneeLeft"
-    ]
-    seq = an.SkeletonSequence.from_kinect(p[:, keep], rate_hz=30.0, joint_names=names)
-    with pytest.raises(InputError, match="needs the body joints KneeLeft"):
+    all_names = an.SkeletonSequence.from_kinect(p, rate_hz=30).joint_names
+    keep = [i for i, n in enumerate(all_names) if n not in names_out]
+    names = [all_names[i] for i in keep]
+    return an.SkeletonSequence.from_kinect(p[:, keep], rate_hz=30.0, joint_names=names)
+
+
+def test_missing_body_joint_is_a_clear_error() -> None:
+    # too little for the whole body and for either half: the error says what each needs
+    seq = _without({"KneeLeft", "ShoulderLeft"})
+    with pytest.raises(InputError, match="needs the body joints ShoulderLeft, KneeLeft") as e:
         an.normalize(seq)
+    assert "upper-body-only input needs" in str(e.value)
+    assert "(missing: ShoulderLeft)" in str(e.value)
+
+
+def test_a_body_missing_a_leg_joint_is_normalized_as_an_upper_body() -> None:
+    # the analysis then skips the legs with that reason (tests/test_partial_bodies.py)
+    seq = _without({"KneeLeft"})
+    assert an.normalize(seq) is not None
+
+
+def test_a_default_frame_outside_the_sequence_is_a_clear_error() -> None:
+    p = np.repeat(standing_pose()[None], 5, axis=0)
     with pytest.raises(InputError, match="default_frame must be a frame index"):
         an.normalize(an.SkeletonSequence.from_kinect(p, rate_hz=30.0), default_frame=9)
