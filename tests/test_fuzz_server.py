@@ -342,37 +342,9 @@ async def _sensor(port: int, sid: str, pose: np.ndarray, stop: asyncio.Event, st
     p.send(AuthReply(mac=compute_mac(TOKEN, m.nonce, role="sensor", sensor_id=sid)))
     assert isinstance(await p.recv(), Welcome)
     joints = (standing_pose() - pose[:3, 3]) @ pose[:3, :3]
-    h0 = 30.0 + len(sid)
-
-    async def answer() -> None:
-        while True:
-            m = await p.recv(10.0)
-            if isinstance(m, ClockProbe):
-                t = time.monotonic() + h0
-                p.send(ClockReply(probe_id=m.probe_id, t1=m.t1, t2=t, t3=t))
-
-    task = asyncio.ensure_future(answer())
-    seq = 0
-    try:
-        while not stop.is_set():
-            t = time.monotonic() + h0
-            p.send(
-                BodyFrameMessage(
-                    seq=seq,
-                    t_device_s=t - h0 - 0.06,
-                    t_host_s=t,
-                    joints_m=joints,
-                    states=np.full(N_JOINTS, 2, np.int8),
-                )
-            )
-            seq += 1
-            stats[sid] = seq
-            await asyncio.sleep(1 / 30)
-            if task.done():
-                task.result()
-    finally:
-        task.cancel()
-        w.close()
+    await safety.stream_standing(
+        p, joints, stop, h0=30.0 + len(sid), on_frame=lambda seq: stats.__setitem__(sid, seq)
+    )
 
 
 async def _status(port: int) -> Status:

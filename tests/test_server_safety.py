@@ -12,6 +12,7 @@ import asyncio
 import datetime as _dt
 import struct
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -97,15 +98,33 @@ async def good_client(port: int, stop: asyncio.Event, stats: dict) -> None:
     pose = pose_front()
     world = standing_pose()  # (25, 3) z up, metres, at the origin
     joints = (world - pose[:3, 3]) @ pose[:3, :3]  # world -> sensor frame
-    h0 = 50.0
+
+    def count_probe() -> None:
+        stats["probes"] = stats.get("probes", 0) + 1
+
+    await stream_standing(p, joints, stop, h0=50.0, on_probe=count_probe)
+
+
+async def stream_standing(
+    p: Peer,
+    joints: np.ndarray,
+    stop: asyncio.Event,
+    *,
+    h0: float,
+    on_probe: Callable[[], None] | None = None,
+    on_frame: Callable[[int], None] | None = None,
+) -> None:
+    """Body frames of ``joints`` (sensor frame) at 30 Hz on a host clock ``monotonic + h0``,
+    answering every clock probe, until ``stop``; then the connection is closed."""
 
     async def answer() -> None:
         while True:
-            m = await p.recv(10.0)
+            m = await p.recv(30.0)
             if isinstance(m, ClockProbe):
                 t = time.monotonic() + h0
                 p.send(ClockReply(probe_id=m.probe_id, t1=m.t1, t2=t, t3=t))
-                stats["probes"] = stats.get("probes", 0) + 1
+                if on_probe is not None:
+                    on_probe()
 
     task = asyncio.ensure_future(answer())
     seq = 0
@@ -122,6 +141,8 @@ async def good_client(port: int, stop: asyncio.Event, stats: dict) -> None:
                 )
             )
             seq += 1
+            if on_frame is not None:
+                on_frame(seq)
             await asyncio.sleep(1 / 30)
             if task.done():
                 task.result()

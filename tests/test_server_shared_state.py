@@ -18,93 +18,25 @@ from typing import Any
 
 import numpy as np
 
+import test_server_safety as safety
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.net.bus import FusedFrame
 from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.protocol import (
-    BodyFrameMessage,
-    ClockProbe,
-    ClockReply,
-    Decoder,
-    Hello,
     Welcome,
-    encode,
 )
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.skeleton import standing_pose
 
 LIMIT_S = 30.0
 
 
-class Peer:
-    """A sensor peer on a real socket."""
-
-    def __init__(self, r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
-        self.r, self.w, self.dec, self.inbox = r, w, Decoder(), []
-
-    @classmethod
-    async def open(cls, port: int) -> Peer:
-        return cls(*await asyncio.open_connection("127.0.0.1", port))
-
-    def send(self, msg: Any) -> None:
-        self.w.write(encode(msg))
-
-    async def recv(self, timeout: float = 5.0) -> Any:
-        while not self.inbox:
-            data = await asyncio.wait_for(self.r.read(65536), timeout)
-            if not data:
-                raise ConnectionError("closed by the server")
-            self.inbox.extend(self.dec.feed(data))
-        return self.inbox.pop(0)
-
-    async def hello(self, sensor_id: str) -> Any:
-        self.send(Hello(role="sensor", sensor_id=sensor_id, intrinsics=Intrinsics()))
-        return await self.recv()
-
-
-def pose_front(distance_m: float = 2.5) -> np.ndarray:
-    """A sensor at (0, -d, 1) looking along +y (sensor z), image-down = world -z."""
-    p = np.eye(4)
-    p[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
-    p[:3, 3] = [0.0, -distance_m, 1.0]
-    return p
-
-
 async def stream(port: int, sensor_id: str, stop: asyncio.Event) -> None:
     """A standing skeleton at 30 Hz from ``sensor_id``, answering every clock probe."""
-    p = await Peer.open(port)
+    p = await safety.Peer.open(port)
     assert isinstance(await p.hello(sensor_id), Welcome)
-    pose = pose_front()
+    pose = safety.pose_front()
     joints = (standing_pose() - pose[:3, 3]) @ pose[:3, :3]  # world -> sensor frame
-    h0 = 50.0  # the host clock: monotonic + 50 s
-
-    async def answer() -> None:
-        while True:
-            m = await p.recv(30.0)
-            if isinstance(m, ClockProbe):
-                t = time.monotonic() + h0
-                p.send(ClockReply(probe_id=m.probe_id, t1=m.t1, t2=t, t3=t))
-
-    answering = asyncio.ensure_future(answer())
-    seq = 0
-    try:
-        while not stop.is_set():
-            t = time.monotonic() + h0
-            p.send(
-                BodyFrameMessage(
-                    seq=seq,
-                    t_device_s=t - h0 - 0.06,
-                    t_host_s=t,
-                    joints_m=joints,
-                    states=np.full(N_JOINTS, 2, np.int8),
-                )
-            )
-            seq += 1
-            await asyncio.sleep(1 / 30)
-            if answering.done():
-                answering.result()
-    finally:
-        answering.cancel()
-        p.w.close()
+    await safety.stream_standing(p, joints, stop, h0=50.0)  # host clock: monotonic + 50 s
 
 
 async def until(cond: Callable[[], bool], timeout: float, what: str) -> None:
@@ -176,12 +108,12 @@ def test_a_sensor_joining_while_the_fusion_warms_up_in_a_thread_does_not_stop_th
                     frames.append(it)
 
         collecting = asyncio.ensure_future(collect())
-        srv.loop.set_poses({"a": pose_front()})  # as a finished calibration does
+        srv.loop.set_poses({"a": safety.pose_front()})  # as a finished calibration does
         b = None
         try:
             await asyncio.wait_for(pause.reached.wait(), 10)
             # the worker is paused in the middle of its work: sensor "b" joins now
-            b = await Peer.open(srv.port)
+            b = await safety.Peer.open(srv.port)
             assert isinstance(await b.hello("b"), Welcome)
             assert "b" in srv.clients
         finally:
@@ -238,7 +170,7 @@ def test_a_floor_arriving_while_the_calibration_is_solved_in_a_thread():
         assert srv.port is not None
         peers = []
         for sid in ids:
-            peers.append(await Peer.open(srv.port))
+            peers.append(await safety.Peer.open(srv.port))
             assert isinstance(await peers[-1].hello(sid), Welcome)
         cal = srv.calibration
         srv._start_calibration(method="", sensor_ids=ids)
@@ -256,7 +188,7 @@ def test_a_floor_arriving_while_the_calibration_is_solved_in_a_thread():
             await asyncio.wait_for(pause.reached.wait(), 10)
             # the worker is inside its loop over the floors: sensor "d" joins, sends its floor
             assert srv.status().calibration_state == "collecting"
-            d = await Peer.open(srv.port)
+            d = await safety.Peer.open(srv.port)
             assert isinstance(await d.hello("d"), Welcome)
             d.send(FloorMsg(normal=np.array([0.0, -1.0, 0.0]), offset_m=1.1, n_inliers=500))
             await until(lambda: "d" in cal.floors or task.done(), 5, "d's floor")
