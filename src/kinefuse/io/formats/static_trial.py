@@ -271,36 +271,27 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     for side in ("right", "left"):
         cap = side.capitalize()
         hip, knee, ankle = (jp.get(f"{j}{cap}") for j in ("Hip", "Knee", "Ankle"))
-        pz = static_frames.get("pelvis", np.eye(3))[:, 2]
-        if hip is not None and knee is not None:
-            h = _axis_hint(static, mmap, "knee_axis", side)
-            static_frames[f"thigh_{side}"] = an.frame_from_long_axis(
-                hip - knee, h if h is not None else pz
-            )
-        if knee is not None and ankle is not None:
-            h = _axis_hint(static, mmap, "ankle_axis", side)
-            tz = static_frames.get(f"thigh_{side}", np.eye(3))[:, 2]
-            static_frames[f"shank_{side}"] = an.frame_from_long_axis(
-                knee - ankle, h if h is not None else tz
+        sh, el, wr = (jp.get(f"{j}{cap}") for j in ("Shoulder", "Elbow", "Wrist"))
+        # each long-bone segment: its long axis, and the hint of its second axis (a landmark
+        # axis, else its parent segment's z)
+        for segment, proximal, distal, hint, parent in (
+            ("thigh", hip, knee, "knee_axis", "pelvis"),
+            ("shank", knee, ankle, "ankle_axis", f"thigh_{side}"),
+            ("upper_arm", sh, el, "elbow_axis", "trunk"),
+            ("forearm", el, wr, "wrist_axis", f"upper_arm_{side}"),
+        ):
+            if proximal is None or distal is None:
+                continue
+            h = _axis_hint(static, mmap, hint, side)
+            fallback = static_frames.get(parent, np.eye(3))[:, 2]
+            static_frames[f"{segment}_{side}"] = an.frame_from_long_axis(
+                proximal - distal, h if h is not None else fallback
             )
         foot = _axis_hint(static, mmap, "foot", side)
         if foot is not None:
             x = foot * np.array([1.0, 1.0, 0.0])
             x = x / np.linalg.norm(x)
             static_frames[f"foot_{side}"] = np.stack([x, up, np.cross(x, up)], axis=-1)
-        sh, el, wr = (jp.get(f"{j}{cap}") for j in ("Shoulder", "Elbow", "Wrist"))
-        trz = static_frames.get("trunk", np.eye(3))[:, 2]
-        if sh is not None and el is not None:
-            h = _axis_hint(static, mmap, "elbow_axis", side)
-            static_frames[f"upper_arm_{side}"] = an.frame_from_long_axis(
-                sh - el, h if h is not None else trz
-            )
-        if el is not None and wr is not None:
-            h = _axis_hint(static, mmap, "wrist_axis", side)
-            uz = static_frames.get(f"upper_arm_{side}", np.eye(3))[:, 2]
-            static_frames[f"forearm_{side}"] = an.frame_from_long_axis(
-                el - wr, h if h is not None else uz
-            )
     templates: dict[str, Array] = {}
     moving: dict[str, Array] = {}
     for seg in list(static_frames):
