@@ -62,7 +62,10 @@ def plot(mot: Path, ik: Path, png: Path) -> None:
     fig.suptitle("Gait2354 subject01 walk1: kinefuse vs OpenSim inverse kinematics")
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=80)
+    from kinefuse.io.outputs import atomic_file, is_png
+
+    with atomic_file(png, what="plot", recognizer=is_png, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=80, format="png")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -219,3 +219,18 @@ def test_child_process_logs_never_replace_a_file(tmp_path) -> None:
     ):
         procs.start("server", ["--version"])
     assert digest(logs / "server.log") == before
+
+
+def test_a_figure_replaces_only_a_png(tmp_path: Path) -> None:
+    from kinefuse.io.outputs import atomic_file, is_png
+
+    png, notes = tmp_path / "fig.png", tmp_path / "notes.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 8)
+    notes.write_text("my notes, misnamed")
+    assert is_png(png) and not is_png(notes) and not is_png(tmp_path / "absent.png")
+    with atomic_file(png, what="figure", recognizer=is_png, suffix=".png") as tmp:
+        tmp.write_bytes(b"\x89PNG\r\n\x1a\nnew")
+    assert png.read_bytes().endswith(b"new")
+    with pytest.raises(OutputError), atomic_file(notes, what="figure", recognizer=is_png) as tmp:
+        tmp.write_bytes(b"x")
+    assert notes.read_text() == "my notes, misnamed"

@@ -41,11 +41,7 @@ def small_png(src: Path, dst: Path, colors: int = 48) -> None:
     Written atomically; it replaces an earlier figure (a PNG), never a file of another kind."""
     from PIL import Image
 
-    from kinefuse.io.outputs import atomic_file
-
-    def is_png(p: Path) -> bool:
-        with p.open("rb") as f:
-            return f.read(8) == b"\x89PNG\r\n\x1a\n"
+    from kinefuse.io.outputs import atomic_file, is_png
 
     with Image.open(src) as im, atomic_file(dst, what="docs figure", recognizer=is_png,
                                             suffix=".png") as tmp:  # fmt: skip

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -31,6 +32,14 @@ from kinefuse.motion import load_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
+
+
+def _save(fig: Any, path: Path) -> None:
+    """Through a temporary file and a rename; replaces an earlier figure, never another file."""
+    from kinefuse.io.outputs import atomic_file, is_png
+
+    with atomic_file(path, what="figure", recognizer=is_png, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
 
 
 def main() -> None:
@@ -82,7 +91,7 @@ def main() -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(args.out / f"realism_tails_{key}.png", dpi=110)
+        _save(fig, args.out / f"realism_tails_{key}.png")
     fig = Figure(figsize=(8, 3.4))
     for i, stat in enumerate(("median", "p95")):
         ax = fig.add_subplot(1, 2, i + 1)
@@ -98,7 +107,7 @@ def main() -> None:
         if i == 0:
             ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(args.out / "realism_population.png", dpi=110)
+    _save(fig, args.out / "realism_population.png")
     print("wrote", args.out)
 
 

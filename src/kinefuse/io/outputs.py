@@ -90,6 +90,16 @@ def is_kinefuse_session(path: Path) -> bool:
         return False
 
 
+def is_png(path: Path) -> bool:
+    """The recognizer of a figure that a command may redraw: any existing PNG file (a file of
+    another kind at its path is refused)."""
+    try:
+        with Path(path).open("rb") as f:
+            return f.read(8) == b"\x89PNG\r\n\x1a\n"
+    except OSError:
+        return False
+
+
 def never_replace(_path: Path) -> bool:
     """The recognizer of a file kinefuse only ever writes new (a table or a plot written into a
     folder the caller names): any existing file at its path is refused."""
