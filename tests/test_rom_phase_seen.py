@@ -222,8 +222,9 @@ def test_analyze_a_phase_no_two_sensors_saw(
         assert e["by_limb"] == {} and e["median"] is None and set(e["skipped"]) == limbs
     assert r["axis_error_deg"]["by_limb"] == {} and r["twist_error_deg"]["by_limb"] == {}
     assert r["two_axis_limbs"]["learned_two"] == 0
-    # no angle that needs learned axes (knees, elbows, ...) is reported
-    assert not [a for a in r["angle_names"] if a.startswith(("knee", "elbow", "hip"))]
+    # no angle at all: not those that need learned axes (knees, elbows, ...), nor the
+    # shoulder's elevation and plane, which need none (the warning says the angles are missing)
+    assert r["angle_names"] == []
 
 
 def test_analyze_a_phase_no_sensor_saw_fails_clearly(
@@ -247,3 +248,28 @@ def test_analyze_a_phase_no_sensor_saw_fails_clearly(
     assert "the sensors saw the subject in 0 fused frame(s) of the calibration phase" in err
     assert "where the sensors see the subject" in err
     assert not out.exists()
+
+
+def test_an_unseen_arm_gets_no_shoulder_elevation(shared_data: Path) -> None:
+    # elevation and plane of elevation need no learned axes, but an arm the sensors did not see
+    # in the phase is not analysed: none of its angles is reported; the other arm keeps them
+    from kinefuse.analysis import SkeletonSequence, normalize
+    from kinefuse.analysis.kinematics import joint_angles
+    from kinefuse.analysis.parameterize import learn_axes
+    from kinefuse.motion import load_motion
+
+    clip = load_motion(shared_data / "motion/cmu/131_01_scaled_metres.bvh")
+    seq = SkeletonSequence.from_motion(clip)
+    norm = normalize(seq)
+    why = "not seen: tracked by 2 or more sensors in 10 % of the calibration phase"
+    model = learn_axes(seq, norm, refuse={"upper_arm_left": why})
+    assert model.limbs["upper_arm_left"].refused and model.status["upper_arm_left"] == why
+    assert not model.limbs["upper_arm_right"].refused
+    named = joint_angles(seq, norm, model).anatomical()
+    assert not [k for k in named if k.startswith("shoulder_") and k.endswith("_left")]
+    right = [k for k in named if k.startswith("shoulder_") and k.endswith("_right")]
+    assert {"shoulder_elevation_right", "shoulder_plane_right"} <= set(right)
+    assert np.isfinite(named["shoulder_elevation_right"]).mean() > 0.9
+    # the same sequence without the refusal reports both arms' elevation
+    both = joint_angles(seq, norm, learn_axes(seq, norm)).anatomical()
+    assert np.isfinite(both["shoulder_elevation_left"]).mean() > 0.9
