@@ -82,21 +82,59 @@ def _ring(n: int, radius: float) -> str:
     return "\n".join(lines)
 
 
+def _arc(n: int, radius: float, span_deg: float) -> str:
+    """``n`` sensors on an arc of ``span_deg`` in front of the actor (none behind)."""
+    lines = []
+    for i, a in enumerate(np.radians(np.linspace(-span_deg / 2, span_deg / 2, n))):
+        z = 1.0 if i % 2 else 1.7
+        lines += ["[[sensor]]", f'id = "a{i}"',
+                  f"position_m = [{radius * np.cos(a):.3f}, {radius * np.sin(a):.3f}, {z}]",
+                  "look_at_m = [0.0, 0.0, 1.0]", ""]  # fmt: skip
+    return "\n".join(lines)
+
+
 HELDOUT_CLIPS = ("02_walk_a.amc", "131_01_scaled_metres.bvh")
 HELDOUT_RIGS = {
     "walkway6_start": lambda: _walkway(True),
     "walkway6": lambda: _walkway(False),
     "ring5": lambda: _ring(5, 2.5),
+    "arc3": lambda: _arc(3, 3.0, 100.0),
 }
 
 
-def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
-            seconds: float | None) -> dict[str, Any]:  # fmt: skip
-    """Simulate with --rom, analyse with --true-calibration; the figures of the report."""
-    path = folder / f"{clip.stem}_{rig.stem}_{seed}.sqlite"
-    t0 = time.perf_counter()
+def simulated(
+    clip: Path,
+    rig: Path,
+    seed: int,
+    folder: Path,
+    rom_s: float,
+    seconds: float | None,
+    tracker: str,
+    keep: Path | None,
+) -> tuple[Path, dict[str, Any]]:
+    """The session of one plan entry: simulated into ``folder``, or into ``keep`` and reused
+    from there when a complete one of the same parameters is already there."""
+    tag = "" if tracker == "default" else f"_{tracker}"
+    stem = f"{clip.name.replace('.', '_')}_{rig.stem}_{seed}_rom{rom_s:g}{tag}"
+    path = (keep or folder) / f"{stem}.sqlite"
+    info = path.with_suffix(".sim.json")
+    if keep is not None and path.exists() and info.exists():
+        return path, dict(json.loads(info.read_text(encoding="utf-8")))
     sim = run_simulate(clip=clip, out=path, rig=rig, seed=seed, calibration_s=0.0, rom_s=rom_s,
-                       seconds=seconds, force=True)  # fmt: skip
+                       seconds=seconds, force=True, tracker=tracker)  # fmt: skip
+    if keep is not None:
+        tmp = info.with_suffix(".tmp")
+        tmp.write_text(json.dumps(sim, default=str), encoding="utf-8")
+        tmp.replace(info)
+    return path, sim
+
+
+def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
+            seconds: float | None, tracker: str = "default",
+            keep: Path | None = None) -> dict[str, Any]:  # fmt: skip
+    """Simulate with --rom, analyse with --true-calibration; the figures of the report."""
+    t0 = time.perf_counter()
+    path, sim = simulated(clip, rig, seed, folder, rom_s, seconds, tracker, keep)
     out = folder / f"{path.stem}_analysis"
     r = run_analyze([path], out=out, true_calibration=True, plots=False)
     seen = r["calibration_phase"]["seen"]
@@ -170,6 +208,10 @@ def main() -> None:
     ap.add_argument("--clips", nargs="+", default=list(CLIPS), help="clips of --data")
     ap.add_argument("--heldout", action="store_true", help="rigs and subjects not in the sweep")
     ap.add_argument("--rom-s", type=float, default=60.0)
+    ap.add_argument("--tracker", default="default", choices=("default", "population"),
+                    help="simulate --tracker (the tracker error model)")  # fmt: skip
+    ap.add_argument("--sessions", type=Path,
+                    help="keep the simulated sessions here and reuse them")  # fmt: skip
     ap.add_argument("--json", type=Path, help="write every row to this file")
     ap.add_argument("--smoke", action="store_true", help="one short session (seconds to run)")
     ap.add_argument("--data", type=Path, default=DATA)
@@ -182,12 +224,14 @@ def main() -> None:
           "phase seen (least limb) | walk in volume | two-axis limbs |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
+    if args.sessions is not None:
+        args.sessions.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         if args.heldout:
             plan = []
             for name, text in HELDOUT_RIGS.items():
-                rig = folder / f"{name}.toml"
+                rig = (args.sessions or folder) / f"{name}.toml"
                 rig.write_text(text(), encoding="utf-8")
                 plan += [(args.data / c, rig, s) for c in HELDOUT_CLIPS
                          for s in (100, 101)]  # fmt: skip
@@ -195,7 +239,8 @@ def main() -> None:
             plan = [(args.data / c, ROOT / "rigs" / f"{g}.toml", s)
                     for s in args.seeds for c in args.clips for g in args.rigs]  # fmt: skip
         for clip, rig, seed in plan:
-            r = session(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s, seconds)
+            r = session(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s, seconds,
+                        args.tracker, args.sessions)  # fmt: skip
             rows.append(r)
             print(_row_text(r), flush=True)
     print(_worst(rows))
