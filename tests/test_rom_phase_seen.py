@@ -182,6 +182,12 @@ def test_analyze_a_phase_the_sensors_saw(
     for m in ("dj", "pca", "em"):
         assert set(r["methods"][m]["axes"]) == limbs
     assert set(r["axis_error_deg"]["by_limb"]) == limbs and r["axis_error_deg"]["median"] < 30
+    # the angles are scored over every frame after the phase, over the frames in which a sensor
+    # tracked the limb and its parent, and over those with two or more, each with its share
+    tracked, seen2 = r["tracked_fraction_after_phase"], r["seen_fraction_after_phase"]
+    assert set(r["angle_rmse_tracked_deg"]) == set(tracked) == set(seen2)
+    assert "knee_flexion_left" in tracked and set(tracked) <= set(r["angle_rmse_deg"])
+    assert all(0.0 <= seen2[k] <= tracked[k] <= 1.0 for k in tracked)
 
 
 def test_analyze_a_phase_no_two_sensors_saw(
