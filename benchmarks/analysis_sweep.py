@@ -12,8 +12,9 @@ volume, then the clip from there) -> ``kinefuse analyze --true-calibration`` (fu
 calibration is not what is measured here; ``docs/calibration.md`` measures it). Sessions: every
 shared clip x the rigs of ``rigs/`` x ``--seeds`` (each seed a new subject: its own tracker
 joint offsets). ``--heldout`` runs instead rigs and subjects the sweep never saw, made here: a
-6-sensor walkway (7 m, sensors on both sides; once with its ``[actor]`` mark at the walkway's
-start, once without, so the phase is at the volume's centre), a 5-sensor ring of 2.5 m, a
+6-sensor walkway (7 m, sensors on both sides; with its ``[actor]`` mark at the walkway's start,
+at its very edge (where the phase is not seen and must be refused), and without one, so the
+phase is at the volume's centre), a 5-sensor ring of 2.5 m, a
 3-sensor arc of 100° (no sensor behind), seeds 100-101, with a walk and the travelling 131_01.
 
 Per session it prints: the DJ axis error median, the twist error median, the reconstruction
@@ -53,8 +54,9 @@ ANGLES = ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_fl
 LIMITS = {"axis": 10.0, "twist": 7.0, "rec_mm": 1.5, "flexion": 10.0}
 
 
-def _walkway(actor: bool) -> str:
-    """A 6-sensor walkway along x (7 m), sensors on both sides at alternating heights."""
+def _walkway(actor_x: float | None) -> str:
+    """A 6-sensor walkway along x (7 m), sensors on both sides at alternating heights; an
+    ``[actor]`` mark at ``(actor_x, 0)`` facing +x when given."""
     lines = []
     for i, (x, y, z) in enumerate(
         [
@@ -69,8 +71,8 @@ def _walkway(actor: bool) -> str:
         tx = x + (0.8 if x < 0 else -0.8 if x > 0 else 0.0)
         lines += ["[[sensor]]", f'id = "w{i}"', f"position_m = [{x}, {y}, {z}]",
                   f"look_at_m = [{tx}, 0.0, 1.0]", ""]  # fmt: skip
-    if actor:
-        lines += ["[actor]", "position_m = [-2.5, 0.0]", "heading_deg = 0.0", ""]
+    if actor_x is not None:
+        lines += ["[actor]", f"position_m = [{actor_x}, 0.0]", "heading_deg = 0.0", ""]
     lines += ["[room]", "min_xy_m = [-5.0, -3.5]", "max_xy_m = [5.0, 3.5]", ""]
     return "\n".join(lines)
 
@@ -99,8 +101,12 @@ def _arc(n: int, radius: float, span_deg: float) -> str:
 
 HELDOUT_CLIPS = ("02_walk_a.amc", "131_01_scaled_metres.bvh")
 HELDOUT_RIGS = {
-    "walkway6_start": lambda: _walkway(True),
-    "walkway6": lambda: _walkway(False),
+    # the mark at the walkway's start, where three sensors see the body (sensors_seeing)
+    "walkway6_start": lambda: _walkway(-1.5),
+    # the mark at its very edge, where two side sensors see it but occlude each other's view
+    # of the limbs: analyze must refuse the limbs it did not see, not analyse them
+    "walkway6_edge": lambda: _walkway(-2.5),
+    "walkway6": lambda: _walkway(None),
     "ring5": lambda: _ring(5, 2.5),
     "arc3": lambda: _arc(3, 3.0, 100.0),
 }
@@ -151,7 +157,7 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
         "rom_position_m": sim.get("rom_position_m"),
         "axis_median_deg": r.get("axis_error_deg", {}).get("median"),
         "twist_median_deg": r.get("twist_error_deg", {}).get("median"),
-        "reconstruction_mean_mm": 1e3 * r["reconstruction_error_m"]["mean"],
+        "reconstruction_mean_mm": _mm(r["reconstruction_error_m"]["mean"]),
         "flexion_rmse_deg": {a: rm.get(a) for a in ANGLES},
         "flexion_rmse_seen_deg": {a: rs.get(a) for a in ANGLES},
         "flexion_rmse_tracked_deg": {a: rt.get(a) for a in ANGLES},
@@ -169,6 +175,11 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
         if p.is_file():
             p.unlink()
     return row
+
+
+def _mm(v: float | None) -> float:
+    """Metres (None: every limb refused, nothing reconstructed) to millimetres (NaN)."""
+    return float("nan") if v is None else 1e3 * v
 
 
 def _f(v: object, fmt: str = ".1f") -> str:

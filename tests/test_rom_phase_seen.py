@@ -279,3 +279,28 @@ def test_an_unseen_arm_gets_no_shoulder_elevation(shared_data: Path) -> None:
     # the same sequence without the refusal reports both arms' elevation
     both = joint_angles(seq, norm, learn_axes(seq, norm)).anatomical()
     assert np.isfinite(both["shoulder_elevation_left"]).mean() > 0.9
+
+
+def test_a_limb_whose_parent_was_not_seen_is_not_seen() -> None:
+    # a limb's movement samples are its direction in its parent's frame: a foot that the
+    # sensors tracked throughout a phase in which its shank was hardly seen teaches nothing
+    # (a walkway whose [actor] mark was at its edge: feet seen 94 %, shanks 6-16 %, foot axes
+    # 18-61° off); the same for everything below an unseen pelvis
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.pipeline.analysis import phase_seen
+
+    t = np.arange(300) / 30.0
+    counts = np.full((300, len(LIMB_NAMES)), 3, dtype=np.int64)
+    counts[30:, LIMB_INDEX["shank_left"]] = 1  # seen 10 % of the phase
+    seen = phase_seen(counts, t, (0.0, 10.0))
+    assert set(seen["not_seen"]) == {"shank_left", "foot_left"}
+    assert seen["not_seen"]["shank_left"].startswith("not seen: tracked by 2 or more")
+    foot = seen["not_seen"]["foot_left"]
+    assert foot.startswith("not seen: its parent shank_left") and "10 %" in foot
+    assert seen["fraction_by_limb"]["foot_left"] == 1.0
+    counts[:, :] = 3
+    counts[100:, LIMB_INDEX["pelvis"]] = 0  # the root seen a third of the phase
+    seen = phase_seen(counts, t, (0.0, 10.0))
+    assert set(seen["not_seen"]) == set(LIMB_NAMES) - {"pelvis"}
+    assert seen["not_seen"]["trunk"].startswith("not seen: its parent pelvis")
+    assert seen["not_seen"]["foot_right"].startswith("not seen: its parent shank_right")
