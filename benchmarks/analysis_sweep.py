@@ -19,8 +19,8 @@ phase is at the volume's centre), a 5-sensor ring of 2.5 m, a
 
 Per session it prints: the DJ axis error median (in brackets its floor: the session's true
 motion plus its subject's tracker joint offsets alone, what a perfect fusion would deliver,
-:func:`floor_figures`), the twist error median, the reconstruction
-error mean (the paper's minimal parameters), knee and hip flexion RMSE left/right over the
+:func:`floor_figures`), the twist error median, the reconstruction error mean (the paper's
+minimal parameters; its floor in brackets), knee and hip flexion RMSE left/right over the
 frames after the phase in which a sensor tracked the limb and its parent (``tracked``, with the
 least share of such frames of the four angles), the worst of the four over every frame after
 the phase and over the frames with two or more sensors (with their share), the fraction of the
@@ -181,12 +181,13 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
 
 
 def floor_figures(path: Path, seed: int, tracker: str) -> dict[str, float]:
-    """The session's axis error median and worst knee/hip flexion RMSE (over every frame after
-    the phase) with a perfect fusion: its true motion (30 Hz) plus its
+    """The session's axis error median, reconstruction error mean and worst knee/hip flexion
+    RMSE (over every frame after the phase) with a perfect fusion: its true motion (30 Hz) plus its
     subject's tracker joint-definition offsets alone (what every sensor shares, so no fusion
     removes it), analysed and scored as the fused take is (``bench_analysis.py floor`` does the
     same for ``subject_seed`` subjects; here the subject is the session's own, drawn from its
     seed)."""
+    from kinefuse.analysis.kinematics import reconstruction_error
     from kinefuse.analysis.sequence import SkeletonSequence
     from kinefuse.evaluation.analysis import truth_figures
     from kinefuse.evaluation.fusion import truth_at
@@ -209,11 +210,14 @@ def floor_figures(path: Path, seed: int, tracker: str) -> dict[str, float]:
     seq = SkeletonSequence.from_kinect(biased, t_s=t_s, source=f"{path.name} [floor]")
     inp = AnalysisInput(path=path, kind="session", seq=seq)
     phase = (float(a), float(b))
-    fig = truth_figures(inp, analyse_sequence(seq, phase), phase, true_calibration=True)
+    res = analyse_sequence(seq, phase)
+    fig = truth_figures(inp, res, phase, true_calibration=True)
     assert fig is not None
     rm = fig["report"]["angle_rmse_deg"]
+    rec = reconstruction_error(seq, res["angles"], res["models"]["dj"], off_axis=False)
     return {
         "axis_median_deg": float(fig["report"]["axis_error_deg"]["median"]),
+        "reconstruction_mean_mm": 1e3 * rec["sphere_mean"],
         "flexion_rmse_deg": max(float(rm.get(a, np.nan)) for a in ANGLES),
     }
 
@@ -239,7 +243,8 @@ def _row_text(r: dict[str, Any]) -> str:
     ns = f" not seen: {', '.join(r['not_seen'])}" if r["not_seen"] else ""
     return (f"| {r['clip']} | {r['rig']} | {r['seed']} | {_f(r['axis_median_deg'], '.2f')} "
             f"({_f(r['floor']['axis_median_deg'], '.2f')}) | "
-            f"{_f(r['twist_median_deg'], '.2f')} | {_f(r['reconstruction_mean_mm'], '.2f')} | "
+            f"{_f(r['twist_median_deg'], '.2f')} | {_f(r['reconstruction_mean_mm'], '.2f')} "
+            f"({_f(r['floor']['reconstruction_mean_mm'], '.2f')}) | "
             f"{knee} | {hip} | {_f(r['floor']['flexion_rmse_deg'])} | "
             f"{100 * r['walk_tracked_fraction']:.0f} % | "
             f"{_f(_mx(r['flexion_rmse_deg']))} / {_f(_mx(r['flexion_rmse_seen_deg']))} "
@@ -262,12 +267,16 @@ def _worst(rows: list[dict[str, Any]]) -> str:
     over = [r for r in analysed if not r["axis_median_deg"] < LIMITS["axis"]]
     over_axis = len(over)
     over_floor = sum(1 for r in over if not r["floor"]["axis_median_deg"] < LIMITS["axis"])
+    rec_over = [r for r in analysed if not r["reconstruction_mean_mm"] < LIMITS["rec_mm"]]
+    rec_floor = sum(1 for r in rec_over
+                    if not r["floor"]["reconstruction_mean_mm"] < LIMITS["rec_mm"])  # fmt: skip
     refused = len(rows) - len(analysed)
     return (f"\nworst of {len(analysed)} analysed sessions ({refused} refused as not seen): "
             f"axis median {mx('axis_median_deg'):.2f}° (< {LIMITS['axis']:g}; sessions over it: "
             f"{over_axis}, of them with the floor itself over it: {over_floor}), twist median "
             f"{mx('twist_median_deg'):.2f}° (< {LIMITS['twist']:g}), reconstruction mean "
-            f"{mx('reconstruction_mean_mm'):.2f} mm (< {LIMITS['rec_mm']:g}), knee/hip flexion "
+            f"{mx('reconstruction_mean_mm'):.2f} mm (< {LIMITS['rec_mm']:g}; sessions over it: "
+            f"{len(rec_over)}, of them with the floor over it: {rec_floor}), knee/hip flexion "
             f"RMSE over the tracked frames {ft:.1f}° (< {LIMITS['flexion']:g}; tracked at "
             f"least {100 * share:.0f} % of the frames after the phase), over all frames "
             f"{fl:.1f}°, with 2+ sensors {fs:.1f}°; "
@@ -294,7 +303,8 @@ def main() -> None:
     seconds = None
     if args.smoke:
         args.seeds, args.rigs, args.clips, seconds = [0], ["level4"], ["02_walk_a.amc"], 1.0
-    print("| clip | rig | seed | axis median ° (floor) | twist median ° | reconstruction mean mm | "
+    print("| clip | rig | seed | axis median ° (floor) | twist median ° | reconstruction mean mm "
+          "(floor) | "
           "knee flexion RMSE L / R ° (tracked) | hip flexion RMSE L / R ° (tracked) | "
           "flexion floor (worst) ° | "
           "tracked (least) | worst flexion RMSE °: all frames / 2+ sensors (2+ share) | "
