@@ -222,6 +222,72 @@ def floor_figures(path: Path, seed: int, tracker: str) -> dict[str, float]:
     }
 
 
+def _limb_rec_mm(angles: Any, model: Any, name: str) -> Any:
+    """One limb's minimal-parameter reconstruction error per frame, mm."""
+    from kinefuse.analysis._vec import mv
+    from kinefuse.analysis.parameterize import _swing_matrices
+
+    lm = model.limbs[name]
+    x = mv(_swing_matrices(lm, angles.angles[name], None, None), lm.rest)
+    return 1e3 * np.linalg.norm(angles.direction[name] - x, axis=-1) * angles.length_m[name]
+
+
+def breakdown(path: Path) -> str:
+    """Per limb of one session: the minimal reconstruction's mean error (mm) over every frame,
+    the phase and after it, by how observable the parent's twist was (its weight: 0 carried
+    from its own parent, e.g. a straight knee; 1 from the bent child) and by how many sensors
+    tracked the limb and its parent; the same on the true motion; the DJ axis error (deg) and
+    the share of the phase the limb was seen in.
+    What docs/analysis.md says about where the reconstruction error comes from."""
+    from kinefuse.analysis.kinematics import reconstruction_error
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+    from kinefuse.evaluation.analysis import true_sequence, truth_figures
+    from kinefuse.io.store.session import SessionStore
+    from kinefuse.pipeline.analysis import analyse_sequence, phase_seen
+    from kinefuse.workflows.analyze import load_input
+
+    inp = load_input(path, true_calibration=True)
+    with SessionStore.open(path) as store:
+        a, b = store.meta()["rom_phase_server_s"]  # type: ignore[misc]
+    phase = (float(a), float(b))
+    assert inp.limb_sensors is not None
+    seen = phase_seen(inp.limb_sensors, inp.seq.t_s, phase)
+    res = analyse_sequence(inp.seq, phase, not_seen=seen["not_seen"])
+    fig = truth_figures(inp, res, phase, true_calibration=True)
+    got = true_sequence(inp)
+    assert fig is not None and got is not None
+    tres = analyse_sequence(got[0], phase)
+    axis = fig["report"]["axis_error_deg"]["by_limb"]
+    t = inp.seq.t_s
+    inside = (t >= phase[0]) & (t <= phase[1])
+    ang, dj, norm = res["angles"], res["models"]["dj"], res["norm"]
+    out = [f"{path.name}: reconstruction mean {_mm(reconstruction_error(inp.seq, ang, dj, off_axis=False)['sphere_mean']):.2f} mm, "  # noqa: E501
+           f"on the true motion {_mm(reconstruction_error(got[0], tres['angles'], tres['models']['dj'], off_axis=False)['sphere_mean']):.2f} mm"]  # noqa: E501  # fmt: skip
+    head = ("limb", "k", "all", "phase", "after", "w=0", "0<w<1", "w=1", "0 sens", "1 sens",
+            "2+ sens", "truth", "axis deg", "phase seen")  # fmt: skip
+    out.append("| " + " | ".join(head) + " |")
+    out.append("|" + "---|" * len(head))
+    frac = seen["fraction_by_limb"]
+    for name, lm in dj.limbs.items():
+        if not lm.usable:
+            out.append(f"| {name} | {lm.status[:40]} | {100 * frac[name]:.0f} % |")
+            continue
+        i, par = LIMB_INDEX[name], LIMB_PARENTS[LIMB_INDEX[name]]
+        e = _limb_rec_mm(ang, dj, name)
+        w = norm.twist_weight[:, par]
+        n = np.minimum(inp.limb_sensors[:, i], inp.limb_sensors[:, par])
+        sels = (np.ones_like(inside), inside, ~inside, w == 0, (w > 0) & (w < 1), w >= 1,
+                n == 0, n == 1, n >= 2)  # fmt: skip
+        cells = [_f(float(np.nanmean(e[m])) if np.isfinite(e[m]).any() else np.nan, ".2f")
+                 for m in sels]  # fmt: skip
+        tm = tres["models"]["dj"]
+        te = _limb_rec_mm(tres["angles"], tm, name) if tm.limbs[name].usable else np.full(1, np.nan)
+        ax = " / ".join(_f(v) for v in axis.get(name, []))
+        tail = f" | {_f(float(np.nanmean(te)), '.2f')} | {ax} | {100 * frac[name]:.0f} % |"
+        out.append(f"| {name} | {lm.axes.shape[0]} | " + " | ".join(cells) + tail)
+    return "\n".join(out)
+
+
 def _mm(v: float | None) -> float:
     """Metres (None: every limb refused, nothing reconstructed) to millimetres (NaN)."""
     return float("nan") if v is None else 1e3 * v
@@ -296,6 +362,8 @@ def main() -> None:
                     help="simulate --tracker (the tracker error model)")  # fmt: skip
     ap.add_argument("--sessions", type=Path,
                     help="keep the simulated sessions here and reuse them")  # fmt: skip
+    ap.add_argument("--breakdown", action="store_true",
+                    help="per limb, where each session's reconstruction error is")  # fmt: skip
     ap.add_argument("--json", type=Path, help="write every row to this file")
     ap.add_argument("--smoke", action="store_true", help="one short session (seconds to run)")
     ap.add_argument("--data", type=Path, default=DATA)
@@ -310,7 +378,8 @@ def main() -> None:
           "tracked (least) | worst flexion RMSE °: all frames / 2+ sensors (2+ share) | "
           "phase seen (least limb) | two-axis limbs |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    rows = []
+    rows: list[dict[str, Any]] = []
+    lines: list[str] = []
     if args.sessions is not None:
         args.sessions.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as d:
@@ -330,7 +399,15 @@ def main() -> None:
                         args.tracker, args.sessions)  # fmt: skip
             rows.append(r)
             print(_row_text(r), flush=True)
+            if args.breakdown:
+                path, _ = simulated(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s,
+                                    seconds, args.tracker, args.sessions)  # fmt: skip
+                lines.append(breakdown(path))
+                if args.sessions is None:
+                    path.unlink()
     print(_worst(rows))
+    for text in lines:
+        print("\n" + text)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1, default=str) + "\n", encoding="utf-8")
 
