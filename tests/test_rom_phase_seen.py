@@ -182,6 +182,12 @@ def test_analyze_a_phase_the_sensors_saw(
     for m in ("dj", "pca", "em"):
         assert set(r["methods"][m]["axes"]) == limbs
     assert set(r["axis_error_deg"]["by_limb"]) == limbs and r["axis_error_deg"]["median"] < 30
+    # the angles are scored over every frame after the phase, over the frames in which a sensor
+    # tracked the limb and its parent, and over those with two or more, each with its share
+    tracked, seen2 = r["tracked_fraction_after_phase"], r["seen_fraction_after_phase"]
+    assert set(r["angle_rmse_tracked_deg"]) == set(tracked) == set(seen2)
+    assert "knee_flexion_left" in tracked and set(tracked) <= set(r["angle_rmse_deg"])
+    assert all(0.0 <= seen2[k] <= tracked[k] <= 1.0 for k in tracked)
 
 
 def test_analyze_a_phase_no_two_sensors_saw(
@@ -222,8 +228,9 @@ def test_analyze_a_phase_no_two_sensors_saw(
         assert e["by_limb"] == {} and e["median"] is None and set(e["skipped"]) == limbs
     assert r["axis_error_deg"]["by_limb"] == {} and r["twist_error_deg"]["by_limb"] == {}
     assert r["two_axis_limbs"]["learned_two"] == 0
-    # no angle that needs learned axes (knees, elbows, ...) is reported
-    assert not [a for a in r["angle_names"] if a.startswith(("knee", "elbow", "hip"))]
+    # no angle at all: not those that need learned axes (knees, elbows, ...), nor the
+    # shoulder's elevation and plane, which need none (the warning says the angles are missing)
+    assert r["angle_names"] == []
 
 
 def test_analyze_a_phase_no_sensor_saw_fails_clearly(
@@ -247,3 +254,53 @@ def test_analyze_a_phase_no_sensor_saw_fails_clearly(
     assert "the sensors saw the subject in 0 fused frame(s) of the calibration phase" in err
     assert "where the sensors see the subject" in err
     assert not out.exists()
+
+
+def test_an_unseen_arm_gets_no_shoulder_elevation(shared_data: Path) -> None:
+    # elevation and plane of elevation need no learned axes, but an arm the sensors did not see
+    # in the phase is not analysed: none of its angles is reported; the other arm keeps them
+    from kinefuse.analysis import SkeletonSequence, normalize
+    from kinefuse.analysis.kinematics import joint_angles
+    from kinefuse.analysis.parameterize import learn_axes
+    from kinefuse.motion import load_motion
+
+    clip = load_motion(shared_data / "motion/cmu/131_01_scaled_metres.bvh")
+    seq = SkeletonSequence.from_motion(clip)
+    norm = normalize(seq)
+    why = "not seen: tracked by 2 or more sensors in 10 % of the calibration phase"
+    model = learn_axes(seq, norm, refuse={"upper_arm_left": why})
+    assert model.limbs["upper_arm_left"].refused and model.status["upper_arm_left"] == why
+    assert not model.limbs["upper_arm_right"].refused
+    named = joint_angles(seq, norm, model).anatomical()
+    assert not [k for k in named if k.startswith("shoulder_") and k.endswith("_left")]
+    right = [k for k in named if k.startswith("shoulder_") and k.endswith("_right")]
+    assert {"shoulder_elevation_right", "shoulder_plane_right"} <= set(right)
+    assert np.isfinite(named["shoulder_elevation_right"]).mean() > 0.9
+    # the same sequence without the refusal reports both arms' elevation
+    both = joint_angles(seq, norm, learn_axes(seq, norm)).anatomical()
+    assert np.isfinite(both["shoulder_elevation_left"]).mean() > 0.9
+
+
+def test_a_limb_whose_parent_was_not_seen_is_not_seen() -> None:
+    # a limb's movement samples are its direction in its parent's frame: a foot that the
+    # sensors tracked throughout a phase in which its shank was hardly seen teaches nothing
+    # (a walkway whose [actor] mark was at its edge: feet seen 94 %, shanks 6-16 %, foot axes
+    # 18-61° off); the same for everything below an unseen pelvis
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.pipeline.analysis import phase_seen
+
+    t = np.arange(300) / 30.0
+    counts = np.full((300, len(LIMB_NAMES)), 3, dtype=np.int64)
+    counts[30:, LIMB_INDEX["shank_left"]] = 1  # seen 10 % of the phase
+    seen = phase_seen(counts, t, (0.0, 10.0))
+    assert set(seen["not_seen"]) == {"shank_left", "foot_left"}
+    assert seen["not_seen"]["shank_left"].startswith("not seen: tracked by 2 or more")
+    foot = seen["not_seen"]["foot_left"]
+    assert foot.startswith("not seen: its parent shank_left") and "10 %" in foot
+    assert seen["fraction_by_limb"]["foot_left"] == 1.0
+    counts[:, :] = 3
+    counts[100:, LIMB_INDEX["pelvis"]] = 0  # the root seen a third of the phase
+    seen = phase_seen(counts, t, (0.0, 10.0))
+    assert set(seen["not_seen"]) == set(LIMB_NAMES) - {"pelvis"}
+    assert seen["not_seen"]["trunk"].startswith("not seen: its parent pelvis")
+    assert seen["not_seen"]["foot_right"].startswith("not seen: its parent shank_right")

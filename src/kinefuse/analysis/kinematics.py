@@ -65,6 +65,10 @@ class Angles:
         for two axes the frames where its two representations are equally near the rest);
         :meth:`anatomical` gives NaN there. The raw values in :attr:`angles` and :attr:`twist`
         are kept (together they still give the limb's frame back exactly).
+    refused : frozenset of str
+        Limbs the model refused to learn (:attr:`LimbModel.refused`: not seen in the
+        calibration phase): :meth:`anatomical` reports none of their angles, not even the
+        shoulder's elevation and plane, which need no learned axes.
     """
 
     t_s: Array
@@ -78,12 +82,14 @@ class Angles:
     root_frame: Array
     axis_names: dict[str, tuple[str, ...]]
     undefined: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
+    refused: frozenset[str] = frozenset()
 
     def anatomical(self, *, degrees: bool = True) -> dict[str, Array]:
         """Every named angle ``(T,)``: the learned-axis angles, the twists with their ISB sign,
         and the shoulder's ISB elevation and plane of elevation (see
-        :mod:`kinefuse.analysis.anatomy`). Degrees unless ``degrees=False``. NaN where an angle
-        is not defined: missing joints, an unobservable twist, and :attr:`undefined`."""
+        :mod:`kinefuse.analysis.anatomy`; not for an upper arm in :attr:`refused`). Degrees
+        unless ``degrees=False``. NaN where an angle is not defined: missing joints, an
+        unobservable twist, and :attr:`undefined`."""
         f = np.degrees if degrees else (lambda x: x)
         out: dict[str, Array] = {}
         for limb, ang in self.angles.items():
@@ -97,7 +103,7 @@ class Angles:
                 out[tw[0]] = f(tw[1] * np.where(bad[:, -1], np.nan, self.twist[limb]))
         for side in ("left", "right"):
             d = self.direction.get(f"upper_arm_{side}")
-            if d is not None:
+            if d is not None and f"upper_arm_{side}" not in self.refused:
                 elev, plane = anatomy.shoulder_elevation(d, side)
                 out[f"shoulder_elevation_{side}"] = f(elev)
                 out[f"shoulder_plane_{side}"] = f(plane)
@@ -145,6 +151,7 @@ def joint_angles(seq: SkeletonSequence, norm: Normalization, model: AxisModel, /
         root_frame=norm.frames[:, 0].copy(),
         axis_names=names,
         undefined=undefined,
+        refused=frozenset(k for k, v in model.limbs.items() if v.refused),
     )
 
 
@@ -295,4 +302,5 @@ def _take(angles: Angles, frame: int) -> Angles:
         root_frame=angles.root_frame[sl],
         axis_names=angles.axis_names,
         undefined={k: v[sl] for k, v in angles.undefined.items()},
+        refused=angles.refused,
     )

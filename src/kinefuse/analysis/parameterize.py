@@ -93,6 +93,10 @@ class LimbModel:
         Robust spread (1.4826 MAD) of the angle off the learned axes in the calibration phase.
     n_movement : int
         Movement samples used for the axes.
+    refused : bool
+        The limb was not learned because the caller refused it (``learn_axes(refuse=...)``:
+        the sensors did not see it in the phase): no angle of it is reported, not even those
+        that need no learned axes (the shoulder's elevation and plane).
     """
 
     name: str
@@ -107,6 +111,7 @@ class LimbModel:
     ranges_rad: Array = field(default_factory=lambda: np.zeros((0, 2)))
     off_axis_sd_rad: float = float("nan")
     n_movement: int = 0
+    refused: bool = False
 
     @property
     def usable(self) -> bool:
@@ -211,7 +216,9 @@ def learn_axes(
         if LIMB_PARENTS[i] < 0:
             continue
         if refuse and lb.name in refuse:
-            out[lb.name] = LimbModel(name=lb.name, status=refuse[lb.name], axes=np.zeros((0, 3)))
+            out[lb.name] = LimbModel(
+                name=lb.name, status=refuse[lb.name], axes=np.zeros((0, 3)), refused=True
+            )
             continue
         k = n_axes.get(lb.name, lb.n_axes)
         vec = limb_samples(seq, norm, lb.name)

@@ -4,7 +4,9 @@ The same chain (normalization, axes from the same calibration phase, angles) run
 motion sampled at the fused frame times; the fused input's figures are compared with it:
 
 * ``angle_rmse_deg``: RMSE of each named angle, fused vs true-motion chain, over the frames after
-  the calibration phase (all frames when the phase covers the input).
+  the calibration phase (all frames when the phase covers the input); for sessions also over
+  the frames in which the limb was tracked by a sensor (``angle_rmse_tracked_deg``) and by two
+  or more (``angle_rmse_seen_deg``), each with its share of the frames (``_seen_rmse``).
 * ``segment_angle_rmse_deg``: the included angle at the knees and elbows straight from the
   joint positions (no axes, no rest), fused vs true: how far the positions alone already are
   from the truth, a floor under ``angle_rmse_deg`` of flexion angles.
@@ -83,7 +85,12 @@ def truth_figures(
         },
     }
     if inp.limb_sensors is not None:
-        report.update(_seen_rmse(inp.limb_sensors, named, tnamed, after))
+        from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS
+
+        rm, share = _seen_rmse(inp.limb_sensors, named, tnamed, after, SEEN_MIN_SENSORS)
+        report.update({"angle_rmse_seen_deg": rm, "seen_fraction_after_phase": share})
+        rm, share = _seen_rmse(inp.limb_sensors, named, tnamed, after, 1)
+        report.update({"angle_rmse_tracked_deg": rm, "tracked_fraction_after_phase": share})
     inside: Any = np.flatnonzero((t >= phase[0]) & (t <= phase[1]))
     ang = res["angles"]
     true_axes = None
@@ -199,14 +206,20 @@ def _seen_rmse(
     named: dict[str, Array],
     tnamed: dict[str, Array],
     after: NDArray[np.bool_],
-) -> dict[str, Any]:
-    """``angle_rmse_seen_deg``: each angle's RMSE over the frames after the phase in which its
-    limb and the limb's parent were tracked by two or more sensors (inside the common volume),
-    and ``seen_fraction_after_phase`` (per angle, the share of those frames): separates the
-    analysis from what the fusion guesses where the subject leaves the sensors' volume."""
+    min_sensors: int,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Each angle's RMSE over the frames after the phase in which its limb and the limb's
+    parent were tracked (both joints ``TRACKED``) by ``min_sensors`` or more sensors, and the
+    share of those frames among the frames after the phase (per angle).
+
+    With 1 (``angle_rmse_tracked_deg``, ``tracked_fraction_after_phase``): the frames the fusion
+    had a measurement of the limb for; the others are what it guesses where no sensor tracks
+    the limb (outside every sensor's view), not the analysis's error. With
+    :data:`~kinefuse.pipeline.analysis.SEEN_MIN_SENSORS` (``angle_rmse_seen_deg``,
+    ``seen_fraction_after_phase``): inside the common volume. The RMSE over every frame after
+    the phase (``angle_rmse_deg``) stays in the report beside them: nothing is hidden."""
     from kinefuse.analysis.consistency import angle_rmse_deg
     from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
-    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS
 
     rmse: dict[str, float] = {}
     share: dict[str, float] = {}
@@ -216,13 +229,13 @@ def _seen_rmse(
         if lname not in LIMB_INDEX or name not in tnamed:
             continue
         i = LIMB_INDEX[lname]
-        ok = counts[:, i] >= SEEN_MIN_SENSORS
+        ok = counts[:, i] >= min_sensors
         if LIMB_PARENTS[i] >= 0:
-            ok &= counts[:, LIMB_PARENTS[i]] >= SEEN_MIN_SENSORS
+            ok &= counts[:, LIMB_PARENTS[i]] >= min_sensors
         sel: Any = np.flatnonzero(after & ok)
         share[name] = float(sel.size / n_after)
         rmse.update(angle_rmse_deg({name: named[name]}, {name: tnamed[name]}, sel))
-    return {"angle_rmse_seen_deg": rmse, "seen_fraction_after_phase": share}
+    return rmse, share
 
 
 def _segment_angle_rmse(
