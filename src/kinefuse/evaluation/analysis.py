@@ -84,6 +84,12 @@ def truth_figures(
     }
     if inp.limb_sensors is not None:
         report.update(_seen_rmse(inp.limb_sensors, named, tnamed, after))
+    if inp.static_window_s is not None and inp.anatomical is not None:
+        # the anatomical angles of the true motion from the same standing phase
+        from kinefuse.pipeline.analysis import skeleton_anatomy
+
+        tanat, _ = skeleton_anatomy(tseq, tres["norm"], inp.static_window_s)
+        report["anatomical_rmse_deg"] = angle_rmse_deg(inp.anatomical, tanat, sel)
     inside: Any = np.flatnonzero((t >= phase[0]) & (t <= phase[1]))
     ang = res["angles"]
     true_axes = None
