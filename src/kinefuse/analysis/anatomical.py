@@ -621,6 +621,8 @@ def skeleton_anatomical_frames(
         disp = sb[ok[-1]] - sb[ok[0]] if ok.size else np.zeros(3)
     else:
         disp = np.zeros(3)
-    facing = static["pelvis"][:, 0] if "pelvis" in static else np.array([1.0, 0.0, 0.0])
+    # as for marker clusters (kinefuse.io.formats.static_trial): the pelvis's mean facing
+    facing = (np.nanmean(frames["pelvis"][:, :, 0], axis=0) if "pelvis" in frames
+              else np.array([1.0, 0.0, 0.0]))  # fmt: skip
     lab = lab_frame(progression_axis(disp, facing))
     return SkeletonAnatomy(frames=frames, lab=lab, status=status, static_motion_m=motion)
