@@ -123,3 +123,49 @@ def test_a_moving_static_trial_is_refused_with_the_motion(shared_data: Path) -> 
     # the walk given as the static trial: the subject walks
     with pytest.raises(InputError, match=r"moves during the static trial: marker .* \d+ mm"):
         check_static(walk, walk, mmap)
+
+
+@pytest.mark.parametrize(
+    ("how", "window"), [("mirrored", None), ("as is", (0.0, 2.5)), ("as is", (2.5, 5.0))]
+)
+def test_held_out_variants_of_the_walk_hold_the_thresholds(
+    shared_data: Path, tmp_path: Path, how: str, window: tuple[float, float] | None
+) -> None:
+    """Issue 20 item 4: the left-right mirrored trial (markers mirrored and renamed, the IK
+    mirrored: sides swapped, pelvis list and rotation negated) and each half of the static
+    trial as the static window hold the same thresholds (kinefuse.evaluation.opensim_ik)."""
+    from kinefuse.evaluation.opensim_ik import compare_with_ik, mirror_trc_text, threshold_failures
+    from kinefuse.workflows.analyze import run_analyze
+
+    walk, static = (
+        shared_data / f"{GAIT}subject01_walk1.trc",
+        shared_data / f"{GAIT}subject01_static.trc",
+    )
+    if how == "mirrored":
+        (tmp_path / "w.trc").write_text(mirror_trc_text(walk.read_text()))
+        (tmp_path / "s.trc").write_text(mirror_trc_text(static.read_text()))
+        walk, static = tmp_path / "w.trc", tmp_path / "s.trc"
+    out = tmp_path / "out"
+    run_analyze([walk], out=out, static=static, static_window=window, names="opensim",
+                plots=False)  # fmt: skip
+    ik = shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot"
+    c = compare_with_ik(out / "angles.mot", ik, mirrored=how == "mirrored")
+    assert threshold_failures(c) == []
+    # the check can fail: the mirrored angles against the unmirrored IK miss the thresholds
+    if how == "mirrored":
+        assert threshold_failures(compare_with_ik(out / "angles.mot", ik)) != []
+
+
+def test_mirror_trc_text_swaps_names_and_negates_the_lateral_axis() -> None:
+    from kinefuse.evaluation.opensim_ik import mirror_ik, mirror_trc_text
+
+    text = ("PathFileType\t4\t(X/Y/Z)\tx.trc\nDataRate\tNumFrames\n60\t1\n"
+            "Frame#\tTime\tR.ASIS\t\t\tV.Sacral\t\t\n\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
+            "1\t0.0\t1.0\t2.0\t3.0\t4.0\t5.0\t-6.0\n")  # fmt: skip
+    lines = mirror_trc_text(text).splitlines()
+    assert lines[3].split("\t")[2] == "L.ASIS" and "V.Sacral" in lines[3]
+    assert [float(v) for v in lines[5].split("\t")[2:]] == [1.0, 2.0, -3.0, 4.0, 5.0, 6.0]
+    m = mirror_ik({"pelvis_list": np.array([2.0]), "hip_flexion_r": np.array([10.0]),
+                   "pelvis_tilt": np.array([3.0])})  # fmt: skip
+    assert m["pelvis_list"][0] == -2.0 and m["hip_flexion_l"][0] == 10.0
+    assert m["pelvis_tilt"][0] == 3.0
