@@ -169,3 +169,23 @@ def test_mirror_trc_text_swaps_names_and_negates_the_lateral_axis() -> None:
                    "pelvis_tilt": np.array([3.0])})  # fmt: skip
     assert m["pelvis_list"][0] == -2.0 and m["hip_flexion_l"][0] == 10.0
     assert m["pelvis_tilt"][0] == 3.0
+
+
+def test_a_static_trial_of_another_subject_is_refused_with_the_lengths(shared_data: Path) -> None:
+    """Issue 20 item 5: the same marker set on a body 15 % larger (every marker scaled about the
+    pelvis) is another subject: the segment lengths differ by more than 10 %."""
+    from dataclasses import replace
+
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+    from kinefuse.io.formats.markers import read_markers
+    from kinefuse.io.formats.static_trial import check_static
+
+    walk = read_markers(shared_data / f"{GAIT}subject01_walk1.trc", up="+y")
+    static = read_markers(shared_data / f"{GAIT}subject01_static.trc", up="+y")
+    mmap = shipped_marker_maps()["gait2354"]
+    centre = np.nanmedian(static.positions[:, :3], axis=(0, 1))
+    bigger = replace(static, positions=centre + 1.15 * (static.positions - centre))
+    with pytest.raises(
+        InputError, match=r"not a static trial of this subject: .* \d+ mm, in .* \d+ mm"
+    ):
+        check_static(bigger, walk, mmap)
