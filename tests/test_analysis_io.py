@@ -357,7 +357,10 @@ def test_marker_clusters_give_limb_orientations(shared_data: Path) -> None:
     from kinefuse.io.formats.sequences import sequence_from_markers
 
     s = sequence_from_markers(shared_data / STATIC)
-    assert set(s.orientation_limbs) == {"thigh_left", "shank_left", "thigh_right", "shank_right"}
+    assert set(s.orientation_limbs) == {  # every [clusters] entry of the rajagopal map
+        "pelvis", "trunk", "thigh_left", "shank_left", "foot_left", "thigh_right", "shank_right",
+        "foot_right", "upper_arm_left", "forearm_left", "upper_arm_right", "forearm_right",
+    }  # fmt: skip
     r = s.orientation("thigh_right")
     np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-9)  # proper rotations
     bone = s.positions[:, s.index("KneeRight")] - s.positions[:, s.index("HipRight")]

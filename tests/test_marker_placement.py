@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.evaluation.marker_placement import gait2354_trial, write_trc
+from kinefuse.evaluation.marker_placement import gait2354_trial, marker_trial, write_trc
 from kinefuse.workflows.analyze import load_input
 
 CLIPS = ["motion/cmu/02_walk_a.amc", "motion/cmu/131_01_scaled_metres.bvh", "motion/cmu/01_01.bvh"]
@@ -65,3 +65,28 @@ def test_the_check_can_fail(shared_data: Path, tmp_path: Path) -> None:
         for k in ("knee_flexion_right", "knee_adduction_right")
     ]
     assert max(rmse) > 1.0, rmse  # degrees
+
+
+@pytest.mark.parametrize("clip", CLIPS[1:])
+def test_rajagopal_markers_on_a_real_clip_give_back_the_true_angles(
+    clip: str, shared_data: Path, tmp_path: Path
+) -> None:
+    """The Rajagopal 2016 set (the shipped ``rajagopal`` map, chosen by the marker names):
+    knee, ankle and elbow centres from the static trial's medial markers, carried by the
+    thigh, shank and upper-arm clusters; the walk has the lateral markers only."""
+    tr = marker_trial(shared_data / clip, "rajagopal")
+    t_static = np.arange(tr.static.shape[0]) / tr.rate_hz
+    static = write_trc(tmp_path / "static.trc", t_static, tr.names, tr.static)
+    walk = write_trc(tmp_path / "walk.trc", tr.t_s, tr.motion_names, tr.motion)
+    assert "R.MKnee" in tr.names and "R.MKnee" not in tr.motion_names
+    inp = load_input(walk, static=static)  # no --map: chosen by the names
+    assert inp.anatomical is not None and "rajagopal" in inp.seq.source
+    for j in ("HipLeft", "KneeRight", "AnkleLeft", "ElbowRight"):
+        err = np.linalg.norm(inp.seq.positions[:, inp.seq.index(j)] - tr.true_joints[j], axis=-1)
+        assert np.nanmax(err) < 1e-3, (j, np.nanmax(err))  # metres
+    for k in [f"{a}_{s}" for a in LEGS for s in ("left", "right")] + ["pelvis_obliquity"]:
+        d = (inp.anatomical[k] - tr.true_angles[k] + 180.0) % 360.0 - 180.0
+        assert np.sqrt(np.nanmean(d**2)) < 0.5, (k, np.sqrt(np.nanmean(d**2)))  # degrees
+    for s in ("left", "right"):
+        d = inp.anatomical[f"elbow_flexion_{s}"] - tr.true_angles[f"elbow_flexion_{s}"]
+        assert np.sqrt(np.nanmean(d**2)) < 2.0

@@ -189,3 +189,31 @@ def test_a_static_trial_of_another_subject_is_refused_with_the_lengths(shared_da
         InputError, match=r"not a static trial of this subject: .* \d+ mm, in .* \d+ mm"
     ):
         check_static(bigger, walk, mmap)
+
+
+def test_rajagopal_walk_with_its_static_trial(shared_data: Path) -> None:
+    """The shipped ``rajagopal`` map's static-trial part (issue 20 item 2): chosen by the marker
+    names, every segment gets its anatomical frame, the knee and ankle centres are the static
+    trial's own KneeJoint/AnkleJoint virtual markers, and the walk's curves look like a walk."""
+    from kinefuse.io.formats.markers import read_markers
+    from kinefuse.io.formats.static_trial import with_landmarks
+    from kinefuse.workflows.analyze import load_input
+
+    raj = "markers/opensim/Pipelines_Rajagopal_ExpData_"
+    inp = load_input(shared_data / f"{raj}motion_capture_walk.trc",
+                     static=shared_data / f"{raj}static_walk_1.trc")  # fmt: skip
+    assert inp.anatomical is not None and inp.anatomical_status is not None
+    assert set(inp.anatomical_status.values()) == {"ok"}, inp.anatomical_status
+    a = inp.anatomical
+    for s in ("left", "right"):
+        assert 50.0 < np.nanmax(a[f"knee_flexion_{s}"]) < 80.0  # degrees: swing-phase peak
+        assert 30.0 < np.ptp(a[f"hip_flexion_{s}"][np.isfinite(a[f"hip_flexion_{s}"])]) < 60.0
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+
+    static = read_markers(shared_data / f"{raj}static_walk_1.trc", up="+y")
+    aug, _ = with_landmarks(static, shipped_marker_maps()["rajagopal"])
+    i = {n: k for k, n in enumerate(aug.names)}
+    for x in "RL":
+        for ours, theirs in ((f"{x}.KJC", f"{x}.KneeJoint"), (f"{x}.AJC", f"{x}.AnkleJoint")):
+            d = np.linalg.norm(aug.positions[:, i[ours]] - aug.positions[:, i[theirs]], axis=-1)
+            assert float(np.nanmedian(d)) < 1e-3, (ours, theirs)  # metres

@@ -21,6 +21,7 @@ the shared walk, that knows the true joint centres and angles.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +35,7 @@ from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 Array = NDArray[np.float64]
 
-__all__ = ["SyntheticTrial", "gait2354_trial", "write_trc"]
+__all__ = ["MARKER_SETS", "SyntheticTrial", "gait2354_trial", "marker_trial", "write_trc"]
 
 #: Markers of the Gait2354 static trial that its walks do not have.
 STATIC_ONLY = ("R.Knee.Lat", "R.Knee.Med", "L.Knee.Lat", "L.Knee.Med", "R.Ankle.Lat",
@@ -91,10 +92,62 @@ def _harrington_asis(hip_mid: Array, frame: Array, sep: Array, pd: float) -> tup
             mid - pd * frame[..., 0])  # fmt: skip
 
 
-def gait2354_trial(
-    clip: str | Path, *, static_s: float = 1.0, ref_frame: int | None = None, pd_m: float = 0.16
+_At = Callable[[Array, Array, tuple[float, float, float]], Array]
+
+#: The marker sets :func:`marker_trial` places (the shipped map of the same name reads them).
+MARKER_SETS = ("gait2354", "rajagopal")
+
+#: Markers of the Rajagopal static trial that its walk does not have.
+RAJAGOPAL_STATIC_ONLY = ("R.MKnee", "L.MKnee", "R.MAnkle", "L.MAnkle", "R.MElbow", "L.MElbow")
+
+
+def gait2354_trial(clip: str | Path, **kw: float | int | None) -> SyntheticTrial:
+    """:func:`marker_trial` with the Gait2354 set."""
+    return marker_trial(clip, "gait2354", **kw)  # type: ignore[arg-type]
+
+
+def _rajagopal(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """The Rajagopal 2016 set from the Gait2354 placement (same segments, their names)."""
+    out: dict[str, Array] = {"R.ASIS": m["R.ASIS"], "L.ASIS": m["L.ASIS"], "S2": m["V.Sacral"]}
+    z = fr["pelvis"][..., 2]
+    out["R.PSIS"] = m["V.Sacral"] + 0.045 * z  # their midpoint is the sacral point
+    out["L.PSIS"] = m["V.Sacral"] - 0.045 * z
+    for x, side, s in (("R", "right", 1.0), ("L", "left", -1.0)):
+        c = side.capitalize()
+        out[f"{x}.TH1"] = m[f"{x}.Thigh.Upper"]
+        out[f"{x}.TH2"] = m[f"{x}.Thigh.Front"]
+        out[f"{x}.TH3"] = m[f"{x}.Thigh.Rear"]
+        out[f"{x}.Knee"], out[f"{x}.MKnee"] = m[f"{x}.Knee.Lat"], m[f"{x}.Knee.Med"]
+        out[f"{x}.SH1"] = m[f"{x}.Shank.Upper"]
+        out[f"{x}.SH2"] = m[f"{x}.Shank.Front"]
+        out[f"{x}.SH3"] = m[f"{x}.Shank.Rear"]
+        out[f"{x}.Ankle"], out[f"{x}.MAnkle"] = m[f"{x}.Ankle.Lat"], m[f"{x}.Ankle.Med"]
+        out[f"{x}.Heel"], out[f"{x}.Toe"] = m[f"{x}.Heel"], m[f"{x}.Toe.Tip"]
+        foot = 0.5 * (m[f"{x}.Toe.Lat"] + m[f"{x}.Toe.Med"])  # the Foot joint
+        out[f"{x}.MT5"] = 2.0 * foot - m[f"{x}.Toe.Tip"]  # mean(MT5, Toe) = the Foot joint
+        out[f"{x}.Shoulder"] = m[f"{x}.Acromium"]
+        out[f"{x}.Clavicle"] = at(j("SpineShoulder"), fr["trunk"], (0.03, 0.0, 0.06 * s))
+        out[f"{x}.Biceps"] = m[f"{x}.Bicep"]
+        ua = fr[f"upper_arm_{side}"]
+        out[f"{x}.Elbow"] = at(j(f"Elbow{c}"), ua, (0.0, 0.0, 0.03 * s))
+        out[f"{x}.MElbow"] = at(j(f"Elbow{c}"), ua, (0.0, 0.0, -0.03 * s))
+        out[f"{x}.Forearm"] = at(j(f"Wrist{c}"), fr[f"forearm_{side}"], (0.02, 0.12, 0.02 * s))
+        out[f"{x}.Wrist"] = j(f"Wrist{c}")
+    return out
+
+
+def marker_trial(
+    clip: str | Path,
+    marker_set: str = "gait2354",
+    *,
+    static_s: float = 1.0,
+    ref_frame: int | None = None,
+    pd_m: float = 0.16,
 ) -> SyntheticTrial:
-    """The Gait2354 marker set (``gait2354`` map) on ``clip``: static trial and motion.
+    """A marker set (:data:`MARKER_SETS`, the shipped map of that name) on ``clip``: static
+    trial and motion.
 
     Parameters
     ----------
@@ -102,6 +155,8 @@ def gait2354_trial(
         A BVH or ASF/AMC clip (``kinefuse.io.formats.sequences.sequence_from_motion_file``).
     static_s : float
         Length of the static trial (the reference pose held), seconds.
+    marker_set : str
+        ``"gait2354"`` (OpenSim's Gait2354 example set) or ``"rajagopal"`` (Rajagopal 2016).
     ref_frame : int, optional
         The reference (standing) pose's frame; default the clip's default-pose frame.
     pd_m : float
@@ -110,6 +165,8 @@ def gait2354_trial(
     from kinefuse.analysis import find_default_pose
     from kinefuse.io.formats.sequences import sequence_from_motion_file
 
+    if marker_set not in MARKER_SETS:
+        raise InputError(f"unknown marker set {marker_set!r}; choose {', '.join(MARKER_SETS)}")
     seq = sequence_from_motion_file(Path(clip))
     if any(seq.orientation(n) is None for n in LIMB_NAMES):
         raise InputError(f"{clip}: the clip must give every segment's rotation")
@@ -164,13 +221,14 @@ def gait2354_trial(
         m[f"{x}.Temple"] = at(j("Head"), fr["trunk"], (0.05, 0.0, 0.07 * s))
     m["Sternum"] = at(j("SpineShoulder"), fr["trunk"], (0.08, -0.15, 0.0))
     m["Top.Head"] = at(j("Head"), fr["trunk"], (0.0, 0.10, 0.0))
+    static_only: tuple[str, ...] = STATIC_ONLY
+    if marker_set == "rajagopal":
+        m, static_only = _rajagopal(m, fr, j, at), RAJAGOPAL_STATIC_ONLY
     names = tuple(m)
     allp = np.stack([m[n] for n in names], axis=1)
     static = allp[:ns]
     motion = allp[ns:].copy()
-    for n in STATIC_ONLY:
-        motion[:, names.index(n)] = np.nan
-    keep = [i for i, n in enumerate(names) if n not in STATIC_ONLY]
+    keep = [i for i, n in enumerate(names) if n not in static_only]
     motion_names = tuple(names[i] for i in keep)
     true = anatomical_angles({k: v[ns:] for k, v in fr.items()}, sa.lab)
     return SyntheticTrial(

@@ -368,6 +368,8 @@ def _resolve(
                     if not there and not carrier:
                         continue
                     lack += [f"{n} (static trial)" for n in there] + carrier
+                elif any(finder(n) is None for n in mmap.clusters[cluster]):
+                    lack += here  # no cluster to carry it: a static trial would not help
                 else:
                     lack += [f"{n} (or a static trial with it)" for n in here]
             if not lack:
@@ -473,6 +475,29 @@ def unbuilt_joints(markers: MarkerData, mmap: MarkerMap) -> dict[str, str]:
     return {j: " | ".join(w) for j, w in missing.items()}
 
 
+def _with_direct_landmarks(markers: MarkerData, mmap: MarkerMap) -> MarkerData:
+    """``markers`` with every ``[landmarks]`` entry the file lacks but has its rule's markers
+    appended, computed from them (a static trial's landmarks come in already carried by their
+    clusters: :func:`kinefuse.io.formats.static_trial.with_landmarks`)."""
+    from dataclasses import replace
+
+    finder = NameResolver(markers.names)
+    names, cols = list(markers.names), [markers.positions]
+    for lm, (rule, _cluster) in mmap.landmarks.items():
+        if finder(lm) is not None or rule.kind == "hjc":
+            continue
+        idx = [finder(n) for n, _ in rule.markers]
+        if any(i is None for i in idx):
+            continue
+        w = np.array([wt for _, wt in rule.markers], dtype=np.float64)
+        p = markers.positions[:, [int(i) for i in idx if i is not None]]
+        names.append(lm)
+        cols.append(np.einsum("tkc,k->tc", p, w)[:, None])
+    if len(names) == len(markers.names):
+        return markers
+    return replace(markers, names=tuple(names), positions=np.concatenate(cols, axis=1))
+
+
 def apply_marker_map(
     markers: MarkerData, mmap: MarkerMap, *, partial: bool = False
 ) -> tuple[Array, tuple[str, ...], tuple[str, ...]]:
@@ -503,6 +528,7 @@ def apply_marker_map(
         A joint of the map cannot be built: names the joint, the missing markers of each
         alternative, the file's markers and close matches.
     """
+    markers = _with_direct_landmarks(markers, mmap)
     finder = NameResolver(markers.names)
     chosen, missing = _resolve(mmap, finder)
     if missing and not (partial and _partial_ok(chosen, missing)):
