@@ -36,7 +36,7 @@ from kinefuse.io.formats.marker_maps import (
     JointRule,
     MarkerMap,
     apply_marker_map,
-    hip_joint_centres,
+    rule_points,
 )
 from kinefuse.io.formats.markers import MarkerData
 from kinefuse.motion.maps import NameResolver
@@ -79,23 +79,7 @@ def static_window(markers: MarkerData, window: tuple[float, float] | None) -> Ma
 
 def _rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array | None:
     """(T, 3) of a rule on ``markers``, None when a marker is missing from the file."""
-    f = NameResolver(markers.names)
-    p = markers.positions
-    if rule.kind == "hjc":
-        pv = mmap.pelvis
-        assert pv is not None  # parse_marker_map checks it
-        cols = [f(n) for n in pv.marker_names()]
-        if any(c is None for c in cols):
-            return None
-        ci = [int(c) for c in cols if c is not None]
-        back = p[:, ci[2]] if pv.sacrum else 0.5 * (p[:, ci[2]] + p[:, ci[3]])
-        left, right = hip_joint_centres(p[:, ci[0]], p[:, ci[1]], back, pv.method)
-        return left if rule.side == "left" else right
-    idx = [f(n) for n, _ in rule.markers]
-    if any(i is None for i in idx):
-        return None
-    w = np.array([wt for _, wt in rule.markers])
-    return np.einsum("tkc,k->tc", p[:, [int(i) for i in idx if i is not None]], w)
+    return rule_points(markers, rule, mmap)
 
 
 def _cluster_points(markers: MarkerData, names: tuple[str, ...]) -> Array | None:
@@ -166,45 +150,44 @@ def with_landmarks(
     trial, it is computed there and carried by its cluster; else it is left out (a joint that
     needs it then fails naming the markers). Returns the markers and notes.
     """
-    names = list(markers.names)
-    cols = [markers.positions]
     notes = []
-    f = NameResolver(markers.names)
+    cur = markers  # grows: a landmark may use (or be carried by a cluster with) earlier ones
+    st = static
+
+    def add(m: MarkerData, name: str, pts: Array) -> MarkerData:
+        return replace(m, names=(*m.names, name),
+                       positions=np.concatenate([m.positions, pts[:, None]], axis=1))  # fmt: skip
+
     for lm, (rule, cluster) in mmap.landmarks.items():
-        if f(lm) is not None:
+        if NameResolver(cur.names)(lm) is not None:
             continue
-        direct = _rule_points(markers, rule, mmap)
-        if direct is not None and static is None:
-            names.append(lm)
-            cols.append(direct[:, None])
+        if st is None:
+            direct = _rule_points(cur, rule, mmap)
+            if direct is not None:
+                cur = add(cur, lm, direct)
             continue
-        if static is None:
-            continue
-        ps = _rule_points(static, rule, mmap)
+        ps = _rule_points(st, rule, mmap)
         if ps is None:
-            need = [
-                n for n in rule.marker_names(mmap.pelvis) if NameResolver(static.names)(n) is None
-            ]
+            need = [n for n in rule.marker_names(mmap.pelvis) if NameResolver(st.names)(n) is None]
             raise InputError(
-                f"{static.path}: the landmark rule {lm!r} needs the markers {', '.join(need)}, "
+                f"{st.path}: the landmark rule {lm!r} needs the markers {', '.join(need)}, "
                 "which the static trial does not have. Give a static trial with them, or fix "
                 "the map's [landmarks]"
             )
-        tmpl = _cluster_points(static, mmap.clusters[cluster])
-        mov = _cluster_points(markers, mmap.clusters[cluster])
+        if NameResolver(st.names)(lm) is None:
+            st = add(st, lm, ps)
+        tmpl = _cluster_points(st, mmap.clusters[cluster])
+        mov = _cluster_points(cur, mmap.clusters[cluster])
         if tmpl is None or mov is None:
-            where = static.path if tmpl is None else markers.path
+            where = st.path if tmpl is None else cur.path
             raise InputError(
                 f"{where}: the landmark {lm!r} is carried by cluster {cluster} "
                 f"({', '.join(mmap.clusters[cluster])}), whose markers this file lacks"
             )
         r, p = an.rigid_fit(_median(tmpl), mov)
-        carried = np.einsum("tij,j->ti", r, _median(ps)) + p
-        names.append(lm)
-        cols.append(carried[:, None])
+        cur = add(cur, lm, np.einsum("tij,j->ti", r, _median(ps)) + p)
         notes.append(f"{lm} from the static trial, carried by {cluster}")
-    out = replace(markers, names=tuple(names), positions=np.concatenate(cols, axis=1))
-    return out, tuple(notes)
+    return cur, tuple(notes)
 
 
 @dataclass(frozen=True, eq=False)
@@ -282,12 +265,12 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         ):
             if proximal is None or distal is None:
                 continue
-            h = _axis_hint(static, mmap, hint, side)
+            h = _axis_hint(st_aug, mmap, hint, side)
             fallback = static_frames.get(parent, np.eye(3))[:, 2]
             static_frames[f"{segment}_{side}"] = an.frame_from_long_axis(
                 proximal - distal, h if h is not None else fallback
             )
-        foot = _axis_hint(static, mmap, "foot", side)
+        foot = _axis_hint(st_aug, mmap, "foot", side)
         if foot is not None:
             x = foot * np.array([1.0, 1.0, 0.0])
             x = x / np.linalg.norm(x)
@@ -300,7 +283,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
             status[seg] = "skipped: the map gives this segment no marker cluster ([clusters])"
             del static_frames[seg]
             continue
-        ts, tm = _cluster_points(static, names), _cluster_points(motion, names)
+        ts, tm = _cluster_points(st_aug, names), _cluster_points(motion, names)
         if ts is None or tm is None:
             where = static.path if ts is None else motion.path
             status[seg] = f"skipped: {where} lacks markers of its cluster ({', '.join(names)})"
