@@ -90,3 +90,33 @@ def test_rajagopal_markers_on_a_real_clip_give_back_the_true_angles(
     for s in ("left", "right"):
         d = inp.anatomical[f"elbow_flexion_{s}"] - tr.true_angles[f"elbow_flexion_{s}"]
         assert np.sqrt(np.nanmean(d**2)) < 2.0
+
+
+@pytest.mark.parametrize("with_static", [True, False])
+@pytest.mark.parametrize("clip", CLIPS[:2])
+def test_plug_in_gait_markers_on_a_real_clip_give_back_the_true_centres_and_angles(
+    clip: str, with_static: bool, shared_data: Path, tmp_path: Path
+) -> None:
+    """The shipped ``plug-in-gait`` map (chosen by the marker names): Harrington's hips, the
+    chord function's knee and ankle centres (KNE/THI/hip centre, ANK/TIB/knee centre, at the
+    map's assumed widths), with a static trial (carried by the clusters) and without one (in
+    every frame)."""
+    tr = marker_trial(shared_data / clip, "plug-in-gait")
+    walk = write_trc(tmp_path / "walk.trc", tr.t_s, tr.motion_names, tr.motion, up="+z")
+    kw = {}
+    if with_static:
+        t_static = np.arange(tr.static.shape[0]) / tr.rate_hz
+        kw["static"] = write_trc(tmp_path / "static.trc", t_static, tr.names, tr.static, up="+z")
+    inp = load_input(walk, **kw)  # type: ignore[arg-type]
+    assert "plug-in-gait" in inp.seq.source
+    for j in ("HipLeft", "KneeLeft", "KneeRight", "AnkleLeft", "AnkleRight", "WristLeft"):
+        err = np.linalg.norm(inp.seq.positions[:, inp.seq.index(j)] - tr.true_joints[j], axis=-1)
+        assert np.nanmax(err) < 1e-3, (j, np.nanmax(err))  # metres
+    if not with_static:
+        assert inp.anatomical is None
+        return
+    assert inp.anatomical is not None and inp.anatomical_status is not None
+    assert inp.anatomical_status["upper_arm_left"].startswith("skipped")  # two markers only
+    for k in [f"{a}_{s}" for a in LEGS for s in ("left", "right")] + ["pelvis_tilt"]:
+        d = (inp.anatomical[k] - tr.true_angles[k] + 180.0) % 360.0 - 180.0
+        assert np.sqrt(np.nanmean(d**2)) < 0.5, (k, np.sqrt(np.nanmean(d**2)))  # degrees

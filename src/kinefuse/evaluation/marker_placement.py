@@ -56,12 +56,17 @@ class SyntheticTrial:
     true_joints: dict[str, Array]  # Kinect joint -> (T, 3) true centre during the motion
 
 
-def write_trc(path: Path, t_s: Array, names: tuple[str, ...], positions: Array) -> Path:
+def write_trc(
+    path: Path, t_s: Array, names: tuple[str, ...], positions: Array, *, up: str = "+y"
+) -> Path:
     """A TRC file (millimetres, y up) of ``positions (T, M, 3)`` metres in the z-up world, such
     that :func:`kinefuse.io.formats.markers.read_markers` with ``up="+y"`` (the map's) gives
-    them back: it permutes the file's axes cyclically, world ``(x, y, z)`` = file ``(z, x, y)``."""
+    them back: it permutes the file's axes cyclically, world ``(x, y, z)`` = file ``(z, x, y)``.
+    ``up="+z"``: the world's axes as they are (a Plug-in Gait file's)."""
     p = np.asarray(positions, dtype=np.float64) * 1000.0
-    f = np.stack([p[..., 1], p[..., 2], p[..., 0]], axis=-1)
+    if up not in ("+y", "+z"):
+        raise InputError(f"up must be '+y' or '+z', got {up!r}")
+    f = np.stack([p[..., 1], p[..., 2], p[..., 0]], axis=-1) if up == "+y" else p
     rate = 1.0 / float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
     lines = [
         f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
@@ -95,7 +100,10 @@ def _harrington_asis(hip_mid: Array, frame: Array, sep: Array, pd: float) -> tup
 _At = Callable[[Array, Array, tuple[float, float, float]], Array]
 
 #: The marker sets :func:`marker_trial` places (the shipped map of the same name reads them).
-MARKER_SETS = ("gait2354", "rajagopal")
+MARKER_SETS = ("gait2354", "rajagopal", "plug-in-gait")
+
+#: The Plug-in Gait map's chord offsets (knee, ankle), metres: where KNE and ANK are placed.
+PIG_OFFSETS_M = (0.057, 0.042)
 
 #: Markers of the Rajagopal static trial that its walk does not have.
 RAJAGOPAL_STATIC_ONLY = ("R.MKnee", "L.MKnee", "R.MAnkle", "L.MAnkle", "R.MElbow", "L.MElbow")
@@ -138,6 +146,46 @@ def _rajagopal(
     return out
 
 
+def _plug_in_gait(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """The Plug-in Gait set from the Gait2354 placement: KNE and ANK lateral of the true knee
+    and ankle centres by the map's chord offsets, the THI and TIB wands in the plane of the
+    segment's long axis and its knee/ankle axis (as the chord function takes them), the toe
+    marker on the Foot joint and the heel on the true foot's ``X`` line through it."""
+    out: dict[str, Array] = {"RASI": m["R.ASIS"], "LASI": m["L.ASIS"]}
+    z = fr["pelvis"][..., 2]
+    out["RPSI"] = m["V.Sacral"] + 0.045 * z  # their midpoint is the sacral point
+    out["LPSI"] = m["V.Sacral"] - 0.045 * z
+    tr = fr["trunk"]
+    sh = j("SpineShoulder")
+    out["C7"] = at(sh, tr, (-0.08, 0.02, 0.0))
+    out["T10"] = at(sh, tr, (-0.10, -0.25, 0.0))
+    out["CLAV"] = at(sh, tr, (0.05, 0.0, 0.0))
+    out["STRN"] = at(sh, tr, (0.08, -0.18, 0.0))
+    out["RBAK"] = at(sh, tr, (-0.10, -0.12, 0.08))
+    kn, an = PIG_OFFSETS_M
+    for x, side, s in (("R", "right", 1.0), ("L", "left", -1.0)):
+        c = side.capitalize()
+        th, shk, ft = fr[f"thigh_{side}"], fr[f"shank_{side}"], fr[f"foot_{side}"]
+        knee, ankle = j(f"Knee{c}"), j(f"Ankle{c}")
+        out[f"{x}THI"] = at(knee, th, (0.0, 0.15, 0.07 * s))
+        out[f"{x}KNE"] = at(knee, th, (0.0, 0.0, kn * s))
+        out[f"{x}TIB"] = at(ankle, shk, (0.0, 0.15, 0.06 * s))
+        out[f"{x}ANK"] = at(ankle, shk, (0.0, 0.0, an * s))
+        toe = j(f"Foot{c}")
+        out[f"{x}TOE"] = toe
+        out[f"{x}HEE"] = toe - 0.20 * ft[..., 0]
+        out[f"{x}SHO"] = j(f"Shoulder{c}")
+        out[f"{x}ELB"] = j(f"Elbow{c}")
+        out[f"{x}WRA"] = at(j(f"Wrist{c}"), fr[f"forearm_{side}"], (0.0, 0.0, 0.025 * s))
+        out[f"{x}WRB"] = at(j(f"Wrist{c}"), fr[f"forearm_{side}"], (0.0, 0.0, -0.025 * s))
+        out[f"{x}FIN"] = j(f"Hand{c}")
+        out[f"{x}FHD"] = at(j("Head"), tr, (0.07, 0.02, 0.06 * s))
+        out[f"{x}BHD"] = at(j("Head"), tr, (-0.07, 0.02, 0.06 * s))
+    return out
+
+
 def marker_trial(
     clip: str | Path,
     marker_set: str = "gait2354",
@@ -156,7 +204,8 @@ def marker_trial(
     static_s : float
         Length of the static trial (the reference pose held), seconds.
     marker_set : str
-        ``"gait2354"`` (OpenSim's Gait2354 example set) or ``"rajagopal"`` (Rajagopal 2016).
+        ``"gait2354"`` (OpenSim's Gait2354 example set), ``"rajagopal"`` (Rajagopal 2016) or
+        ``"plug-in-gait"`` (Vicon's, with the map's assumed knee and ankle widths).
     ref_frame : int, optional
         The reference (standing) pose's frame; default the clip's default-pose frame.
     pd_m : float
@@ -224,6 +273,8 @@ def marker_trial(
     static_only: tuple[str, ...] = STATIC_ONLY
     if marker_set == "rajagopal":
         m, static_only = _rajagopal(m, fr, j, at), RAJAGOPAL_STATIC_ONLY
+    elif marker_set == "plug-in-gait":
+        m, static_only = _plug_in_gait(m, fr, j, at), ()
     names = tuple(m)
     allp = np.stack([m[n] for n in names], axis=1)
     static = allp[:ns]

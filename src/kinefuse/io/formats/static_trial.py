@@ -97,6 +97,8 @@ def _median(p: Array) -> Array:
 def check_static(static: MarkerData, motion: MarkerData, mmap: MarkerMap) -> None:
     """Refuse a static trial of another marker set or subject, or one in which the subject
     moves (rules in the module docstring)."""
+    # the map's landmarks as the static trial gives them (the motion has them carried)
+    static = with_landmarks(static, mmap, None)[0]
     sf, mf = NameResolver(static.names), NameResolver(motion.names)
     wanted = {n for names in mmap.clusters.values() for n in names}
     lack = sorted(n for n in wanted if mf(n) is not None and sf(n) is None)
