@@ -264,6 +264,13 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                     take[f"anatomical_floor_rmse_deg_walk{sfx}"] = angle_rmse_deg(
                         anat_b, anat_t, frames=walk_frames
                     )
+                # the knee's included angle straight from the joints (no frames, no zero):
+                # what the fused positions themselves allow
+                take["included_knee_angle_rmse_deg"] = {
+                    side: {w: _included_knee_rmse(q, true_seq, side, walk_frames)
+                           for w, q in (("fused", fused), ("floor", floor_seq))}
+                    for side in ("left", "right")
+                }  # fmt: skip
                 take["anatomical_static_motion_mm"] = {
                     k2: 1e3 * v for k2, v in sa_f.static_motion_m.items()
                 }
@@ -321,6 +328,24 @@ ANATOMICAL_ROWS = ("knee_flexion", "hip_flexion", "hip_adduction", "hip_internal
                    "shoulder_elevation", "elbow_flexion")  # fmt: skip
 
 
+def _included_knee_rmse(seq, truth, side, frames) -> float:  # type: ignore[no-untyped-def]
+    """RMSE (degrees) of the knee's included angle (180 - hip-knee-ankle) of ``seq`` against
+    ``truth`` over ``frames``."""
+
+    from kinefuse.skeleton import JOINT_INDEX
+
+    def inc(q):  # type: ignore[no-untyped-def]
+        s = side.capitalize()
+        p = q.kinect_positions()
+        a = p[:, JOINT_INDEX[f"Hip{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
+        b = p[:, JOINT_INDEX[f"Ankle{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
+        c = (a * b).sum(-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
+        return 180.0 - np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+    d = (inc(seq) - inc(truth))[frames]
+    return float(np.sqrt(np.nanmean(d**2)))
+
+
 def _anatomical_text(t: dict) -> str:  # type: ignore[type-arg]
     fun = t["angle_rmse_deg_walk"]
     lines = ["  anatomical (static phase) walk RMSE vs the truth's same angles, left/right: "
@@ -338,6 +363,10 @@ def _anatomical_text(t: dict) -> str:  # type: ignore[type-arg]
                                       "anatomical_floor_rmse_deg_walk_geometry")]  # fmt: skip
         lines.append(f"    {row:<22} " + " | ".join(f"{c:>11}" for c in cells)
                      + f" | {pair(fun):>11}")  # fmt: skip
+    inc = t["included_knee_angle_rmse_deg"]
+    lines.append("    knee included angle from the joints (fused | floor): "
+                 f"{inc['left']['fused']:.1f}/{inc['right']['fused']:.1f} | "
+                 f"{inc['left']['floor']:.1f}/{inc['right']['floor']:.1f}")  # fmt: skip
     return "\n".join(lines)
 
 
