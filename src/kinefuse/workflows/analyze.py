@@ -201,6 +201,7 @@ def _markers_with_static(
 ) -> AnalysisInput:
     """A marker file with its static trial: the functional sequence and the anatomical angles."""
     from kinefuse.analysis.anatomical import anatomical_angles
+    from kinefuse.io.formats.marker_maps import unbuilt_joints
     from kinefuse.io.formats.sequences import resolve_marker_input, sequence_from_marker_data
     from kinefuse.io.formats.static_trial import anatomical_frames, check_static
 
@@ -226,6 +227,7 @@ def _markers_with_static(
         anatomical=anatomical_angles(af.frames, af.lab),
         anatomical_status=af.status,
         static_source=where,
+        unbuilt_joints=unbuilt_joints(markers, mmap) or None,
     )
 
 

@@ -385,7 +385,10 @@ def _resolve(
                     carrier = [n for n in mmap.clusters[cluster] if finder(n) is None]
                     if not there and not carrier:
                         continue
-                    lack += [f"{n} (static trial)" for n in there] + carrier
+                    if carrier and set(carrier) >= set(here) - set(there):
+                        lack += here + carrier  # no cluster to carry it: the segment is absent
+                    else:
+                        lack += [f"{n} (static trial)" for n in there] + carrier
                 elif any(finder(n) is None for n in mmap.clusters[cluster]):
                     lack += here  # no cluster to carry it: a static trial would not help
                 else:

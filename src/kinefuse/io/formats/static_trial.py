@@ -169,6 +169,8 @@ def with_landmarks(
                 cur = add(cur, lm, direct)
             continue
         ps = _rule_points(st, rule, mmap)
+        if ps is None and _cluster_points(cur, mmap.clusters[cluster]) is None:
+            continue  # the motion lacks its segment too (a partial body): the joint is unbuilt
         if ps is None:
             need = [n for n in rule.marker_names(mmap.pelvis) if NameResolver(st.names)(n) is None]
             raise InputError(
@@ -231,7 +233,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     AnatomicalFrames
     """
     st_aug, _ = with_landmarks(static, mmap, None)
-    pos, jn, _ = apply_marker_map(st_aug, mmap)
+    pos, jn, _ = apply_marker_map(st_aug, mmap, partial=True)  # a partial body: its segments
     jp = {n: _median(pos[:, i]) for i, n in enumerate(jn)}
     status: dict[str, str] = {}
     static_frames: dict[str, Array] = {}
@@ -272,7 +274,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
             static_frames[f"{segment}_{side}"] = an.frame_from_long_axis(
                 proximal - distal, h if h is not None else fallback
             )
-        foot = _axis_hint(st_aug, mmap, "foot", side)
+        foot = _axis_hint(st_aug, mmap, "foot", side) if ankle is not None else None
         if foot is not None:
             x = foot * np.array([1.0, 1.0, 0.0])
             x = x / np.linalg.norm(x)
