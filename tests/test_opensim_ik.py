@@ -185,10 +185,11 @@ def test_a_static_trial_of_another_subject_is_refused_with_the_lengths(shared_da
     mmap = shipped_marker_maps()["gait2354"]
     centre = np.nanmedian(static.positions[:, :3], axis=(0, 1))
     bigger = replace(static, positions=centre + 1.15 * (static.positions - centre))
-    with pytest.raises(
-        InputError, match=r"not a static trial of this subject: .* \d+ mm, in .* \d+ mm"
-    ):
+    with pytest.raises(InputError, match=r"not a static trial of this subject: the pelvis .* "
+                       r"spans \d+ mm .* \d+ mm"):  # fmt: skip
         check_static(bigger, walk, mmap)
+    # 5 % larger is within the tolerance (marker placement, soft tissue)
+    check_static(replace(static, positions=centre + 1.05 * (static.positions - centre)), walk, mmap)
 
 
 def test_rajagopal_walk_with_its_static_trial(shared_data: Path) -> None:
