@@ -46,7 +46,9 @@ def test_marker_sequences_are_the_maps_joints(shared_data: Path) -> None:
     assert seq.joint_names[0] == "SpineBase" and seq.parents[0] == -1
     assert "HandTipLeft" not in seq.joint_names and "ThumbLeft" in seq.joint_names
     assert seq.rate_hz == 50.0 and seq.n_frames == 1092
-    assert "plug-in-gait" in seq.source and seq.orientations is None
+    assert "plug-in-gait" in seq.source
+    # the map's clusters (issue 20: thighs on the hip centre, THI and KNE, ...) orient limbs
+    assert set(seq.orientation_limbs) >= {"pelvis", "thigh_left", "shank_right", "forearm_left"}
 
 
 def test_session_is_fused_read_only(tmp_path: Path, shared_data: Path) -> None:

@@ -123,3 +123,98 @@ def test_a_moving_static_trial_is_refused_with_the_motion(shared_data: Path) -> 
     # the walk given as the static trial: the subject walks
     with pytest.raises(InputError, match=r"moves during the static trial: marker .* \d+ mm"):
         check_static(walk, walk, mmap)
+
+
+@pytest.mark.parametrize(
+    ("how", "window"), [("mirrored", None), ("as is", (0.0, 2.5)), ("as is", (2.5, 5.0))]
+)
+def test_held_out_variants_of_the_walk_hold_the_thresholds(
+    shared_data: Path, tmp_path: Path, how: str, window: tuple[float, float] | None
+) -> None:
+    """Issue 20 item 4: the left-right mirrored trial (markers mirrored and renamed, the IK
+    mirrored: sides swapped, pelvis list and rotation negated) and each half of the static
+    trial as the static window hold the same thresholds (kinefuse.evaluation.opensim_ik)."""
+    from kinefuse.evaluation.opensim_ik import compare_with_ik, mirror_trc_text, threshold_failures
+    from kinefuse.workflows.analyze import run_analyze
+
+    walk, static = (
+        shared_data / f"{GAIT}subject01_walk1.trc",
+        shared_data / f"{GAIT}subject01_static.trc",
+    )
+    if how == "mirrored":
+        (tmp_path / "w.trc").write_text(mirror_trc_text(walk.read_text()))
+        (tmp_path / "s.trc").write_text(mirror_trc_text(static.read_text()))
+        walk, static = tmp_path / "w.trc", tmp_path / "s.trc"
+    out = tmp_path / "out"
+    run_analyze([walk], out=out, static=static, static_window=window, names="opensim",
+                plots=False)  # fmt: skip
+    ik = shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot"
+    c = compare_with_ik(out / "angles.mot", ik, mirrored=how == "mirrored")
+    assert threshold_failures(c) == []
+    # the check can fail: the mirrored angles against the unmirrored IK miss the thresholds
+    if how == "mirrored":
+        assert threshold_failures(compare_with_ik(out / "angles.mot", ik)) != []
+
+
+def test_mirror_trc_text_swaps_names_and_negates_the_lateral_axis() -> None:
+    from kinefuse.evaluation.opensim_ik import mirror_ik, mirror_trc_text
+
+    text = ("PathFileType\t4\t(X/Y/Z)\tx.trc\nDataRate\tNumFrames\n60\t1\n"
+            "Frame#\tTime\tR.ASIS\t\t\tV.Sacral\t\t\n\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
+            "1\t0.0\t1.0\t2.0\t3.0\t4.0\t5.0\t-6.0\n")  # fmt: skip
+    lines = mirror_trc_text(text).splitlines()
+    assert lines[3].split("\t")[2] == "L.ASIS" and "V.Sacral" in lines[3]
+    assert [float(v) for v in lines[5].split("\t")[2:]] == [1.0, 2.0, -3.0, 4.0, 5.0, 6.0]
+    m = mirror_ik({"pelvis_list": np.array([2.0]), "hip_flexion_r": np.array([10.0]),
+                   "pelvis_tilt": np.array([3.0])})  # fmt: skip
+    assert m["pelvis_list"][0] == -2.0 and m["hip_flexion_l"][0] == 10.0
+    assert m["pelvis_tilt"][0] == 3.0
+
+
+def test_a_static_trial_of_another_subject_is_refused_with_the_lengths(shared_data: Path) -> None:
+    """Issue 20 item 5: the same marker set on a body 15 % larger (every marker scaled about the
+    pelvis) is another subject: the segment lengths differ by more than 10 %."""
+    from dataclasses import replace
+
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+    from kinefuse.io.formats.markers import read_markers
+    from kinefuse.io.formats.static_trial import check_static
+
+    walk = read_markers(shared_data / f"{GAIT}subject01_walk1.trc", up="+y")
+    static = read_markers(shared_data / f"{GAIT}subject01_static.trc", up="+y")
+    mmap = shipped_marker_maps()["gait2354"]
+    centre = np.nanmedian(static.positions[:, :3], axis=(0, 1))
+    bigger = replace(static, positions=centre + 1.15 * (static.positions - centre))
+    with pytest.raises(InputError, match=r"not a static trial of this subject: the pelvis .* "
+                       r"spans \d+ mm .* \d+ mm"):  # fmt: skip
+        check_static(bigger, walk, mmap)
+    # 5 % larger is within the tolerance (marker placement, soft tissue)
+    check_static(replace(static, positions=centre + 1.05 * (static.positions - centre)), walk, mmap)
+
+
+def test_rajagopal_walk_with_its_static_trial(shared_data: Path) -> None:
+    """The shipped ``rajagopal`` map's static-trial part (issue 20 item 2): chosen by the marker
+    names, every segment gets its anatomical frame, the knee and ankle centres are the static
+    trial's own KneeJoint/AnkleJoint virtual markers, and the walk's curves look like a walk."""
+    from kinefuse.io.formats.markers import read_markers
+    from kinefuse.io.formats.static_trial import with_landmarks
+    from kinefuse.workflows.analyze import load_input
+
+    raj = "markers/opensim/Pipelines_Rajagopal_ExpData_"
+    inp = load_input(shared_data / f"{raj}motion_capture_walk.trc",
+                     static=shared_data / f"{raj}static_walk_1.trc")  # fmt: skip
+    assert inp.anatomical is not None and inp.anatomical_status is not None
+    assert set(inp.anatomical_status.values()) == {"ok"}, inp.anatomical_status
+    a = inp.anatomical
+    for s in ("left", "right"):
+        assert 50.0 < np.nanmax(a[f"knee_flexion_{s}"]) < 80.0  # degrees: swing-phase peak
+        assert 30.0 < np.ptp(a[f"hip_flexion_{s}"][np.isfinite(a[f"hip_flexion_{s}"])]) < 60.0
+    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+
+    static = read_markers(shared_data / f"{raj}static_walk_1.trc", up="+y")
+    aug, _ = with_landmarks(static, shipped_marker_maps()["rajagopal"])
+    i = {n: k for k, n in enumerate(aug.names)}
+    for x in "RL":
+        for ours, theirs in ((f"{x}.KJC", f"{x}.KneeJoint"), (f"{x}.AJC", f"{x}.AnkleJoint")):
+            d = np.linalg.norm(aug.positions[:, i[ours]] - aug.positions[:, i[theirs]], axis=-1)
+            assert float(np.nanmedian(d)) < 1e-3, (ours, theirs)  # metres

@@ -204,3 +204,43 @@ def test_nothing_to_analyse_fails_clearly(
     if use_map:
         assert "Nothing can be analysed" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("names", ["kinefuse", "opensim"])
+def test_upper_body_only_with_its_static_trial(
+    names: str,
+    shared_data: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Issue 20 item 5 with --static: the Gait2354 walk and static trial without any leg marker
+    are analysed for the trunk and arms (anatomical angles too); the legs are skipped, each
+    with the reason, in the functional and the anatomical part."""
+    gait = "markers/opensim/Pipelines_Gait2354_Simbody_subject01_"
+    legs = ("Thigh", "Knee", "Shank", "Ankle", "Heel", "Midfoot", "Toe")
+    paths = {}
+    for k in ("walk1", "static"):
+        paths[k] = tmp_path / f"{k}.trc"
+        write_trc_subset(shared_data / f"{gait}{k}.trc", paths[k],
+                         lambda n: not any(x in n for x in legs))  # fmt: skip
+    out = tmp_path / "out"
+    code = main(["analyze", str(paths["walk1"]), "--static", str(paths["static"]), "--names",
+                 names, "--out", str(out), "--json", "--no-plots"])  # fmt: skip
+    got, err = capsys.readouterr()
+    assert code == 0, err
+    report = json.loads(got)
+    assert set(report["skipped_limbs"]) == set(LEG_LIMBS)
+    assert "KneeLeft" in report["limb_status"]["thigh_left"]
+    anat = report["anatomical"]
+    for lb in LEG_LIMBS:
+        assert anat["segment_status"][lb].startswith("skipped"), lb
+    for lb in ("pelvis", "trunk", *ARM_LIMBS):
+        assert anat["segment_status"][lb] == "ok", (lb, anat["segment_status"][lb])
+    assert {"elbow_flexion_left", "shoulder_elevation_right", "pelvis_tilt"} <= set(
+        anat["angle_names"]
+    )
+    assert not [k for k in anat["angle_names"] if k.startswith(LEG_ANGLES)]
+    _, in_mot = check_files(out, monkeypatch)  # OpenSim reads every row
+    want = "elbow_flex_l" if names == "opensim" else "elbow_flexion_left_anatomical"
+    assert want in in_mot

@@ -63,8 +63,10 @@ Array = NDArray[np.float64]
 
 __all__ = [
     "ANATOMICAL_ANGLES",
+    "MAX_SKELETON_STATIC_MOTION_M",
     "OPENSIM_NAMES",
     "AnatomicalAngle",
+    "SkeletonAnatomy",
     "anatomical_angles",
     "carry",
     "frame_from_long_axis",
@@ -77,6 +79,7 @@ __all__ = [
     "rigid_fit",
     "segment_poses",
     "shoulder_yxy",
+    "skeleton_anatomical_frames",
 ]
 
 
@@ -463,3 +466,163 @@ def segment_poses(
             rigid_fit(np.concatenate(tm), np.concatenate(mv, axis=1)) if len(tm) > 1 else first[seg]
         )
     return out
+
+
+#: A skeleton's static window is refused when a body joint's 90th-percentile distance from its
+#: median position over the window exceeds this, metres. Larger than the marker files' 30 mm:
+#: a fused depth-sensor skeleton jitters about 1 cm per axis while standing still.
+MAX_SKELETON_STATIC_MOTION_M = 0.05
+
+#: The joints whose stillness a skeleton's static window is checked on (the hands and feet
+#: tips of a depth-sensor skeleton jump even when the subject stands still).
+_STILL_JOINTS = ("SpineBase", "HipLeft", "HipRight", "KneeLeft", "KneeRight", "AnkleLeft",
+                 "AnkleRight", "SpineShoulder", "ShoulderLeft", "ShoulderRight")  # fmt: skip
+
+
+@dataclass(frozen=True, eq=False)
+class SkeletonAnatomy:
+    """ISB frames of a skeleton's segments over the sequence, from a static window."""
+
+    frames: dict[str, Array]  # segment -> (T, 3, 3)
+    lab: Array  # (3, 3)
+    status: dict[str, str]  # segment -> "ok" or why it was skipped
+    static_motion_m: dict[str, float]  # joint -> 90th-percentile distance from its median
+
+
+def skeleton_anatomical_frames(
+    positions: ArrayLike,
+    joint_names: Sequence[str],
+    t_s: ArrayLike,
+    limb_frames: Mapping[str, Array],
+    window: tuple[float, float],
+    zero: str = "standing",
+) -> SkeletonAnatomy:
+    """ISB segment frames of a skeleton (joint centres, no markers), from a static window.
+
+    In the window (the subject standing still) each segment's anatomical frame is built from
+    the median joint centres (module docstring: pelvis from the hips and ``SpineMid``, trunk
+    from ``SpineBase``/``SpineShoulder`` and the shoulders, thigh ``Y`` hip minus knee with
+    ``Z`` from the pelvis, shank from the thigh, foot ``X`` ankle to ``Foot`` made horizontal,
+    upper arm from the trunk, forearm from the upper arm) and expressed in the segment's
+    tracking frame there (``limb_frames``: the normalized limb frames of paper B, built from the
+    segment's joints, their twist from the child limb where it is observable); the tracking
+    frame carries it through the sequence (:func:`carry`). So the standing trial sets each
+    segment's rotation zero, as a static trial does for marker clusters.
+
+    Parameters
+    ----------
+    positions : (T, J, 3) float
+        Joint centres, metres, world (z up); NaN where missing.
+    joint_names : sequence of str
+        Kinect v2 joint names of the columns.
+    t_s : (T,) float
+    limb_frames : mapping of str to (T, 3, 3) float
+        Limb name (:data:`kinefuse.analysis.limbs.LIMB_NAMES`) -> limb-to-world rotation.
+    window : (float, float)
+        The static window, seconds on ``t_s``.
+    zero : {"standing", "geometry"}
+        ``"standing"``: every segment's anatomical frame in the window is the standing frame
+        (``X`` the pelvis's forward made horizontal, ``Y`` up, ``Z`` right), so every angle
+        reads 0 in the standing posture (the neutral posture defines the zeros, as a
+        neutral-pose calibration does). ``"geometry"``: the frames are built from the joint
+        centres as above, so the standing posture reads its own angles; a depth sensor's joint
+        centres are not anatomical landmarks, and their joint-definition offsets (centimetres,
+        shared by every sensor) then read as constant angle offsets.
+
+    Raises
+    ------
+    InputError
+        The window holds fewer than 2 frames, or the subject moves in it (a joint of
+        ``_STILL_JOINTS`` farther than :data:`MAX_SKELETON_STATIC_MOTION_M` from its median at
+        the 90th percentile; the joint and distance are named).
+    """
+    from kinefuse.geometry.rotations import chordal_mean
+
+    p = np.asarray(positions, dtype=np.float64)
+    t = np.asarray(t_s, dtype=np.float64)
+    lo, hi = window
+    sel = (t >= lo) & (t <= hi)
+    if int(sel.sum()) < 2:
+        raise InputError(
+            f"the static window {lo:g}:{hi:g} s holds {int(sel.sum())} frame(s) (the input runs "
+            f"{t[0]:.2f} to {t[-1]:.2f} s); give START:END of the standing phase inside it"
+        )
+    idx = {n: i for i, n in enumerate(joint_names)}
+    jp: dict[str, Array] = {}
+    motion: dict[str, float] = {}
+    for n, i in idx.items():
+        w = p[sel, i]
+        if not np.isfinite(w).all(-1).any():
+            continue
+        med = np.nanmedian(w, axis=0)
+        jp[n] = med
+        if n in _STILL_JOINTS:
+            motion[n] = float(np.nanpercentile(np.linalg.norm(w - med, axis=-1), 90))
+    if motion:
+        worst = max(motion, key=lambda k: motion[k])
+        if motion[worst] > MAX_SKELETON_STATIC_MOTION_M:
+            raise InputError(
+                f"the subject moves during the static window {lo:g}:{hi:g} s: {worst} is "
+                f"{1e3 * motion[worst]:.0f} mm from its median position in 10 % of the frames "
+                f"(at most {1e3 * MAX_SKELETON_STATIC_MOTION_M:.0f} mm allowed). Give the window "
+                "of the standing phase (--static-window START:END, or auto for a session made "
+                "with simulate --static)"
+            )
+    status: dict[str, str] = {}
+    static: dict[str, Array] = {}
+    if {"HipLeft", "HipRight", "SpineMid"} <= set(jp):
+        static["pelvis"] = pelvis_frame_from_hips(jp["HipRight"], jp["HipLeft"], jp["SpineMid"])
+    else:
+        status["pelvis"] = "skipped: no HipLeft, HipRight and SpineMid in the static window"
+    if {"SpineBase", "SpineShoulder", "ShoulderLeft", "ShoulderRight"} <= set(jp):
+        static["trunk"] = frame_from_long_axis(
+            jp["SpineShoulder"] - jp["SpineBase"], jp["ShoulderRight"] - jp["ShoulderLeft"]
+        )
+    else:
+        status["trunk"] = "skipped: no SpineBase, SpineShoulder and shoulders in the static window"
+    up = np.array([0.0, 0.0, 1.0])
+    for side in ("right", "left"):
+        cap = side.capitalize()
+        for segment, proximal, distal, parent in (
+            ("thigh", "Hip", "Knee", "pelvis"),
+            ("shank", "Knee", "Ankle", f"thigh_{side}"),
+            ("upper_arm", "Shoulder", "Elbow", "trunk"),
+            ("forearm", "Elbow", "Wrist", f"upper_arm_{side}"),
+        ):
+            seg = f"{segment}_{side}"
+            a, b = jp.get(f"{proximal}{cap}"), jp.get(f"{distal}{cap}")
+            if a is None or b is None or parent not in static:
+                status[seg] = f"skipped: no {proximal}{cap}/{distal}{cap} or no {parent} frame"
+                continue
+            static[seg] = frame_from_long_axis(a - b, static[parent][:, 2])
+        a, b = jp.get(f"Ankle{cap}"), jp.get(f"Foot{cap}")
+        if a is not None and b is not None:
+            x = (b - a) * np.array([1.0, 1.0, 0.0])
+            x = x / np.linalg.norm(x)
+            static[f"foot_{side}"] = np.stack([x, up, np.cross(x, up)], axis=-1)
+        else:
+            status[f"foot_{side}"] = f"skipped: no Ankle{cap}/Foot{cap}"
+    if zero not in ("standing", "geometry"):
+        raise InputError(f"zero must be 'standing' or 'geometry', got {zero!r}")
+    if zero == "standing" and "pelvis" in static:
+        level = lab_frame(static["pelvis"][:, 0])
+        static = {k: level for k in static}
+    frames: dict[str, Array] = {}
+    for seg, a_static in static.items():
+        tr = limb_frames.get(seg)
+        if tr is None or not np.isfinite(tr[sel]).all((-2, -1)).any():
+            status[seg] = "skipped: the limb has no frame in the static window"
+            continue
+        frames[seg] = carry(a_static, chordal_mean(tr[sel]), tr)
+        status[seg] = "ok"
+    if "SpineBase" in idx:
+        sb = p[:, idx["SpineBase"]]
+        ok = np.flatnonzero(np.isfinite(sb).all(-1))
+        disp = sb[ok[-1]] - sb[ok[0]] if ok.size else np.zeros(3)
+    else:
+        disp = np.zeros(3)
+    # as for marker clusters (kinefuse.io.formats.static_trial): the pelvis's mean facing
+    facing = (np.nanmean(frames["pelvis"][:, :, 0], axis=0) if "pelvis" in frames
+              else np.array([1.0, 0.0, 0.0]))  # fmt: skip
+    lab = lab_frame(progression_axis(disp, facing))
+    return SkeletonAnatomy(frames=frames, lab=lab, status=status, static_motion_m=motion)

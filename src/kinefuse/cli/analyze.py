@@ -46,10 +46,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument(
         "--static-window",
-        type=shared.phase,
-        metavar="START_S:END_S",
+        type=_static_window,
+        metavar="START_S:END_S|auto",
         help="the still part of the static trial, or of the input itself when --static is not "
-        "given (seconds)",
+        "given (seconds); auto: a session's stored standing phase (simulate --static)",
     )
     p.add_argument(
         "--names",
@@ -63,6 +63,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
+
+
+def _static_window(text: str) -> tuple[float, float] | str:
+    return "auto" if text.strip().lower() == "auto" else shared.phase(text)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -83,6 +83,13 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="a range-of-motion calibration phase of SECONDS before the motion (docs/analysis.md)",
     )
+    p.add_argument(
+        "--static",
+        type=shared.positive_float,
+        metavar="SECONDS",
+        help="a standing phase (static trial) of SECONDS before the range-of-motion phase, for "
+        "the anatomical angles: analyze SESSION --static-window auto (docs/analysis.md)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         rom_s=args.rom,
         subject_seed=args.subject_seed,
         tracker=args.tracker,
+        static_s=args.static,
     )
     for w in r["warnings"]:
         print(f"kinefuse: warning: {w}", file=sys.stderr)

@@ -91,6 +91,12 @@ def truth_figures(
         report.update({"angle_rmse_seen_deg": rm, "seen_fraction_after_phase": share})
         rm, share = _seen_rmse(inp.limb_sensors, named, tnamed, after, 1)
         report.update({"angle_rmse_tracked_deg": rm, "tracked_fraction_after_phase": share})
+    if inp.static_window_s is not None and inp.anatomical is not None:
+        # the anatomical angles of the true motion from the same standing phase
+        from kinefuse.pipeline.analysis import skeleton_anatomy
+
+        tanat, _ = skeleton_anatomy(tseq, tres["norm"], inp.static_window_s)
+        report["anatomical_rmse_deg"] = angle_rmse_deg(inp.anatomical, tanat, sel)
     inside: Any = np.flatnonzero((t >= phase[0]) & (t <= phase[1]))
     ang = res["angles"]
     true_axes = None

@@ -19,7 +19,7 @@ from kinefuse.analysis.normalize import normalize
 from kinefuse.analysis.parameterize import METHODS as AXIS_METHODS
 from kinefuse.analysis.parameterize import learn_axes
 from kinefuse.analysis.sequence import SkeletonSequence
-from kinefuse.skeleton import TrackingState
+from kinefuse.skeleton import JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
@@ -41,6 +41,10 @@ class AnalysisInput:
     limb_sensors: NDArray[np.int64] | None = None
     # partial bodies (marker files): the map's joints the file cannot build -> missing markers
     unbuilt_joints: dict[str, str] | None = None
+    # skeletons (sessions): the standing phase the anatomical frames come from, seconds, and the
+    # one the session stored (``static_phase_server_s``, simulate --static)
+    static_window_s: tuple[float, float] | None = None
+    stored_static_s: tuple[float, float] | None = None
 
 
 #: A limb is *seen* at a frame when at least this many sensors track it (both its joints
@@ -153,3 +157,19 @@ def analyse_sequence(
         "named": named,
         "seconds": {"normalize": t1 - t0, "learn_axes": t2 - t1, "angles": t3 - t2},
     }
+
+
+def skeleton_anatomy(
+    seq: SkeletonSequence, norm: Any, window: tuple[float, float], zero: str = "standing"
+) -> tuple[dict[str, Array], Any]:
+    """The anatomical (ISB, joint coordinate system) angles of a skeleton from a static window
+    of the sequence itself: :func:`kinefuse.analysis.anatomical.skeleton_anatomical_frames` on
+    its joint centres, carried by the normalized limb frames ``norm.frames``. Returns (angles
+    in degrees by name, the :class:`~kinefuse.analysis.anatomical.SkeletonAnatomy`)."""
+    from kinefuse.analysis.anatomical import anatomical_angles, skeleton_anatomical_frames
+    from kinefuse.analysis.limbs import LIMB_NAMES
+
+    limb_frames = {n: norm.frames[:, i] for i, n in enumerate(LIMB_NAMES)}
+    sa = skeleton_anatomical_frames(seq.kinect_positions(), JOINTS, seq.t_s, limb_frames, window,
+                                    zero=zero)  # fmt: skip
+    return anatomical_angles(sa.frames, sa.lab), sa

@@ -24,7 +24,7 @@ import io
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +95,10 @@ def sequence_from_session(
     stored = None
     if isinstance(phase, list) and len(phase) == 2:
         stored = (float(phase[0]), float(phase[1]))
+    st = meta.get("static_phase_server_s")
+    stored_static = None
+    if isinstance(st, list) and len(st) == 2:
+        stored_static = (float(st[0]), float(st[1]))
     t = res.t_server_s
     rate = float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0
     counts = limb_sensor_counts(
@@ -114,6 +118,7 @@ def sequence_from_session(
         fusion={"method": method, "calibration": source, "frames": int(grid.size)},
         sensor_poses={k: np.asarray(v, dtype=np.float64) for k, v in poses.items()},
         limb_sensors=counts,
+        stored_static_s=stored_static,
     )
 
 
@@ -125,9 +130,12 @@ def load_input(
     calibration: Path | None = None,
     true_calibration: bool = False,
     static: Path | None = None,
-    static_window: tuple[float, float] | None = None,
+    static_window: tuple[float, float] | str | None = None,
 ) -> AnalysisInput:
-    """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc)."""
+    """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc).
+
+    ``static_window``: seconds, or ``"auto"`` for the standing phase a session stored
+    (``static_phase_server_s``, written by ``kinefuse simulate --static``)."""
     from kinefuse.io.formats.sequences import sequence_from_motion_file
 
     if not path.exists():
@@ -138,8 +146,35 @@ def load_input(
     if kind != "session" and (calibration is not None or true_calibration):
         raise InputError(f"{path}: --calibration/--true-calibration are for sessions (.sqlite)")
     if kind == "session":
-        return sequence_from_session(
+        if static is not None:
+            raise InputError(
+                f"{path}: a session's static trial is its own standing phase: give "
+                "--static-window START:END (seconds on the session's server clock), or "
+                "--static-window auto for a session made with kinefuse simulate --static; "
+                "--static takes a marker file's static trial"
+            )
+        inp = sequence_from_session(
             path, method=method, calibration=calibration, true_calibration=true_calibration
+        )
+        if static_window == "auto":
+            if inp.stored_static_s is None:
+                raise InputError(
+                    f"{path}: --static-window auto needs the standing phase a session made with "
+                    "kinefuse simulate --static stores (static_phase_server_s); this session has "
+                    "none. Give --static-window START:END of a part where the subject stands "
+                    "still (seconds on the session's server clock)"
+                )
+            return replace(inp, static_window_s=inp.stored_static_s, static_source=(
+                f"{path} standing phase {inp.stored_static_s[0]:g}-{inp.stored_static_s[1]:g} s "
+                "(static_phase_server_s)"))  # fmt: skip
+        if isinstance(static_window, tuple):
+            where = f"{path} {static_window[0]:g}-{static_window[1]:g} s (--static-window)"
+            return replace(inp, static_window_s=static_window, static_source=where)
+        return inp
+    if static_window == "auto":
+        raise InputError(
+            f"{path}: --static-window auto is for sessions made with kinefuse simulate --static; "
+            "give START:END (seconds) of the still part"
         )
     if (static is not None or static_window is not None) and kind != "markers":
         raise InputError(
@@ -157,6 +192,7 @@ def load_input(
         return AnalysisInput(
             path=path, kind=kind, seq=seq, unbuilt_joints=unbuilt_joints(markers, mmap) or None
         )
+    assert not isinstance(static_window, str)
     return _markers_with_static(path, marker_map, static or path, static_window)
 
 
@@ -165,6 +201,7 @@ def _markers_with_static(
 ) -> AnalysisInput:
     """A marker file with its static trial: the functional sequence and the anatomical angles."""
     from kinefuse.analysis.anatomical import anatomical_angles
+    from kinefuse.io.formats.marker_maps import unbuilt_joints
     from kinefuse.io.formats.sequences import resolve_marker_input, sequence_from_marker_data
     from kinefuse.io.formats.static_trial import anatomical_frames, check_static
 
@@ -190,6 +227,7 @@ def _markers_with_static(
         anatomical=anatomical_angles(af.frames, af.lab),
         anatomical_status=af.status,
         static_source=where,
+        unbuilt_joints=unbuilt_joints(markers, mmap) or None,
     )
 
 
@@ -322,7 +360,7 @@ def run_analyze(
     plot_dpi: int | None = None,
     progress: Callable[[str], None] | None = None,
     static: Path | None = None,
-    static_window: tuple[float, float] | None = None,
+    static_window: tuple[float, float] | str | None = None,
     names: str = "kinefuse",
 ) -> dict[str, Any]:
     """Analyse one or several inputs into a fresh folder ``out``; returns the report.
@@ -421,16 +459,51 @@ def format_analyze(report: dict[str, Any]) -> str:
 
 @dataclass(frozen=True, eq=False)
 class RomPhase:
-    """A range-of-motion phase put before a clip (for ``kinefuse simulate --rom``)."""
+    """A standing phase and/or a range-of-motion phase put before a clip (for ``kinefuse
+    simulate --static/--rom``)."""
 
-    motion: Any  # kinefuse.motion.types.Motion: the ROM, the blend, then the clip
-    rom_s: float  # length of the ROM phase itself, seconds (the blend follows it)
+    motion: Any  # kinefuse.motion.types.Motion: standing, the ROM, the blend, then the clip
+    rom_s: float  # length of the ROM phase itself, seconds (the blend follows it); 0: none
     blend_s: float
     truth: dict[str, Any]  # JSON-able truth (true axes, rest, twist over time ...)
+    static_s: float = 0.0  # length of the standing phase before the ROM, seconds; 0: none
 
 
-def add_rom_phase(clip: Any, rom_s: float, *, seed: int = 0, blend_s: float = 1.0) -> RomPhase:
-    """A generated range-of-motion phase of ``rom_s`` seconds before ``clip`` (placed).
+#: Postural sway of the simulated standing phase: the whole body moves horizontally by a slow
+#: wobble of about this RMS (quiet standing sways a few millimetres; Prieto et al. 1996 report
+#: 4-6 mm RMS of the centre of pressure), metres.
+STANDING_SWAY_M = 0.004
+
+
+def standing_motion(pose: Any, seconds: float, rate_hz: float, rng: Any) -> Any:
+    """``pose (25, 3)`` held for ``seconds`` at ``rate_hz``, the whole body swaying slowly
+    (:data:`STANDING_SWAY_M` RMS, 0.05-0.5 Hz): a static trial's standing."""
+    from kinefuse.motion.types import Motion
+
+    n = int(np.floor(seconds * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+    sway = np.zeros((n, 3))
+    for k in range(2):
+        f = rng.uniform(0.05, 0.5, size=3)
+        ph = rng.uniform(0.0, 2.0 * np.pi, size=3)
+        sway[:, k] = np.sin(2.0 * np.pi * f[:, None] * t + ph[:, None]).sum(0)
+    sway *= STANDING_SWAY_M / np.sqrt(1.5) / np.sqrt(2.0)
+    sway -= sway[-1]  # ends where it stands, so the next phase starts from the pose itself
+    pos = np.asarray(pose, dtype=np.float64)[None] + sway[:, None, :]
+    return Motion(positions=pos, rate_hz=float(rate_hz), source=f"standing {seconds:g} s")
+
+
+def add_rom_phase(
+    clip: Any,
+    rom_s: float | None,
+    *,
+    seed: int = 0,
+    blend_s: float = 1.0,
+    static_s: float | None = None,
+) -> RomPhase:
+    """A generated range-of-motion phase of ``rom_s`` seconds before ``clip`` (placed), and
+    before it a standing phase of ``static_s`` seconds (a static trial: the default pose held,
+    with postural sway, :func:`standing_motion`). Either may be None (not both).
 
     The subject's default pose is the clip's default-pose frame
     (:func:`kinefuse.analysis.find_default_pose`), moved (translation, rotation about z) to
@@ -441,10 +514,20 @@ def add_rom_phase(clip: Any, rom_s: float, *, seed: int = 0, blend_s: float = 1.
     from kinefuse.analysis.rom import make_rom_motion, prepend_rom
     from kinefuse.geometry.rotations import rot_z
     from kinefuse.motion import facing_direction
+    from kinefuse.motion.types import Motion
     from kinefuse.skeleton import JOINT_INDEX
 
-    if not (np.isfinite(rom_s) and rom_s > 0):
+    if rom_s is None and static_s is None:
+        raise InputError(
+            "give a range-of-motion phase (--rom), a standing phase (--static) or both"
+        )
+    if rom_s is not None and not (np.isfinite(rom_s) and rom_s > 0):
         raise InputError(f"--rom must be a positive number of seconds, got {rom_s!r}")
+    if static_s is not None and not (np.isfinite(static_s) and static_s >= 1.0):
+        raise InputError(
+            f"--static must be at least 1 second (a static trial needs frames to average), "
+            f"got {static_s!r}"
+        )
     seq = SkeletonSequence.from_motion(clip)
     k = find_default_pose(seq)
     pose = clip.positions[k]
@@ -454,35 +537,65 @@ def add_rom_phase(clip: Any, rom_s: float, *, seed: int = 0, blend_s: float = 1.
     pivot = pose[root] * np.array([1.0, 1.0, 0.0])
     placed = (pose - pivot) @ rot_z(turn).T
     placed[:, :2] += clip.positions[0, root, :2]
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x524F4D]))  # "ROM"
-    rom, truth = make_rom_motion(placed, rom_s, rng)
-    motion = prepend_rom(rom, clip, blend_s=blend_s)
-    t_rom = np.arange(rom.n_frames) / rom.rate_hz
-    info = {
-        "note": "range-of-motion phase of kinefuse simulate --rom: true axes and rest "
-        "directions in the parent limb's normalized frame at the default pose (JCS order, ISB "
-        "signs), true angles and twists (radians) at t_s (seconds from the phase's start)",
-        "default_pose_frame_of_clip": int(k),
-        "axes_parent": {n: v.tolist() for n, v in truth.axes.items()},
-        "axes_world": {n: v.tolist() for n, v in truth.axes_world.items()},
-        "rest_parent": {n: v.tolist() for n, v in truth.rest.items()},
-        "movements": [list(m) for m in truth.movements],
-        "t_s": np.round(t_rom, 6).tolist(),
-        "twist_rad": {n: np.round(v, 6).tolist() for n, v in truth.twist.items()},
-        "angles_rad": {n: np.round(v, 6).tolist() for n, v in truth.angles.items()},
-    }
-    return RomPhase(motion=motion, rom_s=float(rom.duration_s), blend_s=blend_s, truth=info)
+    info: dict[str, Any] = {}
+    if rom_s is not None:
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x524F4D]))  # "ROM"
+        rom, truth = make_rom_motion(placed, rom_s, rng)
+        motion = prepend_rom(rom, clip, blend_s=blend_s)
+        t_rom = np.arange(rom.n_frames) / rom.rate_hz
+        info = {
+            "note": "range-of-motion phase of kinefuse simulate --rom: true axes and rest "
+            "directions in the parent limb's normalized frame at the default pose (JCS order, "
+            "ISB signs), true angles and twists (radians) at t_s (seconds from the phase's "
+            "start)",
+            "default_pose_frame_of_clip": int(k),
+            "axes_parent": {n: v.tolist() for n, v in truth.axes.items()},
+            "axes_world": {n: v.tolist() for n, v in truth.axes_world.items()},
+            "rest_parent": {n: v.tolist() for n, v in truth.rest.items()},
+            "movements": [list(m) for m in truth.movements],
+            "t_s": np.round(t_rom, 6).tolist(),
+            "twist_rad": {n: np.round(v, 6).tolist() for n, v in truth.twist.items()},
+            "angles_rad": {n: np.round(v, 6).tolist() for n, v in truth.angles.items()},
+        }
+        start = rom.positions[0]
+    else:
+        motion = clip
+        start = placed
+    static_len = 0.0
+    if static_s is not None:
+        rng_s = np.random.default_rng(np.random.SeedSequence([int(seed), 0x535441]))  # "STA"
+        stand = standing_motion(start, static_s, clip.rate_hz, rng_s)
+        if rom_s is None:  # standing, a blend into the clip, the clip
+            motion = prepend_rom(stand, clip, blend_s=blend_s)
+        else:  # standing, then the ROM (which starts from the same pose)
+            motion = Motion(
+                positions=np.concatenate([stand.positions[:-1], motion.positions]),
+                rate_hz=clip.rate_hz,
+                source=f"{stand.source} + {motion.source}",
+            )
+        static_len = (stand.n_frames - 1) / clip.rate_hz
+    return RomPhase(
+        motion=motion,
+        rom_s=0.0 if rom_s is None else float(rom.duration_s),
+        blend_s=blend_s,
+        truth=info,
+        static_s=static_len,
+    )
 
 
 def record_rom_phase(session: Path, phase: RomPhase, start_s: float) -> None:
-    """Store a simulated session's ROM phase: its interval as ordinary protocol metadata
-    (``rom_phase_server_s``, what a real lab's protocol also knows), its truth in the truth
-    info (``rom_truth``, read only by ``report/``)."""
+    """Store a simulated session's standing and ROM phases: their intervals as ordinary protocol
+    metadata (``static_phase_server_s``, ``rom_phase_server_s``: what a real lab's protocol
+    also knows), the ROM's truth in the truth info (``rom_truth``, read only by ``report/``)."""
     from kinefuse.io.store.session import SessionStore
 
     with SessionStore.open(session, writable=True) as store:
-        store.set_meta("rom_phase_server_s", [start_s, start_s + phase.rom_s])
-        store.set_meta("rom_blend_s", phase.blend_s)
-        truth = dict(phase.truth)
-        truth["start_server_s"] = start_s
-        store.write_truth_info("rom_truth", truth)
+        if phase.static_s > 0:
+            store.set_meta("static_phase_server_s", [start_s, start_s + phase.static_s])
+        if phase.rom_s > 0:
+            rom_start = start_s + phase.static_s
+            store.set_meta("rom_phase_server_s", [rom_start, rom_start + phase.rom_s])
+            store.set_meta("rom_blend_s", phase.blend_s)
+            truth = dict(phase.truth)
+            truth["start_server_s"] = rom_start
+            store.write_truth_info("rom_truth", truth)

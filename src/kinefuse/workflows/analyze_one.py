@@ -135,6 +135,18 @@ def analyse_one(
             "phase where the sensors see the subject (the centre of the capture volume)"
         )
     res = analyse_sequence(seq, phase, not_seen=None if seen is None else seen["not_seen"])
+    if inp.static_window_s is not None and inp.anatomical is None:
+        # a skeleton's anatomical angles: ISB frames from its standing phase, carried by the
+        # normalized limb frames (kinefuse.analysis.anatomical.skeleton_anatomical_frames)
+        from dataclasses import replace
+
+        from kinefuse.pipeline.analysis import skeleton_anatomy
+
+        anat, sa = skeleton_anatomy(seq, res["norm"], inp.static_window_s)
+        inp = replace(inp, anatomical=anat, anatomical_status=sa.status)
+        static_motion_mm = {k: 1e3 * v for k, v in sa.static_motion_m.items()}
+    else:
+        static_motion_mm = None
     skipped = skipped_limbs(inp.unbuilt_joints, seq.joint_names)
     if skipped:  # a partial body: the angles of the skipped limbs are not written
         res["named"] = {k: v for k, v in res["named"].items() if angle_limb(k) not in skipped}
@@ -241,6 +253,8 @@ def analyse_one(
                 k: float(np.isfinite(v).mean()) for k, v in sorted(inp.anatomical.items())
             },
         }
+        if static_motion_mm is not None:
+            report["anatomical"]["static_motion_p90_mm"] = static_motion_mm
     written, mot = _write_outputs(folder, inp, res, plots, truth, plot_dpi, names)
     report["angles_mot"] = mot
     report["written"] = [str(p) for p in written]

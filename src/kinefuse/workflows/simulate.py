@@ -92,6 +92,7 @@ def run_simulate(
     rom_s: float | None = None,
     subject_seed: int | None = None,
     tracker: str = "default",
+    static_s: float | None = None,
 ) -> dict[str, Any]:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
@@ -104,13 +105,15 @@ def run_simulate(
     position, else at the centre of the sensors' common volume
     (:func:`kinefuse.sim.rig.common_volume_centre`), whatever the clip's path; the clip then
     starts from there (a clip that leaves the volume is warned about by the coverage check).
+    ``static_s``: a standing phase (a static trial, for the anatomical angles) of that many
+    seconds before the ROM phase (or before the clip), performed at the same place.
 
     Returns
     -------
     dict
         ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`),
         ``warnings`` (list of str) and, with ``rom_s``, ``rom_position_m`` (x, y) and
-        ``rom_position_from`` (which rule placed it).
+        ``rom_position_from`` (which rule placed it); the same with ``static_s``.
     """
     from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.io.outputs import atomic_file
@@ -129,7 +132,7 @@ def run_simulate(
             "give at most the clip's length or leave --seconds out"
         )
     rom_place = None
-    if rom_s is not None:
+    if rom_s is not None or static_s is not None:
         # the calibration phase happens where the sensors see it: at the rig's [actor] position,
         # else at the centre of the sensors' common volume, whatever the clip's path (a walk's
         # centred path put the phase at its start, at the edge of a walkway: issue 24); the
@@ -141,13 +144,16 @@ def run_simulate(
             the_rig = replace(the_rig, actor_position_m=at)
             rom_place = "the centre of the sensors' common volume"
         where = f"({at[0]:.2f}, {at[1]:.2f}) m"
-        say(f"range-of-motion phase at {rom_place}, {where}; the clip starts there")
+        what = " and ".join(
+            w for w, v in (("standing", static_s), ("range-of-motion", rom_s)) if v is not None
+        )
+        say(f"{what} phase at {rom_place}, {where}; the clip starts there")
     motion = place_actor(motion, the_rig, seconds)
     rom = None
-    if rom_s is not None:
+    if rom_s is not None or static_s is not None:
         from kinefuse.workflows.analyze import add_rom_phase
 
-        rom = add_rom_phase(motion, rom_s, seed=seed)
+        rom = add_rom_phase(motion, rom_s, seed=seed, static_s=static_s)
         if seconds is not None:
             seconds = min(
                 seconds + rom.motion.duration_s - motion.duration_s, rom.motion.duration_s

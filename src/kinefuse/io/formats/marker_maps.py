@@ -84,10 +84,12 @@ __all__ = [
     "MarkerMap",
     "PelvisSpec",
     "apply_marker_map",
+    "chord_point",
     "cluster_orientations",
     "hip_joint_centres",
     "load_marker_map",
     "parse_marker_map",
+    "rule_points",
     "select_marker_map",
     "shipped_marker_maps",
     "unbuilt_joints",
@@ -99,11 +101,13 @@ HJC_METHODS: Final = ("harrington2007", "bell1990")
 
 @dataclass(frozen=True)
 class JointRule:
-    """One way to compute a joint: ``kind`` ``"blend"`` (weighted markers) or ``"hjc"``."""
+    """One way to compute a joint: ``kind`` ``"blend"`` (weighted markers), ``"hjc"`` (a hip
+    regression) or ``"chord"`` (Plug-in Gait's chord function, :func:`chord_point`)."""
 
     kind: str
-    markers: tuple[tuple[str, float], ...] = ()
+    markers: tuple[tuple[str, float], ...] = ()  # chord: (marker, wand, centre), weights unused
     side: str = ""
+    offset_m: float = 0.0  # chord: distance of the centre from the marker
 
     def marker_names(self, pelvis: PelvisSpec | None) -> tuple[str, ...]:
         if self.kind == "hjc":
@@ -163,6 +167,20 @@ def _parse_rule(spec: Any, joint: str, where: str) -> JointRule:
         if val not in ("left", "right"):
             raise error(f'hip_joint_centre must be "left" or "right", got {val!r}')
         return JointRule("hjc", side=str(val))
+    if key == "chord":
+        want = {"marker", "wand", "centre", "offset_m"}
+        if not isinstance(val, Mapping) or set(val) != want:
+            raise error(
+                "chord needs { marker = M, wand = W, centre = C, offset_m = D } (C: a marker or "
+                f"landmark, D in metres), got {val!r}"
+            )
+        names = [val["marker"], val["wand"], val["centre"]]
+        d = val["offset_m"]
+        if not all(isinstance(n, str) and n for n in names):
+            raise error(f"chord marker, wand and centre must be names, got {names!r}")
+        if not isinstance(d, int | float) or not (0.0 < float(d) < 0.2):
+            raise error(f"chord offset_m must be a distance in metres (0 to 0.2), got {d!r}")
+        return JointRule("chord", tuple((str(n), 0.0) for n in names), offset_m=float(d))
     raise error(f"unknown rule {key!r}")
 
 
@@ -367,7 +385,12 @@ def _resolve(
                     carrier = [n for n in mmap.clusters[cluster] if finder(n) is None]
                     if not there and not carrier:
                         continue
-                    lack += [f"{n} (static trial)" for n in there] + carrier
+                    if carrier and set(carrier) >= set(here) - set(there):
+                        lack += here + carrier  # no cluster to carry it: the segment is absent
+                    else:
+                        lack += [f"{n} (static trial)" for n in there] + carrier
+                elif any(finder(n) is None for n in mmap.clusters[cluster]):
+                    lack += here  # no cluster to carry it: a static trial would not help
                 else:
                     lack += [f"{n} (or a static trial with it)" for n in here]
             if not lack:
@@ -473,6 +496,66 @@ def unbuilt_joints(markers: MarkerData, mmap: MarkerMap) -> dict[str, str]:
     return {j: " | ".join(w) for j, w in missing.items()}
 
 
+def chord_point(centre: Array, marker: Array, wand: Array, offset_m: float) -> Array:
+    """Plug-in Gait's chord function: the joint centre ``J`` at ``offset_m`` from ``marker``
+    (``M``), in the plane of ``centre`` (``P``, the proximal joint centre), ``M`` and ``wand``
+    (``W``), with ``P - J`` at right angles to ``M - J``; on the side of the line ``M -> P``
+    away from ``W`` (the wand marker is lateral, the centre medial of the marker). Shapes
+    ``(..., 3)``; NaN where an input is."""
+    u = centre - marker
+    length = np.linalg.norm(u, axis=-1, keepdims=True)
+    u = u / length
+    w = wand - marker
+    v = w - (w * u).sum(-1, keepdims=True) * u
+    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    a = offset_m**2 / length
+    b = np.sqrt(np.clip(offset_m**2 - a**2, 0.0, None))
+    return np.asarray(marker + a * u - b * v, dtype=np.float64)
+
+
+def rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array | None:
+    """``(T, 3)`` of one rule on ``markers`` (metres), None when a name is not in the file."""
+    f = NameResolver(markers.names)
+    p = markers.positions
+    if rule.kind == "hjc":
+        pv = mmap.pelvis
+        if pv is None:
+            return None
+        idx = [f(n) for n in pv.marker_names()]
+        if any(i is None for i in idx):
+            return None
+        ci = [int(i) for i in idx if i is not None]
+        back = p[:, ci[2]] if pv.sacrum else 0.5 * (p[:, ci[2]] + p[:, ci[3]])
+        left, right = hip_joint_centres(p[:, ci[0]], p[:, ci[1]], back, pv.method)
+        return left if rule.side == "left" else right
+    idx = [f(n) for n, _ in rule.markers]
+    if any(i is None for i in idx):
+        return None
+    cols = [p[:, int(i)] for i in idx if i is not None]
+    if rule.kind == "chord":
+        return chord_point(cols[2], cols[0], cols[1], rule.offset_m)
+    w = np.array([wt for _, wt in rule.markers], dtype=np.float64)
+    return np.asarray(np.einsum("ktc,k->tc", np.stack(cols), w), dtype=np.float64)
+
+
+def _with_direct_landmarks(markers: MarkerData, mmap: MarkerMap) -> MarkerData:
+    """``markers`` with every ``[landmarks]`` entry the file lacks but has its rule's markers
+    appended, computed from them (a static trial's landmarks come in already carried by their
+    clusters: :func:`kinefuse.io.formats.static_trial.with_landmarks`)."""
+    from dataclasses import replace
+
+    out = markers
+    for lm, (rule, _cluster) in mmap.landmarks.items():  # in order: one may use an earlier one
+        if NameResolver(out.names)(lm) is not None:
+            continue
+        pts = rule_points(out, rule, mmap)
+        if pts is None:
+            continue
+        out = replace(out, names=(*out.names, lm),
+                      positions=np.concatenate([out.positions, pts[:, None]], axis=1))  # fmt: skip
+    return out
+
+
 def apply_marker_map(
     markers: MarkerData, mmap: MarkerMap, *, partial: bool = False
 ) -> tuple[Array, tuple[str, ...], tuple[str, ...]]:
@@ -503,6 +586,7 @@ def apply_marker_map(
         A joint of the map cannot be built: names the joint, the missing markers of each
         alternative, the file's markers and close matches.
     """
+    markers = _with_direct_landmarks(markers, mmap)
     finder = NameResolver(markers.names)
     chosen, missing = _resolve(mmap, finder)
     if missing and not (partial and _partial_ok(chosen, missing)):
@@ -547,9 +631,9 @@ def apply_marker_map(
                 hips = hip_joint_centres(p[:, col[pv.rasis]], p[:, col[pv.lasis]], back, pv.method)
             out[:, k] = hips[0] if rule.side == "left" else hips[1]
         else:
-            idx = [int(finder(n) or 0) for n, _ in rule.markers]  # all found (_resolve)
-            w = np.array([wt for _, wt in rule.markers], dtype=np.float64)
-            out[:, k] = np.einsum("tkc,k->tc", p[:, idx], w)
+            pts = rule_points(markers, rule, mmap)
+            assert pts is not None  # all its markers are in the file (_resolve)
+            out[:, k] = pts
     return out, names, tuple(notes)
 
 
