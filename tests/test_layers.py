@@ -41,6 +41,7 @@ LAYERS: tuple[str, ...] = (
     "net.proxy",
     "net.client",
     "net.server",
+    "net.lsl",  # the LSL outlet: a service on the publisher, handed to the server by workflows
     "viewer",
     "workflows",
     "cli",
@@ -55,6 +56,8 @@ FORBIDDEN: tuple[tuple[str, str], ...] = (
     ("viewer", "net.client"),
     ("net.server", "net.client"),  # the two ends of the wire share only protocol/
     ("net.client", "net.server"),
+    ("net.lsl", "net.server"),  # a service knows the server only through net/bus.py
+    ("net.lsl", "net.client"),
 )
 
 

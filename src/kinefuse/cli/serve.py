@@ -53,6 +53,21 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="PORT",
         help="serve the live web viewer on this port (0: a free one; on --host)",
     )
+    p.add_argument(
+        "--lsl",
+        nargs="?",
+        const="kinefuse",
+        metavar="NAME",
+        help="publish fused frames as a Lab Streaming Layer stream of type MoCap named NAME "
+        "(default kinefuse; needs the extra kinefuse[lsl]; docs/lsl.md)",
+    )
+    p.add_argument(
+        "--lsl-xml",
+        type=Path,
+        metavar="FILE",
+        help="write the LSL stream's full description (XML) to this NEW file, for an inlet "
+        "built without discovery",
+    )
     p.add_argument("--verbose", action="store_true", help="log debug messages")
     p.set_defaults(func=run)
 
@@ -73,5 +88,7 @@ def run(args: argparse.Namespace) -> int:
         calibration_method=args.calibration_method,
         wand_axis_m=args.wand_axis_m,
         viewer_port=args.viewer_port,
+        lsl=args.lsl,
+        lsl_xml=args.lsl_xml,
         verbose=args.verbose,
     )

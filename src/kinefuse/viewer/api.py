@@ -7,7 +7,8 @@ every fused frame as JSON or as the viewer's compact binary frame (:mod:`kinefus
 
 Each subscriber has a lossy subscription on the server's publisher (the newest 2 items): a slow
 one skips frames and fusion never waits. One whose socket accepts nothing for
-:data:`STALL_LIMIT_S` (its send buffer is capped at :data:`SEND_BUFFER_BYTES`) is disconnected.
+:data:`STALL_LIMIT_S` (its send buffer is capped at :data:`SEND_BUFFER_BYTES`) is disconnected
+with a TCP reset, so that neither its buffers nor an orphaned socket outlive it.
 Cross-origin WebSockets are refused (the ``Origin`` header, when a browser sends one, must be
 the server's own host), here and on the viewer's ``/ws``.
 """
@@ -16,12 +17,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import fcntl
 import hashlib
 import hmac
 import json
 import math
 import secrets
 import socket
+import struct
+import termios
+import time
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -37,6 +42,8 @@ API_PATH = f"/api/v{API_VERSION}/stream"
 FORMATS = ("json", "binary")
 #: a subscriber whose socket takes nothing for this long is disconnected (close code 4408)
 STALL_LIMIT_S = 5.0
+#: how often the stall watchdog looks at a subscriber's send buffer
+STALL_POLL_S = 0.25
 #: the kernel send buffer of each subscriber's socket: a stalled reader blocks sends soon
 SEND_BUFFER_BYTES = 64 * 1024
 #: the client must answer the token challenge within this time
@@ -115,6 +122,44 @@ def frame_message(frame: FusedFrame) -> dict[str, Any]:
     }
 
 
+def unsent_bytes(sock: Any) -> int:
+    """Bytes the kernel still holds to send on ``sock`` (Linux ``SIOCOUTQ``; 0 if unknown)."""
+    try:
+        buf = fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0")
+    except (OSError, ValueError):
+        return 0
+    return int(struct.unpack("i", buf)[0])
+
+
+def reset(transport: Any, sock: Any) -> None:
+    """Drop the connection now with a TCP reset: what is queued for it is discarded (a plain
+    close would leave the kernel trying to deliver it to a peer that never reads)."""
+    if sock is not None:
+        with contextlib.suppress(OSError, ValueError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    if transport is not None:
+        transport.abort()
+
+
+class Stalled(Exception):
+    """The subscriber's socket accepted nothing for :data:`STALL_LIMIT_S`."""
+
+
+async def watch_stall(transport: Any, limit_s: float = STALL_LIMIT_S) -> None:
+    """Return never; raise :class:`Stalled` once the transport's send buffer has been non-empty
+    without shrinking for ``limit_s`` (its socket's kernel buffer full all that time)."""
+    last, progress = 0, time.monotonic()
+    while True:
+        await asyncio.sleep(STALL_POLL_S)
+        size = transport.get_write_buffer_size()
+        now = time.monotonic()
+        if size == 0 or size < last:
+            progress = now
+        elif now - progress >= limit_s:
+            raise Stalled(f"accepted nothing for {now - progress:.1f} s")
+        last = size
+
+
 def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) -> Any:
     """The aiohttp handler of :data:`API_PATH` on ``publisher``."""
 
@@ -124,9 +169,12 @@ def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) ->
         fmt = request.query.get("format", "json")
         if fmt not in FORMATS or set(request.query) - {"format"}:
             raise web.HTTPBadRequest(text=f"format must be one of {', '.join(FORMATS)}")
-        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=1 << 14)
+        # no heartbeat: its close of a peer that does not answer is a graceful one, which leaves
+        # the socket to the kernel with the queued frames; the stall watchdog cuts it instead
+        ws = web.WebSocketResponse(max_msg_size=1 << 14)
         await ws.prepare(request)
-        sock = request.transport.get_extra_info("socket") if request.transport else None
+        transport = request.transport
+        sock = transport.get_extra_info("socket") if transport is not None else None
         if sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
         nonce = secrets.token_hex(16)
@@ -151,7 +199,7 @@ def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) ->
 
         async def send() -> None:
             async for item in sub:
-                async with asyncio.timeout(STALL_LIMIT_S):
+                async with asyncio.timeout(STALL_LIMIT_S):  # a send blocked that long: cut
                     if isinstance(item, Status):
                         await ws.send_str(json.dumps(status_message(item)))
                     elif fmt == "json":
@@ -160,17 +208,26 @@ def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) ->
                         await ws.send_bytes(fused_frame_bytes(item))
             await ws.close()
 
+        stalled = False
         try:
             async with asyncio.TaskGroup() as tg:
                 tg.create_task(read())
-                tg.create_task(send())
-        except* TimeoutError:  # the subscriber stopped reading: cut it off
-            if request.transport is not None:
-                request.transport.abort()
+                sending = tg.create_task(send())
+                watchdog = tg.create_task(watch_stall(transport)) if transport else None
+                await sending
+                if watchdog is not None:
+                    watchdog.cancel()
+        except* (TimeoutError, Stalled):  # the subscriber stopped reading: cut it off
+            stalled = True
         except* (ConnectionResetError, ConnectionError):
             pass
         finally:
             sub.close()
+            # never leave queued frames to a peer that does not read them
+            if transport is not None and (
+                stalled or transport.get_write_buffer_size() > 0 or unsent_bytes(sock) > 0
+            ):
+                reset(transport, sock)
         return ws
 
     return handler

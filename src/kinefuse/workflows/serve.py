@@ -76,6 +76,8 @@ def run_serve(
     calibration_method: str = "full",
     wand_axis_m: float | None = None,
     viewer_port: int | None = None,
+    lsl: str | None = None,
+    lsl_xml: Path | None = None,
     verbose: bool = False,
 ) -> int:
     """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop."""
@@ -99,7 +101,21 @@ def run_serve(
         auto_calibrate=auto_calibrate,
         calibration=LiveCalibrationOptions(method=calibration_method, axis_length_m=wand_axis_m),
     )
-    services = {}
+    services: dict[str, Any] = {}
+    the_server: list[Server] = []
+    if lsl is not None:  # the LSL outlet, on the server's publisher (checked before we listen)
+        from kinefuse.net.lsl import check_stream_name, check_xml_path, lsl_outlet, require_pylsl
+
+        check_stream_name(lsl)
+        require_pylsl()
+        if lsl_xml is not None:
+            check_xml_path(lsl_xml)
+        # (the frames' clock is the server's own, known once it exists: read at start)
+        services["lsl"] = lambda pub: lsl_outlet(
+            pub, name=lsl, server_clock=lambda: the_server[0].clock(), xml_path=lsl_xml
+        )
+    elif lsl_xml is not None:
+        raise InputError("--lsl-xml writes the LSL stream's description: give --lsl too")
     if viewer_port is not None:  # the live web viewer, on the server's publisher
         from kinefuse.viewer import live_viewer
 
@@ -107,6 +123,7 @@ def run_serve(
             live_viewer, host=host, port=viewer_port, token=token
         )
     server = Server(options, services=services)
+    the_server.append(server)
     if calibration is not None:
         from kinefuse.calibration.calib_file import read_calibration
 
@@ -116,6 +133,10 @@ def run_serve(
         print(f"kinefuse serve: listening on {h}:{p}", flush=True)
         if "viewer" in server.services:
             print(f"kinefuse serve: viewer at http://{h}:{server.services['viewer']}/", flush=True)
+        if "lsl" in server.services:
+            out: Any = server.services["lsl"]
+            print(f"kinefuse serve: LSL stream {out.name!r} (type MoCap, 100 channels, 30 Hz), "
+                  f"t_lsl = t_server {out.clock.offset_s:+.6f} s", flush=True)  # fmt: skip
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
