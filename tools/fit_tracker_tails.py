@@ -13,8 +13,9 @@ and sizes (``gross_leg_share``, ``gross_[arm_]duration_median_s``, ``gross_[arm_
 are refined by one fixed-point step from the current default model: each value times the real
 over the simulated run statistic it drives (runs per second, median length, mean peak excess
 over 20 cm, per limb type, at 0 degrees). ``--participants A-B`` fits on those participants only
-(the held-out check of docs/realism.md). The values in ``src/kinefuse/sim/tracker_params.py`` are
-these, rounded. ``--cache`` writes the real per-take figures (the test cache). About 4 minutes
+(the held-out check of docs/realism.md). The default values of the arm and leg parameters in
+``src/kinefuse/sim/tracker_params.py`` are the mean of the fits on participants 0-4 and 5-9; the
+others are this tool's values on all ten, rounded. ``--cache`` writes the real per-take figures (the test cache). About 4 minutes
 with ``--seeds 1`` on a quiet machine.
 """
 
