@@ -15,7 +15,9 @@ over the simulated run statistic it drives (runs per second, median length, mean
 over 20 cm, per limb type, at 0 degrees). ``--participants A-B`` fits on those participants only
 (the held-out check of docs/realism.md). The default values of the arm and leg parameters in
 ``src/kinefuse/sim/tracker_params.py`` are the mean of the fits on participants 0-4 and 5-9; the
-others are this tool's values on all ten, rounded. ``--cache`` writes the real per-take figures (the test cache). About 4 minutes
+others are this tool's values on all ten, rounded. ``--cache`` writes the real per-take figures
+(the test cache). It also prints, at 0 degrees, the share of joint distances above 10-30 cm per
+joint group, real against the model and the light model. About 4 minutes
 with ``--seeds 1`` on a quiet machine.
 """
 
@@ -28,20 +30,24 @@ from pathlib import Path
 
 import numpy as np
 
+from kinefuse.evaluation.realism import disagreement
 from kinefuse.evaluation.realism_population import layout_key
 from kinefuse.evaluation.realism_tails import GROSS_M, Tails, take_tails
 from kinefuse.evaluation.realism_takes import (
     EXTRA_KEYS,
     FIGURE_KEYS,
+    StreamPair,
     layout_angle_deg,
     pair_figures,
     real_pair,
     simulated_pair,
+    still_frames,
     take_layout,
 )
 from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 from kinefuse.motion import load_motion
-from kinefuse.sim.tracker_params import TrackerParams
+from kinefuse.sim.tracker_params import TrackerParams, light_tracker
+from kinefuse.skeleton import JOINT_INDEX
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -57,6 +63,33 @@ def off_params() -> TrackerParams:
 def participant(path: Path) -> int:
     """The participant of a KinectMultiTrack take (``Study_N_...``)."""
     return int(path.name.split("_")[1])
+
+
+#: joint groups of the exceedance table (docs/realism.md section 6)
+GROUPS = {
+    "elbows, wrists, hands": ("Elbow", "Wrist", "Hand"),
+    "knees, ankles, feet": ("Knee", "Ankle", "Foot"),
+    "shoulders": ("Shoulder",),
+    "hips": ("Hip",),
+}
+THRESHOLDS_M = (0.10, 0.15, 0.20, 0.30)
+
+
+def exceedance(pair: StreamPair) -> dict[str, list[float]]:
+    """Per joint group: the share (%) of joint distances above 10/15/20/30 cm over the moving
+    front frames, and for every joint the share above 10 cm over the still ones."""
+    d = disagreement(pair.joints_a, pair.joints_b, pair.idx_a, pair.idx_b)
+    _, still = still_frames(pair.joints_a, pair.t_sensor_a_s, pair.group_a)
+    st = still[pair.idx_a]
+    dist = d.distances_m
+    out = {}
+    for name, stems in GROUPS.items():
+        cols = [JOINT_INDEX[s + side] for s in stems for side in ("Left", "Right")]
+        x = dist[~st][:, cols]
+        out[name] = [100 * float(np.nanmean(x > t)) for t in THRESHOLDS_M]
+    out["every joint"] = [100 * float(np.nanmean(dist[~st] > t)) for t in THRESHOLDS_M]
+    out["every joint, still, > 10 cm"] = [100 * float(np.nanmean(dist[st] > 0.10))]
+    return out
 
 
 def limb_type_stats(tails: list[Tails], kind: str) -> dict[str, float]:
@@ -122,6 +155,7 @@ def main() -> None:
     takes = [t for t in sorted(args.population.glob("*.csv")) if lo <= participant(t) <= hi]
     cur_t: dict[str, list[Tails]] = {}
     current = TrackerParams()
+    exc: dict[str, list[dict[str, list[float]]]] = {"real": [], "model": [], "light": []}
     real_t: dict[str, list[Tails]] = {}
     sim_t: dict[str, list[Tails]] = {}
     real_med: dict[str, list[float]] = {}
@@ -159,9 +193,14 @@ def main() -> None:
             sim_t.setdefault(key, []).append(take_tails(sp))
             sim_med.setdefault(key, []).append(pair_figures(sp)["median_m"])
             if key == "0":
-                cur_t.setdefault(key, []).append(
-                    take_tails(simulated_pair(rec, walk, s, lay, current))
-                )
+                cp = simulated_pair(rec, walk, s, lay, current)
+                cur_t.setdefault(key, []).append(take_tails(cp))
+                if s == 0:
+                    exc["real"].append(exceedance(rp))
+                    exc["model"].append(exceedance(cp))
+                    exc["light"].append(
+                        exceedance(simulated_pair(rec, walk, 0, lay, light_tracker()))
+                    )
     if args.cache:
         args.cache.write_text(json.dumps({"source": str(args.population.name), "takes": cache},
                                          indent=1) + "\n")  # fmt: skip
@@ -226,6 +265,11 @@ def main() -> None:
         ),
         ("person_rate_exponent", f"{slope:.2f}", "slope of log run rate on log median"),
     ]
+    print("\n0 deg, % of joint distances above 10/15/20/30 cm while moving (median over takes,"
+          " seed 0): real | model | light model")  # fmt: skip
+    for g in exc["real"][0]:
+        cols = [np.median([e[g] for e in exc[k]], axis=0) for k in ("real", "model", "light")]
+        print(f"  {g:28s} " + " | ".join(" / ".join(f"{v:.1f}" for v in c) for c in cols))
     # thrown arms against thrown legs: one fixed-point step from the current default model
     cur = current
     step = {
