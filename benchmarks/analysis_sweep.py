@@ -1,7 +1,7 @@
 """Paper B's analysis chain over many simulated sessions: the inputs nobody tuned it for (issue 24).
 
 Run: ``python benchmarks/analysis_sweep.py [--seeds 0 1] [--rigs level4 tiered4 tilted4]
-[--clips ...] [--heldout] [--rom-s 60] [--tracker default|population] [--sessions DIR]
+[--clips ...] [--heldout] [--rom-s 60] [--tracker default|light] [--sessions DIR]
 [--json F] [--smoke]`` (about 15-30 s a session; ``--sessions DIR`` keeps the simulated
 sessions and reuses them, so a rerun only analyses; ``--smoke``: one short session).
 
@@ -358,7 +358,7 @@ def main() -> None:
     ap.add_argument("--clips", nargs="+", default=list(CLIPS), help="clips of --data")
     ap.add_argument("--heldout", action="store_true", help="rigs and subjects not in the sweep")
     ap.add_argument("--rom-s", type=float, default=60.0)
-    ap.add_argument("--tracker", default="default", choices=("default", "population"),
+    ap.add_argument("--tracker", default="default", choices=("default", "light"),
                     help="simulate --tracker (the tracker error model)")  # fmt: skip
     ap.add_argument("--sessions", type=Path,
                     help="keep the simulated sessions here and reuse them")  # fmt: skip

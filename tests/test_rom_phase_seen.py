@@ -181,7 +181,14 @@ def test_analyze_a_phase_the_sensors_saw(
     assert len(limbs) == 12 and set(r["axes"]) == limbs
     for m in ("dj", "pca", "em"):
         assert set(r["methods"][m]["axes"]) == limbs
-    assert set(r["axis_error_deg"]["by_limb"]) == limbs and r["axis_error_deg"]["median"] < 30
+    # every limb's axes against the truth, but a limb whose sweep the plane test judged planar
+    # (it learned one axis where the truth has two) is skipped and says so in its status: on the
+    # tracker model of issue 21 the right thigh of this session (95 % within 2.4 deg of a plane)
+    err = r["axis_error_deg"]
+    assert set(err["by_limb"]) | set(err["skipped"]) == limbs and len(err["skipped"]) <= 1
+    for name in err["skipped"]:
+        assert r["limb_status"][name].startswith("one axis only"), r["limb_status"][name]
+    assert err["median"] < 30
     # the angles are scored over every frame after the phase, over the frames in which a sensor
     # tracked the limb and its parent, and over those with two or more, each with its share
     tracked, seen2 = r["tracked_fraction_after_phase"], r["seen_fraction_after_phase"]

@@ -13,8 +13,8 @@ import pytest
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.geometry.transforms import look_at
 from kinefuse.sim.tracker import draw_subject_bias, simulate_tracker
-from kinefuse.sim.tracker_failures import LIMB_CHAINS, draw_quality, gross_failures
-from kinefuse.sim.tracker_params import population_tracker
+from kinefuse.sim.tracker_failures import LIMB_CHAINS, ROOT_WEIGHT, draw_quality, gross_failures
+from kinefuse.sim.tracker_params import LIGHT, TrackerParams, light_tracker
 from kinefuse.skeleton import JOINT_INDEX, capsule_radii, standing_pose
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,32 +30,45 @@ def _glide(n: int = 900) -> np.ndarray:
 
 
 def test_gross_failures_rates_sizes_and_limbs() -> None:
-    p = population_tracker()
+    p = TrackerParams()
     n, dt = 30 * 600, 1 / 30  # ten minutes of one sensor
     d = gross_failures(
         np.random.default_rng(1), n, dt, dataclasses.replace(p, gross_body_rate_hz=0)
     )
     size = np.linalg.norm(d, axis=-1)
-    # trunk and head never move in a limb failure; the distal joints move the most
-    for name in ("SpineBase", "SpineMid", "Neck", "Head", "ShoulderLeft", "HipRight"):
+    # trunk and head never move in a limb failure; the distal joints move the most, the middle
+    # joint half as much, the root (shoulder, hip) ROOT_WEIGHT of it
+    for name in ("SpineBase", "SpineMid", "Neck", "Head"):
         assert size[:, JOINT_INDEX[name]].max() == 0.0
     assert size.max() > p.gross_size_min_m
     hand, elbow = JOINT_INDEX["HandLeft"], JOINT_INDEX["ElbowLeft"]
     both = size[:, hand] > 0
     np.testing.assert_allclose(size[both, elbow], 0.5 * size[both, hand])
-    # the share of frames in a failure follows rate x mean length (log-normal)
-    mean_len = p.gross_duration_median_s * np.exp(p.gross_duration_log_sigma**2 / 2)
+    np.testing.assert_allclose(
+        size[both, JOINT_INDEX["ShoulderLeft"]], ROOT_WEIGHT * size[both, hand]
+    )
+    # the share of frames in a failure follows rate x mean length (log-normal, arms longer)
+    spread = np.exp(p.gross_duration_log_sigma**2 / 2)
+    mean_len = spread * (
+        p.gross_leg_share * p.gross_duration_median_s
+        + (1 - p.gross_leg_share) * p.gross_arm_duration_median_s
+    )
     expected = p.gross_limb_rate_hz * mean_len  # per limb-failure, any limb
     busy = (size.max(axis=1) > 0).mean()
     assert 0.5 * expected < busy < 1.5 * expected
     legs = (size[:, JOINT_INDEX["FootLeft"]] > 0) | (size[:, JOINT_INDEX["FootRight"]] > 0)
     arms = (size[:, JOINT_INDEX["HandLeft"]] > 0) | (size[:, JOINT_INDEX["HandRight"]] > 0)
-    assert legs.sum() > arms.sum()  # legs fail more often (65 % of the real runs)
+    # legs fail more often, arms longer and further (real runs at 0 degrees)
+    foot = size[:, [JOINT_INDEX["FootLeft"], JOINT_INDEX["FootRight"]]].max(axis=1)
+    hands = size[:, [JOINT_INDEX["HandLeft"], JOINT_INDEX["HandRight"]]].max(axis=1)
+    assert np.mean(hands[arms]) > np.mean(foot[legs])
+    assert p.gross_arm_duration_median_s > p.gross_duration_median_s
+    assert p.gross_leg_share > 0.5
     assert set(LIMB_CHAINS) == {"ArmLeft", "ArmRight", "LegLeft", "LegRight"}
 
 
 def test_whole_body_jumps_move_every_joint_alike() -> None:
-    p = dataclasses.replace(population_tracker(), gross_limb_rate_hz=0.0, gross_body_rate_hz=0.5)
+    p = dataclasses.replace(TrackerParams(), gross_limb_rate_hz=0.0, gross_body_rate_hz=0.5)
     d = gross_failures(np.random.default_rng(2), 3000, 1 / 30, p)
     moved = np.linalg.norm(d, axis=-1).max(axis=1) > 0
     assert moved.any()
@@ -68,11 +81,11 @@ def test_processes_switch_off_and_keep_the_other_draws() -> None:
     truth = _glide()
     s2w = look_at([2.4, 0.0, 1.0], [0.0, 0.0, 1.0])
     radii = capsule_radii(1.71)
-    off = dataclasses.replace(population_tracker(), **OFF)  # type: ignore[arg-type]
+    off = dataclasses.replace(TrackerParams(), **OFF)  # type: ignore[arg-type]
     a = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), off)
     b = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), off)
     np.testing.assert_array_equal(a.joints_sensor, b.joints_sensor)  # deterministic
-    pop = population_tracker()
+    pop = TrackerParams()
     on = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), pop)
     again = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4), pop)
     np.testing.assert_array_equal(on.joints_sensor, again.joints_sensor)
@@ -90,14 +103,18 @@ def test_processes_switch_off_and_keep_the_other_draws() -> None:
     sb = draw_subject_bias(np.random.default_rng(9), pop)
     np.testing.assert_array_equal(sa.offsets_body_m, sb.offsets_body_m)
     assert sa.quality == 1.0 and sb.quality != 1.0
-    # the default model has them off: what every published figure stands on
-    assert draw_subject_bias(np.random.default_rng(9)).quality == 1.0
+    # the default model has them on (every published figure stands on it); the light model has
+    # them off and is the model of before issue 21 (its view-dependent exponent too)
+    assert draw_subject_bias(np.random.default_rng(9)).quality != 1.0
     plain = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4))
-    np.testing.assert_array_equal(plain.joints_sensor, a.joints_sensor)
+    np.testing.assert_array_equal(plain.joints_sensor, on.joints_sensor)
+    light = light_tracker()
+    assert light == dataclasses.replace(off, view_bias_exponent=LIGHT["view_bias_exponent"])
+    assert draw_subject_bias(np.random.default_rng(9), light).quality == 1.0
 
 
 def test_quality_is_log_normal_with_the_fitted_spread() -> None:
-    p = population_tracker()
+    p = TrackerParams()
     q = np.array([draw_quality(np.random.default_rng(s), p) for s in range(2000)])
     assert np.median(q) == pytest.approx(1.0, abs=0.03)
     assert np.log(q).std() == pytest.approx(p.person_log_sigma, rel=0.1)
@@ -106,7 +123,7 @@ def test_quality_is_log_normal_with_the_fitted_spread() -> None:
 def test_a_subject_seed_keeps_its_quality_across_sessions() -> None:
     from kinefuse.sim.lab import ErrorModel, LabConfig, _seeds
 
-    errors = ErrorModel(tracker=population_tracker())
+    errors = ErrorModel(tracker=TrackerParams())
     base = LabConfig(seed=3, calibration_s=0.0, subject_seed=11, errors=errors)
     a = _seeds(3, 2, base).subject
     b = _seeds(4, 2, dataclasses.replace(base, seed=4)).subject

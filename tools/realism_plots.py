@@ -3,8 +3,9 @@
     PYTHONPATH=src python tools/realism_plots.py [--seeds 1] [--out docs/img]
 
 Per layout (0, 45, 90 degrees), over every take of the KinectMultiTrack population: the share of
-joint distances above x (log scale, the tails), real against the model and the model without
-the failure processes and the person level (``realism_tails_LAYOUT.png``); and the per-take
+joint distances above x (log scale, the tails), real against the model and the light model
+(without the failure processes and the person level, ``--tracker light``;
+``realism_tails_LAYOUT.png``); and the per-take
 medians and p95 of every participant beside the simulated subjects
 (``realism_population.png``). A few minutes on the shared machine.
 """
@@ -43,10 +44,7 @@ def _save(fig: Any, path: Path) -> None:
 
 
 def main() -> None:
-    import sys
-
-    sys.path.insert(0, str(ROOT / "tools"))
-    from fit_tracker_tails import off_params
+    from kinefuse.sim.tracker_params import light_tracker
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=1)
@@ -64,8 +62,8 @@ def main() -> None:
         pairs = {"real": [rp]}
         for s in range(args.seeds):
             pairs.setdefault("model", []).append(simulated_pair(rec, walk, s, lay))
-            pairs.setdefault("model without", []).append(
-                simulated_pair(rec, walk, s, lay, off_params())
+            pairs.setdefault("light model", []).append(
+                simulated_pair(rec, walk, s, lay, light_tracker())
             )
         for name, ps in pairs.items():
             for p in ps:
@@ -75,7 +73,7 @@ def main() -> None:
                 meds.setdefault(key, {}).setdefault(name, []).append((f["median_m"], f["p95_m"]))
         print(path.name, key, flush=True)
     x = np.linspace(0.0, 0.8, 161)
-    style = {"real": ("k", "-"), "model": ("tab:red", "-"), "model without": ("tab:blue", "--")}
+    style = {"real": ("k", "-"), "model": ("tab:red", "-"), "light model": ("tab:blue", "--")}
     for key, by in dist.items():
         fig = Figure(figsize=(5.5, 3.6))
         ax = fig.add_subplot()
@@ -96,7 +94,7 @@ def main() -> None:
     for i, stat in enumerate(("median", "p95")):
         ax = fig.add_subplot(1, 2, i + 1)
         for k, key in enumerate(dist):
-            for j, name in enumerate(("real", "model", "model without")):
+            for j, name in enumerate(("real", "model", "light model")):
                 v = np.array(meds[key][name])[:, i] * 100
                 c, _ = style[name]
                 xs = k + (j - 1) * 0.25 + np.random.default_rng(k).uniform(-0.05, 0.05, v.size)

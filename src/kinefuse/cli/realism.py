@@ -48,9 +48,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--json", action="store_true", help="print JSON instead of Markdown")
     p.add_argument(
         "--tracker",
-        choices=("default", "population"),
-        help="the simulated body-tracker model (default: population with --population, else "
-        "the default model every published figure stands on; docs/realism.md)",
+        choices=("default", "light"),
+        default="default",
+        help="the simulated body-tracker model: default (with the gross failures and the person "
+        "level, every published figure stands on it) or light (without them; docs/realism.md)",
     )
     p.set_defaults(func=run)
 
@@ -77,5 +78,5 @@ def run(args: argparse.Namespace) -> int:
         single=args.single,
         as_json=args.json,
         population=population,
-        tracker=args.tracker or ("population" if population is not None else "default"),
+        tracker=args.tracker,
     )

@@ -52,11 +52,11 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--tracker",
-        choices=("default", "population"),
+        choices=("default", "light"),
         default="default",
-        help="body-tracker model: the default one every published figure stands on, or with "
-        "the gross failures and person level fitted on the KinectMultiTrack population "
-        "(docs/realism.md)",
+        help="body-tracker model: the default one (with the gross failures and the person level "
+        "fitted on the KinectMultiTrack population; every published figure stands on it) or "
+        "light (without them, the model before issue 21; docs/realism.md)",
     )
     p.add_argument(
         "--calibration-seconds",

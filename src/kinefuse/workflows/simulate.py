@@ -188,14 +188,15 @@ def run_simulate(
 
 
 #: The body-tracker models a simulation can use (``--tracker``).
-TRACKER_MODELS = ("default", "population")
+TRACKER_MODELS = ("default", "light")
 
 
 def tracker_model(name: str) -> TrackerParams:
-    """``"default"``: the model every published figure stands on; ``"population"``: with the
-    gross failures and person level fitted on the KinectMultiTrack population (issue 21)."""
-    from kinefuse.sim.tracker_params import TrackerParams, population_tracker
+    """``"default"``: the model with the gross failures and the person level fitted on the
+    KinectMultiTrack population (issue 21), every published figure stands on it; ``"light"``:
+    without them (the lighter-tailed model of before issue 21, for comparison)."""
+    from kinefuse.sim.tracker_params import TrackerParams, light_tracker
 
     if name not in TRACKER_MODELS:
         raise InputError(f"unknown tracker model {name!r}; choose {', '.join(TRACKER_MODELS)}")
-    return population_tracker() if name == "population" else TrackerParams()
+    return light_tracker() if name == "light" else TrackerParams()
