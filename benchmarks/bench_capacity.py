@@ -157,7 +157,13 @@ async def play(
     }
 
 
-def run_one(n: int, seconds: float, d: Path, profile: Path | None = None) -> dict[str, Any]:
+def run_one(
+    n: int,
+    seconds: float,
+    d: Path,
+    profile: Path | None = None,
+    server_src: Path | None = None,
+) -> dict[str, Any]:
     session = simulate(n, seconds, d)
     cal, ids = true_calibration(session, d / f"cal{n}.toml")
     token_file = d / "token"
@@ -167,7 +173,10 @@ def run_one(n: int, seconds: float, d: Path, profile: Path | None = None) -> dic
     cmd = [sys.executable, *prof, "-m", "kinefuse", "serve", "--port", "0", "--record", str(rec),
            "--calibration", str(cal), "--token-file", str(token_file), "--verbose"]  # fmt: skip
     with open(d / f"serve{n}.log", "w") as err:
-        server = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True)
+        env = dict(os.environ)
+        if server_src is not None:  # another checkout's server (a baseline in the same run)
+            env["PYTHONPATH"] = os.pathsep.join([str(server_src), env.get("PYTHONPATH", "")])
+        server = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=env)
     try:
         assert server.stdout is not None
         line = server.stdout.readline()
@@ -237,6 +246,12 @@ def main() -> None:
     ap.add_argument("--smoke", action="store_true", help="4 sensors, 4 s (seconds to run)")
     ap.add_argument("--keep", type=Path, help="keep sessions, recordings, logs (a new folder)")
     ap.add_argument("--profile", type=Path, help="run the server under cProfile, stats here")
+    ap.add_argument(
+        "--baseline-src",
+        type=Path,
+        help="also run each N against the server of this src folder (another checkout's), "
+        "alternating with this one's, and print both",
+    )
     a = ap.parse_args()
     if a.smoke:
         a.sensors, a.seconds = a.sensors or 4, 4.0
@@ -255,6 +270,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         d = a.keep if a.keep is not None else Path(tmp)
         for n in ns:
+            if a.baseline_src is not None:
+                (d / "baseline").mkdir(exist_ok=True)
+                b = run_one(n, a.seconds, d / "baseline", None, a.baseline_src)
+                print(row(b) + " baseline", flush=True)
             r = run_one(n, a.seconds, d, a.profile)
             results.append(r)
             print(row(r), flush=True)

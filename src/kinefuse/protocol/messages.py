@@ -20,6 +20,7 @@ a source yields (the sensor client turns one into the other); ``FloorPlaneMessag
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -518,6 +519,8 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 
 
-def message_fields(cls: type[Message]) -> list[tuple[str, Kind]]:
-    """``(name, kind)`` of each wire field of a message class, in declaration order."""
-    return [(f.name, f.metadata["kind"]) for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+@functools.cache
+def message_fields(cls: type[Message]) -> tuple[tuple[str, Kind], ...]:
+    """``(name, kind)`` of each wire field of a message class, in declaration order (computed
+    once per class: every frame sent or received asks)."""
+    return tuple((f.name, f.metadata["kind"]) for f in dataclasses.fields(cls))  # type: ignore[arg-type]

@@ -65,8 +65,11 @@ async def run_clients(clients: Sequence[SensorClient]) -> list[int]:
     try:
         async with asyncio.TaskGroup() as tg:
             tasks = [tg.create_task(c.run()) for c in clients]
-    except BaseException:
+    except BaseExceptionGroup as eg:
         stop_all(clients, "a sibling client failed")
+        raise eg.exceptions[0] from None
+    except BaseException:
+        stop_all(clients, "stopped")
         raise
     return [t.result() for t in tasks]
 
