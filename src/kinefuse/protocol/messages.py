@@ -20,7 +20,6 @@ a source yields (the sensor client turns one into the other); ``FloorPlaneMessag
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -519,8 +518,14 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 
 
-@functools.cache
+_FIELDS: dict[type, tuple[tuple[str, Kind], ...]] = {}
+
+
 def message_fields(cls: type[Message]) -> tuple[tuple[str, Kind], ...]:
     """``(name, kind)`` of each wire field of a message class, in declaration order (computed
     once per class: every frame sent or received asks)."""
-    return tuple((f.name, f.metadata["kind"]) for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+    out = _FIELDS.get(cls)
+    if out is None:
+        out = tuple((f.name, f.metadata["kind"]) for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+        _FIELDS[cls] = out
+    return out
