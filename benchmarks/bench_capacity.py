@@ -126,6 +126,9 @@ def proc_rss_mb(pid: int) -> float:
 async def play(
     port: int, pid: int, session: Path, ids: list[str], seconds: float
 ) -> dict[str, Any]:
+    # as `kinefuse sensor` does: the loop stamps probe replies, the source threads (one per
+    # client: its occlusion test) must hand the GIL back quickly
+    sys.setswitchinterval(0.001)
     epoch = time.monotonic() + START_S
     clients = replay_clients(
         session,
