@@ -14,7 +14,8 @@ After ``WARM_S`` seconds (clock sync, first frames) it measures for ``S`` second
 
 - ``fused_rate_hz``: fused frames the server published (from its recording) per second;
 - ``frames_dropped``: body frames lost anywhere: dropped from a client's send queue, from the
-  server's per-sensor queue, as a late backlog, plus fused frames the loop skipped;
+  server's per-sensor queue, as a late backlog, plus fused frames the loop skipped (these are
+  the run's counters: the warm-up is included);
 - ``latency_ms``: host receive -> published, p50/p99, of the published frames (the server's own
   figure, ``live_fused.latency_s``);
 - ``server_cpu_ms_per_frame``: the server process's CPU time (user + system, /proc) over the
