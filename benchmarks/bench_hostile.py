@@ -300,6 +300,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--phase-s", type=float, default=6.0, help="seconds per phase")
     ap.add_argument("--smoke", action="store_true", help="2 s phases, a smaller flood")
+    ap.add_argument("--keep", type=Path, help="copy the server's recording to this new file")
     ap.add_argument("--sensors-for", nargs=2, metavar=("PORT", "SECONDS"), help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.sensors_for is not None:  # the child process of the real sensors
@@ -351,6 +352,12 @@ def main() -> None:
             if server.poll() is None:
                 server.kill()
                 server.wait(10)
+        if a.keep is not None:
+            import shutil
+
+            if a.keep.exists():
+                sys.exit(f"--keep {a.keep}: the file exists; give a new path")
+            shutil.copyfile(rec, a.keep)
         with SessionStore.open(rec) as st:
             t0_server = float(st.meta()["server_t0_monotonic"])  # type: ignore[arg-type]
             lf = live_fused(st)
