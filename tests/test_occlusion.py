@@ -352,3 +352,23 @@ def test_selection_validates_input():
         select_sensors(occ, np.zeros((2, 2), dtype=int))
     with pytest.raises(InputError, match=r"available must be a bool array of shape \(2, 3, 25\)"):
         select_sensors(occ, np.zeros((2, 3), dtype=int), np.ones((2, 3), bool))
+
+
+def test_the_default_bone_pairs_are_computed_once_and_give_the_same_flags():
+    """detect_occlusion keeps the 24 bones' non-adjacent pairs (a live client calls it per
+    frame); the flags are those of the pairs built anew; the kept arrays cannot be changed."""
+    from kinefuse.occlusion.segments import _default_bones, detect_occlusion
+    from kinefuse.skeleton import bone_index_array, standing_pose
+
+    b, pairs = _default_bones()
+    assert np.array_equal(b, bone_index_array())
+    assert np.array_equal(pairs, non_adjacent_bone_pairs(bone_index_array()))
+    assert _default_bones()[1] is pairs and not pairs.flags.writeable
+    rng = np.random.default_rng(3)
+    j = (standing_pose() - [0.0, -3.0, 0.0])[:, [0, 2, 1]]
+    frames = j[None] + rng.normal(0, 0.15, (40, 25, 3))  # limbs thrown about: crossings
+    kept = detect_occlusion(frames, Intrinsics())
+    anew = detect_occlusion(frames, Intrinsics(), bones=bone_index_array())
+    assert np.array_equal(kept.occluded, anew.occluded)
+    assert np.array_equal(kept.n_intersections, anew.n_intersections)
+    assert kept.n_intersections.sum() > 0

@@ -285,7 +285,7 @@ def detect_occlusion(
         raise InputError(f"near_m must be a positive distance in metres, got {near_m!r}")
     if rule not in OCCLUSION_RULES:
         raise InputError(f"rule must be 'crossing' (the paper's) or 'coverage', got {rule!r}")
-    b = bone_index_array() if bones is None else _check_bones(bones)
+    b, pairs = _default_bones() if bones is None else (_check_bones(bones), None)
     if rule == "coverage" and bones is not None and not np.array_equal(b, bone_index_array()):
         raise InputError(
             "rule='coverage' uses the capsule radii of the 24 Kinect v2 bones; leave bones unset"
@@ -293,7 +293,8 @@ def detect_occlusion(
     if not (np.isfinite(height_m) and 0.5 <= height_m <= 2.5):
         raise InputError(f"height_m must be the subject's height, 0.5 to 2.5 m, got {height_m!r}")
     radii = capsule_radii(height_m) if rule == "coverage" else None
-    pairs = non_adjacent_bone_pairs(b)
+    if pairs is None:
+        pairs = non_adjacent_bone_pairs(b)
     t_frames = j.shape[0]
     occluded = np.zeros((t_frames, N_JOINTS), dtype=bool)
     bone_occ = np.zeros((t_frames, len(b)), dtype=bool)
@@ -306,6 +307,23 @@ def detect_occlusion(
             occ = _coverage(j[sl], intrinsics, focal, b, radii)
         occluded[sl], bone_occ[sl], counts[sl] = occ, bocc, cnt
     return OcclusionResult(occluded=occluded, n_intersections=counts, bone_occluded=bone_occ)
+
+
+_DEFAULT_BONES: tuple[NDArray[np.intp], NDArray[np.intp]] | None = None
+
+
+def _default_bones() -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The 24 Kinect v2 bones and their non-adjacent pairs, computed once (read-only): a live
+    client tests every body frame one at a time, and building the pairs cost it more than the
+    test itself (issue 23)."""
+    global _DEFAULT_BONES
+    if _DEFAULT_BONES is None:
+        b = bone_index_array()
+        pairs = non_adjacent_bone_pairs(b)
+        b.flags.writeable = False
+        pairs.flags.writeable = False
+        _DEFAULT_BONES = (b, pairs)
+    return _DEFAULT_BONES
 
 
 def _check_intrinsics(intrinsics: object) -> None:

@@ -518,6 +518,14 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 
 
-def message_fields(cls: type[Message]) -> list[tuple[str, Kind]]:
-    """``(name, kind)`` of each wire field of a message class, in declaration order."""
-    return [(f.name, f.metadata["kind"]) for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+_FIELDS: dict[type, tuple[tuple[str, Kind], ...]] = {}
+
+
+def message_fields(cls: type[Message]) -> tuple[tuple[str, Kind], ...]:
+    """``(name, kind)`` of each wire field of a message class, in declaration order (computed
+    once per class: every frame sent or received asks)."""
+    out = _FIELDS.get(cls)
+    if out is None:
+        out = tuple((f.name, f.metadata["kind"]) for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+        _FIELDS[cls] = out
+    return out

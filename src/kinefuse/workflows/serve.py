@@ -146,6 +146,9 @@ def run_serve(
                 loop.add_signal_handler(sig, server.request_stop, f"signal {sig.name}")
         await server.run(ready)
 
+    # the loop thread stamps every arrival: it must get the GIL back quickly from the
+    # recorder's thread (and a threaded fusion's), as `kinefuse sensor` does (5 ms by default)
+    sys.setswitchinterval(0.001)
     try:
         asyncio.run(main())
     except BaseExceptionGroup as eg:

@@ -91,7 +91,7 @@ class SimTimeline(Timeline):
 
     source_clock = "true"
 
-    def __init__(self, path: str, sensor_id: str) -> None:
+    def __init__(self, path: str, sensor_id: str, *, depth: bool = True) -> None:
         # read what the client needs now, and open the store again in the thread that plays
         # it (an SQLite connection belongs to its thread)
         self.path = path
@@ -118,6 +118,9 @@ class SimTimeline(Timeline):
         finally:
             store.close()
         self.sensor_id = sensor_id
+        #: False: the body frames only (a light sensor that does no depth work, as the
+        #: capacity benchmark plays many in one process)
+        self.depth = depth
         self._latency_s = ClockParams().latency_mean_s + self.truth.latency_offset_s
 
     def _body(self, store: SessionStore) -> Iterator[Timed]:
@@ -137,6 +140,9 @@ class SimTimeline(Timeline):
     def frames(self) -> Iterator[Timed]:
         """The frames in play order (the store is open while iterating, in this thread)."""
         with SessionStore.open(self.path) as store:
+            if not self.depth:
+                yield from self._body(store)
+                return
             yield from heapq.merge(self._depth(store), self._body(store), key=lambda x: x.t_play_s)
 
 

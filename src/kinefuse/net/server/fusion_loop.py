@@ -24,7 +24,9 @@ Cost and the event loop: a ``best-live`` frame takes about 1.3 ms of CPU on an i
 6 ms on this shared 2-core one, the paper's chain (one trilateration call per frame) 18 ms
 (``python benchmarks/bench_server_fusion.py``, medians, 4 sensors). While the fusion runs on the
 event loop, a clock-probe reply that arrives waits to be stamped, which biases that probe. So the
-loop measures its own fusion time: while the mean over the last frames stays under
+loop measures its own fusion time (CPU time of the thread that fused, ``time.thread_time``: on
+a shared machine the wall time also counts waits for a core, and sent a 1 ms fusion to a
+thread under load): while the mean over the last frames stays under
 ``thread_above_s`` (2 ms) the fusion runs on the loop (a thread hop would cost more than it
 saves); above it, each frame's ``fuse`` runs in a worker thread (``asyncio.to_thread``), and the
 loop only waits at most the interpreter's GIL switch interval (5 ms) to stamp a reply. The
@@ -209,7 +211,7 @@ class FusionLoop:
         self.frames = 0
         self.skipped = 0
         self.fuse_seconds = 0.0
-        #: mean fusion time per frame above which the fusion runs in a worker thread, seconds
+        #: mean fusion CPU time per frame above which the fusion runs in a worker thread, s
         self.thread_above_s = 0.002
         #: how far back the first calibration's fusion starts from the buffered observations, s
         self.warm_up_s = 1.0
@@ -344,6 +346,16 @@ class FusionLoop:
                 at[sid] = i
             self.fusion.fuse(kk / self.rate_hz)
 
+    def _fuse_timed(self, t: float) -> tuple[tuple[Array, Array, NDArray[np.int8]], float]:
+        """The frame at ``t`` and the CPU time its fusion took in the thread that ran it: not
+        the wall time, which on a busy machine counts the waits for a core and, in a worker
+        thread, for the interpreter lock that the loop holds while it reads frames. Judged by
+        wall time, a loaded server sent a 1 ms fusion to a thread, where handing it over and
+        the lock made it take 12 ms (16 sensors, issue 23)."""
+        c0 = time.thread_time()
+        out = self.fusion.fuse(t)
+        return out, time.thread_time() - c0
+
     async def step(self, k: int) -> FusedFrame | None:
         """Fuse and publish frame ``k`` now (None when no sensor is calibrated yet)."""
         t = k / self.rate_hz
@@ -362,12 +374,10 @@ class FusionLoop:
                 "in a worker thread" if threaded else "on the event loop",
             )
             self._was_threaded = threaded
-        t0 = time.perf_counter()
         if threaded:
-            pos, var, status = await asyncio.to_thread(self.fusion.fuse, t)
+            (pos, var, status), cost = await asyncio.to_thread(self._fuse_timed, t)
         else:
-            pos, var, status = self.fusion.fuse(t)
-        cost = time.perf_counter() - t0
+            (pos, var, status), cost = self._fuse_timed(t)
         self._costs.append(cost)
         self.fuse_seconds += cost
         t_pub = self.clock()
@@ -406,8 +416,11 @@ class FusionLoop:
                 self._collect()
                 if not self.ready(k):
                     self._wake.clear()
+                    # (asyncio.timeout, not wait_for: no task per wake, and it wakes on
+                    # every observation: 720 a second with 24 sensors)
                     with contextlib.suppress(TimeoutError):
-                        await asyncio.wait_for(self._wake.wait(), due - now)
+                        async with asyncio.timeout(due - now):
+                            await self._wake.wait()
                     continue
             else:
                 behind = int((now - due) * self.rate_hz)
