@@ -23,9 +23,14 @@ from kinefuse.fusion.best import BestOptions, fuse_best
 from kinefuse.fusion.methods import METHODS
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
+from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest
 
 Array = NDArray[np.float64]
+
+#: frames a range method assembles and solves at once (its memory grows with this, not with the
+#: session)
+RANGE_CHUNK = 1024
 
 #: The methods ``kinefuse fuse`` and ``evaluate`` know, in the paper's order, then ours (offline
 #: ``best`` and the causal ``best-live`` a live server runs).
@@ -180,13 +185,45 @@ def run_method(
         )
         residual = np.sqrt(3.0 * fused.variance_m2)
     else:
+        pos, status, residual = _run_range(
+            sensors, grid, method, c_threshold=c_threshold,
+            occlusion_compensation=occlusion_compensation,
+        )  # fmt: skip
+    return MethodResult(
+        method=method,
+        t_server_s=grid,
+        positions=pos,
+        status=np.asarray(status, dtype=np.int8),
+        seconds=float("nan"),
+        residual_m=residual,
+    )
+
+
+def _run_range(
+    sensors: Sequence[CalibratedSensor],
+    grid: Array,
+    method: str,
+    *,
+    c_threshold: float,
+    occlusion_compensation: bool,
+) -> tuple[Array, NDArray[np.int8], Array]:
+    """A range method (``linear``, ``geometric``, ``nonlinear``, ``paper``) on the grid, frame by
+    frame in chunks of :data:`RANGE_CHUNK` (each frame is solved on its own, so the result is the
+    same bit for bit; the assembled ``(T, S, 25, 3)`` frames and the solvers' temporaries never
+    exist for the whole session, only the output does)."""
+    n_t = grid.size
+    poses = np.stack([s.sensor2world for s in sensors])
+    pos = np.full((n_t, N_JOINTS, 3), np.nan)
+    status = np.zeros((n_t, N_JOINTS), dtype=np.int8)
+    residual = np.full((n_t, N_JOINTS), np.nan)
+    for a in range(0, max(n_t, 1), RANGE_CHUNK):  # an empty grid: one empty chunk, as before
+        sl = slice(a, a + RANGE_CHUNK)
         frames = assemble_latest(
-            grid,
+            grid[sl],
             [s.t_server_s for s in sensors],
             [s.observations.joints_m for s in sensors],
             [s.observations.states for s in sensors],
         )
-        poses = np.stack([s.sensor2world for s in sensors])
         occlusion = None
         if method == "paper":
             occ = np.zeros(frames.states.shape, dtype=bool)
@@ -207,16 +244,9 @@ def run_method(
             occlusion=occlusion if occlusion_compensation else None,
             c_threshold=c_threshold,
         )
-        pos, status = res.positions, res.status
-        residual = _range_residual(pos, frames.joints, poses, res.used)
-    return MethodResult(
-        method=method,
-        t_server_s=grid,
-        positions=pos,
-        status=np.asarray(status, dtype=np.int8),
-        seconds=float("nan"),
-        residual_m=residual,
-    )
+        pos[sl], status[sl] = res.positions, res.status
+        residual[sl] = _range_residual(res.positions, frames.joints, poses, res.used)
+    return pos, status, residual
 
 
 def _range_residual(
