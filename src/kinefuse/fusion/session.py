@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from numpy.typing import NDArray
@@ -207,17 +208,24 @@ def _run_range(
     c_threshold: float,
     occlusion_compensation: bool,
 ) -> tuple[Array, NDArray[np.int8], Array]:
-    """A range method (``linear``, ``geometric``, ``nonlinear``, ``paper``) on the grid, frame by
-    frame in chunks of :data:`RANGE_CHUNK` (each frame is solved on its own, so the result is the
-    same bit for bit; the assembled ``(T, S, 25, 3)`` frames and the solvers' temporaries never
-    exist for the whole session, only the output does)."""
+    """A range method (``linear``, ``geometric``, ``nonlinear``, ``paper``) on the grid in
+    chunks of at most :data:`RANGE_CHUNK` frames, of equal size (the assembled ``(T, S, 25, 3)``
+    frames and the solvers' temporaries never exist for the whole session, only the output does).
+
+    Each frame is solved on its own, but the solvers batch the problems of a chunk by their
+    sensors' pattern, and numpy rounds a batch of a handful of problems differently from a large
+    one: a chunk of a few frames can differ from the whole session by ~1e-13 m
+    (``tests/test_bounded_memory.py``); chunks of equal size keep the last one from being a
+    few frames."""
     n_t = grid.size
     poses = np.stack([s.sensor2world for s in sensors])
     pos = np.full((n_t, N_JOINTS, 3), np.nan)
     status = np.zeros((n_t, N_JOINTS), dtype=np.int8)
     residual = np.full((n_t, N_JOINTS), np.nan)
-    for a in range(0, max(n_t, 1), RANGE_CHUNK):  # an empty grid: one empty chunk, as before
-        sl = slice(a, a + RANGE_CHUNK)
+    n_chunks = max(-(-n_t // RANGE_CHUNK), 1)  # an empty grid: one empty chunk, as before
+    bounds = [n_t * k // n_chunks for k in range(n_chunks + 1)]
+    for a, b in pairwise(bounds):
+        sl = slice(a, b)
         frames = assemble_latest(
             grid[sl],
             [s.t_server_s for s in sensors],
