@@ -113,3 +113,26 @@ def test_block_bootstrap_indices_as_the_inline_code_they_replaced() -> None:
         # within a block the frames are consecutive, wrapping at the end
         d = np.diff(idx[:, :b], axis=1) % n
         assert (d == 1).all()
+
+
+def test_block_bootstrap_sums_equal_the_whole_gather_in_any_batch(monkeypatch) -> None:
+    """The bootstrap's sums are gathered a few resamples at a time (bounded memory on long
+    sessions): the same numbers, bit for bit, as gathering every resample at once, for every
+    batch size, for per-frame and per-joint values and for counts."""
+    from kinefuse.evaluation import metrics
+    from kinefuse.evaluation.metrics import block_bootstrap_indices, block_bootstrap_sums
+
+    rng = np.random.default_rng(2)
+    for n, shape in [(1, ()), (7, ()), (3000, ()), (95, (25,)), (1200, (25,))]:
+        v = rng.normal(size=(n, *shape))
+        ok = rng.random((n, *shape)) > 0.2
+        idx = block_bootstrap_indices(n, block=30, n_boot=200, seed=5)
+        whole = [v[idx].sum(axis=1), ok[idx].sum(axis=1)]
+        for batch in (1 << 20, 5000, 1):  # one batch, some rows at a time, one row at a time
+            monkeypatch.setattr(metrics, "BOOTSTRAP_BATCH_ELEMENTS", batch)
+            got = block_bootstrap_sums([v, ok], block=30, n_boot=200, seed=5)
+            for a, b in zip(whole, got, strict=True):
+                assert a.dtype == b.dtype and a.shape == b.shape == (200, *shape)
+                np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="same number of frames"):
+        block_bootstrap_sums([np.zeros(3), np.zeros(4)], block=2, n_boot=3, seed=0)

@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter1d
 
 from kinefuse.frames.observations import BodyFrames
-from kinefuse.fusion.model import facing, rts_smooth
+from kinefuse.fusion.model import facing, rts_smooth_tape
 from kinefuse.fusion.options import BestOptions
 from kinefuse.skeleton import JOINT_INDEX, bone_index_array
 
@@ -237,14 +237,16 @@ def fuse_best(
         pos, var = r["positions"], r["variance_m2"]
     elif opt.temporal == "smoother":
         alive = np.asarray(np.isfinite(r["positions"]).all(-1))
+        for k in ("positions", "variance_m2", "status", "measurement_var"):
+            del r[k]  # the filter's own output, not needed any more: freed before the smoother
         dt = np.diff(t_grid, prepend=t_grid[:1])
         alive3 = np.repeat(alive[..., None], 3, axis=-1)
-        xs, sxx = rts_smooth(dt, r["predicted"], r["filtered"], alive3)
-        pos = np.where(alive[..., None], xs, np.nan)
+        pos, sxx = rts_smooth_tape(dt, r.pop("tape"), alive3)
+        pos[~alive] = np.nan  # in place: the smoothed positions are ours
         var = np.where(alive, sxx.mean(-1), np.nan)
+        del sxx, r["measurement"]  # (the tape's measurements)
     else:
-        pos = r["measurement"]
-        var = np.trace(r["measurement_cov"], axis1=-2, axis2=-1) / 3
+        pos, var = r["measurement"], r["measurement_var"]
     if opt.bones:
         pos, _ = enforce_bone_lengths(pos, var)
     return FusedSkeleton(

@@ -55,6 +55,7 @@ from kinefuse.fusion.model import (
     BONE_ORDER,
     BONES,
     JOINT_BONES,
+    FilterTape,
     KalmanState,
     decide_flips,
     kalman_step,
@@ -73,7 +74,7 @@ Array = NDArray[np.float64]
 
 _MIRROR = np.asarray(MIRROR_INDEX)
 #: frames whose measurements a replay prepares at once (bounds its memory)
-_CHUNK = 1024
+_CHUNK = 256
 #: hips and shoulders (left, right, left, right): the body's facing
 _FACING_JOINTS = np.array([JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "ShoulderLeft",
                                                      "ShoulderRight")])  # fmt: skip
@@ -232,10 +233,10 @@ class LiveFusion:
         self._bone_n = np.zeros(n_b, dtype=np.int64)
         self._bone_len = np.zeros(n_b)
         self._bone_var = np.zeros(n_b)
-        #: with ``record``, the filter's last predicted and updated moments (5, 25, 3), for a
-        #: smoother
+        #: with ``record``, the last frame's filter step (the time step and the measurement's
+        #: variances (25, 3)), for a smoother (:class:`~kinefuse.fusion.model.FilterTape`)
         self.record = False
-        self.last_moments: tuple[Array, Array] | None = None
+        self.last_filter_step: tuple[float, Array] | None = None
         #: the last frame's combined measurement (25, 3) and its covariance (25, 3, 3)
         self.last_measurement: tuple[Array, Array] | None = None
         #: the last frame's swap decision: the sensors mirrored back (S,), or None for none
@@ -465,10 +466,9 @@ class LiveFusion:
         d = 0.0 if self._t is None else max(t - self._t, 0.0)
         self._t = t if self._t is None else max(t, self._t)
         r = cov_x.diagonal(0, -2, -1)
-        pred, alive = kalman_step(self._kf, t, d, x, r, self._q, self.options.best.max_predict_s,
-                                  predicted=self.record)  # fmt: skip
-        if pred is not None:
-            self.last_moments = (pred, self._kf.moments())
+        if self.record:
+            self.last_filter_step = (d, r.copy())
+        _, alive = kalman_step(self._kf, t, d, x, r, self._q, self.options.best.max_predict_s)
         p = self._kf.pxx
         var = (p[:, 0] + p[:, 1] + p[:, 2]) / 3
         return self._kf.x.copy(), var, np.logical_and.reduce(alive, axis=-1)
@@ -536,7 +536,7 @@ def replay_streams(
     options: LiveOptions = LiveOptions(),
     *,
     record: bool = False,
-) -> dict[str, Array]:
+) -> dict[str, Any]:
     """Run :class:`LiveFusion` over recorded streams as a live server would have.
 
     Before frame ``T`` is fused, every observation captured up to ``T + options.latency_s`` has
@@ -555,15 +555,18 @@ def replay_streams(
     grid_s : (T,) float
         Frame times, increasing.
     record : bool
-        Also return the filter's moments and the combined measurements (for a smoother).
+        Also return the combined measurements and what a smoother needs (a
+        :class:`~kinefuse.fusion.model.FilterTape`: the filter's inputs and its state every
+        ``_CHUNK`` frames, from which its moments are recomputed a block at a time; the moments
+        of every frame, ten ``(T, 25, 3)`` arrays, are never held at once).
 
     Returns
     -------
     dict
         ``positions (T, 25, 3)``, ``variance_m2 (T, 25)``, ``status (T, 25) int8``,
         ``n_sensors (T, 25)``, ``mirrored (T, S)`` bool (the sensors whose skeleton the swap
-        vote mirrored back); with ``record``: ``predicted``, ``filtered`` ``(5, T, 25, 3)``,
-        ``measurement (T, 25, 3)``, ``measurement_cov (T, 25, 3, 3)``.
+        vote mirrored back); with ``record``: ``measurement (T, 25, 3)``, the trace of its
+        covariance / 3 ``measurement_var (T, 25)`` and ``tape`` (a ``FilterTape``).
     """
     fusion = LiveFusion(sensor2world, options)
     fusion.record = record
@@ -577,19 +580,23 @@ def replay_streams(
             raise FusionError(f"sensor {s.sensor_id!r}: capture times must be finite")
         inc = s.t_server_s.size < 2 or bool((np.diff(s.t_server_s) >= 0).all())
         ordered.append(s if inc else s.take(np.argsort(s.t_server_s, kind="stable")))
-    out = {
+    out: dict[str, Any] = {
         "positions": np.full((n_t, N_JOINTS, 3), np.nan),
         "variance_m2": np.full((n_t, N_JOINTS), np.nan),
         "status": np.full((n_t, N_JOINTS), FusionStatus.NO_DATA, dtype=np.int8),
         "n_sensors": np.zeros((n_t, N_JOINTS), dtype=np.intp),
         "mirrored": np.zeros((n_t, n_s), dtype=bool),
     }
+    checkpoints: list[KalmanState] = []
     if record:
-        out["predicted"] = np.full((5, n_t, N_JOINTS, 3), np.nan)
-        out["filtered"] = np.full((5, n_t, N_JOINTS, 3), np.nan)
         out["measurement"] = np.full((n_t, N_JOINTS, 3), np.nan)
-        out["measurement_cov"] = np.full((n_t, N_JOINTS, 3, 3), np.nan)
+        out["measurement_var"] = np.full((n_t, N_JOINTS), np.nan)
+        step_d = np.zeros(n_t)
+        step_r = np.full((n_t, N_JOINTS, 3), np.nan)
     for a in range(0, n_t, _CHUNK):
+        if record:  # the filter's state before the chunk: where a smoother's block restarts
+            kf = fusion._kf
+            checkpoints.append(KalmanState(kf.m.copy(), kf.started.copy(), kf.last_seen.copy()))
         tg = grid[a : a + _CHUNK]
         avail = tg + options.latency_s
         m = tg.size
@@ -621,6 +628,7 @@ def replay_streams(
             cg[tt, ss] = cov[tt, ss][:, _MIRROR]
         x, cov_x, used = fusion._combine(zg, cg)
         steps = []
+        covs = []
         for k in range(m):
             ev = None if evidence is None else (evidence[0][k], evidence[1][k], evidence[2][k])
             guess = _Guess(flips[k], x[k], cov_x[k], used[k])
@@ -628,15 +636,24 @@ def replay_streams(
             if fusion.last_flips is not None:
                 out["mirrored"][a + k] = fusion.last_flips
             if record:
-                assert fusion.last_moments is not None and fusion.last_measurement is not None
+                assert fusion.last_filter_step is not None and fusion.last_measurement is not None
                 g = a + k
-                out["predicted"][:, g], out["filtered"][:, g] = fusion.last_moments
-                out["measurement"][g], out["measurement_cov"][g] = fusion.last_measurement
+                step_d[g], step_r[g] = fusion.last_filter_step
+                out["measurement"][g], cov_k = fusion.last_measurement
+                covs.append(cov_k)
         sl = slice(a, a + m)
+        if record:
+            out["measurement_var"][sl] = np.trace(np.stack(covs), axis1=-2, axis2=-1) / 3
         stacked = [np.stack(v) for v in zip(*steps, strict=True)]
         res = fusion._finish(*stacked)
         out["positions"][sl], out["variance_m2"][sl], out["status"][sl] = res[:3]
         out["n_sensors"][sl] = res[3]
+    if record:
+        out["tape"] = FilterTape(
+            t=grid, d=step_d, z=out["measurement"], r=step_r, q=fusion._q,
+            max_predict_s=options.best.max_predict_s, every=_CHUNK,
+            checkpoints=tuple(checkpoints),
+        )  # fmt: skip
     return out
 
 

@@ -14,7 +14,9 @@ fusion.
 - :func:`swap_evidence`: what each sensor's skeleton says about the body's facing;
 - :func:`robust_combine`: covariance-weighted, Huber-robust combination across sensors;
 - :class:`KalmanState`, :func:`kalman_step`, :func:`rts_smooth`: the constant-velocity filter
-  per joint and axis, and the Rauch-Tung-Striebel smoother over its recorded states.
+  per joint and axis, and the Rauch-Tung-Striebel smoother over its recorded states
+  (:func:`rts_smooth_tape`: the same, block by block over a :class:`FilterTape`, in memory
+  that does not grow with the session).
 """
 
 from __future__ import annotations
@@ -531,6 +533,15 @@ def rts_smooth(
     -------
     positions (T, J, 3), position variance per axis (T, J, 3)
     """
+    sm = _rts_moments(dt, predicted, filtered, alive)
+    return sm[0], sm[2]
+
+
+def _rts_moments(dt: Array, predicted: Array, filtered: Array, alive: NDArray[np.bool_]) -> Array:
+    """:func:`rts_smooth`'s recursion; returns all five smoothed moments ``(5, T, J, 3)``. The
+    last frame's smoothed moments are its ``filtered`` ones: a block of a longer sequence is
+    smoothed exactly when its last frame holds the smoothed moments of that frame
+    (:func:`rts_smooth_tape`)."""
     xf, vf, fxx, fxv, fvv = filtered
     xp, vp, qxx, qxv, qvv = predicted
     n_t = xf.shape[0]
@@ -544,8 +555,8 @@ def rts_smooth(
         i11, i12, i22 = b22 / det, -b12 / det, b11 / det
     c11, c12 = a11 * i11 + a12 * i12, a11 * i12 + a12 * i22
     c21, c22 = a21 * i11 + a22 * i12, a21 * i12 + a22 * i22
-    xs, vs, sxx = xf.copy(), vf.copy(), fxx.copy()
-    sxv, svv = fxv.copy(), fvv.copy()
+    sm = np.array(filtered, dtype=np.float64, copy=True)
+    xs, vs, sxx, sxv, svv = sm
     for k in range(n_t - 2, -1, -1):
         ok = alive[k] & alive[k + 1]
         dx, dv = xs[k + 1] - xp[k + 1], vs[k + 1] - vp[k + 1]
@@ -561,4 +572,61 @@ def rts_smooth(
         sxx[k] = np.where(ok, fxx[k] + m11 * c11[k] + m12 * c12[k], fxx[k])
         sxv[k] = np.where(ok, fxv[k] + m11 * c21[k] + m12 * c22[k], fxv[k])
         svv[k] = np.where(ok, fvv[k] + m21 * c21[k] + m22 * c22[k], fvv[k])
+    return sm
+
+
+@dataclass(frozen=True, eq=False)
+class FilterTape:
+    """What the smoother needs of a filter's run, kept in memory of the size of the output: each
+    frame's time, step and measurement (``z`` and its variances ``r``, ``(T, J, 3)``) and a copy
+    of the filter's state before every ``every``-th frame. The filter's moments (ten arrays of
+    that size) are recomputed from them a block at a time (:meth:`moments`), bit for bit what
+    the run computed: :func:`kalman_step` on the same state and inputs."""
+
+    t: Array
+    d: Array
+    z: Array
+    r: Array
+    q: Array
+    max_predict_s: float
+    every: int
+    checkpoints: tuple[KalmanState, ...]
+
+    def moments(self, a: int, b: int) -> tuple[Array, Array]:
+        """The predicted and filtered moments ``(5, b - a, J, 3)`` of frames ``a`` to ``b - 1``
+        (``a`` a multiple of ``every``)."""
+        if a % self.every or not 0 <= a < b <= self.t.size:
+            raise ValueError(f"moments({a}, {b}): a must be a multiple of {self.every}, < b")
+        c = self.checkpoints[a // self.every]
+        s = KalmanState(c.m.copy(), c.started.copy(), c.last_seen.copy())
+        n_j = s.m.shape[1]
+        pred = np.empty((5, b - a, n_j, 3))
+        filt = np.empty((5, b - a, n_j, 3))
+        for i, k in enumerate(range(a, b)):
+            p, _ = kalman_step(s, float(self.t[k]), float(self.d[k]), self.z[k], self.r[k],
+                               self.q, self.max_predict_s, predicted=True)  # fmt: skip
+            assert p is not None
+            pred[:, i], filt[:, i] = p, s.m
+        return pred, filt
+
+
+def rts_smooth_tape(dt: Array, tape: FilterTape, alive: NDArray[np.bool_]) -> tuple[Array, Array]:
+    """:func:`rts_smooth` over a :class:`FilterTape`, backwards a block of ``tape.every`` frames at
+    a time (each block's moments recomputed, then smoothed from the next block's first frame):
+    the same result bit for bit, in memory that does not grow with the number of frames beyond
+    the tape and the output (``positions, variance per axis (T, J, 3)``)."""
+    n_t = tape.t.size
+    n_j = tape.z.shape[1]
+    xs = np.empty((n_t, n_j, 3))
+    sxx = np.empty((n_t, n_j, 3))
+    carry: Array | None = None  # smoothed moments (5, J, 3) of the first frame after the block
+    for a in reversed(range(0, n_t, tape.every)):
+        b = min(a + tape.every, n_t)
+        end = min(b + 1, n_t)  # one frame into the next block: its predicted moments
+        pred, filt = tape.moments(a, end)
+        if carry is not None:
+            filt[:, -1] = carry
+        sm = _rts_moments(dt[a:end], pred, filt, alive[a:end])
+        xs[a:b], sxx[a:b] = sm[0, : b - a], sm[2, : b - a]
+        carry = sm[:, 0]
     return xs, sxx

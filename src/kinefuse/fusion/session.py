@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,9 +24,14 @@ from kinefuse.fusion.best import BestOptions, fuse_best
 from kinefuse.fusion.methods import METHODS
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
+from kinefuse.skeleton import N_JOINTS
 from kinefuse.sync import ClockEstimate, SensorTimebase, assemble_latest
 
 Array = NDArray[np.float64]
+
+#: frames a range method assembles and solves at once (its memory grows with this, not with the
+#: session)
+RANGE_CHUNK = 1024
 
 #: The methods ``kinefuse fuse`` and ``evaluate`` know, in the paper's order, then ours (offline
 #: ``best`` and the causal ``best-live`` a live server runs).
@@ -180,13 +186,52 @@ def run_method(
         )
         residual = np.sqrt(3.0 * fused.variance_m2)
     else:
+        pos, status, residual = _run_range(
+            sensors, grid, method, c_threshold=c_threshold,
+            occlusion_compensation=occlusion_compensation,
+        )  # fmt: skip
+    return MethodResult(
+        method=method,
+        t_server_s=grid,
+        positions=pos,
+        status=np.asarray(status, dtype=np.int8),
+        seconds=float("nan"),
+        residual_m=residual,
+    )
+
+
+def _run_range(
+    sensors: Sequence[CalibratedSensor],
+    grid: Array,
+    method: str,
+    *,
+    c_threshold: float,
+    occlusion_compensation: bool,
+) -> tuple[Array, NDArray[np.int8], Array]:
+    """A range method (``linear``, ``geometric``, ``nonlinear``, ``paper``) on the grid in
+    chunks of at most :data:`RANGE_CHUNK` frames, of equal size (the assembled ``(T, S, 25, 3)``
+    frames and the solvers' temporaries never exist for the whole session, only the output does).
+
+    Each frame is solved on its own, but the solvers batch the problems of a chunk by their
+    sensors' pattern, and numpy rounds a batch of a handful of problems differently from a large
+    one: a chunk of a few frames can differ from the whole session by ~1e-13 m
+    (``tests/test_bounded_memory.py``); chunks of equal size keep the last one from being a
+    few frames."""
+    n_t = grid.size
+    poses = np.stack([s.sensor2world for s in sensors])
+    pos = np.full((n_t, N_JOINTS, 3), np.nan)
+    status = np.zeros((n_t, N_JOINTS), dtype=np.int8)
+    residual = np.full((n_t, N_JOINTS), np.nan)
+    n_chunks = max(-(-n_t // RANGE_CHUNK), 1)  # an empty grid: one empty chunk, as before
+    bounds = [n_t * k // n_chunks for k in range(n_chunks + 1)]
+    for a, b in pairwise(bounds):
+        sl = slice(a, b)
         frames = assemble_latest(
-            grid,
+            grid[sl],
             [s.t_server_s for s in sensors],
             [s.observations.joints_m for s in sensors],
             [s.observations.states for s in sensors],
         )
-        poses = np.stack([s.sensor2world for s in sensors])
         occlusion = None
         if method == "paper":
             occ = np.zeros(frames.states.shape, dtype=bool)
@@ -207,16 +252,9 @@ def run_method(
             occlusion=occlusion if occlusion_compensation else None,
             c_threshold=c_threshold,
         )
-        pos, status = res.positions, res.status
-        residual = _range_residual(pos, frames.joints, poses, res.used)
-    return MethodResult(
-        method=method,
-        t_server_s=grid,
-        positions=pos,
-        status=np.asarray(status, dtype=np.int8),
-        seconds=float("nan"),
-        residual_m=residual,
-    )
+        pos[sl], status[sl] = res.positions, res.status
+        residual[sl] = _range_residual(res.positions, frames.joints, poses, res.used)
+    return pos, status, residual
 
 
 def _range_residual(

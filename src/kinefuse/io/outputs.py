@@ -21,7 +21,7 @@ import os
 import shutil
 import sqlite3
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from kinefuse.errors import OutputError
@@ -200,6 +200,19 @@ def atomic_write_text(
     """Write ``text`` (UTF-8) to ``path`` through :func:`atomic_file`; return the path."""
     with atomic_file(path, what=what, recognizer=recognizer) as tmp:
         tmp.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def atomic_write_lines(
+    path: str | os.PathLike[str], lines: Iterable[str], *, what: str, recognizer: Recognizer
+) -> Path:
+    """:func:`atomic_write_text` of the lines' concatenation, written as they come (a long
+    table is never one string in memory); the same bytes."""
+    with (
+        atomic_file(path, what=what, recognizer=recognizer) as tmp,
+        open(tmp, "w", encoding="utf-8") as f,
+    ):
+        f.writelines(lines)
     return Path(path)
 
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.evaluation.metrics import block_bootstrap_indices
+from kinefuse.evaluation.metrics import block_bootstrap_sums
 from kinefuse.evaluation.report_facts import SessionFacts
 from kinefuse.fusion.session import MethodResult
 from kinefuse.report import html_plots as hp
@@ -50,9 +50,10 @@ def mae_intervals(
     if n == 0:
         nan = np.full(len(JOINTS), np.nan)
         return (math.nan, math.nan), (nan, nan)
-    idx = block_bootstrap_indices(n, block=block, n_boot=n_boot, seed=seed)
-    sums = s[idx].sum(axis=1)  # (n_boot, 25)
-    cnts = ok[idx].sum(axis=1).astype(np.float64)
+    sums, cnts = block_bootstrap_sums(
+        [s, ok], block=block, n_boot=n_boot, seed=seed
+    )  # (n_boot, 25)
+    cnts = cnts.astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         per = sums / cnts
         tot = sums.sum(axis=1) / cnts.sum(axis=1)

@@ -20,10 +20,9 @@ file goes through a temporary file and an atomic rename. Formats in ``docs/analy
 
 from __future__ import annotations
 
-import io
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -35,6 +34,7 @@ from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError, OutputError
 from kinefuse.io.outputs import (
     atomic_dir,
+    atomic_write_lines,
     atomic_write_text,
     check_output_folder,
     never_replace,
@@ -259,19 +259,20 @@ def write_limb_frames(path: Path, t_s: Array, limbs: Sequence[str], transforms: 
     z (up in the default pose) of the limb's normalized frame in world coordinates; empty cells
     where the limb is missing.
     """
-    buf = io.StringIO()
-    buf.write("time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n")
     origin = transforms[..., :3, 3]
     axes = np.swapaxes(transforms[..., :3, :3], -1, -2).reshape(*transforms.shape[:2], 9)
     vals = np.concatenate([origin, axes], axis=-1)  # (T, L, 12)
-    for k in range(vals.shape[0]):
-        tk = f"{t_s[k]:.6f}"
-        for i, name in enumerate(limbs):
-            row = vals[k, i]
-            cells = ",".join("" if not np.isfinite(v) else f"{v:.6f}" for v in row)
-            buf.write(f"{tk},{name},{cells}\n")
-    return atomic_write_text(path, buf.getvalue(), what="limb frames file",
-                             recognizer=never_replace)  # fmt: skip
+
+    def lines() -> Iterator[str]:
+        yield "time_s,limb,origin_x_m,origin_y_m,origin_z_m,x_x,x_y,x_z,y_x,y_y,y_z,z_x,z_y,z_z\n"
+        for k in range(vals.shape[0]):
+            tk = f"{t_s[k]:.6f}"
+            for i, name in enumerate(limbs):
+                row = vals[k, i]
+                cells = ",".join("" if not np.isfinite(v) else f"{v:.6f}" for v in row)
+                yield f"{tk},{name},{cells}\n"
+
+    return atomic_write_lines(path, lines(), what="limb frames file", recognizer=never_replace)
 
 
 def _choose_phase(

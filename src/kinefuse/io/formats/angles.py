@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import io
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse import __version__
 from kinefuse.analysis.gaps import MAX_GAP_S, fill_short_gaps, missing_runs
 from kinefuse.errors import InputError
-from kinefuse.io.outputs import atomic_write_text
+from kinefuse.io.outputs import atomic_write_lines, atomic_write_text
 
 #: what each writer's file is, for messages
 _WHAT = {".csv": "angles file", ".mot": "OpenSim motion file"}
@@ -164,10 +164,12 @@ def write_angles_csv(
     for n in [*label.values(), *joints.values(), *meth.values()]:
         if any(c in n for c in ',"\n\r'):
             raise InputError(f"angle and joint names cannot hold commas, quotes or newlines: {n!r}")
-    buf = io.StringIO()
-    buf.write(_CSV_HEADER + "\n")
     names = list(ang)
-    if names:
+
+    def lines() -> Iterator[str]:
+        yield _CSV_HEADER + "\n"
+        if not names:
+            return
         vals = np.stack([ang[n] for n in names], axis=1)  # (T, A)
         flags = np.stack([fl[n] for n in names], axis=1)
         heads = [f"{joints[n]},{label[n]},{meth[n]}" for n in names]
@@ -176,8 +178,12 @@ def write_angles_csv(
             for i, head in enumerate(heads):
                 v = vals[k, i]
                 cell = "" if not np.isfinite(v) else f"{v:.4f}"
-                buf.write(f"{tk},{head},{cell},{int(flags[k, i])}\n")
-    return _write(path, buf.getvalue(), overwrite, is_angles_csv)
+                yield f"{tk},{head},{cell},{int(flags[k, i])}\n"
+
+    what = _WHAT.get(Path(path).suffix.lower(), "angles file")
+    return atomic_write_lines(
+        path, lines(), what=what, recognizer=lambda p: overwrite and is_angles_csv(p)
+    )
 
 
 @dataclass(frozen=True, eq=False)

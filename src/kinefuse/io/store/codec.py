@@ -11,6 +11,8 @@ import contextlib
 import json
 import sqlite3
 import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -113,14 +115,17 @@ def _blobs(a: np.ndarray, dtype: np.dtype) -> list[bytes]:
     return [r.tobytes() for r in flat]
 
 
-def _unblob(blobs: list[bytes], dtype: np.dtype, shape: tuple[int, ...], what: str) -> NDArray[Any]:
-    """Stack BLOBs into ``(len(blobs), *shape)``; a :class:`StoreError` on a size mismatch."""
+def _unblob(
+    blobs: Sequence[bytes], dtype: np.dtype, shape: tuple[int, ...], what: str, first_row: int = 0
+) -> NDArray[Any]:
+    """Stack BLOBs into ``(len(blobs), *shape)``; a :class:`StoreError` on a size mismatch
+    (naming the row, counted from ``first_row``)."""
     n_bytes = int(np.prod(shape)) * dtype.itemsize
     if blobs and any(len(b) != n_bytes for b in blobs):
         i = next(i for i, b in enumerate(blobs) if len(b) != n_bytes)
         raise StoreError(
-            f"{what}: row {i} holds {len(blobs[i])} bytes where {n_bytes} were expected "
-            f"(shape {shape}, {dtype}); the store is corrupt"
+            f"{what}: row {first_row + i} holds {len(blobs[i])} bytes where {n_bytes} were "
+            f"expected (shape {shape}, {dtype}); the store is corrupt"
         )
     buf = b"".join(blobs)
     out = np.frombuffer(buf, dtype=dtype).reshape((len(blobs), *shape))
@@ -173,6 +178,69 @@ def decode_depth(blob: bytes, height: int, width: int) -> NDArray[np.uint16]:
     out = np.zeros(n, dtype=np.uint16)
     out[valid] = (np.cumsum(dv) & 0xFFFF).astype(np.uint16)
     return out.reshape(height, width)
+
+
+#: rows a reader converts at once: a whole recording is never held as Python rows (about 1 kB a
+#: frame), only as the arrays it is read into
+READ_BATCH = 4096
+
+
+@dataclass(frozen=True)
+class Blob:
+    """A BLOB column of :func:`read_columns`: ``dtype`` items of ``shape`` per row; ``nullable``:
+    NULL rows read as zeros and are marked in the column's mask."""
+
+    dtype: np.dtype
+    shape: tuple[int, ...]
+    nullable: bool = False
+
+
+#: a column of :func:`read_columns`: ``"f8"`` (NULL: NaN), ``"i8"`` (NULL: 0) or a :class:`Blob`
+Column = str | Blob
+
+
+def read_columns(
+    cursor: sqlite3.Cursor, columns: Sequence[Column], what: str
+) -> tuple[list[NDArray[Any]], list[NDArray[np.bool_] | None]]:
+    """A query's rows, fetched :data:`READ_BATCH` at a time, as one array per column, and per
+    nullable BLOB column the rows that were not NULL (None for the other columns).
+
+    The same arrays as converting ``fetchall()`` at once; without its list of every row."""
+    parts: list[list[NDArray[Any]]] = [[] for _ in columns]
+    masks: list[list[NDArray[np.bool_]]] = [[] for _ in columns]
+    n = 0
+    while rows := cursor.fetchmany(READ_BATCH):
+        cols = list(zip(*rows, strict=True))
+        for i, kind in enumerate(columns):
+            c = cols[i]
+            if isinstance(kind, Blob):
+                if kind.nullable:
+                    have = np.array([b is not None for b in c], dtype=bool)
+                    blank = bytes(int(np.prod(kind.shape)) * kind.dtype.itemsize)
+                    c = tuple(blank if b is None else b for b in c)
+                    masks[i].append(have)
+                parts[i].append(_unblob(c, kind.dtype, kind.shape, what, first_row=n))
+            elif kind == "f8":
+                parts[i].append(np.array(c, dtype=np.float64).reshape(len(c)))
+            elif kind == "i8":
+                parts[i].append(np.array([v or 0 for v in c], dtype=np.int64).reshape(len(c)))
+            else:
+                raise ValueError(f"unknown column kind {kind!r}")
+        n += len(rows)
+    out: list[NDArray[Any]] = []
+    for kind, p in zip(columns, parts, strict=True):
+        if p:
+            out.append(p[0] if len(p) == 1 else np.concatenate(p))
+        elif isinstance(kind, Blob):
+            out.append(np.zeros((0, *kind.shape), dtype=kind.dtype.newbyteorder("=")))
+        else:
+            out.append(np.zeros(0, dtype=np.float64 if kind == "f8" else np.int64))
+    have_out: list[NDArray[np.bool_] | None] = [
+        (np.concatenate(m) if m else np.zeros(0, bool)) if isinstance(k, Blob) and k.nullable
+        else None
+        for k, m in zip(columns, masks, strict=True)
+    ]  # fmt: skip
+    return out, have_out
 
 
 def _column(rows: list[tuple[Any, ...]], i: int) -> Array:

@@ -21,6 +21,7 @@ from kinefuse.io.store.codec import (
     _I1,
     _U1,
     _U2,
+    Blob,
     StorePart,
     _blobs,
     _check_shape,
@@ -31,9 +32,9 @@ from kinefuse.io.store.codec import (
     _require_no_inf,
     _require_same_length,
     _require_unique,
-    _unblob,
     decode_depth,
     encode_depth,
+    read_columns,
 )
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
@@ -204,29 +205,31 @@ class SensorStreams(StorePart):
         host = ", t_receive_host_s" if self._has_host_time else ", NULL"
         occ = ", occluded, n_crossings" if self._has_client_occlusion else ", NULL, NULL"
         after = -(2**63) if since_seq is None else int(since_seq)
-        rows = self._db.execute(
+        cur = self._db.execute(
             "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
             f"{host}{occ} FROM observations WHERE sensor_key = ? AND seq > ? ORDER BY seq",
             (key, after),
-        ).fetchall()
-        flags = [r[6] for r in rows]
-        have = [f is not None for f in flags]
+        )
+        cols, have = read_columns(
+            cur,
+            ["i8", "f8", "f8", Blob(_F8, (N_JOINTS, 3)), Blob(_I1, (N_JOINTS,)), "f8",
+             Blob(_U1, (N_JOINTS,), nullable=True), "i8"],
+            what,
+        )  # fmt: skip
+        seq, t_device, t_server, joints, states, t_host, flags, n_cross = cols
+        flagged = have[6]
+        assert flagged is not None
         occluded = crossings = None
-        if rows and all(have):
-            occluded = _unblob(flags, _U1, (N_JOINTS,), what).astype(bool)
-            crossings = np.array([r[7] for r in rows], dtype=np.int64)
-        elif any(have):  # some frames without flags: NULL rows count as not occluded
-            blank = bytes(N_JOINTS)
-            occluded = _unblob([f or blank for f in flags], _U1, (N_JOINTS,), what).astype(bool)
-            crossings = np.array([r[7] or 0 for r in rows], dtype=np.int64)
+        if flagged.any():  # frames without flags (NULL rows) count as not occluded
+            occluded, crossings = flags.astype(bool), n_cross
         return BodyFrames(
             sensor_id=sensor_id,
-            seq=np.array([r[0] for r in rows], dtype=np.int64),
-            t_device_s=_column(rows, 1),
-            joints_m=_unblob([r[3] for r in rows], _F8, (N_JOINTS, 3), what),
-            states=_unblob([r[4] for r in rows], _I1, (N_JOINTS,), what),
-            t_receive_server_s=_column(rows, 2),
-            t_host_s=_column(rows, 5),
+            seq=seq,
+            t_device_s=t_device,
+            joints_m=joints,
+            states=states,
+            t_receive_server_s=t_server,
+            t_host_s=t_host,
             occluded=occluded,
             n_crossings=crossings,
         )
@@ -237,13 +240,13 @@ class SensorStreams(StorePart):
         checks of a whole recording that must not load it all."""
         key = self._key(sensor_id, f"observation times of sensor {sensor_id!r}")
         host = ", t_receive_host_s" if self._has_host_time else ", NULL"
-        rows = self._db.execute(
+        cur = self._db.execute(
             f"SELECT seq, t_sensor_s, t_receive_server_s{host} FROM observations "
             "WHERE sensor_key = ? ORDER BY seq",
             (key,),
-        ).fetchall()
-        seq = np.array([r[0] for r in rows], dtype=np.int64)
-        return seq, _column(rows, 1), _column(rows, 2), _column(rows, 3)
+        )
+        (seq, t_sensor, t_server, t_host), _ = read_columns(cur, ["i8", "f8", "f8", "f8"], "")
+        return seq, t_sensor, t_server, t_host
 
     def observation_count(self, sensor_id: str) -> int:
         """Number of observation frames stored for one sensor."""

@@ -20,10 +20,10 @@ from kinefuse.geometry.transforms import check_rigid
 from kinefuse.io.store.codec import (
     _F8,
     _U1,
+    Blob,
     StorePart,
     _blobs,
     _check_shape,
-    _column,
     _float_array,
     _int_array,
     _json_dumps,
@@ -32,6 +32,7 @@ from kinefuse.io.store.codec import (
     _require_same_length,
     _require_unique,
     _unblob,
+    read_columns,
 )
 from kinefuse.skeleton import N_JOINTS
 
@@ -257,13 +258,13 @@ class Truth:
     def motion(self) -> tuple[Array, Array, NDArray[np.bool_]]:
         """``(t_s (T,), joints_world (T, 25, 3), synthesized (25,) bool)``."""
         db = self._store._db
-        rows = db.execute("SELECT t_s, joints_m FROM truth_motion ORDER BY frame").fetchall()
+        cur = db.execute("SELECT t_s, joints_m FROM truth_motion ORDER BY frame")
+        (t, joints), _ = read_columns(cur, ["f8", Blob(_F8, (N_JOINTS, 3))], "truth motion")
         info = db.execute("SELECT value FROM truth_info WHERE key = 'synthesized'").fetchone()
-        if not rows or info is None:
+        if not t.size or info is None:
             raise StoreError(f"{self._store.path.name} holds no true motion")
         syn = np.array(json.loads(info[0]), dtype=bool)
-        joints = _unblob([r[1] for r in rows], _F8, (N_JOINTS, 3), "truth motion")
-        return _column(rows, 0), joints, syn
+        return t, joints, syn
 
     def info(self, key: str) -> object | None:
         """The truth stored under ``key`` by :meth:`SessionStore.write_truth_info`, or None."""
@@ -292,19 +293,15 @@ class Truth:
         """
         what = f"truth observations of sensor {sensor_id!r}"
         key = self._store._key(sensor_id, what)
-        rows = self._store._db.execute(
+        cur = self._store._db.execute(
             "SELECT seq, t_true_s, joints_m, visible, swapped FROM truth_observations "
             "WHERE sensor_key = ? ORDER BY seq",
             (key,),
-        ).fetchall()
-        vis = _unblob([r[3] for r in rows], _U1, (N_JOINTS,), what)
-        return (
-            np.array([r[0] for r in rows], dtype=np.int64),
-            _column(rows, 1),
-            _unblob([r[2] for r in rows], _F8, (N_JOINTS, 3), what),
-            vis.astype(bool),
-            np.array([r[4] for r in rows], dtype=bool).reshape(len(rows)),
         )
+        (seq, t, joints, vis, swapped), _ = read_columns(
+            cur, ["i8", "f8", Blob(_F8, (N_JOINTS, 3)), Blob(_U1, (N_JOINTS,)), "i8"], what
+        )
+        return seq, t, joints, vis.astype(bool), swapped.astype(bool)
 
     def wand(self) -> tuple[Array, Array]:
         """``(t_s (T,), centre_world (T, 3))``; empty arrays if no wand was simulated."""
