@@ -116,3 +116,15 @@ def test_evaluate_uses_the_real_sensors(poisoned, capsys) -> None:
     reasons(e)
     assert main(["evaluate", str(poisoned), "--methods", "linear"]) == 0  # stored calibration
     assert "note: sensor fz1 left out" in capsys.readouterr().out
+
+
+def test_analyze_uses_the_real_sensors(poisoned, tmp_path, capsys) -> None:
+    # analyze fuses the session itself: it screens the sensors as fuse does, and warns of each
+    capsys.readouterr()
+    code = main(["analyze", str(poisoned), "--out", str(tmp_path / "an"), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    r = json.loads(out)
+    r = r["inputs"][0] if "inputs" in r else r
+    assert sorted(r["fusion"]["left_out"]) == sorted(FUZZ)
+    assert any("sensor fz1 left out of the fusion" in w for w in r["warnings"])

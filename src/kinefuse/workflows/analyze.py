@@ -81,13 +81,13 @@ def sequence_from_session(
     from kinefuse.fusion.methods import METHODS
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.analysis import limb_sensor_counts
-    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.session import frame_grid, load_usable_sensors, run_method
 
     if method not in METHODS:
         raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
     with SessionStore.open(path) as store:
         poses, source = resolve_poses(store, calibration, true_calibration)
-        sensors = load_sensors(store, poses)
+        sensors, screen = load_usable_sensors(store, poses)
         grid = frame_grid(sensors)
         res = run_method(sensors, grid, method)
         meta = store.meta()
@@ -115,7 +115,12 @@ def sequence_from_session(
         kind="session",
         seq=seq,
         stored_phase_s=stored,
-        fusion={"method": method, "calibration": source, "frames": int(grid.size)},
+        fusion={
+            "method": method,
+            "calibration": source,
+            "frames": int(grid.size),
+            "left_out": dict(screen.left_out),
+        },
         sensor_poses={k: np.asarray(v, dtype=np.float64) for k, v in poses.items()},
         limb_sensors=counts,
         stored_static_s=stored_static,

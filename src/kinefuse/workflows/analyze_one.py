@@ -211,6 +211,8 @@ def analyse_one(
         )
     if inp.fusion is not None:
         report["fusion"] = inp.fusion
+        for sid, why in inp.fusion.get("left_out", {}).items():
+            report["warnings"].append(f"sensor {sid} left out of the fusion: {why}")
     if seen is not None:
         report["calibration_phase"]["seen"] = seen
         if seen["not_seen"]:
