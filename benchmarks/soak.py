@@ -387,7 +387,11 @@ async def soak(
 
 
 def check_recording(
-    rec: Path, sent: dict[str, int], frames_fused: int, frames_skipped: int
+    rec: Path,
+    sent: dict[str, int],
+    frames_fused: int,
+    frames_skipped: int,
+    late_dropped: dict[str, int],
 ) -> dict[str, Any]:
     """Open the recording read-only; is it complete?"""
     from kinefuse.io.store.live import live_fused
@@ -401,8 +405,10 @@ def check_recording(
         frames = np.asarray(lf.frame)
     # frame numbers count frame times: the ones the loop skipped (it fell behind) are holes
     holes = int(frames[-1] - frames[0] + 1 - frames.size) if frames.size else 0
-    # a sensor's last frames may still be in flight when it stops: 1 s of them at most
-    missing = {sid: sent[sid] - n_obs.get(sid, 0) for sid in sent}
+    # a sensor's last frames may still be in flight when it stops: 1 s of them at most; the
+    # frames the server dropped as too late (a stalled sensor's backlog: live_run.sensors.*.
+    # late_dropped) are not recorded either, by its rule: counted apart
+    missing = {sid: sent[sid] - n_obs.get(sid, 0) - late_dropped.get(sid, 0) for sid in sent}
     ok = (
         complete
         and ids == set(sent)
@@ -416,6 +422,7 @@ def check_recording(
         "observations": n_obs,
         "sent": sent,
         "missing": missing,
+        "late_dropped": late_dropped,
         "fused_frames": int(frames.size),
         "frames_published": frames_fused,
         "frame_holes": holes,
@@ -570,7 +577,11 @@ def main() -> None:
             sys.exit(f"the server exited {server.returncode}:\n{log_tail}")
         st = run["run_stats"]
         recording = check_recording(
-            rec, sent, int(st.get("frames_fused", -1)), int(st.get("frames_skipped", -1))
+            rec,
+            sent,
+            int(st.get("frames_fused", -1)),
+            int(st.get("frames_skipped", -1)),
+            {k: int(v.get("late_dropped", 0)) for k, v in st.get("sensors", {}).items()},
         )
     figures = judge(run["samples"], seconds)
     checks = {
@@ -594,7 +605,9 @@ def main() -> None:
           f"recording: {recording['frame_holes']})")  # fmt: skip
     print(f"  recording: complete {recording['complete']}, sensors {len(recording['sensors'])}, "
           f"observations {sum(recording['observations'].values())} of "
-          f"{sum(sent.values())} sent (missing per sensor {recording['missing']})")  # fmt: skip
+          f"{sum(sent.values())} sent; dropped by the server as late (not recorded, its rule): "
+          f"{sum(recording['late_dropped'].values())}; otherwise missing per sensor "
+          f"{recording['missing']}")  # fmt: skip
     for what, ok in checks.items():
         print(f"  {what}: {'yes' if ok else 'NO'}")
     title = (f"soak: {a.sensors} sensors, viewer + subscriber + recorder, {a.minutes:g} min "

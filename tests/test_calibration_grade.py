@@ -91,7 +91,7 @@ def test_a_well_seen_wand_is_good_and_its_halves_agree() -> None:
     ("what", "seed", "kw", "late_s"),
     [
         ("few sightings (60 % of the depth frames lost)", 2, {"dropout": 0.6}, 0.0),
-        ("one sensor's times 20 ms late", 2, {}, 0.020),
+        ("one sensor's times 14 ms late", 2, {}, 0.014),
     ],
 )
 def test_worse_than_its_residuals_say_is_not_good(
@@ -106,6 +106,6 @@ def test_worse_than_its_residuals_say_is_not_good(
     assert err > 0.003, f"{what}: the case should be more than 3 mm off (is {1e3 * err:.1f} mm)"
     # the residuals and counts alone call it good; the halves do not
     alone = grade_calibration(out.registration)
-    assert alone.grade == "good" or late_s, alone.reasons
+    assert alone.grade == "good", alone.reasons
     assert out.grade.grade in ("doubtful", "failed"), (what, out.grade.reasons)
     assert any("halves" in r for r in out.grade.reasons), out.grade.reasons
