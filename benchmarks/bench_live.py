@@ -12,6 +12,12 @@ the same frames, and the calibration's error.
 Targets (issue 11): under 120 s; with jitter: clock p50 < 0.5 ms, max < 2 ms, latency p99 < 50 ms,
 live MAE within 15 % of offline ``best``.
 
+``--load [--hogs N] [--runs K]`` (issue 23): K demo runs (plain loopback) each beside N CPU hogs
+(``while True: pass`` processes, default one per CPU); per run the live calibration's mean and
+worst sensor error against the true rig, its grade and the server's reasons, and whether every
+run more than 3 mm off was graded doubtful or failed (``--load --smoke``: one 2-sensor run
+beside one hog).
+
 ``--smoke``: the jitter run only, 2 sensors, 3 s of motion (after the demo's wand phase), to check
 that it runs; exit 0 whatever the figures. Every run is bounded: a demo still running after its
 time limit gets SIGTERM (it then stops its own processes: a clean stop, then a kill), then SIGKILL.

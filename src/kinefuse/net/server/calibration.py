@@ -345,7 +345,8 @@ def solve_calibration(job: SolveInput) -> CalibrationOutcome:
                 "sensors' view while the calibration runs"
             )
         reg = _against_fixed(job, use) if fixed else _register_all(job, use)
-        halves = check_halves(job, use)
+        # (the paper's method rests on the protocol's two holds, which halves would split)
+        halves = check_halves(job, use) if method == "full" else None
         grade = grade_calibration(reg, job.floors, halves)
         if missing:
             grade = Grade(
