@@ -354,8 +354,10 @@ def calibration_figures(store: SessionStore) -> dict[str, Any]:
     )
     live = store.meta().get("live_calibration")
     grade = live.get("grade") if isinstance(live, dict) else None
+    reasons = live.get("reasons") if isinstance(live, dict) else None
     return {
         "grade": grade,
+        "reasons": list(reasons) if isinstance(reasons, list) else [],
         "source": source,
         "mean_position_error_m": pe.mean_position_error_m,
         "mean_rotation_error_deg": pe.mean_rotation_error_deg,
@@ -498,6 +500,8 @@ def format_live(r: dict[str, Any]) -> str:
         f"{f(lat['p99'], 1, '.1f')} ms (before the first client left: p99 "
         f"{f(lat.get('before_first_disconnect', {}).get('p99'), 1, '.1f')} ms)",
     ]
+    if c["grade"] != "good":
+        lines += [f"  why: {why}" for why in c.get("reasons") or []]
     late = [
         f"{sid} ({-c['connected_before_playback_s']:.1f} s)"
         for sid, c in r.get("clients", {}).items()

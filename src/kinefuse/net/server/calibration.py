@@ -37,7 +37,7 @@ from __future__ import annotations
 import datetime as _dt
 import enum
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,7 +49,13 @@ from kinefuse.calibration.calib_file import (
     dumps_calibration,
 )
 from kinefuse.calibration.floor import FloorPlane
-from kinefuse.calibration.grade import Grade, grade_calibration
+from kinefuse.calibration.grade import (
+    Grade,
+    HalvesCheck,
+    grade_calibration,
+    halves_disagreement,
+    split_halves,
+)
 from kinefuse.calibration.methods import METHODS
 from kinefuse.calibration.register import Registration, Sightings, register_full
 from kinefuse.calibration.register_full import _match_in_time, _robust_kabsch
@@ -127,6 +133,8 @@ class CalibrationOutcome:
     calibration: CalibrationFile | None = None
     text: str | None = None
     registration: Registration | None = None
+    #: the split-half check the grade used (None: the solve failed before it)
+    halves: HalvesCheck | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -337,7 +345,9 @@ def solve_calibration(job: SolveInput) -> CalibrationOutcome:
                 "sensors' view while the calibration runs"
             )
         reg = _against_fixed(job, use) if fixed else _register_all(job, use)
-        grade = grade_calibration(reg, job.floors)
+        # (the paper's method rests on the protocol's two holds, which halves would split)
+        halves = check_halves(job, use) if method == "full" else None
+        grade = grade_calibration(reg, job.floors, halves)
         if missing:
             grade = Grade(
                 "doubtful" if grade.grade == "good" else grade.grade,
@@ -361,10 +371,29 @@ def solve_calibration(job: SolveInput) -> CalibrationOutcome:
     message = f"{method}: {grade.grade}, {rms} over {', '.join(reg.sensor_ids)}"
     if not ok:
         message += " (not used)"
-    return CalibrationOutcome(cid, ok, method, grade, message, targets, merged, text, reg)
+    return CalibrationOutcome(cid, ok, method, grade, message, targets, merged, text, reg, halves)
 
 
-def _register_all(job: SolveInput, use: dict[str, Sightings]) -> Registration:
+def check_halves(job: SolveInput, use: dict[str, Sightings]) -> HalvesCheck:
+    """The split-half check (:mod:`kinefuse.calibration.grade`): the same solve on two halves
+    of every sensor's sightings (the fixed sensors' too), each target's pose compared."""
+    regs = []
+    for half in (0, 1):
+        tracks = {s: split_halves(t, job.t_start)[half] for s, t in job.tracks.items()}
+        sub = {s: split_halves(t, job.t_start)[half] for s, t in use.items()}
+        try:
+            if job.fixed:
+                regs.append(_against_fixed(replace(job, tracks=tracks), sub))
+            else:  # the scale fix needs the protocol's holds, which one half may lack
+                regs.append(_register_all(replace(job, tracks=tracks), sub, fix_scale=False))
+        except KinefuseError as e:
+            return HalvesCheck({}, unchecked=f"half {half + 1}: {e}"[:300])
+    return HalvesCheck(halves_disagreement(regs[0], regs[1], align_worlds=not job.fixed))
+
+
+def _register_all(
+    job: SolveInput, use: dict[str, Sightings], *, fix_scale: bool = True
+) -> Registration:
     floors = {s: f for s, f in job.floors.items() if s in use}
     periods = [float(np.median(np.diff(s.t_server_s))) for s in use.values() if len(s) > 1]
     period = float(np.median(periods)) if periods else 1 / 30
@@ -387,7 +416,7 @@ def _register_all(job: SolveInput, use: dict[str, Sightings]) -> Registration:
             max_gap_s=1.6 * period,
             max_speed_m_s=min(1.5, 0.05 / period),
         )
-    return calibrate(cal, job.method, fix_scale=axis is not None)
+    return calibrate(cal, job.method, fix_scale=fix_scale and axis is not None)
 
 
 def _against_fixed(job: SolveInput, use: dict[str, Sightings]) -> Registration:

@@ -91,6 +91,8 @@ def outcome_meta(out: CalibrationOutcome) -> dict[str, object]:
         "message": out.message,
         "targets": list(out.targets),
     }
+    if out.halves is not None:
+        d["halves"] = out.halves.to_dict()
     if reg is not None:
         d["rms_m"] = float(reg.rms_m)
         d["sensors"] = [
