@@ -406,9 +406,9 @@ def check_recording(
     # frame numbers count frame times: the ones the loop skipped (it fell behind) are holes
     holes = int(frames[-1] - frames[0] + 1 - frames.size) if frames.size else 0
     # a sensor's last frames may still be in flight when it stops: 1 s of them at most; the
-    # frames the server dropped as too late (a stalled sensor's backlog: live_run.sensors.*.
-    # late_dropped) are not recorded either, by its rule: counted apart
-    missing = {sid: sent[sid] - n_obs.get(sid, 0) - late_dropped.get(sid, 0) for sid in sent}
+    # frames the server kept out of the fusion as too late (a stalled sensor's backlog:
+    # live_run.sensors.*.late_dropped) are recorded like the others
+    missing = {sid: sent[sid] - n_obs.get(sid, 0) for sid in sent}
     ok = (
         complete
         and ids == set(sent)

@@ -255,7 +255,7 @@ def test_time_stamps_outside_a_plausible_window_are_refused_at_the_door(running)
 PAUSE_S = 4.0
 
 
-def test_a_stalled_sensors_backlog_is_dropped_not_fused_late() -> None:
+def test_a_stalled_sensors_backlog_is_dropped_not_fused_late(tmp_path) -> None:
     """A sensor paused for 4 s (SIGSTOP, within the timeout) hands its backlog over at once when
     it resumes: device stamps from the pause, host stamps of now. Those pairs bent the device
     clock fit, so later frames were mapped to capture times in the future and published late
@@ -270,7 +270,7 @@ def test_a_stalled_sensors_backlog_is_dropped_not_fused_late() -> None:
     from kinefuse.skeleton import standing_pose
 
     async def main():
-        srv = Server(ServerOptions(port=0, timeout_s=5.0))
+        srv = Server(ServerOptions(port=0, timeout_s=5.0, record=tmp_path / "rec.sqlite"))
         cal = CalibrationFile(
             "full",
             _dt.datetime.now(_dt.UTC),
@@ -343,7 +343,7 @@ def test_a_stalled_sensors_backlog_is_dropped_not_fused_late() -> None:
             st = srv.clients["s"]
             td = time.monotonic() - 0.06
             fit_error = st.device.to_host(td) - (td + h0)  # the truth: capture host = td + h0
-            return after, getattr(st, "late_dropped", -1), fit_error
+            return after, getattr(st, "late_dropped", -1), fit_error, seq
         finally:
             ans.cancel()
             p.w.close()
@@ -351,7 +351,7 @@ def test_a_stalled_sensors_backlog_is_dropped_not_fused_late() -> None:
             await asyncio.wait_for(task, 10)
             col.cancel()
 
-    after, dropped, fit_error = asyncio.run(asyncio.wait_for(main(), 40))
+    after, dropped, fit_error, sent = asyncio.run(asyncio.wait_for(main(), 40))
     # fused from the sensor again after the resume (the first second or so waits for the clock:
     # the probes of the pause are answered late, as a resumed client does)
     assert len(after) > 20
@@ -359,3 +359,8 @@ def test_a_stalled_sensors_backlog_is_dropped_not_fused_late() -> None:
     # the latencies themselves are the benchmark's to measure (bench_hostile.py), not a test's
     assert abs(fit_error) < 0.02, fit_error
     assert dropped >= 30 * (PAUSE_S - 0.5) - 5  # the backlog older than 0.5 s, counted
+    # kept out of the fusion but recorded: no frame that reached the server is lost
+    from kinefuse.io.store.session import SessionStore
+
+    with SessionStore.open(tmp_path / "rec.sqlite") as st:
+        assert st.observation_count("s") == sent

@@ -557,12 +557,15 @@ class Server:
         if not client.accept(msg.seq):
             return  # a frame seen before this connection (a restarted client replaying)
         late = client.lateness(msg.t_device_s, msg.t_host_s, t_arr)
-        if late > self.options.max_backlog_s:
+        backlog = late > self.options.max_backlog_s
+        if backlog:
             # a stalled sensor's backlog (or a frame held in a queue): fused it would be late,
-            # and its stamps would bend the device clock fit; dropped and counted
+            # and its stamps would bend the device clock fit; kept out of both and counted, but
+            # recorded like any frame (it is data: the offline fusion's robust clock fit and
+            # interpolation can use it)
             client.drop_late(t_arr)
-            return
-        client.device.add(msg.t_device_s, msg.t_host_s)
+        else:
+            client.device.add(msg.t_device_s, msg.t_host_s)
         joints, states = sanitize_joints(msg.joints_m, msg.states)
         t_cap = client.capture_to_server(msg.t_device_s)
         t_host = client.host_to_server(msg.t_host_s)
@@ -579,6 +582,8 @@ class Server:
                 msg.occluded,
                 msg.n_crossings,
             )
+        if backlog:
+            return
         obs = Observation(msg.seq, t_cap, t_host, joints, states, msg.occluded, msg.n_crossings)
         client.enqueue(obs, t_arr)
         self.loop.notify()
