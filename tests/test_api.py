@@ -37,14 +37,16 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _raw_ws(port: int, query: str = "format=json") -> tuple[socket.socket, bytes]:
+def _raw_ws(
+    port: int, query: str = "format=json", path: str = API_PATH
+) -> tuple[socket.socket, bytes]:
     """A WebSocket that reads nothing unless asked: the handshake, then the first frame."""
     s = socket.socket()
     s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     s.connect(("127.0.0.1", port))
     key = base64.b64encode(os.urandom(16)).decode()
     request = (
-        f"GET {API_PATH}?{query} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+        f"GET {path}?{query} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
         f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n"
     )
     s.sendall(request.encode())

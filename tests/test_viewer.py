@@ -186,6 +186,47 @@ def test_a_page_that_falls_behind_skips_frames_instead_of_queueing_them() -> Non
     assert [f.seq for f in got[1:]] == [199, 1000]  # of the burst, only the newest frame
 
 
+def test_a_page_that_stops_reading_is_cut_off_with_a_reset() -> None:
+    """A page that stops reading while frames flow is cut by the API's stall rule (its buffers
+    fill, then STALL_LIMIT_S) with a TCP reset, so no orphaned socket keeps queued frames (the
+    heartbeat alone closed it gracefully, leaving the kernel holding them for a peer that never
+    reads). Watched without reading: reading would make it a live page again."""
+    import socket as _socket
+
+    from test_api import _ESTABLISHED, _raw_ws
+
+    async def run() -> tuple[float | None, int]:
+        pub = Publisher()
+        async with live_viewer(pub, port=0) as port:
+            stalled, hello = await asyncio.to_thread(_raw_ws, port, "", "/ws")
+            assert json.loads(hello)["type"] == "hello"
+            t0 = asyncio.get_running_loop().time()
+            cut_after = None
+            k = 0
+            while (now := asyncio.get_running_loop().time()) - t0 < 40.0:
+                for _ in range(5):
+                    pub.publish(_frame(k))
+                    k += 1
+                await asyncio.sleep(1 / 60)
+                state = stalled.getsockopt(_socket.IPPROTO_TCP, _socket.TCP_INFO, 8)[0]
+                if state != _ESTABLISHED:
+                    cut_after = now - t0
+                    break
+            stalled.settimeout(5.0)
+            try:  # what is left to read ends in a reset, not in a close
+                while stalled.recv(65536):
+                    pass
+                ended = 0
+            except ConnectionResetError:
+                ended = 1
+            stalled.close()
+            return cut_after, ended
+
+    cut_after, reset = asyncio.run(run())
+    assert cut_after is not None, "the page that stopped reading was not cut off within 40 s"
+    assert reset == 1
+
+
 def test_replay_plays_seeks_and_steps_with_the_truth(session) -> None:
     digest = hashlib.sha256(session.read_bytes()).hexdigest()
     with SessionStore.open(session) as st:

@@ -16,6 +16,7 @@ import asyncio
 import contextlib
 import json
 import secrets
+import socket
 import weakref
 from collections.abc import AsyncIterator
 from importlib import resources
@@ -111,7 +112,18 @@ def make_app(
     ``publisher`` the subscription API (:mod:`kinefuse.viewer.api`). WebSockets from another
     origin are refused; with a ``token`` the page's ``/ws`` asks for it first (``auth_required``
     with a nonce; the page answers with the HMAC or the token itself, ``docs/api.md``)."""
-    from kinefuse.viewer.api import API_PATH, api_handler, check_token, refuse, same_origin
+    from kinefuse.viewer.api import (
+        API_PATH,
+        SEND_BUFFER_BYTES,
+        Stalled,
+        api_handler,
+        check_token,
+        refuse,
+        reset,
+        same_origin,
+        unsent_bytes,
+        watch_stall,
+    )
 
     app = web.Application()
     sockets: weakref.WeakSet[web.WebSocketResponse] = weakref.WeakSet()
@@ -129,23 +141,46 @@ def make_app(
     async def websocket(request: web.Request) -> web.WebSocketResponse:
         if not same_origin(request):
             raise web.HTTPForbidden(text="cross-origin WebSocket refused")
-        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=1 << 16)
+        # the heartbeat finds a page whose peer vanished while nothing is sent (a paused
+        # replay); a page that stops reading while frames flow is cut by the API's stall rule
+        # first (docs/api.md): a reset, so no orphaned socket keeps its queued frames
+        ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=1 << 16)
         await ws.prepare(request)
+        transport = request.transport
+        sock = transport.get_extra_info("socket") if transport is not None else None
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
         sockets.add(ws)
-        try:
+
+        async def page_session() -> None:
             if token is not None:
                 nonce = secrets.token_hex(16)
                 await ws.send_str(json.dumps({"type": "auth_required", "nonce": nonce}))
                 error = await check_token(ws, token, nonce)
                 if error is not None:
                     await refuse(ws, error)
-                    return ws
+                    return
             await ws.send_str(json.dumps(source.hello()))
             await source.serve(ws)
-        except (ConnectionResetError, ConnectionError):
+
+        stalled = False
+        try:
+            async with asyncio.TaskGroup() as tg:
+                serving = tg.create_task(page_session())
+                watchdog = tg.create_task(watch_stall(transport)) if transport else None
+                await serving
+                if watchdog is not None:
+                    watchdog.cancel()
+        except* (TimeoutError, Stalled):
+            stalled = True
+        except* (ConnectionResetError, ConnectionError):
             pass
         finally:
             sockets.discard(ws)
+            if transport is not None and (
+                stalled or transport.get_write_buffer_size() > 0 or unsent_bytes(sock) > 0
+            ):
+                reset(transport, sock)
         return ws
 
     async def close_sockets(_app: web.Application) -> None:
