@@ -605,8 +605,8 @@ def main() -> None:
           f"recording: {recording['frame_holes']})")  # fmt: skip
     print(f"  recording: complete {recording['complete']}, sensors {len(recording['sensors'])}, "
           f"observations {sum(recording['observations'].values())} of "
-          f"{sum(sent.values())} sent; dropped by the server as late (not recorded, its rule): "
-          f"{sum(recording['late_dropped'].values())}; otherwise missing per sensor "
+          f"{sum(sent.values())} sent; kept out of the fusion as late (recorded all the same): "
+          f"{sum(recording['late_dropped'].values())}; missing per sensor "
           f"{recording['missing']}")  # fmt: skip
     for what, ok in checks.items():
         print(f"  {what}: {'yes' if ok else 'NO'}")
