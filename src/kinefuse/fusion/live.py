@@ -104,6 +104,13 @@ class LiveOptions:
     buffer: int = 8
     #: weight of the fused skeleton's facing so far in the swap vote (an unambiguous sensor: 1)
     facing_prior_weight: float = 1.5
+    #: its weight while no decided vote has confirmed it: a facing taken from a tie (one
+    #: ambiguous view alone, as when the body comes back into view) must not outvote two
+    #: agreeing ambiguous views that arrive after it (below one ambiguous view's 0.5, so it
+    #: still breaks an even tie); the facing so far is forgotten when the body is lost
+    #: (hips and shoulders unseen for ``best.max_predict_s``): it says nothing of a body found
+    #: again seconds later (docs/fusion.md section 13)
+    unconfirmed_prior_weight: float = 0.25
     #: when every sensor's view is ambiguous, the pelvis's walking direction joins the swap vote
     #: with this weight (above the facing so far, so a wrong facing is re-decided while walking)
     #: once it moves faster than ``walk_speed_m_s`` (m/s)
@@ -226,6 +233,9 @@ class LiveFusion:
         self._kf = KalmanState.empty()
         self._t: float | None = None
         self._facing: Array | None = None
+        #: whether a decided vote (an unambiguous view, agreeing ambiguous ones, the walking
+        #: direction) has supported the facing so far since it was taken
+        self._facing_confirmed = False
         #: how long the body has walked against the facing so far (s), and the last frame's time
         self._against_s = 0.0
         self._walk_t: float | None = None
@@ -377,6 +387,8 @@ class LiveFusion:
             # ``f`` is 0 where a sensor has no facing (it sees no trunk): it has no vote, so it
             # does not make the others' tie decided
             tie = False
+            # a vote the sensors decide (not a tie, someone has a view): what confirms a facing
+            decided = bool(f.any())
             if amb.any():
                 seen = f.any(axis=-1)
                 if (amb | ~seen).all():
@@ -397,9 +409,16 @@ class LiveFusion:
                     fp = self._facing
                     against = fp is not None and vx * float(fp[0]) + vy * float(fp[1]) < 0.0
                     self._against_s = self._against_s + dt if against else 0.0
-                    if not against or self._against_s >= opt.walk_against_s:
+                    # (a facing no decided vote has confirmed is no evidence against it)
+                    if (not against or self._against_s >= opt.walk_against_s
+                            or not self._facing_confirmed):  # fmt: skip
                         vote = vote + opt.walk_weight * np.array([vx / speed, vy / speed, 0.0])
-            flips = decide_flips(f, amb, vote, self._facing, opt.facing_prior_weight)
+                        tie = False
+            decided = decided and not tie
+            w_prior = (opt.facing_prior_weight if self._facing_confirmed
+                       else opt.unconfirmed_prior_weight)  # fmt: skip
+            flips = decide_flips(f, amb, vote, self._facing, w_prior)
+            self._facing_confirmed = self._facing_confirmed or decided
         if flips is not None and not flips.any():
             flips = None
         self.last_flips = flips
@@ -432,6 +451,9 @@ class LiveFusion:
         n = math.hypot(lr0, lr1)
         if alive[_FACING_JOINTS].all() and n > 1e-6:
             self._facing = np.array([lr1 / n, -lr0 / n, 0.0])
+        elif not alive[_FACING_JOINTS].any():
+            # the body is lost: its facing then says nothing of the body found again later
+            self._facing, self._facing_confirmed = None, False
         return pos, var, alive, measured, used, tracked
 
     def _finish(

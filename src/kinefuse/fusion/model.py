@@ -488,8 +488,16 @@ def kalman_step(
     variances ``r (J, 3)`` (NaN: none), in place; ``q (J, 1)`` white-acceleration densities.
 
     A joint's first measurement starts its filter (position measured, velocity 0 with 1 m/s a
-    priori). Returns the predicted moments ``(5, J, 3)`` if ``predicted`` (for a smoother; else
+    priori), and so does its first measurement after more than ``max_predict_s`` without one:
+    a joint lost that long is not continued from its old state (a velocity seconds old, and the
+    jump to where the joint is found again taken as motion).
+
+    Returns the predicted moments ``(5, J, 3)`` if ``predicted`` (for a smoother; else
     None) and which joints and axes are alive (seen within ``max_predict_s``)."""
+    # a joint lost for longer than max_predict_s starts afresh at its next measurement
+    lost = s.started & (t - s.last_seen > max_predict_s)
+    if np.logical_or.reduce(lost, axis=None):
+        s.started = s.started & ~lost
     # predict: the moments move by one linear map (x += d v, P = F P F^T) plus the process noise
     m = s.m.copy()
     m[0] += d * m[1]
