@@ -83,10 +83,11 @@ def _kabsch_rot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_seed: int,  # type: ignore[no-untyped-def]
-                  subject_bias: bool = True):  # fmt: skip
+                  subject_bias: bool = True, keep: dict | None = None):  # type: ignore[type-arg]  # fmt: skip
     """Simulate, calibrate (full), fuse (best); return the fused and true sequences, the
     placement, and the truth plus the subject-level tracker bias only (what every sensor shares,
-    so no fusion can remove it: the floor of a perfect fusion)."""
+    so no fusion can remove it: the floor of a perfect fusion). ``keep``: a dict that gets the
+    calibrated sensors and the frame grid (``"sensors"``, ``"grid"``), to fuse them again."""
     from kinefuse.evaluation.fusion import calibration_alignment
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
@@ -112,6 +113,8 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
         poses, _ = resolve_poses(store, None, False)
         sensors = load_sensors(store, poses)
         res = run_method(sensors, frame_grid(sensors), "best")
+        if keep is not None:
+            keep.update(sensors=sensors, grid=res.t_server_s)
         t_true, joints, _ = store.truth().motion()
         truth2world, _ = calibration_alignment(store, poses)
     # the truth in the calibration's world (the calibration sets its own origin and heading)
@@ -199,6 +202,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     with tempfile.TemporaryDirectory() as tmp:
         for k, (rig_name, rig) in enumerate(rigs):
             t0 = time.perf_counter()
+            kept: dict[str, object] = {}
             fused, true_seq, floor_seq, rot = simulate_take(
                 rig,
                 combined,
@@ -207,6 +211,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 args.wand_s,
                 args.seed,
                 not args.no_subject_bias,
+                keep=kept,
             )
             sim_s = time.perf_counter() - t0
             true_seq = _resample(true_seq, fused.t_s)
@@ -275,6 +280,11 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                     k2: 1e3 * v for k2, v in sa_f.static_motion_m.items()
                 }
                 print(_anatomical_text(take), flush=True)
+                if args.ablation:
+                    take["fusion_ablation"] = fusion_ablation(
+                        kept, true_seq, floor_seq, static_window, walk_frames
+                    )
+                    print(_ablation_text(take["fusion_ablation"]), flush=True)
             report[f"take{k}"] = take
             print(_take_text(k, take), flush=True)
     if len(norms["fused"]) >= 2:
@@ -328,22 +338,107 @@ ANATOMICAL_ROWS = ("knee_flexion", "hip_flexion", "hip_adduction", "hip_internal
                    "shoulder_elevation", "elbow_flexion")  # fmt: skip
 
 
-def _included_knee_rmse(seq, truth, side, frames) -> float:  # type: ignore[no-untyped-def]
-    """RMSE (degrees) of the knee's included angle (180 - hip-knee-ankle) of ``seq`` against
-    ``truth`` over ``frames``."""
-
+def _included_knee(seq, side: str) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The knee's included angle (180 - hip-knee-ankle, degrees) of ``seq`` per frame."""
     from kinefuse.skeleton import JOINT_INDEX
 
-    def inc(q):  # type: ignore[no-untyped-def]
-        s = side.capitalize()
-        p = q.kinect_positions()
-        a = p[:, JOINT_INDEX[f"Hip{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
-        b = p[:, JOINT_INDEX[f"Ankle{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
-        c = (a * b).sum(-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
-        return 180.0 - np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+    s = side.capitalize()
+    p = seq.kinect_positions()
+    a = p[:, JOINT_INDEX[f"Hip{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
+    b = p[:, JOINT_INDEX[f"Ankle{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
+    c = (a * b).sum(-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
+    return 180.0 - np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
-    d = (inc(seq) - inc(truth))[frames]
+
+def _included_knee_rmse(seq, truth, side, frames) -> float:  # type: ignore[no-untyped-def]
+    """RMSE (degrees) of the knee's included angle of ``seq`` against ``truth`` over ``frames``."""
+    d = (_included_knee(seq, side) - _included_knee(truth, side))[frames]
     return float(np.sqrt(np.nanmean(d**2)))
+
+
+#: the variants of ``best`` the ablation fuses the same take with (``--ablation``)
+ABLATION = {
+    "best": {},
+    "no bones": {"bones": False},
+    "no smoother": {"temporal": None},
+    "no robust step": {"robust": False},
+    "isotropic weights": {"covariance": False},
+    "no view noise": {"view_sigma_m": 0.0, "far_sigma_m": 0.0},
+    "gate chi2 4": {"gate_chi2": 4.0},
+    "process noise x0.25": {"accel_scale": 0.25},
+}
+
+
+def fusion_ablation(kept, true_seq, floor_seq, static_window, walk_frames):  # type: ignore[no-untyped-def]
+    """Fuse the take's sensors again with each variant of ``best`` (:data:`ABLATION`): per
+    variant, the anatomical knee and hip flexion RMSE (zero at standing) against the truth, the
+    knee's included angle (180° minus hip-knee-ankle) against the floor's (RMSE and mean signed
+    difference: positions noisy across the leg bend a straight knee, never straighten it) and the
+    knee position error against the floor, over the walk frames."""
+    from kinefuse.errors import InputError
+    from kinefuse.fusion.options import BestOptions
+    from kinefuse.pipeline.analysis import skeleton_anatomy
+    from kinefuse.pipeline.session import run_method
+    from kinefuse.skeleton import JOINT_INDEX
+
+    norm_t = an.normalize(true_seq)
+    anat_t, _ = skeleton_anatomy(true_seq, norm_t, static_window, "standing")
+    base = BestOptions()
+    out: dict[str, object] = {}
+    for name, change in ABLATION.items():
+        change = dict(change)
+        scale = change.pop("accel_scale", 1.0)
+        opt = replace(base, **change)
+        if scale != 1.0:
+            opt = replace(opt, accel_psd=tuple(scale * np.asarray(base.accel_psd)))
+        res = run_method(kept["sensors"], kept["grid"], "best", best_options=opt)
+        seq = an.SkeletonSequence.from_kinect(res.positions, t_s=res.t_server_s, source="fused")
+        try:
+            anat, _ = skeleton_anatomy(seq, an.normalize(seq), static_window, "standing")
+        except InputError as e:  # this variant's standing phase is not still enough
+            out[name] = {"refused": str(e)}
+            continue
+        rmse = angle_rmse_deg(anat, anat_t, frames=walk_frames)
+        row: dict[str, object] = {}
+        for side in ("left", "right"):
+            s = side.capitalize()
+            inc_f, inc_b = (_included_knee(q, side)[walk_frames] for q in (seq, floor_seq))
+            d = inc_f - inc_b
+            knee = JOINT_INDEX[f"Knee{s}"]
+            gap = (
+                seq.kinect_positions()[walk_frames, knee]
+                - floor_seq.kinect_positions()[walk_frames, knee]
+            )
+            row[side] = {
+                "knee_flexion_rmse_deg": rmse.get(f"knee_flexion_{side}", float("nan")),
+                "hip_flexion_rmse_deg": rmse.get(f"hip_flexion_{side}", float("nan")),
+                "included_vs_floor_rmse_deg": float(np.sqrt(np.nanmean(d**2))),
+                "included_vs_floor_mean_deg": float(np.nanmean(d)),
+                "knee_vs_floor_rms_cm": 100.0 * float(np.sqrt(np.nanmean((gap**2).sum(-1)))),
+            }
+        out[name] = row
+    return out
+
+
+def _ablation_text(ab: dict) -> str:  # type: ignore[type-arg]
+    lines = ["  fusion ablation, walk, left/right: anatomical knee flexion | hip flexion RMSE vs "
+             "the truth; included knee angle vs the floor RMSE (mean signed); knee vs the floor "
+             "RMS cm"]  # fmt: skip
+    for name, row in ab.items():
+        if "refused" in row:
+            lines.append(f"    {name:20s} static phase refused: {row['refused'][:90]}")
+            continue
+        lf, rt = row["left"], row["right"]
+
+        def pair(k: str, lf: dict = lf, rt: dict = rt) -> str:  # type: ignore[type-arg]
+            return f"{lf[k]:.1f}/{rt[k]:.1f}"
+
+        lines.append(
+            f"    {name:20s} {pair('knee_flexion_rmse_deg'):>10s} | "
+            f"{pair('hip_flexion_rmse_deg'):>10s}; {pair('included_vs_floor_rmse_deg'):>10s} "
+            f"({pair('included_vs_floor_mean_deg')}); {pair('knee_vs_floor_rms_cm')}"
+        )
+    return "\n".join(lines)
 
 
 def _anatomical_text(t: dict) -> str:  # type: ignore[type-arg]
@@ -600,7 +695,7 @@ def speed(args: argparse.Namespace) -> dict[str, object]:
 #: the generator accepts; one take, so the consistency across takes is not computed)
 SMOKE = {
     "speed": ["--frames", "600", "--baseline-frames", "20"],
-    "accuracy": ["--rom-s", "55", "--takes", "1", "--wand-s", "6", "--static-s", "3"],
+    "accuracy": ["--rom-s", "55", "--takes", "1", "--wand-s", "6", "--static-s", "3", "--ablation"],
     "floor": ["--rom-s", "55", "--subjects", "1"],
 }
 
@@ -621,6 +716,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="standing phase (static trial) before the ROM, s; 0: none, no "
                     "anatomical angles")  # fmt: skip
     ac.add_argument("--save", type=Path, default=None, help="folder for the takes' arrays")
+    ac.add_argument("--ablation", action="store_true",
+                    help="fuse each take again with each variant of best and print the knee "
+                    "and hip angle errors per variant (with --static-s > 0)")  # fmt: skip
     ac.add_argument("--no-subject-bias", action="store_true",
                     help="simulate a tracker whose joint definitions are the truth's (no "
                     "subject-level bias): what the rest of the error model leaves")  # fmt: skip
