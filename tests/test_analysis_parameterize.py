@@ -165,3 +165,36 @@ def test_edit_pose_bends_only_the_edited_chain(rom) -> None:  # type: ignore[no-
     assert (b - a) @ back > 0
     with pytest.raises(InputError, match="cannot edit knee_bend"):
         edit_pose(ang, model, norm, f, {"knee_bend": 10.0})
+
+
+def test_second_axis_far_from_perpendicular_is_flagged_and_replaced(rom) -> None:  # type: ignore[no-untyped-def]
+    """The left thigh's ab-/adduction seen distorted (its plane leaning 45° towards flexion, as
+    fused from the held-out walkway's start mark): DJ learns a second axis 45° off perpendicular
+    and 45° off the truth. It must be flagged, and replaced by one near the truth."""
+    from kinefuse.geometry.rotations import rodrigues
+    from kinefuse.skeleton import JOINT_INDEX
+
+    seq, norm, truth = rom
+    a0w, a1w = truth.axes_world["thigh_left"]
+    skewed = np.cos(np.radians(45.0)) * a1w + np.sin(np.radians(45.0)) * a0w
+    skewed /= np.linalg.norm(skewed)
+    t1 = truth.angles["thigh_left"][:, 1]
+    undo = rodrigues(np.broadcast_to(a1w, (t1.size, 3)), -t1)
+    redo = rodrigues(np.broadcast_to(skewed, (t1.size, 3)), t1)
+    q = redo @ undo  # the abduction about the skewed axis instead of the true one
+    p = seq.positions.copy()
+    hip = p[:, JOINT_INDEX["HipLeft"]]
+    for j in ("KneeLeft", "AnkleLeft", "FootLeft"):
+        i = JOINT_INDEX[j]
+        p[:, i] = hip + np.einsum("tij,tj->ti", q, p[:, i] - hip)
+    bent = an.SkeletonSequence.from_kinect(p, t_s=seq.t_s)
+    bnorm = an.normalize(bent)
+    model = learn_axes(bent, bnorm)
+    lm = model.limbs["thigh_left"]
+    assert lm.status.startswith("second axis not trusted"), lm.status
+    assert lm.axes.shape == (2, 3)
+    true = _true_axes(bnorm, truth)["thigh_left"]
+    err = np.degrees(np.arccos(np.clip(np.abs(np.sum(lm.axes * true, axis=1)), 0, 1)))
+    assert err.max() < 12.0, err  # degrees; the learned second axis was about 45° off
+    # the undistorted phase flags nothing
+    assert not any(s.startswith("second axis") for s in learn_axes(seq, norm).status.values())

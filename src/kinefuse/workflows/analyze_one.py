@@ -228,6 +228,13 @@ def analyse_one(
                 f" The calibration phase was not seen for {', '.join(unseen)}: no axes or "
                 "angles for them (their limb_status says why)."
             )
+    untrusted = sorted(k for k, v in dj.status.items() if v.startswith("second axis not trusted"))
+    if untrusted:
+        report["warnings"].append(
+            f"second axis not trusted for {', '.join(untrusted)}: the learned axes are far from "
+            "perpendicular (the phase's second movement was observed too poorly); replaced by "
+            "the axis perpendicular to the first and the rest direction (limb_status: the angles)"
+        )
     # the generator's two-axis limbs that kept two axes (what a one-plane misjudgement loses)
     two = [k for k, v in dj.limbs.items() if limb(k).n_axes == 2]
     report["two_axis_limbs"] = {
