@@ -198,3 +198,43 @@ def test_second_axis_far_from_perpendicular_is_flagged_and_replaced(rom) -> None
     assert err.max() < 12.0, err  # degrees; the learned second axis was about 45° off
     # the undistorted phase flags nothing
     assert not any(s.startswith("second axis") for s in learn_axes(seq, norm).status.values())
+
+
+def test_hinge_leaving_its_plane_gets_a_second_axis(rom) -> None:  # type: ignore[no-untyped-def]
+    """A shank whose direction in the thigh's frame wobbles 3° out of its hinge plane all the
+    phase long (on positions alone the thigh's twist would absorb it; fused data leave it where
+    the parent's twist is carried): one angle would leave the ankle about 13 mm off, over the
+    position budget, so the shank gets a second axis, perpendicular to the hinge and the rest,
+    and its minimal reconstruction is exact again; the hinge axis stays the learned one, and the
+    decision says which test decided."""
+    from kinefuse.analysis._vec import mv
+    from kinefuse.analysis.kinematics import _swing_matrices
+    from kinefuse.analysis.parameterize import (
+        _learn_limb,
+        _phase_frames,
+        limb_samples,
+        swing_and_undefined,
+    )
+    from kinefuse.geometry.rotations import rodrigues
+
+    seq, norm, truth = rom
+    vec = limb_samples(seq, norm, "shank_left")
+    hinge = _true_axes(norm, truth)["shank_left"][0]
+    ax = np.cross(vec, hinge)
+    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
+    wobble = rodrigues(ax, np.radians(3.0) * np.sin(2 * np.pi * 0.2 * seq.t_s))
+    vec = np.einsum("tij,tj->ti", wobble, vec)
+    frames = _phase_frames(seq, None)
+    p = seq.kinect_positions()
+    args = (frames, p, 1, "dj", np.radians(15.0))
+    lm = _learn_limb(seq, norm, "shank_left", vec, *args)
+    assert lm.axes.shape == (2, 3), lm.axes_decision
+    assert lm.axes_decision.startswith("two axes: the position budget"), lm.axes_decision
+    assert np.degrees(np.arccos(min(abs(float(lm.axes[0] @ hinge)), 1.0))) < 2.0
+    u = vec / np.linalg.norm(vec, axis=-1, keepdims=True)
+    ang = swing_and_undefined(lm, u)[0]
+    e = np.linalg.norm(u - mv(_swing_matrices(lm, ang, None, None), lm.rest), axis=-1)
+    assert np.nanmean(e) * lm.length_m < 1e-4  # metres; one angle would leave about 13 mm
+    # without the wobble: one axis, within the budget
+    clean = _learn_limb(seq, norm, "shank_left", limb_samples(seq, norm, "shank_left"), *args)
+    assert clean.axes.shape == (1, 3) and clean.axes_decision.startswith("one axis: anatomy")

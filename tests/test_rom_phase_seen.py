@@ -181,6 +181,10 @@ def test_analyze_a_phase_the_sensors_saw(
     # axes learned for every limb, by every method, and measured against the truth
     limbs = set(r["limb_status"])
     assert len(limbs) == 12 and set(r["axes"]) == limbs
+    # which test decided each limb's number of axes, with its figures
+    assert set(r["axes_decision"]) == limbs
+    assert all(d.startswith(("one axis: ", "two axes: ")) for d in r["axes_decision"].values())
+    assert all("mm off its plane" in d for d in r["axes_decision"].values())
     for m in ("dj", "pca", "em"):
         assert set(r["methods"][m]["axes"]) == limbs
     # every limb's axes against the truth, but a limb whose sweep the plane test judged planar

@@ -356,6 +356,7 @@ def _learn_limb(
                 f"one axis only: asked for {k} axes, Direction Joining found "
                 f"{axes.shape[0]} main direction(s)"
             )
+            decision = f"one axis: Direction Joining found one main direction; {figures}"
             if axes.shape[0] == 0:
                 axes = one[None]
     axes, names, dev, _ = anatomy.assign_axes(name, axes)
