@@ -165,3 +165,76 @@ def test_edit_pose_bends_only_the_edited_chain(rom) -> None:  # type: ignore[no-
     assert (b - a) @ back > 0
     with pytest.raises(InputError, match="cannot edit knee_bend"):
         edit_pose(ang, model, norm, f, {"knee_bend": 10.0})
+
+
+def test_second_axis_far_from_perpendicular_is_flagged_and_replaced(rom) -> None:  # type: ignore[no-untyped-def]
+    """The left thigh's ab-/adduction seen distorted (its plane leaning 45° towards flexion, as
+    fused from the held-out walkway's start mark): DJ learns a second axis 45° off perpendicular
+    and 45° off the truth. It must be flagged, and replaced by one near the truth."""
+    from kinefuse.geometry.rotations import rodrigues
+    from kinefuse.skeleton import JOINT_INDEX
+
+    seq, norm, truth = rom
+    a0w, a1w = truth.axes_world["thigh_left"]
+    skewed = np.cos(np.radians(45.0)) * a1w + np.sin(np.radians(45.0)) * a0w
+    skewed /= np.linalg.norm(skewed)
+    t1 = truth.angles["thigh_left"][:, 1]
+    undo = rodrigues(np.broadcast_to(a1w, (t1.size, 3)), -t1)
+    redo = rodrigues(np.broadcast_to(skewed, (t1.size, 3)), t1)
+    q = redo @ undo  # the abduction about the skewed axis instead of the true one
+    p = seq.positions.copy()
+    hip = p[:, JOINT_INDEX["HipLeft"]]
+    for j in ("KneeLeft", "AnkleLeft", "FootLeft"):
+        i = JOINT_INDEX[j]
+        p[:, i] = hip + np.einsum("tij,tj->ti", q, p[:, i] - hip)
+    bent = an.SkeletonSequence.from_kinect(p, t_s=seq.t_s)
+    bnorm = an.normalize(bent)
+    model = learn_axes(bent, bnorm)
+    lm = model.limbs["thigh_left"]
+    assert lm.status.startswith("second axis not trusted"), lm.status
+    assert lm.axes.shape == (2, 3)
+    true = _true_axes(bnorm, truth)["thigh_left"]
+    err = np.degrees(np.arccos(np.clip(np.abs(np.sum(lm.axes * true, axis=1)), 0, 1)))
+    assert err.max() < 12.0, err  # degrees; the learned second axis was about 45° off
+    # the undistorted phase flags nothing
+    assert not any(s.startswith("second axis") for s in learn_axes(seq, norm).status.values())
+
+
+def test_hinge_leaving_its_plane_gets_a_second_axis(rom) -> None:  # type: ignore[no-untyped-def]
+    """A shank whose direction in the thigh's frame wobbles 3° out of its hinge plane all the
+    phase long (on positions alone the thigh's twist would absorb it; fused data leave it where
+    the parent's twist is carried): one angle would leave the ankle about 13 mm off, over the
+    position budget, so the shank gets a second axis, perpendicular to the hinge and the rest,
+    and its minimal reconstruction is exact again; the hinge axis stays the learned one, and the
+    decision says which test decided."""
+    from kinefuse.analysis._vec import mv
+    from kinefuse.analysis.kinematics import _swing_matrices
+    from kinefuse.analysis.parameterize import (
+        _learn_limb,
+        _phase_frames,
+        limb_samples,
+        swing_and_undefined,
+    )
+    from kinefuse.geometry.rotations import rodrigues
+
+    seq, norm, truth = rom
+    vec = limb_samples(seq, norm, "shank_left")
+    hinge = _true_axes(norm, truth)["shank_left"][0]
+    ax = np.cross(vec, hinge)
+    ax /= np.linalg.norm(ax, axis=-1, keepdims=True)
+    wobble = rodrigues(ax, np.radians(3.0) * np.sin(2 * np.pi * 0.2 * seq.t_s))
+    vec = np.einsum("tij,tj->ti", wobble, vec)
+    frames = _phase_frames(seq, None)
+    p = seq.kinect_positions()
+    args = (frames, p, 1, "dj", np.radians(15.0))
+    lm = _learn_limb(seq, norm, "shank_left", vec, *args)
+    assert lm.axes.shape == (2, 3), lm.axes_decision
+    assert lm.axes_decision.startswith("two axes: the position budget"), lm.axes_decision
+    assert np.degrees(np.arccos(min(abs(float(lm.axes[0] @ hinge)), 1.0))) < 2.0
+    u = vec / np.linalg.norm(vec, axis=-1, keepdims=True)
+    ang = swing_and_undefined(lm, u)[0]
+    e = np.linalg.norm(u - mv(_swing_matrices(lm, ang, None, None), lm.rest), axis=-1)
+    assert np.nanmean(e) * lm.length_m < 1e-4  # metres; one angle would leave about 13 mm
+    # without the wobble: one axis, within the budget
+    clean = _learn_limb(seq, norm, "shank_left", limb_samples(seq, norm, "shank_left"), *args)
+    assert clean.axes.shape == (1, 3) and clean.axes_decision.startswith("one axis: anatomy")

@@ -67,18 +67,20 @@ def normalization_consistency(takes: Sequence[Normalization], /) -> dict[str, ob
 def axis_errors_deg(model: AxisModel, true_axes: dict[str, Array], /) -> dict[str, object]:
     """Angle between learned and true axes (both in the parent's normalized frame), degrees.
 
-    Axes are compared as lines (an axis and its opposite describe the same plane); limbs whose
-    number of learned axes differs from the truth are listed under ``"skipped"`` with their
+    Axes are compared as lines (an axis and its opposite describe the same plane); a limb with
+    more learned axes than true ones is scored on its first (template-matched) ones; limbs with
+    fewer are listed under ``"skipped"`` with their
     status. Returns ``{"median", "mean", "by_limb": {limb: [deg, ...]}, "skipped": {...}}``.
     """
     by_limb: dict[str, list[float]] = {}
     skipped: dict[str, str] = {}
     for name, a_true in true_axes.items():
         lm = model.limbs.get(name)
-        if lm is None or lm.axes.shape[0] != a_true.shape[0]:
+        if lm is None or lm.axes.shape[0] < a_true.shape[0] or a_true.shape[0] == 0:
             skipped[name] = "not learned" if lm is None else lm.status
             continue
-        cos = np.abs(np.einsum("ki,ki->k", lm.axes, a_true))
+        # a one-axis limb given a second axis for its off-plane motion: its hinge (first) axis
+        cos = np.abs(np.einsum("ki,ki->k", lm.axes[: a_true.shape[0]], a_true))
         by_limb[name] = np.degrees(np.arccos(np.clip(cos, 0.0, 1.0))).tolist()
     v = np.array([x for xs in by_limb.values() for x in xs])
     return {

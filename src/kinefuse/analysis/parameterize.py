@@ -46,6 +46,21 @@ NO_MOVEMENT_RAD = np.radians(5.0)
 #: stratify`): of the *extent* of the movement on the sphere, not of the time spent in it (see
 #: :func:`_learn_limb`).
 ONE_PLANE_RAD = np.radians(8.0)
+#: A two-axis limb whose two learned axes are further than this from perpendicular (rad) has a
+#: second axis that cannot be trusted: both axis planes pass through the rest direction and the
+#: anatomical axes of a two-axis joint (flexion, ab-/adduction or lateral bend) are perpendicular
+#: up to their tilt from the textbook axes (Baker 2003, Wu et al. 2005: about 10° each). A
+#: second axis that leans towards the first by more has been fitted to the first direction's
+#: samples or to a distorted second movement (issue 24: thighs on the held-out walkway's start
+#: mark, 33-57° off perpendicular and 35-78° off the truth; the sweep's trusted second axes are
+#: within 20° of perpendicular). See :func:`_learn_limb` for what replaces it.
+SECOND_AXIS_SKEW_RAD = np.radians(25.0)
+#: A limb is given one axis only where that costs little in position: one angle puts the limb's
+#: end on its hinge plane's circle through the rest, so over the phase it loses the off-plane
+#: angle times the limb's length. Above this budget (metres, mean over the phase's frames) the
+#: limb gets two axes whatever the one-plane test says (ours; issue 24: the sweep's
+#: reconstruction mean was one-axis limbs leaving their hinge plane). Below the issue's 1.5 mm.
+ONE_AXIS_BUDGET_M = 1.0e-3
 #: Samples within this angle of the rest sample are averaged into the rest frame (rad).
 REST_RADIUS_RAD = np.radians(3.0)
 #: Window of the moving average applied to the calibration samples, seconds.
@@ -93,6 +108,9 @@ class LimbModel:
         Robust spread (1.4826 MAD) of the angle off the learned axes in the calibration phase.
     n_movement : int
         Movement samples used for the axes.
+    axes_decision : str
+        Which test decided the number of axes (the one-plane test, the position budget
+        :data:`ONE_AXIS_BUDGET_M`, the anatomy or the caller), with its figures.
     refused : bool
         The limb was not learned because the caller refused it (``learn_axes(refuse=...)``:
         the sensors did not see it in the phase): no angle of it is reported, not even those
@@ -111,6 +129,7 @@ class LimbModel:
     ranges_rad: Array = field(default_factory=lambda: np.zeros((0, 2)))
     off_axis_sd_rad: float = float("nan")
     n_movement: int = 0
+    axes_decision: str = ""
     refused: bool = False
 
     @property
@@ -222,7 +241,10 @@ def learn_axes(
             continue
         k = n_axes.get(lb.name, lb.n_axes)
         vec = limb_samples(seq, norm, lb.name)
-        out[lb.name] = _learn_limb(seq, norm, lb.name, vec, frames, p_all, k, method, delta)
+        forced = lb.name in n_axes
+        out[lb.name] = _learn_limb(
+            seq, norm, lb.name, vec, frames, p_all, k, method, delta, forced=forced
+        )
     span = (float(seq.t_s[frames[0]]), float(seq.t_s[frames[-1]]))
     return AxisModel(limbs=out, method=method, phase_s=span)
 
@@ -237,6 +259,8 @@ def _learn_limb(
     k: int,
     method: str,
     delta: float,
+    *,
+    forced: bool = False,
 ) -> LimbModel:
     i = LIMB_INDEX[name]
     lb = LIMBS[i]
@@ -284,7 +308,30 @@ def _learn_limb(
     strat = stratify(m_u)
     one = plane_fit(strat)
     p95_off = float(np.arcsin(min(np.percentile(np.abs(strat @ one), 95), 1.0)))
-    if k == 2 and p95_off < ONE_PLANE_RAD:
+    # where the limb rests (the stationary samples' centre of gravity), for the position cost
+    # and the rest position below
+    still = ok & ~moving
+    g = unit((u[still] if still.sum() >= 10 else m_u).mean(axis=0))
+    cost = _one_axis_cost_m(one, g, u[ok], length)
+    figures = (
+        f"95 % of the movement within {np.degrees(p95_off):.1f}° of one plane (one-plane test: "
+        f"{np.degrees(ONE_PLANE_RAD):.0f}°); one axis would leave it {1e3 * cost:.2f} mm off "
+        f"its plane, mean over the phase (budget {1e3 * ONE_AXIS_BUDGET_M:.1f} mm)"
+    )
+    cheap = not cost > ONE_AXIS_BUDGET_M  # NaN length: the plane test alone
+    if forced:
+        decision = f"asked for {k} axis(es) by the caller; {figures}"
+    elif k == 2 and p95_off < ONE_PLANE_RAD and cheap:
+        decision = f"one axis: the one-plane test and the position budget; {figures}"
+    elif k == 2 and p95_off < ONE_PLANE_RAD:
+        decision = f"two axes: the position budget overrules the one-plane test; {figures}"
+    elif k == 2:
+        decision = f"two axes: the one-plane test; {figures}"
+    elif cheap:
+        decision = f"one axis: anatomy, within the position budget; {figures}"
+    else:
+        decision = f"two axes: the position budget overrules the anatomy's one axis; {figures}"
+    if k == 2 and p95_off < ONE_PLANE_RAD and (cheap or forced):
         status = (
             f"one axis only: asked for 2 axes, but the movement lies on one plane "
             f"(95 % of it within {np.degrees(p95_off):.1f}°); learned 1 axis"
@@ -293,7 +340,11 @@ def _learn_limb(
     if k == 1:
         # one main direction: the paper's "straightforward regression", the same for all three
         # methods: the plane through the joint centre fitted to the stratified movement samples
-        axes = plane_fit(stratify(m_u))[None]
+        axes = one[None]
+        if not cheap and not forced and lb.n_axes == 1:
+            # the hinge, and for what leaves its plane the axis perpendicular to it and to the
+            # rest (the off-plane movement's great circle through the rest; ours)
+            axes = np.stack([one, unit(np.cross(g, one))])
     elif method == "pca":
         axes = pca_axes(m_u, k)
     elif method == "em":
@@ -305,17 +356,18 @@ def _learn_limb(
                 f"one axis only: asked for {k} axes, Direction Joining found "
                 f"{axes.shape[0]} main direction(s)"
             )
+            decision = f"one axis: Direction Joining found one main direction; {figures}"
             if axes.shape[0] == 0:
                 axes = one[None]
     axes, names, dev, _ = anatomy.assign_axes(name, axes)
     if axes.shape[0] == 2 and abs(float(axes[0] @ axes[1])) > np.cos(2 * DELTA_RAD):
         status = "one axis only: the two learned axes are within 30° of each other"
         axes, names, dev = axes[:1], names[:1], dev[:1]
+    elif axes.shape[0] == 2:
+        axes, dev, status = _trusted_second_axis(name, axes, dev, g, status)
     # rest position: where the axis planes meet the sphere, nearest the centre of gravity of
     # the *stationary* samples (ours; the paper takes all samples, which puts a hinge's zero in
     # the middle of its range: the actor returns to the default pose between movements)
-    still = ok & ~moving
-    g = unit((u[still] if still.sum() >= 10 else m_u).mean(axis=0))
     if axes.shape[0] == 2:
         c = unit(np.cross(axes[0], axes[1]))
         target = c if dot(c, g) >= 0 else -c
@@ -344,6 +396,7 @@ def _learn_limb(
         rest=rest,
         rest_frame=rest_frame,
         n_movement=int(moving.sum()),
+        axes_decision=decision,
         **base,  # type: ignore[arg-type]
     )
     ang_v, off_v = swing_angles(model, u)
@@ -360,8 +413,40 @@ def _learn_limb(
         ranges_rad=np.zeros((axes.shape[0], 2)) if ranges is None else ranges,
         off_axis_sd_rad=sd,
         n_movement=int(moving.sum()),
+        axes_decision=decision,
         **base,  # type: ignore[arg-type]
     )
+
+
+def _one_axis_cost_m(a: Array, g: Array, u: Array, length: float) -> float:
+    """Mean position error (metres) of one angle about ``a`` for directions ``u (n, 3)``: the
+    elevation off the axis plane relative to the rest's (``g``) times the limb's length."""
+    elev = np.arcsin(np.clip(u @ a, -1.0, 1.0)) - np.arcsin(np.clip(float(g @ a), -1.0, 1.0))
+    return float(np.mean(np.abs(elev)) * length) if u.shape[0] else float("nan")
+
+
+def _trusted_second_axis(
+    name: str, axes: Array, dev: Array, g: Array, status: str
+) -> tuple[Array, Array, str]:
+    """The second axis, or its replacement when it is too far from perpendicular to the first
+    (:data:`SECOND_AXIS_SKEW_RAD`): the axis perpendicular to the first axis and to the rest
+    direction ``g`` (both axis planes pass through the rest), signed as the learned one; the
+    status says so (ours)."""
+    skew = np.pi / 2 - float(np.arccos(min(abs(float(axes[0] @ axes[1])), 1.0)))
+    if skew <= SECOND_AXIS_SKEW_RAD:
+        return axes, dev, status
+    a1 = unit(np.cross(g, axes[0]))
+    a1 = a1 if float(a1 @ axes[1]) >= 0 else -a1
+    tpl = anatomy.templates(name)
+    d1 = float(np.arccos(min(abs(float(a1 @ tpl[1][1])), 1.0))) if len(tpl) > 1 else np.nan
+    status = (
+        f"second axis not trusted: the learned axes are {np.degrees(np.pi / 2 - skew):.0f}° "
+        f"apart (a two-axis joint's are near 90°, more than "
+        f"{np.degrees(SECOND_AXIS_SKEW_RAD):.0f}° off it here): the phase's second movement was "
+        "observed too poorly; replaced by the axis perpendicular to the first and the rest "
+        "direction"
+    )
+    return np.stack([axes[0], a1]), np.array([dev[0], d1]), status
 
 
 def swing_angles(model: LimbModel, u: Array) -> tuple[Array, Array]:

@@ -9,6 +9,8 @@ Figures (all in the report JSON; definitions in ``docs/analysis.md``):
 * ``reconstruction_error_m``: the paper's measure, each limb's end on its joint sphere from the
   angles about the learned axes (without the off-axis angle) vs measured
   (:func:`kinefuse.analysis.kinematics.reconstruction_error`), mean and median.
+* ``axes_decision``: per limb, which test decided its number of axes (the one-plane test, the
+  position budget :data:`kinefuse.analysis.parameterize.ONE_AXIS_BUDGET_M`), with its figures.
 * ``timing_ms_per_frame``: wall time of normalization + angles + twist per frame (the axis
   learning on the calibration phase is reported apart).
 * with truth: ``axis_error_deg`` (learned vs true axes of the range-of-motion phase, per method),
@@ -173,6 +175,8 @@ def analyse_one(
         "axes": {k: v.axes for k, v in dj.limbs.items() if v.usable},
         "axis_names": {k: list(v.axis_names) for k, v in dj.limbs.items() if v.usable},
         "limb_status": dj.status,
+        # which test decided each limb's number of axes (one-plane test, position budget)
+        "axes_decision": {k: v.axes_decision for k, v in dj.limbs.items() if v.axes_decision},
         "methods": {
             m: {
                 "axes": {k: v.axes for k, v in mod.limbs.items() if v.usable},
@@ -228,6 +232,13 @@ def analyse_one(
                 f" The calibration phase was not seen for {', '.join(unseen)}: no axes or "
                 "angles for them (their limb_status says why)."
             )
+    untrusted = sorted(k for k, v in dj.status.items() if v.startswith("second axis not trusted"))
+    if untrusted:
+        report["warnings"].append(
+            f"second axis not trusted for {', '.join(untrusted)}: the learned axes are far from "
+            "perpendicular (the phase's second movement was observed too poorly); replaced by "
+            "the axis perpendicular to the first and the rest direction (limb_status: the angles)"
+        )
     # the generator's two-axis limbs that kept two axes (what a one-plane misjudgement loses)
     two = [k for k, v in dj.limbs.items() if limb(k).n_axes == 2]
     report["two_axis_limbs"] = {
