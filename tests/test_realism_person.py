@@ -105,3 +105,10 @@ def test_subject_seeds_differ_per_take() -> None:
         subject_seed("take.csv", 0)
     with pytest.raises(InputError):
         two_way_fit([0.0], ["0"], [])
+
+
+def test_iqr_band_is_a_coin_toss_on_five_takes() -> None:
+    from kinefuse.evaluation.realism_person import iqr_band_pass_rate
+
+    assert iqr_band_pass_rate(5, 10, draws=4000) < 0.8
+    assert iqr_band_pass_rate(25, 50, draws=4000) > 0.9

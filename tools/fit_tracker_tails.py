@@ -243,7 +243,7 @@ def main() -> None:
         f"\nperson level (log per-take medians, {pf.n_takes} takes, {pf.n_persons} people): "
         f"layout effects {', '.join(f'{k} {v + tw.overall:.2f}' for k, v in tw.layout.items())}; "
         f"person effects {', '.join(f'{k} {v:+.2f}' for k, v in tw.person.items())}; Qn of "
-        f"person effects {pf.person_sd:.3f}, of take residuals {pf.take_sd:.3f}; people more "
+        f"person effects {pf.person_sd:.3f}, take noise {pf.take_sd:.3f}; people more "
         f"than 3 robust SDs out: {person_outliers(tw) or 'none'}"
     )
     x, y = [], []
@@ -275,9 +275,10 @@ def main() -> None:
         (
             "person_log_sigma",
             f"{pf.person_log_sigma:.3f}",
-            f"random effects: sqrt(Qn(person effects) {pf.person_sd:.3f}^2 - take noise "
-            f"{pf.take_sd:.3f}^2 x mean(1/n_p)); take spread real {pf.s_real:.3f} | model "
-            f"{pf.s_sim:.3f} (person level alone would need {pf.total_match:.3f})",
+            f"random effects: robust SD of the person effect, between-person less "
+            f"within-person pairs of takes (take noise {pf.take_sd:.3f}); layout-centred spread "
+            f"real {pf.s_real:.3f} | model {pf.s_sim:.3f} (the old estimator: "
+            f"{pf.total_match:.3f})",
         ),
         ("person_rate_exponent", f"{slope:.2f}", "slope of log run rate on log median"),
     ]

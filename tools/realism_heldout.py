@@ -30,7 +30,7 @@ DATA = ROOT.parent / "shared" / "data"
 POPULATION = DATA / "kinect" / "kinect_multitrack_population"
 
 #: tools/fit_tracker_tails.py --seeds 1 --participants A-B, per half (from the default model of
-#: issue 21 as it stands; person_log_sigma: the random-effects estimate, 0 on both halves)
+#: issue 21 as it stands; person_log_sigma: the random-effects estimate of realism_person)
 HALF_FITS: dict[str, dict[str, float]] = {
     "0-4": {
         "gross_limb_rate_hz": 1.691,
@@ -48,7 +48,28 @@ HALF_FITS: dict[str, dict[str, float]] = {
         "gross_arm_duration_median_s": 0.518,
         "gross_size_scale_m": 0.108,
         "gross_arm_size_scale_m": 0.141,
-        "person_log_sigma": 0.0,
+        "person_log_sigma": 0.076,
+    },
+}
+
+#: the thrown-limb half fits of before the arm/leg default (one step from the model before it),
+#: for ``--earlier-limbs``: the person level above with these limbs (docs/realism.md section 6)
+EARLIER_LIMB_FITS: dict[str, dict[str, float]] = {
+    "0-4": {
+        "gross_limb_rate_hz": 1.773,
+        "gross_leg_share": 0.825,
+        "gross_duration_median_s": 0.066,
+        "gross_arm_duration_median_s": 0.216,
+        "gross_size_scale_m": 0.081,
+        "gross_arm_size_scale_m": 0.158,
+    },
+    "5-9": {
+        "gross_limb_rate_hz": 2.19,
+        "gross_leg_share": 0.869,
+        "gross_duration_median_s": 0.084,
+        "gross_arm_duration_median_s": 0.299,
+        "gross_size_scale_m": 0.113,
+        "gross_arm_size_scale_m": 0.232,
     },
 }
 
@@ -58,9 +79,13 @@ def main() -> None:
     ap.add_argument("--fit-on", choices=sorted(HALF_FITS), required=True)
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--population", type=Path, default=POPULATION)
+    ap.add_argument("--earlier-limbs", action="store_true", help="EARLIER_LIMB_FITS' limbs")
     args = ap.parse_args()
     lo, hi = (int(v) for v in args.fit_on.split("-"))
-    params = replace(TrackerParams(), **HALF_FITS[args.fit_on])  # type: ignore[arg-type]
+    fit = dict(HALF_FITS[args.fit_on])
+    if args.earlier_limbs:
+        fit.update(EARLIER_LIMB_FITS[args.fit_on])
+    params = replace(TrackerParams(), **fit)  # type: ignore[arg-type]
     walk = load_walk(DATA / "motion" / "cmu" / "02_walk_a.amc")
     takes = [
         t

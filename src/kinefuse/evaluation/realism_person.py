@@ -123,7 +123,7 @@ class PersonFit:
     s_sim: float  # the same over the simulated takes (person level off)
     total_match: float  # sqrt(max(s_real^2 - s_sim^2, 0))
     person_sd: float  # Qn of the real person effects
-    take_sd: float  # sigma_e: robust SD of the differences between two takes of a person / sqrt 2
+    take_sd: float  # sigma_e: robust SD of differences between two takes of a person / sqrt 2
     n_takes: int
     n_persons: int
 
@@ -214,3 +214,25 @@ def subject_seed(file_name: str, k: int) -> int:
     if k < 0 or k >= 1000:
         raise InputError(f"seed index must be in 0..999, got {k}")
     return 1000 * (p + 1) + k
+
+
+def iqr_band_pass_rate(
+    n_real: int,
+    n_sim: int,
+    band: tuple[float, float] = (0.5, 2.0),
+    draws: int = 20000,
+    seed: int = 0,
+) -> float:
+    """How often a perfect model passes the IQR band: the share of draws in which the IQR of
+    ``n_sim`` normal values over that of ``n_real`` from the same distribution lies in ``band``.
+    """
+    if n_real < 2 or n_sim < 2:
+        raise InputError("need at least two real and two simulated takes")
+    rng = np.random.default_rng(seed)
+
+    def iqr(n: int) -> Array:
+        q75, q25 = np.percentile(rng.normal(size=(draws, n)), [75, 25], axis=1)
+        return np.asarray(q75 - q25, dtype=np.float64)
+
+    ratio = iqr(n_sim) / iqr(n_real)
+    return float(np.mean((ratio >= band[0]) & (ratio <= band[1])))
