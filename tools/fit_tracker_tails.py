@@ -31,6 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.evaluation.realism import disagreement
+from kinefuse.evaluation.realism_person import (
+    person_log_sigma,
+    person_outliers,
+    subject_seed,
+    two_way_fit,
+)
 from kinefuse.evaluation.realism_population import layout_key
 from kinefuse.evaluation.realism_tails import GROSS_M, Tails, take_tails
 from kinefuse.evaluation.realism_takes import (
@@ -105,16 +111,6 @@ def limb_type_stats(tails: list[Tails], kind: str) -> dict[str, float]:
     }
 
 
-def robust_log_spread(values: dict[str, list[float]]) -> float:
-    """IQR / 1.349 of log(value / its layout's median), pooled over layouts."""
-    logs = []
-    for v in values.values():
-        a = np.log(np.asarray(v))
-        logs += list(a - np.median(a))
-    q75, q25 = np.percentile(logs, [75, 25])
-    return float((q75 - q25) / 1.349)
-
-
 def summarize(tails: list[Tails]) -> dict[str, float]:
     runs = [r for t in tails for r in t.runs]
     dur = np.array([r.duration_s for r in runs])
@@ -159,7 +155,11 @@ def main() -> None:
     real_t: dict[str, list[Tails]] = {}
     sim_t: dict[str, list[Tails]] = {}
     real_med: dict[str, list[float]] = {}
-    sim_med: dict[str, list[float]] = {}
+    # the person level: (layout, participant, log median) of the real takes; (layout, log
+    # median) of the default model with the person level off, one simulated subject per take
+    real_logs: list[tuple[str, str, float]] = []
+    sim_logs: list[tuple[str, float]] = []
+    no_person = replace(current, person_log_sigma=0.0)
     rate_pairs: list[tuple[str, float, float]] = []
     cache = []
     off = off_params()
@@ -172,6 +172,7 @@ def main() -> None:
         tails = take_tails(rp)
         real_t.setdefault(key, []).append(tails)
         real_med.setdefault(key, []).append(fig["median_m"])
+        real_logs.append((key, str(participant(path)), float(np.log(fig["median_m"]))))
         rate_pairs.append((key, fig["median_m"], tails.limb_rate_hz))
         cache.append(
             {
@@ -191,7 +192,8 @@ def main() -> None:
         for s in range(args.seeds):
             sp = simulated_pair(rec, walk, s, lay, off)
             sim_t.setdefault(key, []).append(take_tails(sp))
-            sim_med.setdefault(key, []).append(pair_figures(sp)["median_m"])
+            npp = simulated_pair(rec, walk, subject_seed(path.name, s), lay, no_person)
+            sim_logs.append((key, float(np.log(pair_figures(npp)["median_m"]))))
             if key == "0":
                 cp = simulated_pair(rec, walk, s, lay, current)
                 cur_t.setdefault(key, []).append(take_tails(cp))
@@ -228,9 +230,22 @@ def main() -> None:
     body = max(r0["whole_rate_hz"] - s0["whole_rate_hz"], 0.0) / 2.0 / moving
     legs = float(np.mean([real_s[k]["leg_share"] for k in real_s]))
     dur_sigma = float(np.log(r0["dur_p90"] / r0["dur_p50"]) / 1.2816)
-    s_real = robust_log_spread(real_med)
-    s_sim = robust_log_spread(sim_med)
-    person = float(np.sqrt(max(s_real**2 - s_sim**2, 0.0)))
+    pf = person_log_sigma(
+        [x for *_, x in real_logs],
+        [k for k, *_ in real_logs],
+        [p for _, p, _ in real_logs],
+        [x for _, x in sim_logs],
+        [k for k, _ in sim_logs],
+    )
+    tw = two_way_fit([x for *_, x in real_logs], [k for k, *_ in real_logs],
+                     [p for _, p, _ in real_logs])  # fmt: skip
+    print(
+        f"\nperson level (log per-take medians, {pf.n_takes} takes, {pf.n_persons} people): "
+        f"layout effects {', '.join(f'{k} {v + tw.overall:.2f}' for k, v in tw.layout.items())}; "
+        f"person effects {', '.join(f'{k} {v:+.2f}' for k, v in tw.person.items())}; Qn of "
+        f"person effects {pf.person_sd:.3f}, take noise {pf.take_sd:.3f}; people more "
+        f"than 3 robust SDs out: {person_outliers(tw) or 'none'}"
+    )
     x, y = [], []
     for key in real_med:
         m = np.median([m for k, m, _ in rate_pairs if k == key])
@@ -259,9 +274,11 @@ def main() -> None:
         ("gross_duration_log_sigma", f"{dur_sigma:.2f}", "ln(p90 / p50) / 1.2816"),
         (
             "person_log_sigma",
-            f"{person:.3f}",
-            f"sqrt(real {s_real:.3f}^2 - model {s_sim:.3f}^2): robust log-spread of per-take "
-            "medians about their layout's median",
+            f"{pf.person_log_sigma:.3f}",
+            f"random effects: robust SD of the person effect, between-person less "
+            f"within-person pairs of takes (take noise {pf.take_sd:.3f}); layout-centred spread "
+            f"real {pf.s_real:.3f} | model {pf.s_sim:.3f} (the old estimator: "
+            f"{pf.total_match:.3f})",
         ),
         ("person_rate_exponent", f"{slope:.2f}", "slope of log run rate on log median"),
     ]
