@@ -112,3 +112,19 @@ def test_iqr_band_is_a_coin_toss_on_five_takes() -> None:
 
     assert iqr_band_pass_rate(5, 10, draws=4000) < 0.8
     assert iqr_band_pass_rate(25, 50, draws=4000) > 0.9
+
+
+def test_population_seeds_are_the_participants_own() -> None:
+    """`kinefuse realism --population`: one participant's takes share their simulated subjects
+    (the person level is the person's at every layout), two participants never do, and a file
+    not named as KinectMultiTrack names its takes still gets seeds of its own."""
+    from kinefuse.workflows.realism import population_seeds
+
+    a0 = population_seeds("Study_3_Kinect_0_Time_1.csv", 2)
+    a1 = population_seeds("Study_3_Kinect_1_Time_2.csv", 2)
+    b = population_seeds("Study_4_Kinect_0_Time_1.csv", 2)
+    assert a0 == a1 and len(set(a0)) == 2
+    assert not set(a0) & set(b)
+    c, d = population_seeds("mine.csv", 2), population_seeds("other.csv", 2)
+    assert c == population_seeds("mine.csv", 2) and not set(c) & set(d)
+    assert not set(c) & set(a0)

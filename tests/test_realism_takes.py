@@ -337,6 +337,10 @@ def test_cli_population_on_a_small_folder(
     out = json.loads(capsys.readouterr().out)
     assert {t["file"] for t in out["takes"]} == {str(folder / "a.csv"), str(folder / "b.csv")}
     assert set(out["population"]) == {"0", "90"}
+    # each take its own simulated subjects: with the same seeds for every take, all takes of a
+    # layout would share their person-level draws
+    seeds = [tuple(t["simulated"]["seeds"]) for t in out["takes"]]
+    assert len(set(seeds)) == 2, seeds
     block = out["population"]["90"]
     assert block["n_real_takes"] == 1 and block["n_simulated"] == 1
     assert block["iqr_of_medians"]["real"] == 0.0  # one take: no spread

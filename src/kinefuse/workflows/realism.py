@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from kinefuse.evaluation.realism import (
     load_walk,
     walking_passes,
 )
+from kinefuse.evaluation.realism_person import subject_seed
 from kinefuse.evaluation.realism_population import (
     format_population,
     population_failures,
@@ -28,6 +30,19 @@ from kinefuse.workflows.simulate import tracker_model
 
 #: ../shared/data beside the project checkout (where the repository's data lives)
 DEFAULT_DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+
+
+def population_seeds(file_name: str, n: int) -> list[int]:
+    """The ``n`` simulated subjects of a take in a population comparison: the participant's own
+    (:func:`~kinefuse.evaluation.realism_person.subject_seed`, shared by that participant's takes
+    at every layout), or, for a file not named as KinectMultiTrack names its takes, seeds of its
+    own from its name. Seeds ``0..n-1`` for every take would give every take of a layout the same
+    ``n`` person-level draws, and the simulated spread between people would rest on ``n``."""
+    try:
+        return [subject_seed(file_name, k) for k in range(n)]
+    except InputError:
+        base = 1000 * (1000 + zlib.crc32(file_name.encode()) % 1_000_000)
+        return [base + k for k in range(n)]
 
 
 def run_realism(
@@ -77,7 +92,10 @@ def run_realism(
     for i, t in enumerate(takes):
         if progress:
             print(f"[{i + 1}/{len(takes)}] {Path(t).name} ({seeds} seeds)", file=sys.stderr)
-        results.append(compare_take(t, walk, range(seeds), params=params))
+        take_seeds = (
+            population_seeds(Path(t).name, seeds) if population is not None else range(seeds)
+        )
+        results.append(compare_take(t, walk, take_seeds, params=params))
     if population is not None:
         summary = population_summary(results)
         if as_json:
