@@ -182,6 +182,8 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     from kinefuse.sim.rig import default_rig, load_rig
 
     static_s = args.static_s
+    if args.ablation and not static_s > 0:
+        raise SystemExit("accuracy --ablation needs a standing phase (--static-s > 0)")
     d, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed, static_s)
     cal_s = args.wand_s
     static_window = (cal_s, cal_s + static_s)
@@ -211,7 +213,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 args.wand_s,
                 args.seed,
                 not args.no_subject_bias,
-                keep=kept,
+                keep=kept if args.ablation else None,
             )
             sim_s = time.perf_counter() - t0
             true_seq = _resample(true_seq, fused.t_s)
@@ -373,8 +375,8 @@ def fusion_ablation(kept, true_seq, floor_seq, static_window, walk_frames):  # t
     """Fuse the take's sensors again with each variant of ``best`` (:data:`ABLATION`): per
     variant, the anatomical knee and hip flexion RMSE (zero at standing) against the truth, the
     knee's included angle (180° minus hip-knee-ankle) against the floor's (RMSE and mean signed
-    difference: positions noisy across the leg bend a straight knee, never straighten it) and the
-    knee position error against the floor, over the walk frames."""
+    difference: positive where the fused knee is more bent) and the knee position error against
+    the floor, over the walk frames."""
     from kinefuse.errors import InputError
     from kinefuse.fusion.options import BestOptions
     from kinefuse.pipeline.analysis import skeleton_anatomy
