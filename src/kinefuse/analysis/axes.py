@@ -31,6 +31,13 @@ def speed_threshold(speed: Array, bins: int = 100) -> float:
     would keep two bumps of one noisy mode); the threshold is the upper edge of the lowest bin
     between them. With one peak only, returns the upper edge of the first empty bin after it
     (or infinity: no stationary phase can be told apart).
+
+    The threshold is lowered to where the stationary peak's upper flank ends, if that comes
+    first (:func:`_stationary_end`, ours): a movement whose speeds spread over a decade (slow
+    and fast strokes, cosine profiles) makes no second peak, only a low plateau of a few samples
+    per bin, so the "second peak" is a bump of that plateau and the lowest bin before it is
+    anywhere in it (issue 24: on fused data the valley fell at 77-90 deg/s, above every sample
+    of a thigh's ab-/adduction at 65-75 deg/s median, and the thigh was learned with one axis).
     """
     v = speed[np.isfinite(speed)]
     if v.size < 3 or not v.max() > v.min():
@@ -43,11 +50,30 @@ def speed_threshold(speed: Array, bins: int = 100) -> float:
         return float("inf")
     if peaks.size == 1:
         empty = np.flatnonzero(h[peaks[0] :] == 0)
-        return float(edges[peaks[0] + empty[0]]) if empty.size else float("inf")
+        valley_edge = float(edges[peaks[0] + empty[0]]) if empty.size else float("inf")
+        return min(valley_edge, _stationary_end(h, edges, int(peaks[0])))
     top = np.sort(peaks[np.argsort(-prom)[:2]])
     p0, p1 = int(top[0]), int(top[1])
     valley = p0 + int(np.argmin(h[p0 : p1 + 1]))
-    return float(edges[valley + 1])
+    return min(float(edges[valley + 1]), _stationary_end(h, edges, p0))
+
+
+def _stationary_end(h: Array, edges: Array, p0: int) -> float:
+    """Where the stationary peak ``p0`` of the histogram ``h`` ends: the lower edge of the first
+    bin above it holding more than twice the count of its mirror image below the peak (ours).
+
+    Below the stationary peak there are hardly any movement samples (only a stroke's turning
+    points are that slow), so the stationary samples' upper flank is taken as the mirror of
+    their lower one. A
+    bin above the peak holding more than twice its mirror's count holds more movement than
+    stationary samples: the equal-density (Bayes) boundary between the two. On the logarithm of
+    the speed of pure noise the flank is longer below the peak than above it, so the mirror
+    errs towards keeping stationary samples out. Infinity where no bin qualifies."""
+    for i in range(p0 + 1, h.size):
+        j = 2 * p0 - i
+        if h[i] > 2.0 * (h[j] if j >= 0 else 0.0):
+            return float(edges[i])
+    return float("inf")
 
 
 def _prominent_peaks(h: Array) -> tuple[NDArray[np.intp], Array]:
