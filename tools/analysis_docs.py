@@ -29,7 +29,7 @@ from kinefuse.cli import main as cli
 from kinefuse.errors import KinefuseError
 from kinefuse.workflows.analyze import run_analyze
 
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 #: Resolution of the plots copied into the docs (small files).
 DOC_DPI = 55
