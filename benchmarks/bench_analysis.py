@@ -342,14 +342,10 @@ ANATOMICAL_ROWS = ("knee_flexion", "hip_flexion", "hip_adduction", "hip_internal
 
 def _included_knee(seq, side: str) -> np.ndarray:  # type: ignore[no-untyped-def]
     """The knee's included angle (180 - hip-knee-ankle, degrees) of ``seq`` per frame."""
-    from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.pipeline.analysis import hinge_angle_deg
 
     s = side.capitalize()
-    p = seq.kinect_positions()
-    a = p[:, JOINT_INDEX[f"Hip{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
-    b = p[:, JOINT_INDEX[f"Ankle{s}"]] - p[:, JOINT_INDEX[f"Knee{s}"]]
-    c = (a * b).sum(-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
-    return 180.0 - np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+    return hinge_angle_deg(seq.kinect_positions(), f"Hip{s}", f"Knee{s}", f"Ankle{s}")
 
 
 def _included_knee_rmse(seq, truth, side, frames) -> float:  # type: ignore[no-untyped-def]
