@@ -19,6 +19,9 @@ Array = NDArray[np.float64]
 CELL_RAD = np.radians(3.0)
 #: Direction Joining's similarity threshold (the paper's delta), radians.
 DELTA_RAD = np.radians(15.0)
+#: The least sweep of a quick stroke that crosses the speed threshold only briefly
+#: (:func:`movement_mask`), radians.
+MIN_STROKE_RAD = np.radians(10.0)
 
 
 def speed_threshold(speed: Array, bins: int = 100) -> float:
@@ -39,23 +42,32 @@ def speed_threshold(speed: Array, bins: int = 100) -> float:
     anywhere in it (issue 24: on fused data the valley fell at 77-90 deg/s, above every sample
     of a thigh's ab-/adduction at 65-75 deg/s median, and the thigh was learned with one axis).
     """
+    return _threshold_and_mode(speed, bins)[0]
+
+
+def _threshold_and_mode(speed: Array, bins: int = 100) -> tuple[float, float]:
+    """:func:`speed_threshold` and the speed at the stationary peak (the histogram's mode
+    below the threshold; NaN where there is none)."""
     v = speed[np.isfinite(speed)]
     if v.size < 3 or not v.max() > v.min():
-        return float("inf")
+        return float("inf"), float("nan")
     h, edges = np.histogram(v, bins=bins, range=(float(v.min()), float(v.max())))
     # a 5-bin moving average first: a noisy mode has bumps more prominent than a small peak
     h = np.convolve(h.astype(float), np.ones(5) / 5.0, mode="same")
     peaks, prom = _prominent_peaks(h)
     if peaks.size == 0:
-        return float("inf")
+        return float("inf"), float("nan")
     if peaks.size == 1:
-        empty = np.flatnonzero(h[peaks[0] :] == 0)
-        valley_edge = float(edges[peaks[0] + empty[0]]) if empty.size else float("inf")
-        return min(valley_edge, _stationary_end(h, edges, int(peaks[0])))
+        p0 = int(peaks[0])
+        empty = np.flatnonzero(h[p0:] == 0)
+        valley_edge = float(edges[p0 + empty[0]]) if empty.size else float("inf")
+        mode = 0.5 * float(edges[p0] + edges[p0 + 1])
+        return min(valley_edge, _stationary_end(h, edges, p0)), mode
     top = np.sort(peaks[np.argsort(-prom)[:2]])
     p0, p1 = int(top[0]), int(top[1])
     valley = p0 + int(np.argmin(h[p0 : p1 + 1]))
-    return min(float(edges[valley + 1]), _stationary_end(h, edges, p0))
+    mode = 0.5 * float(edges[p0] + edges[p0 + 1])
+    return min(float(edges[valley + 1]), _stationary_end(h, edges, p0)), mode
 
 
 def _stationary_end(h: Array, edges: Array, p0: int) -> float:
@@ -113,8 +125,8 @@ def movement_mask(
     *logarithm* of the speeds (ours): depth-sensor noise spreads the stationary peak over a
     decade of small speeds, so on a linear axis it swallows the valley; on a log axis noise and
     movement are two peaks. Movement runs shorter than ``min_run_s`` are noise spikes and are
-    dropped. Returns the mask ``(n,)`` and the speeds ``(n,)`` (rad per frame, NaN at the
-    first sample and at gaps).
+    dropped, unless they are part of a quick stroke (see the code; ours). Returns the mask
+    ``(n,)`` and the speeds ``(n,)`` (rad per frame, NaN at the first sample and at gaps).
     """
     s = smooth(samples, max(round(smooth_s * rate_hz), 0))
     # the displacement over 0.1 s either side (ours): a per-frame step of a 30 Hz depth sensor
@@ -128,15 +140,48 @@ def movement_mask(
         return np.zeros(s.shape[0], dtype=bool), step
     log = np.full(step.shape, np.nan)
     log[ok] = np.log10(step[ok])
-    thr = speed_threshold(log)
-    moving: NDArray[np.bool_] = np.asarray(np.where(ok, log > thr, False), dtype=bool)
-    # drop short runs
+    thr, mode = _threshold_and_mode(log)
+    seed: NDArray[np.bool_] = np.asarray(np.where(ok, log > thr, False), dtype=bool)
+    moving = seed.copy()
     min_run = max(round(min_run_s * rate_hz), 1)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], moving.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        if b - a < min_run:
+    # a quick stroke (ours): on fused data a threshold set high by the noise's glitches is
+    # crossed by a quick stroke for fewer frames than min_run, and the stroke was dropped whole
+    # as a noise spike (issue 24: both thighs' ab-/adduction of 131_01 on a 3-sensor arc, peaks
+    # of 100 deg/s over a 73 deg/s threshold for 4-5 frames a half-stroke, so the thighs were
+    # learned with one axis). A short run above the threshold is kept where, extended to either
+    # side while the speed stays above half-way (on the log axis) between the still peak and
+    # the threshold, it lasts min_run, sweeps the limb over MIN_STROKE_RAD (those strokes'
+    # halves sweep 20-30 deg; the noise runs a low threshold lets through 1-4 deg) and holds no
+    # run above the threshold that is kept anyway (the stroke is then in the samples already;
+    # its fragments added moved a head's second axis by 14 deg on a sweep session)
+    low = min(0.5 * (thr + mode), thr) if np.isfinite(thr) and np.isfinite(mode) else thr
+    weak = np.where(ok, log > low, False)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], seed.astype(np.int8), [0]])))
+    wedges = np.flatnonzero(np.diff(np.concatenate([[0], weak.astype(np.int8), [0]])))
+    wrun = np.zeros(s.shape[0], dtype=np.intp)  # the weak run each sample is in
+    for k, (a, b) in enumerate(zip(wedges[::2], wedges[1::2], strict=True)):
+        wrun[a:b] = k
+    runs = list(zip(edges[::2], edges[1::2], strict=True))
+    # a stroke that a long run above the threshold already stands for keeps only that run
+    held = {int(wrun[a]) for a, b in runs if b - a >= min_run}
+    for a, b in runs:
+        if b - a >= min_run:
+            continue
+        k = int(wrun[a])
+        wa, wb = int(wedges[2 * k]), int(wedges[2 * k + 1])
+        if k in held or wb - wa < min_run or _sweep(s[wa:wb]) < MIN_STROKE_RAD:
             moving[a:b] = False
     return moving, step
+
+
+def _sweep(u: Array) -> float:
+    """How far the unit samples ``u (n, 3)`` reach: the largest angle from the first or the last
+    sample, radians."""
+    u = u[np.isfinite(u).all(axis=-1)]
+    if u.shape[0] < 2:
+        return 0.0
+    c = np.clip(np.concatenate([u @ u[0], u @ u[-1]]), -1.0, 1.0)
+    return float(np.arccos(c.min()))
 
 
 def smooth(samples: Array, half: int) -> Array:
