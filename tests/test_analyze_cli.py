@@ -95,6 +95,14 @@ def test_analyze_every_shared_file(
         assert report["limb_status"]["shank_left"].startswith("no movement")
         assert not [k for k in ang if k.startswith("knee_flexion")]
         return
+    if rel in ("motion/cmu/02_walk_a.amc", "motion/cmu/02_walk_b.amc"):
+        # a walk without a calibration phase: the thighs' quick swings make one main direction,
+        # and one axis would leave them 20-24 mm off its plane (02_walk_b): both keep two axes
+        # (the second perpendicular to the first and the rest) and the reconstruction holds
+        for side in ("left", "right"):
+            name = f"thigh_{side}"
+            assert len(report["axes"][name]) == 2, report["limb_status"][name]
+        assert report["reconstruction_error_m"]["mean"] < 1e-3
     # plausible curves: every knee flexion stays within the human range and moves
     knees = [v for k, v in ang.items() if k.startswith("knee_flexion")]
     assert knees

@@ -84,7 +84,9 @@ class LimbModel:
     name : str
     status : str
         ``"ok"``, or why the limb has fewer or no axes (``"no movement ..."``,
-        ``"one axis only ..."``, ``"missing ..."``).
+        ``"one axis only ..."``, ``"missing ..."``), or why its second axis is the one
+        perpendicular to the first and the rest (``"second axis not trusted ..."``,
+        ``"second axis not observed ..."``).
     axes : (k, 3) float
         Unit movement axes in the parent's normalized frame, JCS order (fixed axis first), signed
         so that positive angles are the ISB direction; ``k = 0`` when nothing could be learned.
@@ -351,7 +353,20 @@ def _learn_limb(
         axes = em_axes(m_u, k)
     else:
         axes, _ = dj_axes(m_u, m_seg, k, delta=delta)
-        if axes.shape[0] < k:
+        if axes.shape[0] < k and k == 2 and not cheap and axes.shape[0] == 1:
+            # over the position budget one axis loses the limb's off-plane movement: the second
+            # axis is the one perpendicular to the first and the rest, as for a second axis not
+            # trusted (ours; a walk without a calibration phase: the thighs' quick swings make
+            # one main direction, their ab-/adduction none, and one axis cost 20-24 mm)
+            status = (
+                "second axis not observed: Direction Joining found one main direction, and one "
+                f"axis would leave the limb {1e3 * cost:.1f} mm off its plane (budget "
+                f"{1e3 * ONE_AXIS_BUDGET_M:.1f} mm); the second axis is the one perpendicular to "
+                "the first and the rest direction"
+            )
+            decision = f"two axes: the position budget, one main direction found; {figures}"
+            axes = np.stack([axes[0], unit(np.cross(g, axes[0]))])
+        elif axes.shape[0] < k:
             status = (
                 f"one axis only: asked for {k} axes, Direction Joining found "
                 f"{axes.shape[0]} main direction(s)"

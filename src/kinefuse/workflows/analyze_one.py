@@ -239,6 +239,14 @@ def analyse_one(
             "perpendicular (the phase's second movement was observed too poorly); replaced by "
             "the axis perpendicular to the first and the rest direction (limb_status: the angles)"
         )
+    unobserved = sorted(k for k, v in dj.status.items() if v.startswith("second axis not observed"))
+    if unobserved:
+        report["warnings"].append(
+            f"second axis not observed for {', '.join(unobserved)}: the phase moved them along "
+            "one main direction only, and one axis would lose their off-plane movement; their "
+            "second axis is the one perpendicular to the first and the rest direction "
+            "(limb_status). Move each along both main directions in the calibration phase"
+        )
     # the generator's two-axis limbs that kept two axes (what a one-plane misjudgement loses)
     two = [k for k, v in dj.limbs.items() if limb(k).n_axes == 2]
     report["two_axis_limbs"] = {
