@@ -232,21 +232,19 @@ def analyse_one(
                 f" The calibration phase was not seen for {', '.join(unseen)}: no axes or "
                 "angles for them (their limb_status says why)."
             )
-    untrusted = sorted(k for k, v in dj.status.items() if v.startswith("second axis not trusted"))
-    if untrusted:
-        report["warnings"].append(
-            f"second axis not trusted for {', '.join(untrusted)}: the learned axes are far from "
-            "perpendicular (the phase's second movement was observed too poorly); replaced by "
-            "the axis perpendicular to the first and the rest direction (limb_status: the angles)"
-        )
-    unobserved = sorted(k for k, v in dj.status.items() if v.startswith("second axis not observed"))
-    if unobserved:
-        report["warnings"].append(
-            f"second axis not observed for {', '.join(unobserved)}: the phase moved them along "
-            "one main direction only, and one axis would lose their off-plane movement; their "
-            "second axis is the one perpendicular to the first and the rest direction "
-            "(limb_status). Move each along both main directions in the calibration phase"
-        )
+    # limbs whose second axis is the one perpendicular to the first and the rest, and why
+    for prefix, why in (
+        ("second axis not trusted", "the learned axes are far from perpendicular (the phase's "
+         "second movement was observed too poorly); replaced by the axis perpendicular to the "
+         "first and the rest direction (limb_status: the angles)"),
+        ("second axis not observed", "the phase moved them along one main direction only, and "
+         "one axis would lose their off-plane movement; their second axis is the one "
+         "perpendicular to the first and the rest direction (limb_status). Move each along "
+         "both main directions in the calibration phase"),
+    ):  # fmt: skip
+        replaced = sorted(k for k, v in dj.status.items() if v.startswith(prefix))
+        if replaced:
+            report["warnings"].append(f"{prefix} for {', '.join(replaced)}: {why}")
     # the generator's two-axis limbs that kept two axes (what a one-plane misjudgement loses)
     two = [k for k, v in dj.limbs.items() if limb(k).n_axes == 2]
     report["two_axis_limbs"] = {
