@@ -317,3 +317,21 @@ def test_a_limb_whose_parent_was_not_seen_is_not_seen() -> None:
     assert set(seen["not_seen"]) == set(LIMB_NAMES) - {"pelvis"}
     assert seen["not_seen"]["trunk"].startswith("not seen: its parent pelvis")
     assert seen["not_seen"]["foot_right"].startswith("not seen: its parent shank_right")
+
+
+def test_the_pelvis_is_tracked_only_with_its_hips() -> None:
+    # the pelvis's frame comes from SpineMid, SpineBase and both hips (its tilt from the hips'
+    # midpoint to SpineMid): a sensor that tracks the spine but guesses the hips (a walkway's
+    # edge, seen from the side) does not track it, and the limbs below it are not seen either
+    from kinefuse.analysis.limbs import LIMB_INDEX
+    from kinefuse.pipeline.analysis import limb_sensor_counts
+    from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+
+    t = np.arange(10) / 30.0
+    states = np.full((10, N_JOINTS), TrackingState.TRACKED, dtype=np.int8)
+    states[5:, JOINT_INDEX["HipLeft"]] = TrackingState.INFERRED
+    counts = limb_sensor_counts(t, [(t, states), (t, states.copy())], 30.0)
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["pelvis"]], [2] * 5 + [0] * 5)
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["trunk"]], [2] * 10)  # no hip in it
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["thigh_left"]], [2] * 5 + [0] * 5)
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["thigh_right"]], [2] * 10)

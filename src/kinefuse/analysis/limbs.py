@@ -111,7 +111,9 @@ def _sided(side: str) -> tuple[Limb, ...]:
     )
 
 
-#: The root limb: origin SpineBase, long axis SpineBase -> SpineMid, twist from the hip line.
+#: The root limb: origin SpineBase, SpineBase -> SpineMid; its frame's long axis runs from the
+#: hips' midpoint to SpineMid (:func:`kinefuse.analysis.normalize.root_long_axis`), its twist from
+#: the hip line.
 #: The trunk spans SpineBase -> SpineShoulder and the head SpineShoulder -> Head (not the Kinect
 #: bones SpineMid -> SpineShoulder and Neck -> Head): the longer baselines halve the effect of
 #: the depth sensor's biased spine joints on the frames (SpineMid and Neck are 20 and 7 cm from

@@ -19,7 +19,7 @@ from kinefuse.analysis.normalize import normalize
 from kinefuse.analysis.parameterize import METHODS as AXIS_METHODS
 from kinefuse.analysis.parameterize import learn_axes
 from kinefuse.analysis.sequence import SkeletonSequence
-from kinefuse.skeleton import JOINTS, TrackingState
+from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
@@ -65,12 +65,17 @@ def limb_sensor_counts(
 
     ``sensors``: per sensor, its capture times on the same clock ``(N,)`` and joint tracking
     states ``(N, 25)``. A sensor tracks a limb at a frame when its observation nearest in time
-    (within half a frame, ``0.5 / rate_hz``) has both the limb's joints TRACKED (not inferred).
+    (within half a frame, ``0.5 / rate_hz``) has both the limb's joints TRACKED (not inferred);
+    for the pelvis, the root, also both hips (its frame's tilt and heading come from them,
+    :func:`kinefuse.analysis.normalize.root_long_axis`).
     """
     t_s = np.asarray(t_s, dtype=np.float64)
     out = np.zeros((t_s.size, len(LIMBS)), dtype=np.int64)
-    prox = np.array([lb.proximal_index for lb in LIMBS])
-    dist = np.array([lb.distal_index for lb in LIMBS])
+    need = np.zeros((len(LIMBS), N_JOINTS), dtype=np.int64)
+    for i, lb in enumerate(LIMBS):
+        need[i, [lb.proximal_index, lb.distal_index]] = 1
+        if LIMB_PARENTS[i] < 0:
+            need[i, [JOINT_INDEX[j] for j in lb.twist_ref]] = 1
     for t_obs, states in sensors:
         if t_obs.size == 0:
             continue
@@ -82,7 +87,9 @@ def limb_sensor_counts(
         else:
             near = np.where(np.abs(t_o[k - 1] - t_s) <= np.abs(t_o[k] - t_s), k - 1, k)
         close = np.abs(t_o[near] - t_s) <= 0.5 / rate_hz
-        out += (close[:, None] & st[near][:, prox] & st[near][:, dist]).astype(np.int64)
+        # tracked: none of the joints the limb needs is untracked, (T, 25) x (25, L)
+        lacking = (~st[near]).astype(np.int64) @ need.T
+        out += (close[:, None] & (lacking == 0)).astype(np.int64)
     return out
 
 
