@@ -322,7 +322,7 @@ def test_a_limb_whose_parent_was_not_seen_is_not_seen() -> None:
 def test_the_pelvis_is_tracked_only_with_its_hips() -> None:
     # the pelvis's frame comes from SpineMid, SpineBase and both hips (its tilt from the hips'
     # midpoint to SpineMid): a sensor that tracks the spine but guesses the hips (a walkway's
-    # edge, seen from the side) does not track it, and the limbs below it are not seen either
+    # edge, seen from the side) does not track it (phase_seen then refuses the limbs below it)
     from kinefuse.analysis.limbs import LIMB_INDEX
     from kinefuse.pipeline.analysis import limb_sensor_counts
     from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
