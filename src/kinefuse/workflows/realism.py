@@ -81,6 +81,12 @@ def run_realism(
             raise InputError(f"no KinectMultiTrack takes in {folder}; pass --take CSV")
     else:
         takes = list(takes_arg)
+        # the takes the user named are checked before anything else is looked for or loaded
+        missing = [t for t in takes if not Path(t).is_file()]
+        if missing:
+            raise InputError(
+                f"{missing[0]}: no such file; give the path of a KinectMultiTrack CSV log"
+            )
     clip = clip_arg or default_walk_path(data)
     if not Path(clip).is_file():
         raise InputError(f"walking clip not found: {clip}; pass --clip or --data")
