@@ -335,3 +335,50 @@ def test_the_pelvis_is_tracked_only_with_its_hips() -> None:
     np.testing.assert_array_equal(counts[:, LIMB_INDEX["trunk"]], [2] * 10)  # no hip in it
     np.testing.assert_array_equal(counts[:, LIMB_INDEX["thigh_left"]], [2] * 5 + [0] * 5)
     np.testing.assert_array_equal(counts[:, LIMB_INDEX["thigh_right"]], [2] * 10)
+
+
+def test_a_mirrored_sensor_tracks_the_limbs_under_their_true_names() -> None:
+    # a sensor seeing the body from behind names the near (left) leg "right": the fusion's swap
+    # vote mirrors it back, and the counts must follow, or the leg it only guessed counts as
+    # tracked (131_01 on a 5-sensor ring: 2 s of one sensor's INFERRED right leg, 90° of knee
+    # error, were scored as tracked frames)
+    from kinefuse.analysis.limbs import LIMB_INDEX
+    from kinefuse.pipeline.analysis import limb_sensor_counts
+    from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+
+    t = np.arange(10) / 30.0
+    states = np.full((10, N_JOINTS), TrackingState.TRACKED, dtype=np.int8)
+    for j in ("KneeLeft", "AnkleLeft"):  # what it calls the left leg is guessed
+        states[:, JOINT_INDEX[j]] = TrackingState.INFERRED
+    mirrored = np.zeros((10, 1), dtype=bool)
+    mirrored[4:] = True  # the swap vote mirrors it from frame 4 on
+    counts = limb_sensor_counts(t, [(t, states)], 30.0, mirrored)
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["shank_left"]], [0] * 4 + [1] * 6)
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["shank_right"]], [1] * 4 + [0] * 6)
+    np.testing.assert_array_equal(counts[:, LIMB_INDEX["trunk"]], [1] * 10)
+    assert (limb_sensor_counts(t, [(t, states)], 30.0)[:, LIMB_INDEX["shank_right"]] == 1).all()
+    with pytest.raises(ValueError, match="mirrored must be"):
+        limb_sensor_counts(t, [(t, states)], 30.0, mirrored[:5])
+
+
+def test_the_fusion_says_which_sensors_it_mirrored(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # best and best-live hand their swap decisions to the analysis (limb_sensor_counts); a ring
+    # of four has a sensor behind a walking body
+    from kinefuse.evaluation.poses import resolve_poses
+    from kinefuse.pipeline.session import frame_grid, load_usable_sensors, run_method
+
+    s = tmp_path / "ring.sqlite"
+    code, _, err = run(capsys, "simulate", "--clip", str(shared_data / WALK), "--seconds", "2",
+                       "--sensors", "4", "--calibration-seconds", "0", "--out", str(s))  # fmt: skip
+    assert code == 0, err
+    with SessionStore.open(s) as store:
+        poses, _ = resolve_poses(store, None, True)
+        sensors, _ = load_usable_sensors(store, poses)
+    grid = frame_grid(sensors)
+    for method in ("best", "best-live"):
+        res = run_method(sensors, grid, method)
+        assert res.mirrored is not None and res.mirrored.shape == (grid.size, len(sensors))
+        assert 0 < res.mirrored.mean() < 1
+    assert run_method(sensors, grid, "paper").mirrored is None

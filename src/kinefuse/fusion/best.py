@@ -72,6 +72,9 @@ class FusedSkeleton:
     swaps : dict
         Per sensor index, the number of frames whose measurement of that sensor the swap vote
         mirrored back.
+    mirrored : (T, S) bool
+        Per frame, the sensors whose skeleton the swap vote mirrored back (their left and right
+        labels exchanged before the combination).
     """
 
     t_server_s: Array
@@ -79,6 +82,7 @@ class FusedSkeleton:
     variance_m2: Array
     n_sensors: NDArray[np.intp]
     swaps: dict[int, int]
+    mirrored: NDArray[np.bool_]
 
 
 def correct_swaps(
@@ -255,4 +259,5 @@ def fuse_best(
         variance_m2=var,
         n_sensors=r["n_sensors"].astype(np.intp),
         swaps=swaps,
+        mirrored=np.asarray(r["mirrored"], dtype=bool),
     )

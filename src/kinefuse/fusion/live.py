@@ -125,6 +125,14 @@ class LiveOptions:
     #: sensors' vote shorter than this fraction of its largest possible length (every facing
     #: the same way)
     walk_tie: float = 0.5
+    #: the most the ambiguous views together weigh in the vote (an unambiguous view: 1). Each
+    #: Kinect reports a body facing it whether it sees the front or the back, so ambiguous views
+    #: that agree say on which side the sensors stand, not which way the body faces: three of
+    #: them behind a walking body (0.5 each) outvoted its confirmed facing (1.5) and mirrored
+    #: the legs for 1.5 s (CMU 131_01 on a 5-sensor ring). Capped, they decide only against an
+    #: unconfirmed facing; a confirmed one changes with side views and the walking direction.
+    #: ``inf``: no cap
+    ambiguous_vote_cap: float = 1.0
     #: samples a bone needs before the output is projected onto its running length
     bone_min_samples: int = 15
     #: relative deviation from a bone's running length beyond which a joint is ``BONE_LENGTH``
@@ -134,6 +142,8 @@ class LiveOptions:
     def __post_init__(self) -> None:
         if not self.latency_s >= 0 or not self.max_hold_s >= 0:
             raise ValueError("latency_s and max_hold_s must be >= 0")
+        if not self.ambiguous_vote_cap > 0:
+            raise ValueError(f"ambiguous_vote_cap must be > 0, got {self.ambiguous_vote_cap}")
         if self.buffer < 2:
             raise ValueError(f"buffer must keep at least 2 observations, got {self.buffer}")
 
@@ -417,6 +427,12 @@ class LiveFusion:
             decided = decided and not tie
             w_prior = (opt.facing_prior_weight if self._facing_confirmed
                        else opt.unconfirmed_prior_weight)  # fmt: skip
+            cap = opt.ambiguous_vote_cap
+            if cap < math.inf and amb.any():
+                a0, a1, a2 = (0.5 * f[amb].sum(axis=0)).tolist()
+                na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+                if na > cap:
+                    vote = vote - (1.0 - cap / na) * np.array([a0, a1, a2])
             flips = decide_flips(f, amb, vote, self._facing, w_prior)
             self._facing_confirmed = self._facing_confirmed or decided
         if flips is not None and not flips.any():

@@ -110,6 +110,9 @@ class MethodResult:
     #: (T, 25) a per-joint quality, metres, NaN where none: for ``best`` the RMS 3D position
     #: uncertainty of the filter, for the range methods the RMS range residual of the solution
     residual_m: Array | None = None
+    #: (T, S) for ``best`` and ``best-live``: per frame, the sensors (in the order given) whose
+    #: left and right labels the swap vote exchanged; None for the paper's methods (no swaps)
+    mirrored: NDArray[np.bool_] | None = None
 
 
 def frame_grid(sensors: Sequence[CalibratedSensor], rate_hz: float = 30.0) -> Array:
@@ -159,20 +162,20 @@ def run_method(
     The result's ``seconds`` is NaN: :func:`kinefuse.pipeline.session.run_method` times the call."""
     if method not in METHODS:
         raise FusionError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
+    mirrored = None
     if method == "best-live":
-        from kinefuse.fusion.live import LiveOptions, replay
+        from kinefuse.fusion.live import LiveOptions, replay_streams
 
         live = LiveOptions() if best_options is None else LiveOptions(best=best_options)
-        pos, var, status, _used = replay(
-            [s.t_server_s for s in sensors],
-            [s.observations.joints_m for s in sensors],
-            [s.observations.states for s in sensors],
-            np.stack([s.sensor2world for s in sensors]),
-            grid,
-            live,
-            occluded=[s.occluded for s in sensors],
-        )
-        residual = np.sqrt(3.0 * var)
+        streams = [
+            BodyFrames.on_server_clock(s.t_server_s, s.observations.joints_m,
+                                       s.observations.states, occluded=s.occluded)
+            for s in sensors
+        ]  # fmt: skip
+        r = replay_streams(streams, np.stack([s.sensor2world for s in sensors]), grid, live)
+        pos, status = r["positions"], r["status"].astype(np.int8)
+        residual = np.sqrt(3.0 * r["variance_m2"])
+        mirrored = np.asarray(r["mirrored"], dtype=bool)
     elif method == "best":
         fused = fuse_best(
             [s.observations for s in sensors],
@@ -185,6 +188,7 @@ def run_method(
             np.int8
         )
         residual = np.sqrt(3.0 * fused.variance_m2)
+        mirrored = fused.mirrored
     else:
         pos, status, residual = _run_range(
             sensors, grid, method, c_threshold=c_threshold,
@@ -197,6 +201,7 @@ def run_method(
         status=np.asarray(status, dtype=np.int8),
         seconds=float("nan"),
         residual_m=residual,
+        mirrored=mirrored,
     )
 
 

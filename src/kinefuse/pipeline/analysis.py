@@ -19,7 +19,7 @@ from kinefuse.analysis.normalize import normalize
 from kinefuse.analysis.parameterize import METHODS as AXIS_METHODS
 from kinefuse.analysis.parameterize import learn_axes
 from kinefuse.analysis.sequence import SkeletonSequence
-from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
+from kinefuse.skeleton import JOINT_INDEX, JOINTS, MIRROR_INDEX, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
@@ -59,7 +59,10 @@ SEEN_MIN_FRACTION = 0.5
 
 
 def limb_sensor_counts(
-    t_s: Array, sensors: list[tuple[Array, NDArray[np.int8]]], rate_hz: float
+    t_s: Array,
+    sensors: list[tuple[Array, NDArray[np.int8]]],
+    rate_hz: float,
+    mirrored: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.int64]:
     """How many sensors track each limb at each frame time ``t_s (T,)``: ``(T, L)`` int.
 
@@ -68,6 +71,11 @@ def limb_sensor_counts(
     (within half a frame, ``0.5 / rate_hz``) has both the limb's joints TRACKED (not inferred);
     for the pelvis, the root, also both hips (its frame's tilt and heading come from them,
     :func:`kinefuse.analysis.normalize.root_long_axis`).
+
+    ``mirrored (T, S)``: the fusion's swap decisions at the frames (``MethodResult.mirrored``).
+    A sensor the fusion mirrored back at a frame gave its left limbs under the right names and
+    the reverse, so its states are read mirrored there: its right shank is what it called the
+    left one (one seeing the body from behind tracks the near leg, which it names wrongly).
     """
     t_s = np.asarray(t_s, dtype=np.float64)
     out = np.zeros((t_s.size, len(LIMBS)), dtype=np.int64)
@@ -76,7 +84,9 @@ def limb_sensor_counts(
         need[i, [lb.proximal_index, lb.distal_index]] = 1
         if LIMB_PARENTS[i] < 0:
             need[i, [JOINT_INDEX[j] for j in lb.twist_ref]] = 1
-    for t_obs, states in sensors:
+    if mirrored is not None and mirrored.shape != (t_s.size, len(sensors)):
+        raise ValueError(f"mirrored must be ({t_s.size}, {len(sensors)}), got {mirrored.shape}")
+    for si, (t_obs, states) in enumerate(sensors):
         if t_obs.size == 0:
             continue
         order = np.argsort(t_obs)
@@ -87,8 +97,12 @@ def limb_sensor_counts(
         else:
             near = np.where(np.abs(t_o[k - 1] - t_s) <= np.abs(t_o[k] - t_s), k - 1, k)
         close = np.abs(t_o[near] - t_s) <= 0.5 / rate_hz
+        at = st[near]
+        if mirrored is not None and mirrored[:, si].any():
+            flip = mirrored[:, si]
+            at[flip] = at[flip][:, np.asarray(MIRROR_INDEX)]
         # tracked: none of the joints the limb needs is untracked, (T, 25) x (25, L)
-        lacking = (~st[near]).astype(np.int64) @ need.T
+        lacking = (~at).astype(np.int64) @ need.T
         out += (close[:, None] & (lacking == 0)).astype(np.int64)
     return out
 

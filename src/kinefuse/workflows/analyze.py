@@ -102,8 +102,9 @@ def sequence_from_session(
     t = res.t_server_s
     rate = float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0
     counts = limb_sensor_counts(
-        t, [(s.observations.t_server_s, s.observations.states) for s in sensors], rate
-    )
+        t, [(s.observations.t_server_s, s.observations.states) for s in sensors], rate,
+        res.mirrored,
+    )  # fmt: skip
     seq = SkeletonSequence.from_kinect(
         res.positions,
         t_s=t,
