@@ -1,6 +1,6 @@
 """Analysis (paper B): speed against a per-frame implementation, and accuracy through the lab.
 
-    python benchmarks/bench_analysis.py speed [--frames 24000]
+    python benchmarks/bench_analysis.py speed [--frames 24000] [--repeat 3]
     python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
         [--no-subject-bias]
     python benchmarks/bench_analysis.py floor [--subjects 10] [--segment-fixed] [--json F]
@@ -621,21 +621,29 @@ def speed(args: argparse.Namespace) -> dict[str, object]:
     from kinefuse.analysis.normalize import propagate
 
     seq, rom_s = _speed_sequence(args.frames, 0)
-    t0 = time.perf_counter()
-    norm = an.normalize(seq)
-    t1 = time.perf_counter()
-    model = learn_axes(seq, norm, (0.0, rom_s))
-    t2 = time.perf_counter()
-    ang = joint_angles(seq, norm, model)
-    t3 = time.perf_counter()
-    _frames, _weight = propagate(norm, seq.kinect_positions())
-    t4 = time.perf_counter()
-    # the anatomical angles (a standing window at the start: the ROM's rest pose)
     from kinefuse.pipeline.analysis import skeleton_anatomy
 
-    ta = time.perf_counter()
-    anat, _ = skeleton_anatomy(seq, norm, (0.0, 0.3))
-    anat_s = time.perf_counter() - ta
+    # each part timed --repeat times, the fastest kept (the shared machine's other jobs and a
+    # first call's imports only ever add time); the anatomical angles from a standing window at
+    # the start (the ROM's rest pose)
+    best: dict[str, float] = {}
+    for _ in range(max(args.repeat, 1)):
+        t0 = time.perf_counter()
+        norm = an.normalize(seq)
+        t1 = time.perf_counter()
+        model = learn_axes(seq, norm, (0.0, rom_s))
+        t2 = time.perf_counter()
+        ang = joint_angles(seq, norm, model)
+        t3 = time.perf_counter()
+        _frames, _weight = propagate(norm, seq.kinect_positions())
+        t4 = time.perf_counter()
+        anat, _ = skeleton_anatomy(seq, norm, (0.0, 0.3))
+        t5 = time.perf_counter()
+        for k, v in (("n", t1 - t0), ("l", t2 - t1), ("a", t3 - t2), ("p", t4 - t3),
+                     ("anat", t5 - t4)):  # fmt: skip
+            best[k] = min(best.get(k, np.inf), v)
+    t0, t1, t2, t3 = 0.0, best["n"], best["n"] + best["l"], best["n"] + best["l"] + best["a"]
+    t4, anat_s = t3 + best["p"], best["anat"]
     vec = {"normalize_s": t1 - t0, "learn_axes_s": t2 - t1, "angles_twist_s": t3 - t2,
            "total_s": t3 - t0, "per_frame_reorientation_ms": 1e3 * (t4 - t3) / seq.n_frames,
            "per_frame_angles_ms": 1e3 * (t3 - t2) / seq.n_frames,
@@ -678,7 +686,8 @@ def speed(args: argparse.Namespace) -> dict[str, object]:
         f" s, angles+twist {vec['angles_twist_s']:.3f} s: total {vec['total_s']:.3f} s"
     )
     print(f"  anatomical angles ({len(anat)}, from a standing window): {anat_s:.3f} s, "
-          f"+{100 * anat_s / (t3 - t0):.1f} % of the total above (same run)")  # fmt: skip
+          f"+{100 * anat_s / (t3 - t0):.1f} % of the total above (same run; each part the "
+          f"fastest of {max(args.repeat, 1)})")  # fmt: skip
     print(
         f"  per-frame baseline: {1e3 * per_frame_s:.3f} ms/frame (measured on {n_b} frames), "
         f"{base_total:.1f} s for all frames"
@@ -704,6 +713,8 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="mode")
     sp = sub.add_parser("speed")
     sp.add_argument("--frames", type=int, default=24000)
+    sp.add_argument("--repeat", type=int, default=3,
+                    help="time each vectorized part this many times, keep the fastest")  # fmt: skip
     sp.add_argument("--baseline-frames", type=int, default=1000)
     ac = sub.add_parser("accuracy")
     ac.add_argument("--rom-s", type=float, default=120.0)

@@ -233,7 +233,7 @@ def carry(static_frame: ArrayLike, static_tracking: ArrayLike, tracking: ArrayLi
         ``tracking @ static_tracking^T @ static_frame``.
     """
     offset = np.asarray(static_tracking, dtype=np.float64).T @ np.asarray(static_frame, float)
-    return np.einsum("tij,jk->tik", np.asarray(tracking, dtype=np.float64), offset)
+    return np.asarray(tracking, dtype=np.float64) @ offset
 
 
 def jcs_zxy(proximal: ArrayLike, distal: ArrayLike) -> tuple[Array, Array, Array]:
@@ -249,10 +249,15 @@ def jcs_zxy(proximal: ArrayLike, distal: ArrayLike) -> tuple[Array, Array, Array
     a, b, c : (...) float
         About the proximal ``Z`` (flexion axis), the floating axis, the distal ``Y``.
     """
-    r = np.einsum("...ji,...jk->...ik", np.asarray(proximal, float), np.asarray(distal, float))
-    b = np.arcsin(np.clip(r[..., 2, 1], -1.0, 1.0))
-    a = np.arctan2(-r[..., 0, 1], r[..., 1, 1])
-    c = np.arctan2(-r[..., 2, 0], r[..., 2, 2])
+    pr, di = np.asarray(proximal, float), np.asarray(distal, float)
+
+    def rt(i: int, k: int) -> Array:  # (Rp^T Rd)[i, k]: the five entries the angles need
+        out: Array = (pr[..., :, i] * di[..., :, k]).sum(-1)
+        return out
+
+    b = np.arcsin(np.clip(rt(2, 1), -1.0, 1.0))
+    a = np.arctan2(-rt(0, 1), rt(1, 1))
+    c = np.arctan2(-rt(2, 0), rt(2, 2))
     return a, b, c
 
 
@@ -268,7 +273,7 @@ def shoulder_yxy(thorax: ArrayLike, humerus: ArrayLike, right: bool) -> tuple[Ar
         The plane of elevation ``p`` (0 lifting out to the side, 90 forward), the elevation
         ``e >= 0`` (0 hanging), the axial rotation ``r`` (positive internal).
     """
-    r = np.einsum("...ji,...jk->...ik", np.asarray(thorax, float), np.asarray(humerus, float))
+    r = np.swapaxes(np.asarray(thorax, float), -1, -2) @ np.asarray(humerus, float)
     if not right:
         m = np.array([1.0, 1.0, -1.0])
         r = r * m[:, None] * m[None, :]
@@ -461,7 +466,7 @@ def segment_poses(
                 continue
             r, p = first[other]
             tm.append(np.asarray(c, dtype=np.float64)[None])
-            mv.append((np.einsum("tij,j->ti", r, c) + p)[:, None])
+            mv.append((r @ c + p)[:, None])
         out[seg] = (
             rigid_fit(np.concatenate(tm), np.concatenate(mv, axis=1)) if len(tm) > 1 else first[seg]
         )
