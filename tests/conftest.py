@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,17 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = ROOT.parent / "shared" / "data"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Tests stop the kinefuse processes they start with SIGINT, as Ctrl-C does. A shell that
+    starts the suite in the background (``cmd &`` in a script or a subshell, ``nohup``) sets
+    SIGINT to ignored; every child inherits that and Python keeps it, so a demo, a viewer or a
+    simulation the tests started ran on through its SIGINT and the test failed (seen:
+    ``test_ctrl_c_stops_every_process_and_keeps_the_old_outputs``). Python's own handler here
+    makes the children start with the default again."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
