@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.errors import FusionError
 from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.model import (
+    AMBIGUOUS_WEIGHT,
     BONE_ORDER,
     BONES,
     JOINT_BONES,
@@ -406,7 +407,7 @@ class LiveFusion:
                     n_seen = int(seen.sum())
                     v0, v1, v2 = vote.tolist()
                     norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-                    tie = n_seen == 1 or norm < opt.walk_tie * 0.5 * n_seen
+                    tie = n_seen == 1 or norm < opt.walk_tie * AMBIGUOUS_WEIGHT * n_seen
             if tie:
                 # only ambiguous sensors that do not agree (e.g. two, one seeing the back): their
                 # vote is a tie that the facing so far would freeze; a walking body faces where
@@ -429,7 +430,7 @@ class LiveFusion:
                        else opt.unconfirmed_prior_weight)  # fmt: skip
             cap = opt.ambiguous_vote_cap
             if cap < math.inf and amb.any():
-                a0, a1, a2 = (0.5 * f[amb].sum(axis=0)).tolist()
+                a0, a1, a2 = (AMBIGUOUS_WEIGHT * f[amb].sum(axis=0)).tolist()
                 na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
                 if na > cap:
                     vote = vote - (1.0 - cap / na) * np.array([a0, a1, a2])

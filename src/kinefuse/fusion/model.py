@@ -289,6 +289,10 @@ def facing(p: Array) -> Array:
         return np.where(n > 1e-6, f / n, np.nan)
 
 
+#: An ambiguous view's weight in the swap vote (an unambiguous one: 1).
+AMBIGUOUS_WEIGHT = 0.5
+
+
 def swap_evidence(z: Array, sensor_pos: Array) -> tuple[Array, NDArray[np.bool_], Array]:
     """What each sensor's skeleton says about the facing, ``z (T, S, 25, 3)`` world.
 
@@ -317,7 +321,7 @@ def swap_evidence(z: Array, sensor_pos: Array) -> tuple[Array, NDArray[np.bool_]
         ok = all_(np.isfinite(f), axis=-1) & all_(np.isfinite(toward), axis=-1)
         f0 = _nan_to_num(f)
         amb = _dot3(f0, toward) > 0  # (only where ok counts: a NaN direction is not ok)
-    return f0, amb & ok, np.where(amb, 0.5, 1.0) * ok
+    return f0, amb & ok, np.where(amb, AMBIGUOUS_WEIGHT, 1.0) * ok
 
 
 def _nan_to_num(a: Array) -> Array:
