@@ -201,14 +201,24 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
         "default_pose_frame_of_clip": d,
     }
     norms: dict[str, list[an.Normalization]] = {"fused": [], "floor": []}
+    if args.save is not None:
+        args.save.mkdir(parents=True, exist_ok=True)
+        taken = [p.name for p in args.save.glob("take*") if p.suffix in (".sqlite", ".npz")]
+        if taken:
+            raise SystemExit(
+                f"bench_analysis: --save {args.save} already holds {sorted(taken)}; give an "
+                "empty or new folder (the takes are never overwritten)"
+            )
     with tempfile.TemporaryDirectory() as tmp:
+        # with --save the sessions are kept beside the arrays (for diagnostics)
+        folder = Path(tmp) if args.save is None else args.save
         for k, (rig_name, rig) in enumerate(rigs):
             t0 = time.perf_counter()
             kept: dict[str, object] = {}
             fused, true_seq, floor_seq, rot = simulate_take(
                 rig,
                 combined,
-                Path(tmp) / f"take{k}.sqlite",
+                folder / f"take{k}.sqlite",
                 args.seed + k,
                 args.wand_s,
                 args.seed,
