@@ -238,3 +238,32 @@ def test_hinge_leaving_its_plane_gets_a_second_axis(rom) -> None:  # type: ignor
     # without the wobble: one axis, within the budget
     clean = _learn_limb(seq, norm, "shank_left", limb_samples(seq, norm, "shank_left"), *args)
     assert clean.axes.shape == (1, 3) and clean.axes_decision.startswith("one axis: anatomy")
+
+
+def test_two_axis_rest_is_where_the_limb_stands(rom) -> None:  # type: ignore[no-untyped-def]
+    """A thigh whose movements all pass 6° beside the pose it stands in (fused movements and
+    standing carry different slow sensor offsets): the learned axis planes meet 6° off the
+    standing pose. The rest is where the limb stands, so standing reads zero; the paper's rest,
+    where the planes meet, read the 6° as every angle's zero."""
+    from kinefuse.analysis.axes import movement_mask
+    from kinefuse.analysis.parameterize import _learn_limb, _phase_frames, limb_samples
+    from kinefuse.geometry.rotations import rodrigues
+
+    seq, norm, truth = rom
+    vec = limb_samples(seq, norm, "thigh_left")
+    u = vec / np.linalg.norm(vec, axis=-1, keepdims=True)
+    moving, _ = movement_mask(u, seq.rate_hz, smooth_s=0.0)
+    still = ~moving
+    g = u[still].mean(axis=0)
+    g /= np.linalg.norm(g)
+    # shift every movement sample 6° about an axis across the standing direction
+    across = np.cross(g, _true_axes(norm, truth)["thigh_left"][0])
+    across /= np.linalg.norm(across)
+    shifted = vec.copy()
+    shifted[moving] = vec[moving] @ rodrigues(across, np.radians(6.0)).T
+    frames = _phase_frames(seq, None)
+    lm = _learn_limb(seq, norm, "thigh_left", shifted, frames, seq.kinect_positions(), 2, "dj",
+                     np.radians(15.0))  # fmt: skip
+    assert lm.axes.shape == (2, 3), lm.status
+    standing = np.degrees(swing_angles(lm, u[still])[0])
+    assert np.nanmedian(np.abs(standing), axis=0).max() < 1.5, np.nanmedian(standing, axis=0)
