@@ -2,7 +2,7 @@
 
     python benchmarks/bench_analysis.py speed [--frames 24000] [--repeat 3]
     python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
-        [--no-subject-bias]
+        [--no-subject-bias] [--save DIR]
     python benchmarks/bench_analysis.py floor [--subjects 10] [--segment-fixed] [--json F]
     python benchmarks/bench_analysis.py --smoke [MODE]
 
@@ -734,7 +734,8 @@ def main(argv: list[str] | None = None) -> int:
     ac.add_argument("--static-s", type=float, default=10.0,
                     help="standing phase (static trial) before the ROM, s; 0: none, no "
                     "anatomical angles")  # fmt: skip
-    ac.add_argument("--save", type=Path, default=None, help="folder for the takes' arrays")
+    ac.add_argument("--save", type=Path, default=None,
+                    help="a new folder for the takes' arrays and sessions")  # fmt: skip
     ac.add_argument("--ablation", action="store_true",
                     help="fuse each take again with each variant of best and print the knee "
                     "and hip angle errors per variant (with --static-s > 0)")  # fmt: skip
