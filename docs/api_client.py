@@ -1,6 +1,6 @@
 """Subscribe to a live kinefuse server's fused frames (docs/api.md). Needs only aiohttp.
 
-    KINEFUSE_TOKEN=SECRET python api_client.py ws://127.0.0.1:7401/api/v1/stream --frames 90
+KINEFUSE_TOKEN=SECRET python api_client.py ws://127.0.0.1:7401/api/v1/stream --frames 90
 """
 
 import argparse
