@@ -229,8 +229,11 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
             true_seq = _resample(true_seq, fused.t_s)
             floor_seq = _resample(floor_seq, fused.t_s)
             if args.save is not None:
-                np.savez(args.save / f"take{k}.npz", fused=fused.positions, t_s=fused.t_s,
-                         truth=true_seq.positions, floor=floor_seq.positions, rot=rot)  # fmt: skip
+                part = args.save / f"take{k}.npz.part"  # written whole, then renamed
+                with part.open("wb") as fh:
+                    np.savez(fh, fused=fused.positions, t_s=fused.t_s, truth=true_seq.positions,
+                             floor=floor_seq.positions, rot=rot)  # fmt: skip
+                part.replace(args.save / f"take{k}.npz")
             norm_t = an.normalize(true_seq)
             model_t = learn_axes(true_seq, norm_t, phase, method="dj")
             ang_t = joint_angles(true_seq, norm_t, model_t)
