@@ -97,6 +97,38 @@ def test_still_frames_and_jitter_on_a_known_stream() -> None:
     assert not fresh2[10] and fresh2.sum() == 119
 
 
+def test_limb_angle_disagreement_is_frame_free_and_ignores_mirroring() -> None:
+    """The knee and elbow angle figure: 0 for a stream against itself moved, turned or
+    mirrored; a knee bent by 20 degrees in one stream counts half (the mean over the sides)."""
+    from scipy.spatial.transform import Rotation
+
+    from kinefuse.evaluation.realism_takes import (
+        included_angle_deg,
+        limb_angle_disagreement_deg,
+    )
+    from kinefuse.skeleton import MIRROR_INDEX
+
+    p = standing_pose()[None].repeat(10, axis=0) + np.array([0.0, 0.0, 2.5])
+    k, a = JOINT_INDEX["KneeLeft"], JOINT_INDEX["AnkleLeft"]
+    assert (included_angle_deg(p, "HipLeft", "KneeLeft", "AnkleLeft") < 10.0).all()  # straight
+    turned = Rotation.from_euler("zx", [70, 20], degrees=True).apply(p.reshape(-1, 3))
+    q = turned.reshape(p.shape)[:, list(MIRROR_INDEX)] + 1.0  # turned, moved, labels mirrored
+    idx = np.arange(10)
+    g = np.zeros(10, dtype=np.int64)
+    t = idx / 30.0
+    same = limb_angle_disagreement_deg(StreamPair(p, q, t, t, g, g, idx, idx))
+    np.testing.assert_allclose(same, 0.0, atol=1e-6)
+    bent = p.copy()  # the left shank swung 20 degrees about the knee's left-right axis
+    shank = bent[:, a] - bent[:, k]
+    bent[:, a] = bent[:, k] + Rotation.from_euler("x", 20, degrees=True).apply(shank)
+    base = included_angle_deg(p, "HipLeft", "KneeLeft", "AnkleLeft")
+    moved = included_angle_deg(bent, "HipLeft", "KneeLeft", "AnkleLeft")
+    d = limb_angle_disagreement_deg(StreamPair(p, bent, t, t, g, g, idx, idx))
+    np.testing.assert_allclose(d[:, 0], np.abs(moved - base) / 2, atol=1e-9)  # knees
+    np.testing.assert_allclose(d[:, 1], 0.0, atol=1e-9)  # elbows untouched
+    assert 3.0 < d[0, 0] <= 10.0 + 1e-9  # at most half the 20 degrees
+
+
 #: The joint groups of the figures (docs/realism.md): trunk and extremities.
 TRUNK = ("SpineBase", "SpineMid", "SpineShoulder", "ShoulderLeft", "ShoulderRight")
 EXTREMITIES = ("WristLeft", "WristRight", "HandLeft", "HandRight",

@@ -104,12 +104,15 @@ def test_processes_switch_off_and_keep_the_other_draws() -> None:
     np.testing.assert_array_equal(sa.offsets_body_m, sb.offsets_body_m)
     assert sa.quality == 1.0 and sb.quality != 1.0
     # the default model has them on (every published figure stands on it); the light model has
-    # them off and is the model of before issue 21 (its view-dependent exponent too)
+    # them off and is the model of before issue 21 (its view-dependent exponent too, and its
+    # joints' errors independent: no limb coherence)
     assert draw_subject_bias(np.random.default_rng(9)).quality != 1.0
     plain = simulate_tracker(truth, s2w, Intrinsics(), radii, np.random.default_rng(4))
     np.testing.assert_array_equal(plain.joints_sensor, on.joints_sensor)
     light = light_tracker()
-    assert light == dataclasses.replace(off, view_bias_exponent=LIGHT["view_bias_exponent"])
+    assert light == dataclasses.replace(
+        off, view_bias_exponent=LIGHT["view_bias_exponent"], limb_coherence=0.0
+    )
     assert draw_subject_bias(np.random.default_rng(9), light).quality == 1.0
 
 

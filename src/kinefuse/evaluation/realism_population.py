@@ -11,9 +11,10 @@ subjects (every real take simulated with seeds ``0..N-1``):
 ``iqr_of_medians``
     the interquartile range over takes of the per-take medians: how differently people are
     tracked;
-``median_still_jitter``, ``median_bone_cv``, ``median_lr_disagreement``
-    the median over takes of the still spine jitter, the limb bone-length CV and the left/right
-    disagreement.
+``median_still_jitter``, ``median_bone_cv``, ``median_lr_disagreement``,
+``median_limb_angle``
+    the median over takes of the still spine jitter, the limb bone-length CV, the left/right
+    disagreement and the knee and elbow angle disagreement.
 
 Each comes with a 90 % bootstrap interval (takes resampled, 2000 draws, seed 0). The acceptance
 of issue 21 is in :data:`POPULATION_BANDS`.
@@ -53,6 +54,7 @@ STATISTICS: dict[str, tuple[str, Callable[[Array], float]]] = {
     "median_still_jitter": ("still_jitter_m_per_frame", lambda v: float(np.median(v))),
     "median_bone_cv": ("bone_length_cv", lambda v: float(np.median(v))),
     "median_lr_disagreement": ("lr_disagreement_fraction", lambda v: float(np.median(v))),
+    "median_limb_angle": ("limb_angle_median_deg", lambda v: float(np.median(v))),
 }
 #: Acceptance of issue 21: simulated / real of each statistic within [low, high].
 POPULATION_BANDS: dict[str, tuple[float, float]] = {
@@ -127,6 +129,7 @@ _SCALE = {
     "median_still_jitter": (1000, "mm", 2),
     "median_bone_cv": (1, "", 3),
     "median_lr_disagreement": (100, "%", 1),
+    "median_limb_angle": (1, "deg", 1),
 }
 
 

@@ -19,7 +19,13 @@ function (:func:`pair_figures`) for both:
     (SpineBase, SpineMid, SpineShoulder, Neck), over distinct frames of both streams;
 ``bone_length_cv``
     coefficient of variation of each limb bone's length (upper arms, forearms, thighs, shanks)
-    over the whole stream, median over those bones, mean of the two streams.
+    over the whole stream, median over those bones, mean of the two streams;
+``limb_angle_median_deg``
+    the two sensors' disagreement on the knees' and elbows' included angles (180 deg minus the
+    angle at the joint between its two bones; frame-free, so no fit is involved), median over
+    paired frames, both sides and both joints pooled, left and right matched as they fit best:
+    how coherently a sensor's errors move the joints of one limb (independent errors at hip,
+    knee and ankle bend the knee; an error shared by the three does not).
 
 "Standing still" is read from the stream itself, the same way for real and simulated data: the
 reported pelvis moves less than :data:`STILL_BELOW_M_S` over +/-5 distinct frames on the
@@ -76,7 +82,12 @@ FIGURE_KEYS = (
     "bone_length_cv",
 )
 #: Figures reported beside them (not part of the acceptance schema).
-EXTRA_KEYS = ("lr_disagreement_still_fraction", "still_p95_m", "still_fraction")
+EXTRA_KEYS = (
+    "lr_disagreement_still_fraction",
+    "still_p95_m",
+    "still_fraction",
+    "limb_angle_median_deg",
+)
 #: A pelvis slower than this over +/-5 frames is standing still, m/s.
 STILL_BELOW_M_S = 0.03
 _HALF_WINDOW = 5
@@ -193,6 +204,41 @@ def _bone_cv(joints: Array, fresh: NDArray[np.bool_]) -> float:
     return float(np.median(cv)) if cv else float("nan")
 
 
+#: The hinge joints of :func:`limb_angle_disagreement_deg`: (proximal, hinge, distal) per side.
+_HINGES = (("Hip", "Knee", "Ankle"), ("Shoulder", "Elbow", "Wrist"))
+
+
+def included_angle_deg(joints: ArrayLike, proximal: str, hinge: str, distal: str) -> Array:
+    """180 degrees minus the angle at ``hinge`` between its two bones, ``(N,)``; NaN where a
+    joint is missing. 0 for a straight limb, growing as it bends."""
+    p = np.asarray(joints, dtype=np.float64)
+    u = p[:, JOINT_INDEX[proximal]] - p[:, JOINT_INDEX[hinge]]
+    v = p[:, JOINT_INDEX[distal]] - p[:, JOINT_INDEX[hinge]]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.einsum("ni,ni->n", u, v) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+    return np.asarray(180.0 - np.degrees(np.arccos(np.clip(c, -1.0, 1.0))), dtype=np.float64)
+
+
+def limb_angle_disagreement_deg(pair: StreamPair) -> Array:
+    """Per paired frame and hinge (knees, elbows), the two streams' disagreement on the included
+    angle, degrees ``(P, 2)``: the mean over the two sides, with left and right matched as they
+    agree best (a mirrored skeleton is not counted as a bent knee). NaN where a side is
+    missing."""
+    a = pair.joints_a[pair.idx_a]
+    b = pair.joints_b[pair.idx_b]
+    out = []
+    for prox, hinge, dist in _HINGES:
+        la, ra, lb, rb = (
+            included_angle_deg(q, f"{prox}{side}", f"{hinge}{side}", f"{dist}{side}")
+            for q in (a, b)
+            for side in ("Left", "Right")
+        )
+        same = np.abs(la - lb) + np.abs(ra - rb)
+        crossed = np.abs(la - rb) + np.abs(ra - lb)
+        out.append(np.fmin(same, crossed) / 2.0)
+    return np.stack(out, axis=1)
+
+
 def pair_figures(pair: StreamPair) -> dict[str, float]:
     """Every figure of :data:`FIGURE_KEYS` and :data:`EXTRA_KEYS` for two streams of one body.
 
@@ -223,6 +269,8 @@ def pair_figures(pair: StreamPair) -> dict[str, float]:
     mirrored_still = float(d.mirrored[still_pairs].mean()) if still_pairs.any() else float("nan")
     cv = [_bone_cv(pair.joints_a, fa), _bone_cv(pair.joints_b, fb)]
     cv = [c for c in cv if np.isfinite(c)]
+    ang = limb_angle_disagreement_deg(pair)
+    ang = ang[np.isfinite(ang)]
     return {
         "median_m": d.median_m,
         "p95_m": d.p95_m,
@@ -234,6 +282,7 @@ def pair_figures(pair: StreamPair) -> dict[str, float]:
         "lr_disagreement_still_fraction": mirrored_still,
         "still_p95_m": float(np.percentile(still_dist, 95)) if still_dist.size else float("nan"),
         "still_fraction": float(sa[fa].mean()) if fa.any() else float("nan"),
+        "limb_angle_median_deg": float(np.median(ang)) if ang.size else float("nan"),
         "per_joint_median_m": d.per_joint_median_m,  # type: ignore[dict-item]
     }
 
@@ -404,6 +453,7 @@ _UNITS = {
     "still_jitter_m_per_frame": ("still spine jitter per frame", 1000, "mm"),
     "bone_length_cv": ("limb bone-length CV", 1, ""),
     "still_fraction": ("still frames", 100, "%"),
+    "limb_angle_median_deg": ("knee and elbow angle median", 1, "deg"),
 }
 
 

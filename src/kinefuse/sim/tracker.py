@@ -67,6 +67,7 @@ from kinefuse.sim.tracker_body import (
     _smooth_along,
     body_visibility,
     bone_lengths,
+    chain_correlate,
     far_side,
     hold_to_body,
     joint_radii,
@@ -412,6 +413,7 @@ def simulate_tracker(
     axes_b = _body_axes(tb, up)  # (T, 3, 3) believed body frame
     origin = tb[:, JOINT_INDEX["SpineBase"]]
 
+    rho = p.limb_coherence  # per-joint error fields coherent along the chain
     # (a) subject bias in the body frame, and the view-dependent pull along the viewing ray
     bias = np.einsum("tik,jk->tji", axes_b, subj.offsets_body_m)
     rng_dist = np.linalg.norm(tb, axis=-1)
@@ -420,7 +422,7 @@ def simulate_tracker(
     tracked_pos = tb + bias - u * pull[..., None]
     # view-dependent offset: a smooth function of the view angle shared by the session,
     # growing from nothing (front or back view) to view_bias_sigma_m (side view)
-    vb = view_latent(np.zeros(n_t), view).reshape(n_t, N_JOINTS, 3)
+    vb = chain_correlate(view_latent(np.zeros(n_t), view).reshape(n_t, N_JOINTS, 3), rho)
     vb *= np.asarray(p.view_bias_sigma_m)[None, :, None]
     vb *= (q * side_view**p.view_bias_exponent)[:, None, None]
     tracked_pos += np.einsum("tik,tjk->tji", axes_b, vb)
@@ -444,19 +446,21 @@ def simulate_tracker(
     pose_clock = np.cumsum(dt * (p.pose_clock_floor + body_speed / p.pose_clock_speed_m_s))
     pose_sigma = q * np.asarray(p.pose_bias_sigma_m)
     pose_err = _smooth_along(rng, pose_clock, (N_JOINTS, 3), p.pose_bias_tau_s)
+    pose_err = chain_correlate(pose_err, rho)
     tracked_pos += pose_err * pose_sigma[None, :, None]
     speed = np.take_along_axis(speed_true, perm, axis=1)
     range_factor = (rng_dist / p.noise_reference_range_m) ** p.noise_range_exponent
     axis_factor = np.array([1.0, 1.0, p.depth_axis_factor])
     static = np.asarray(p.jitter_sigma_m)[None, :]
     moving = q * np.asarray(p.motion_noise_gain_s)[None, :] * speed
-    jitter = _smooth(rng, shape, dt, p.jitter_tau_s) * static[..., None]
-    jitter += _smooth(rng, shape, dt, p.motion_noise_tau_s) * moving[..., None]
+    jitter = chain_correlate(_smooth(rng, shape, dt, p.jitter_tau_s), rho) * static[..., None]
+    fast = chain_correlate(_smooth(rng, shape, dt, p.motion_noise_tau_s), rho)
+    jitter += fast * moving[..., None]
     jitter += rng.standard_normal(shape) * p.hf_jitter_sigma_m
     tracked_pos += jitter * range_factor[..., None] * axis_factor
     far = far_side(view, perm)  # (T, J) 0 near side or centre, 1 far side seen from the side
     far_sigma = q * np.asarray(p.far_limb_sigma_m)[None, :] * far**p.far_limb_exponent
-    far_err = _smooth(rng, shape, dt, p.far_limb_tau_s) * far_sigma[..., None]
+    far_err = chain_correlate(_smooth(rng, shape, dt, p.far_limb_tau_s), rho) * far_sigma[..., None]
     tracked_pos += np.einsum("tik,tjk->tji", axes_b, far_err)
 
     # (c) INFERRED joints: pulled toward a guessed pose
@@ -474,7 +478,8 @@ def simulate_tracker(
         np.where((last[:, twin] >= 0)[..., None], mirrored, _default_local(tb, origin)),
     )
     guess = origin[:, None, :] + np.einsum("tik,tjk->tji", axes_b, guess_local) + bias
-    infer_body = inferred_latent(times, view).reshape(n_t, N_JOINTS, 3) * (q * p.inferred_sigma_m)
+    infer_body = chain_correlate(inferred_latent(times, view).reshape(n_t, N_JOINTS, 3), rho)
+    infer_body *= q * p.inferred_sigma_m
     infer_noise = np.einsum("tik,tjk->tji", axes_b, infer_body)
     # the guess pulls the joint, but the body seen around it keeps it near: the pull is at most
     # inferred_max_offset_m from where the tracker would have put it

@@ -287,6 +287,24 @@ _SIDE_SIGN: Final = np.array(
 )
 
 
+def chain_correlate(noise: ArrayLike, rho: float) -> Array:
+    """Independent per-joint noise ``(T, 25, ...)`` made coherent along the skeleton's chain.
+
+    Parents first, each joint's noise becomes ``rho * parent + sqrt(1 - rho^2) * own``: every
+    joint keeps its unit variance, and two neighbours correlate by ``rho`` (``rho^k`` for joints
+    ``k`` bones apart). ``rho = 0`` returns the noise unchanged.
+    """
+    x = np.array(noise, dtype=np.float64)
+    if rho == 0.0:
+        return x
+    bones = bone_index_array()
+    own = np.sqrt(1.0 - rho * rho)
+    for b in _BONE_ORDER:
+        pa, ch = bones[b]
+        x[:, ch] = rho * x[:, pa] + own * x[:, ch]
+    return x
+
+
 def bone_lengths(joints: ArrayLike, seen: ArrayLike | None = None) -> Array:
     """The body's bone lengths ``(24,)`` (:data:`kinefuse.skeleton.BONES` order), metres.
 

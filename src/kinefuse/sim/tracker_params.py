@@ -223,6 +223,22 @@ class TrackerParams:
             "rate of that clock (in seconds per second) while the body is perfectly still",
         ),
     )
+    limb_coherence: float = field(
+        default=0.9,
+        metadata=_meta(
+            "1",
+            "tuned",
+            "correlation of neighbouring joints' per-sensor errors (pose-dependent offset, "
+            "jitter, speed-dependent noise, view-dependent and far-limb errors, INFERRED "
+            "error), so that a limb's joints are off together: the real sensors' knee and "
+            "elbow angles agree 2-3x better than independent errors of the same size allow. "
+            "Fitted to the two sensors' knee and elbow angle disagreement per layout over "
+            + _POP.replace("fitted by tools/fit_tracker_tails.py", "")
+            + "by tools/fit_limb_coherence.py: flat from 0.8 to 0.95 (0.8 best on participants "
+            "0-4, 0.95 on 5-9 and on all ten); 0.9, the middle, keeps the position medians in "
+            "band on both halves (0.95: x0.78 at 90 deg on participants 0-4)",
+        ),
+    )
     # (b) jitter ---------------------------------------------------------------------------
     jitter_sigma_m: tuple[float, ...] = field(
         default_factory=lambda: per_joint(
@@ -777,6 +793,11 @@ class TrackerParams:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise InputError(f"TrackerParams.{name} must be in [0, 1], got {v}")
+        if not 0.0 <= self.limb_coherence < 1.0:
+            raise InputError(
+                f"TrackerParams.limb_coherence must be in [0, 1) (0: every joint's error its "
+                f"own), got {self.limb_coherence}"
+            )
         for name in (
             "pose_bias_tau_s",
             "jitter_tau_s",
@@ -856,11 +877,13 @@ LIGHT: dict[str, float] = {
     "gross_body_rate_hz": 0.0,
     "person_log_sigma": 0.0,
     "view_bias_exponent": 4.0,
+    "limb_coherence": 0.0,
 }
 
 
 def light_tracker(params: TrackerParams | None = None) -> TrackerParams:
     """``params`` (default: the default model) as :data:`LIGHT`: without the gross failures and
-    the person level, the lighter-tailed model of before issue 21 (``--tracker light``)."""
+    the person level, the lighter-tailed model of before issue 21 (``--tracker light``; its
+    joints' errors independent, as they were then)."""
     base = params if params is not None else TrackerParams()
     return replace(base, **LIGHT)  # type: ignore[arg-type]
