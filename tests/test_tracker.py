@@ -380,7 +380,7 @@ def test_coherent_errors_bend_the_knee_less(walk: np.ndarray) -> None:
     """The same per-joint error, coherent along the leg: the knee is as far off, its angle is
     not (the real sensors' knee and elbow angles agree 2-3x better than independent per-joint
     errors allow, docs/realism.md)."""
-    from kinefuse.evaluation.realism_takes import included_angle_deg
+    from kinefuse.pipeline.analysis import hinge_angle_deg
 
     s2w = sensor_at(2.5, 0.0)
     steps = np.concatenate([walk, walk[::-1]] * 20)  # 1,480 frames: the knee bent and straight
@@ -393,7 +393,7 @@ def test_coherent_errors_bend_the_knee_less(walk: np.ndarray) -> None:
         knee = JOINT_INDEX["KneeRight"]
         gap = np.linalg.norm(out.joints_sensor[:, knee] - truth[:, knee], axis=-1)
         err_pos.append(np.nanmedian(gap))
-        ang = [included_angle_deg(q, "HipRight", "KneeRight", "AnkleRight")
+        ang = [hinge_angle_deg(q, "HipRight", "KneeRight", "AnkleRight")
                for q in (out.joints_sensor, truth)]  # fmt: skip
         err_ang.append(np.nanmedian(np.abs(ang[0] - ang[1])))
     assert err_pos[1] == pytest.approx(err_pos[0], rel=0.15)

@@ -23,13 +23,13 @@ from kinefuse.evaluation.realism import load_walk
 from kinefuse.evaluation.realism_population import layout_key
 from kinefuse.evaluation.realism_takes import (
     StreamPair,
-    included_angle_deg,
     layout_angle_deg,
     real_pair,
     simulated_pair,
     take_layout,
 )
 from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.pipeline.analysis import hinge_angle_deg
 from kinefuse.workflows.realism import population_seeds
 from kinefuse.workflows.simulate import tracker_model
 
@@ -45,7 +45,7 @@ def speed_and_disagreement(pair: StreamPair, joint: str) -> np.ndarray:
     a, b = pair.joints_a[pair.idx_a], pair.joints_b[pair.idx_b]
     t = pair.t_sensor_a_s[pair.idx_a]
     prox, hinge, dist = JOINTS[joint]
-    ang = {(q, side): included_angle_deg(x, f"{prox}{side}", f"{hinge}{side}", f"{dist}{side}")
+    ang = {(q, side): hinge_angle_deg(x, f"{prox}{side}", f"{hinge}{side}", f"{dist}{side}")
            for q, x in (("a", a), ("b", b)) for side in ("Left", "Right")}  # fmt: skip
     out = []
     for side, other in (("Left", "Right"), ("Right", "Left")):

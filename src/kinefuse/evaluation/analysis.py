@@ -248,13 +248,7 @@ def _segment_angle_rmse(
     seq: SkeletonSequence, tseq: SkeletonSequence, frames: Any
 ) -> dict[str, float]:
     """RMSE (degrees) of the included knee and elbow angles from positions, fused vs truth."""
-    from kinefuse.skeleton import JOINT_INDEX as J
-
-    def included(p: Array, a: str, b: str, c: str) -> Array:
-        u = p[:, J[a]] - p[:, J[b]]
-        v = p[:, J[c]] - p[:, J[b]]
-        cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
-        return 180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    from kinefuse.pipeline.analysis import hinge_angle_deg as included
 
     p, q = seq.kinect_positions(), tseq.kinect_positions()
     out = {}

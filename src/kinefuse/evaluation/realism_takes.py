@@ -208,28 +208,19 @@ def _bone_cv(joints: Array, fresh: NDArray[np.bool_]) -> float:
 _HINGES = (("Hip", "Knee", "Ankle"), ("Shoulder", "Elbow", "Wrist"))
 
 
-def included_angle_deg(joints: ArrayLike, proximal: str, hinge: str, distal: str) -> Array:
-    """180 degrees minus the angle at ``hinge`` between its two bones, ``(N,)``; NaN where a
-    joint is missing. 0 for a straight limb, growing as it bends."""
-    p = np.asarray(joints, dtype=np.float64)
-    u = p[:, JOINT_INDEX[proximal]] - p[:, JOINT_INDEX[hinge]]
-    v = p[:, JOINT_INDEX[distal]] - p[:, JOINT_INDEX[hinge]]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.einsum("ni,ni->n", u, v) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
-    return np.asarray(180.0 - np.degrees(np.arccos(np.clip(c, -1.0, 1.0))), dtype=np.float64)
-
-
 def limb_angle_disagreement_deg(pair: StreamPair) -> Array:
     """Per paired frame and hinge (knees, elbows), the two streams' disagreement on the included
     angle, degrees ``(P, 2)``: the mean over the two sides, with left and right matched as they
     agree best (a mirrored skeleton is not counted as a bent knee). NaN where a side is
     missing."""
+    from kinefuse.pipeline.analysis import hinge_angle_deg
+
     a = pair.joints_a[pair.idx_a]
     b = pair.joints_b[pair.idx_b]
     out = []
     for prox, hinge, dist in _HINGES:
         la, ra, lb, rb = (
-            included_angle_deg(q, f"{prox}{side}", f"{hinge}{side}", f"{dist}{side}")
+            hinge_angle_deg(q, f"{prox}{side}", f"{hinge}{side}", f"{dist}{side}")
             for q in (a, b)
             for side in ("Left", "Right")
         )
