@@ -1,0 +1,114 @@
+"""How far the fused knee angle is from what any fixed weighting of the sensors' own knee angles
+could reach, on the takes of ``benchmarks/bench_analysis.py accuracy --save DIR``.
+
+    PYTHONPATH=src python tools/knee_bound.py DIR [--rom-s 120] [--seed 0] [--static-s 10]
+        [--wand-s 15]
+
+(the options those of the ``accuracy`` run that saved DIR; its defaults here). Per take and
+side, over the benchmark's walk frames: the RMSE against the truth of the knee's included angle
+(180° minus hip-knee-ankle, frame-free) of the fused skeleton, of each sensor's own skeleton
+(its stream interpolated to the fused frame times, any tracking state), of the mean and the
+median of the sensors' angles, and of the best fixed weighting of the sensors' angles (weights
+summing to 1, chosen *with the truth*: the minimum-variance combination of the sensors' errors
+over the frames every sensor has). That last one is an oracle no fusion has; a fusion that
+stays near it is using what the sensors' angles hold. docs/analysis.md, issue 20's knee.
+About 1 minute per take.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_analysis import calibration_motion  # noqa: E402
+from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
+from kinefuse.io.store.session import SessionStore  # noqa: E402
+from kinefuse.pipeline.analysis import hinge_angle_deg  # noqa: E402
+from kinefuse.pipeline.session import load_sensors  # noqa: E402
+
+SIDES = {
+    "left": ("HipLeft", "KneeLeft", "AnkleLeft"),
+    "right": ("HipRight", "KneeRight", "AnkleRight"),
+}
+MAX_GAP_S = 0.1  # a sensor's stream is not interpolated across a longer gap
+
+
+def _at(t_src: np.ndarray, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``x`` (N, 25, 3) sampled at ``t_src`` linearly interpolated to ``t``; NaN outside the
+    stream and across gaps longer than :data:`MAX_GAP_S`."""
+    i = np.clip(np.searchsorted(t_src, t), 1, max(len(t_src) - 1, 1))
+    dt = t_src[i] - t_src[i - 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = ((t - t_src[i - 1]) / dt)[:, None, None]
+    out = x[i - 1] * (1 - a) + x[i] * a
+    out[~((t >= t_src[0]) & (t <= t_src[-1]) & (dt < MAX_GAP_S))] = np.nan
+    return out
+
+
+def _rmse(e: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean(e**2)))
+
+
+def take_bound(folder: Path, k: int, walk: tuple[float, float]) -> list[str]:
+    z = np.load(folder / f"take{k}.npz")
+    t, fused, truth = z["t_s"], z["fused"], z["truth"]
+    err = np.nanmean(np.linalg.norm(fused - truth, axis=-1), 1)
+    frames = (t >= walk[0]) & (t <= walk[1]) & (err < 0.2)  # as the benchmark's walk frames
+    with SessionStore.open(folder / f"take{k}.sqlite") as store:
+        poses, _ = resolve_poses(store, None, False)
+        sensors = load_sensors(store, poses)
+    lines = []
+    for side, (h, kn, a) in SIDES.items():
+        true = hinge_angle_deg(truth, h, kn, a)[frames]
+        e_fused = hinge_angle_deg(fused, h, kn, a)[frames] - true
+        own = np.array([
+            hinge_angle_deg(_at(s.t_server_s, s.observations.joints_m, t[frames]), h, kn, a) - true
+            for s in sensors
+        ])  # fmt: skip
+        with np.errstate(all="ignore"):
+            e_mean, e_median = np.nanmean(own, 0), np.nanmedian(own, 0)
+        every = np.isfinite(own).all(0)
+        c = own[:, every] @ own[:, every].T / max(int(every.sum()), 1)
+        w = np.linalg.solve(c, np.ones(len(c)))
+        w /= w.sum()
+        oracle = float(np.sqrt(w @ c @ w))
+        fused_every = _rmse(e_fused[every])
+        per = " ".join(f"{_rmse(o):.1f}" for o in own)
+        lines.append(
+            f"take{k} {side:5s}: fused {_rmse(e_fused):5.2f}° | sensors' own {per} | mean "
+            f"{_rmse(e_mean):5.2f} median {_rmse(e_median):5.2f} | frames every sensor has "
+            f"({100 * every.mean():.0f} %): fused {fused_every:5.2f}, best fixed weights "
+            f"{oracle:5.2f} (w {' '.join(f'{x:+.2f}' for x in w)})"
+        )
+    return lines
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    ap.add_argument("folder", type=Path,
+                    help="a folder written by bench_analysis.py accuracy --save")  # fmt: skip
+    ap.add_argument("--rom-s", type=float, default=120.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--static-s", type=float, default=10.0)
+    ap.add_argument("--wand-s", type=float, default=15.0)
+    args = ap.parse_args()
+    takes = sorted(int(p.stem[4:]) for p in args.folder.glob("take*.npz"))
+    if not takes:
+        raise SystemExit(f"{args.folder}: no take*.npz (run bench_analysis.py accuracy --save)")
+    _, _, _, _, w = calibration_motion(args.rom_s, args.seed, args.static_s)
+    walk = (args.wand_s + w[0], args.wand_s + w[1])
+    print("knee included angle RMSE vs the truth over the walk, degrees")
+    for k in takes:
+        for line in take_bound(args.folder, k, walk):
+            print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
