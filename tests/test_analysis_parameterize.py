@@ -267,3 +267,33 @@ def test_two_axis_rest_is_where_the_limb_stands(rom) -> None:  # type: ignore[no
     assert lm.axes.shape == (2, 3), lm.status
     standing = np.degrees(swing_angles(lm, u[still])[0])
     assert np.nanmedian(np.abs(standing), axis=0).max() < 1.5, np.nanmedian(standing, axis=0)
+
+
+def test_axes_are_learned_from_the_frames_the_sensors_saw(rom) -> None:  # type: ignore[no-untyped-def]
+    """A fused session's limb between the frames two sensors tracked is one sensor's view or the
+    fusion's prediction: here a quarter of the phase, in 1.5 s runs, with the left knee 8 cm off
+    to the side. Left out by ``seen_frames``, the thigh's axes (in the pelvis's frame, which the
+    knee does not move) are the truth's; kept, they tilt."""
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.skeleton import JOINT_INDEX
+
+    seq, _, truth = rom
+    p = seq.kinect_positions().copy()
+    n = p.shape[0]
+    guessed = (np.arange(n) // 45) % 4 == 3  # 30 Hz
+    side = p[:, JOINT_INDEX["HipLeft"]] - p[:, JOINT_INDEX["HipRight"]]
+    side /= np.linalg.norm(side, axis=-1, keepdims=True)
+    p[guessed, JOINT_INDEX["KneeLeft"]] += 0.08 * side[guessed]
+    bad = an.SkeletonSequence.from_kinect(p, t_s=seq.t_s)
+    norm = an.normalize(bad)
+    seen = np.ones((n, len(LIMB_NAMES)), bool)
+    seen[guessed, LIMB_INDEX["thigh_left"]] = False
+    true_axes = _true_axes(norm, truth)
+    kept = axis_errors_deg(learn_axes(bad, norm), true_axes)["by_limb"]["thigh_left"]
+    left_out = axis_errors_deg(learn_axes(bad, norm, seen_frames=seen), true_axes)["by_limb"]
+    assert max(kept) > 5.0, kept  # degrees
+    assert max(left_out["thigh_left"]) < 1.5, left_out["thigh_left"]
+    # a limb seen throughout keeps its axes
+    assert max(left_out["thigh_right"]) < 1.5, left_out["thigh_right"]
+    with pytest.raises(InputError, match="seen_frames must be"):
+        learn_axes(bad, norm, seen_frames=seen[:, :5])

@@ -14,9 +14,10 @@ import pytest
 from kinefuse.cli import main
 from kinefuse.geometry.transforms import look_at
 from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.analysis import SEEN_MIN_FRACTION
+from kinefuse.pipeline.analysis import SEEN_MIN_FRACTION, analyse_sequence
 from kinefuse.sim.rig import Rig, SensorSpec, common_volume_centre, load_rig, sensors_seeing
 from kinefuse.skeleton import JOINT_INDEX
+from kinefuse.workflows.analyze import load_input
 
 #: A walk (about 3.7 m in 2.5 s): its own path is far from where the phase must happen.
 WALK = "motion/cmu/02_walk_a.amc"
@@ -201,6 +202,20 @@ def test_analyze_a_phase_the_sensors_saw(
     assert set(r["angle_rmse_tracked_deg"]) == set(tracked) == set(seen2)
     assert "knee_flexion_left" in tracked and set(tracked) <= set(r["angle_rmse_deg"])
     assert all(0.0 <= seen2[k] <= tracked[k] <= 1.0 for k in tracked)
+    # the axes are learned from the phase's frames in which two or more sensors tracked the limb
+    # and its parent, not from the fusion's guesses between them (some limbs here are seen in
+    # 80-99 % of the phase, and their axes differ between the two)
+    assert seen["axes_learned_from"].startswith("the phase's frames in which 2 or more sensors")
+    inp = load_input(s, true_calibration=True)
+    phase = (r["calibration_phase"]["start_s"], r["calibration_phase"]["end_s"])
+    learned = analyse_sequence(inp.seq, phase, seen_frames=inp.limb_sensors >= 2)["models"]["dj"]
+    every = analyse_sequence(inp.seq, phase)["models"]["dj"]
+    for name, axes in r["axes"].items():
+        np.testing.assert_allclose(axes, learned.limbs[name].axes, atol=1e-12)
+    assert min(frac.values()) < 1.0
+    assert any(
+        not np.allclose(learned.limbs[n].axes, every.limbs[n].axes, atol=1e-6) for n in limbs
+    )
 
 
 def test_analyze_a_phase_no_two_sensors_saw(

@@ -199,6 +199,7 @@ def learn_axes(
     n_axes: dict[str, int] | None = None,
     delta_deg: float = 15.0,
     refuse: dict[str, str] | None = None,
+    seen_frames: NDArray[np.bool_] | None = None,
 ) -> AxisModel:
     """Learn every limb's movement axes and rest position from a calibration phase.
 
@@ -216,6 +217,12 @@ def learn_axes(
     refuse : dict limb -> str, optional
         Limbs not to learn (no axes), with the reason that becomes their status (e.g. the
         sensors did not see them during the phase).
+    seen_frames : (T, L) bool, optional
+        Per frame and limb (:data:`~kinefuse.analysis.limbs.LIMB_INDEX`), whether the limb was
+        seen well (a fused session: tracked by two or more sensors). A limb's samples are its
+        direction in its parent's frame, so its axes are learned from the phase's frames in
+        which it and its parent were both seen; the others (one sensor's view, or the fusion's
+        prediction where no sensor tracked it) are left out.
 
     Returns
     -------
@@ -230,6 +237,12 @@ def learn_axes(
     if bad:
         raise InputError(f"n_axes must map limb names to 1 or 2, got {bad}")
     frames = _phase_frames(seq, phase)
+    seen = None if seen_frames is None else np.asarray(seen_frames, dtype=bool)
+    if seen is not None and seen.shape != (seq.n_frames, len(LIMBS)):
+        raise InputError(
+            f"seen_frames must be ({seq.n_frames}, {len(LIMBS)}) bool (frames x limbs), got "
+            f"{seen.shape}"
+        )
     p_all = seq.kinect_positions()
     out: dict[str, LimbModel] = {}
     delta = np.radians(delta_deg)
@@ -243,6 +256,8 @@ def learn_axes(
             continue
         k = n_axes.get(lb.name, lb.n_axes)
         vec = limb_samples(seq, norm, lb.name)
+        if seen is not None:  # the limb and its parent seen: its samples are trusted
+            vec = np.where((seen[:, i] & seen[:, LIMB_PARENTS[i]])[:, None], vec, np.nan)
         forced = lb.name in n_axes
         out[lb.name] = _learn_limb(
             seq, norm, lb.name, vec, frames, p_all, k, method, delta, forced=forced

@@ -150,6 +150,8 @@ def phase_seen(counts: NDArray[np.int64], t_s: Array, phase: tuple[float, float]
         "fraction_min": min(frac.values()) if frac else 0.0,
         "fraction_median": float(np.median(list(frac.values()))) if frac else 0.0,
         "not_seen": not_seen,
+        "axes_learned_from": f"the phase's frames in which {SEEN_MIN_SENSORS} or more sensors "
+        "tracked the limb and its parent",
     }
 
 
@@ -158,14 +160,21 @@ def analyse_sequence(
     phase: tuple[float, float],
     *,
     not_seen: dict[str, str] | None = None,
+    seen_frames: NDArray[np.bool_] | None = None,
 ) -> dict[str, Any]:
     """The chain on one sequence: normalization, axes by every method, angles (DJ), timing.
 
-    ``not_seen``: limbs whose axes are not learned, with the reason (:func:`phase_seen`)."""
+    ``not_seen``: limbs whose axes are not learned, with the reason (:func:`phase_seen`);
+    ``seen_frames (T, L)``: the frames each limb's axes may be learned from
+    (:func:`~kinefuse.analysis.parameterize.learn_axes`; a session's
+    ``limb_sensors >= SEEN_MIN_SENSORS``)."""
     t0 = time.perf_counter()
     norm = normalize(seq)
     t1 = time.perf_counter()
-    models = {m: learn_axes(seq, norm, phase, method=m, refuse=not_seen) for m in AXIS_METHODS}
+    models = {
+        m: learn_axes(seq, norm, phase, method=m, refuse=not_seen, seen_frames=seen_frames)
+        for m in AXIS_METHODS
+    }
     t2 = time.perf_counter()
     angles = joint_angles(seq, norm, models["dj"])
     named = angles.anatomical()

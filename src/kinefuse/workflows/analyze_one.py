@@ -123,7 +123,7 @@ def analyse_one(
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Analyse one input into ``folder`` (which exists and is empty); returns (report, result)."""
     from kinefuse.analysis.parameterize import MIN_PHASE_FRAMES
-    from kinefuse.pipeline.analysis import phase_seen
+    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS, phase_seen
 
     seq = inp.seq
     seen = None if inp.limb_sensors is None else phase_seen(inp.limb_sensors, seq.t_s, phase)
@@ -136,7 +136,14 @@ def analyse_one(
             f"{seq.t_s[0]:.2f} to {seq.t_s[-1]:.2f} s): no axes can be learned. Perform the "
             "phase where the sensors see the subject (the centre of the capture volume)"
         )
-    res = analyse_sequence(seq, phase, not_seen=None if seen is None else seen["not_seen"])
+    # a session's axes are learned from the frames its sensors saw (each limb and its parent
+    # tracked by SEEN_MIN_SENSORS or more), not from the fusion's guesses in between
+    res = analyse_sequence(
+        seq,
+        phase,
+        not_seen=None if seen is None else seen["not_seen"],
+        seen_frames=None if inp.limb_sensors is None else inp.limb_sensors >= SEEN_MIN_SENSORS,
+    )
     if inp.static_window_s is not None and inp.anatomical is None:
         # a skeleton's anatomical angles: ISB frames from its standing phase, carried by the
         # normalized limb frames (kinefuse.analysis.anatomical.skeleton_anatomical_frames)
