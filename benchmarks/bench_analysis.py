@@ -17,12 +17,13 @@ the first frames and extrapolated per frame; both must give the same angles.
 ``accuracy``: the whole chain. A range-of-motion calibration phase is generated on the default
 pose of a real clip (CMU 131_01, start-walk-stop), put before that clip, watched by 4 simulated
 Kinect v2 sensors (``kinefuse.sim.lab``), the sensors are calibrated from the wand
-(``full``), the skeleton is fused (``best``) and analysed. Measured: the axis error of Direction
-Joining, PCA and EM side by side (against the generator's true axes), the reconstruction error
-from the parameters, the twist error and the joint angles of the walk against the same analysis
-of the true motion, and the normalization consistency over ``--takes`` takes with different rigs
-and headings (takes of one subject: one ``subject_seed``). Simulated sessions go to a temporary
-folder.
+(``full``), the skeleton is fused (``best``) and analysed as ``kinefuse analyze`` does (the axes
+from each limb's movement where two or more sensors tracked it). Measured: the axis error of
+Direction Joining, PCA and EM side by side (against the generator's true axes), the
+reconstruction error from the parameters, the twist error and the joint angles of the walk
+against the same analysis of the true motion, and the normalization consistency over ``--takes``
+takes with different rigs and headings (takes of one subject: one ``subject_seed``). Simulated
+sessions go to a temporary folder.
 
 Each take is also analysed from its *floor* input: the truth plus the subject-level tracker bias
 alone (the joint-definition offsets every sensor shares, so no fusion can remove them), which is
@@ -87,10 +88,13 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     """Simulate, calibrate (full), fuse (best); return the fused and true sequences, the
     placement, and the truth plus the subject-level tracker bias only (what every sensor shares,
     so no fusion can remove it: the floor of a perfect fusion). ``keep``: a dict that gets the
-    calibrated sensors and the frame grid (``"sensors"``, ``"grid"``), to fuse them again."""
+    calibrated sensors and the frame grid (``"sensors"``, ``"grid"``), to fuse them again, and
+    the frames in which two or more sensors tracked each limb (``"seen"`` ``(T, L)``, as
+    ``kinefuse analyze`` counts them: its axes are learned from those)."""
     from kinefuse.evaluation.fusion import calibration_alignment
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
+    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS, limb_sensor_counts
     from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
     from kinefuse.sim.rig import place_actor
@@ -114,7 +118,12 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
         sensors = load_sensors(store, poses)
         res = run_method(sensors, frame_grid(sensors), "best")
         if keep is not None:
-            keep.update(sensors=sensors, grid=res.t_server_s)
+            t = res.t_server_s
+            counts = limb_sensor_counts(
+                t, [(s.observations.t_server_s, s.observations.states) for s in sensors],
+                float(1.0 / np.median(np.diff(t))), res.mirrored,
+            )  # fmt: skip
+            keep.update(sensors=sensors, grid=t, seen=counts >= SEEN_MIN_SENSORS)
         t_true, joints, _ = store.truth().motion()
         truth2world, _ = calibration_alignment(store, poses)
     # the truth in the calibration's world (the calibration sets its own origin and heading)
@@ -223,7 +232,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 args.wand_s,
                 args.seed,
                 not args.no_subject_bias,
-                keep=kept if args.ablation else None,
+                keep=kept,
             )
             sim_s = time.perf_counter() - t0
             true_seq = _resample(true_seq, fused.t_s)
@@ -254,7 +263,10 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                                        "simulate_fuse_s": sim_s}  # fmt: skip
             norm_f = an.normalize(fused)
             norms["fused"].append(norm_f)
-            take.update(analyse_take(fused, norm_f, ang_t, truth, g, true_world, phase, frames))
+            take.update(analyse_take(fused, norm_f, ang_t, truth, g, true_world, phase, frames,
+                                     seen_frames=kept["seen"]))  # fmt: skip
+            if not args.ablation:
+                kept.clear()  # the sensors are only fused again by the ablation
             take["walk_frames"] = {"used": int(walk_frames.size), "fusion_lost": lost}
             # what the consistency across takes is made of: the fused joints at the default pose
             # against the floor there (the truth plus the bias all takes of the subject share)
@@ -314,15 +326,17 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     return report
 
 
-def analyse_take(seq, norm, ang_t, truth, g, true_world, phase, frames, methods=METHODS):  # type: ignore[no-untyped-def]
+def analyse_take(seq, norm, ang_t, truth, g, true_world, phase, frames, methods=METHODS,  # type: ignore[no-untyped-def]
+                 seen_frames=None):  # fmt: skip
     """The analysis of one input of a take (the fused skeleton, or the floor input) against the
-    truth: axis errors per method, reconstruction, twist, the walk's and the ROM's angles."""
+    truth: axis errors per method, reconstruction, twist, the walk's and the ROM's angles.
+    ``seen_frames``: the fused take's frames the axes are learned from (``learn_axes``)."""
     rom_frames, walk_frames = frames
     true_axes = true_axes_in_normalization(truth.axes, g, norm.frames[rom_frames])
     take: dict[str, object] = {}
     models = {}
     for method in methods:
-        models[method] = learn_axes(seq, norm, phase, method=method)
+        models[method] = learn_axes(seq, norm, phase, method=method, seen_frames=seen_frames)
         e = axis_errors_deg(models[method], true_axes)
         two = [x for v in e["by_limb"].values() if len(v) == 2 for x in v]  # type: ignore[attr-defined]
         e["two_axis_median"] = float(np.median(two)) if two else float("nan")

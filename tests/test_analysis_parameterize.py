@@ -297,3 +297,24 @@ def test_axes_are_learned_from_the_frames_the_sensors_saw(rom) -> None:  # type:
     assert max(left_out["thigh_right"]) < 1.5, left_out["thigh_right"]
     with pytest.raises(InputError, match="seen_frames must be"):
         learn_axes(bad, norm, seen_frames=seen[:, :5])
+
+
+def test_a_limb_seen_only_away_from_its_rest_keeps_its_rest(rom) -> None:  # type: ignore[no-untyped-def]
+    """A limb that one sensor sees where it stands and two see once it moves away (a tilted
+    rig's shank): its axes come from the seen movement, its rest from where it stands."""
+    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.analysis.parameterize import limb_samples
+
+    seq, norm, truth = rom
+    rest = learn_axes(seq, norm).limbs["shank_right"].rest
+    d = limb_samples(seq, norm, "shank_right")
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    away = np.degrees(np.arccos(np.clip(d @ rest, -1.0, 1.0))) > 20.0
+    assert 0.05 < away.mean() < 0.5
+    seen = np.ones((seq.n_frames, len(LIMB_NAMES)), bool)
+    seen[~away, LIMB_INDEX["shank_right"]] = False
+    model = learn_axes(seq, norm, seen_frames=seen)
+    err = axis_errors_deg(model, _true_axes(norm, truth))["by_limb"]["shank_right"]
+    assert err[0] < 1.0, err  # degrees: the hinge's plane, from the seen movement
+    moved = np.degrees(np.arccos(np.clip(model.limbs["shank_right"].rest @ rest, -1.0, 1.0)))
+    assert moved < 0.5, moved  # degrees

@@ -220,9 +220,10 @@ def learn_axes(
     seen_frames : (T, L) bool, optional
         Per frame and limb (:data:`~kinefuse.analysis.limbs.LIMB_INDEX`), whether the limb was
         seen well (a fused session: tracked by two or more sensors). A limb's samples are its
-        direction in its parent's frame, so its axes are learned from the phase's frames in
-        which it and its parent were both seen; the others (one sensor's view, or the fusion's
-        prediction where no sensor tracked it) are left out.
+        direction in its parent's frame, so its axes are learned from the movement samples of
+        the frames in which it and its parent were both seen; the others (one sensor's view, or
+        the fusion's prediction where no sensor tracked it) are left out of the axes (not of
+        the rest, where the limb stands).
 
     Returns
     -------
@@ -256,12 +257,13 @@ def learn_axes(
             continue
         k = n_axes.get(lb.name, lb.n_axes)
         vec = limb_samples(seq, norm, lb.name)
-        if seen is not None:  # the limb and its parent seen: its samples are trusted
-            vec = np.where((seen[:, i] & seen[:, LIMB_PARENTS[i]])[:, None], vec, np.nan)
+        # the limb and its parent seen: its movement samples are measured, not guessed
+        trusted = None if seen is None else (seen[:, i] & seen[:, LIMB_PARENTS[i]])[frames]
         forced = lb.name in n_axes
         out[lb.name] = _learn_limb(
-            seq, norm, lb.name, vec, frames, p_all, k, method, delta, forced=forced
-        )
+            seq, norm, lb.name, vec, frames, p_all, k, method, delta, forced=forced,
+            trusted=trusted,
+        )  # fmt: skip
     span = (float(seq.t_s[frames[0]]), float(seq.t_s[frames[-1]]))
     return AxisModel(limbs=out, method=method, phase_s=span)
 
@@ -278,7 +280,11 @@ def _learn_limb(
     delta: float,
     *,
     forced: bool = False,
+    trusted: NDArray[np.bool_] | None = None,
 ) -> LimbModel:
+    """One limb's axes and rest from its samples ``vec`` over the phase's ``frames``;
+    ``trusted`` (over ``frames``): the movement samples the axes may use (:func:`learn_axes`'s
+    ``seen_frames``); the rest is where the limb stands in the whole phase."""
     i = LIMB_INDEX[name]
     lb = LIMBS[i]
     par = LIMB_PARENTS[i]
@@ -312,8 +318,16 @@ def _learn_limb(
     moving &= ok
     if moving.sum() < 10:
         moving = np.array(ok, dtype=bool)
-    seg = np.cumsum(np.concatenate([[True], moving[1:] != moving[:-1]]))
-    m_u, m_seg = u[moving], seg[moving]
+    # the axes from the trusted movement samples (if there are enough); where the limb rests
+    # (below) from every stationary one: a rest seen by one sensor is still where it rests, and
+    # the seen frames of a limb that one sensor sees standing are its movements away from it
+    # (a tilted rig's right shank, seen by two sensors in 18 % of its phase: knee flexion 6.6 ->
+    # 12.8 deg RMSE with the rest from those frames alone)
+    axis_samples = moving
+    if trusted is not None and (moving & trusted).sum() >= 10:
+        axis_samples = moving & trusted
+    seg = np.cumsum(np.concatenate([[True], axis_samples[1:] != axis_samples[:-1]]))
+    m_u, m_seg = u[axis_samples], seg[axis_samples]
     status = "ok"
     # one plane or two: judged on the stratified samples (one per cell of the sphere), i.e. on
     # where the limb went, not how long it stayed there. Counted in time, the test was decided
