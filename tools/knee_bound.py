@@ -7,12 +7,14 @@ could reach, on the takes of ``benchmarks/bench_analysis.py accuracy --save DIR`
 (the options those of the ``accuracy`` run that saved DIR; its defaults here). Per take and
 side, over the benchmark's walk frames: the RMSE against the truth of the knee's included angle
 (180° minus hip-knee-ankle, frame-free) of the fused skeleton, of each sensor's own skeleton
-(its stream interpolated to the fused frame times, any tracking state), of the mean and the
+(its stream interpolated to the fused frame times, any tracking state, left and right exchanged
+where the fusion's swap vote mirrored that sensor back: the sensors as the fusion reads them),
+of the mean and the
 median of the sensors' angles, and of the best fixed weighting of the sensors' angles (weights
 summing to 1, chosen *with the truth*: the minimum-variance combination of the sensors' errors
 over the frames every sensor has). That last one is an oracle no fusion has; a fusion that
 stays near it is using what the sensors' angles hold. docs/analysis.md, issue 20's knee.
-About 1 minute per take.
+About 20 s per take (each is fused again for its swap decisions).
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ from bench_analysis import calibration_motion  # noqa: E402
 from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
 from kinefuse.io.store.session import SessionStore  # noqa: E402
 from kinefuse.pipeline.analysis import hinge_angle_deg  # noqa: E402
-from kinefuse.pipeline.session import load_sensors  # noqa: E402
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method  # noqa: E402
+from kinefuse.skeleton import MIRROR_INDEX  # noqa: E402
 
 SIDES = {
     "left": ("HipLeft", "KneeLeft", "AnkleLeft"),
@@ -63,14 +66,20 @@ def take_bound(folder: Path, k: int, walk: tuple[float, float]) -> list[str]:
     with SessionStore.open(folder / f"take{k}.sqlite") as store:
         poses, _ = resolve_poses(store, None, False)
         sensors = load_sensors(store, poses)
+    res = run_method(sensors, frame_grid(sensors), "best")  # the saved take's fusion, again
+    if not np.array_equal(res.t_server_s, t):
+        raise SystemExit(f"{folder}/take{k}: the fusion's frames are not the saved ones")
+    views = []
+    for si, s in enumerate(sensors):
+        x = _at(s.t_server_s, s.observations.joints_m, t[frames])
+        flip = res.mirrored[frames, si]
+        x[flip] = x[flip][:, list(MIRROR_INDEX)]
+        views.append(x)
     lines = []
     for side, (h, kn, a) in SIDES.items():
         true = hinge_angle_deg(truth, h, kn, a)[frames]
         e_fused = hinge_angle_deg(fused, h, kn, a)[frames] - true
-        own = np.array([
-            hinge_angle_deg(_at(s.t_server_s, s.observations.joints_m, t[frames]), h, kn, a) - true
-            for s in sensors
-        ])  # fmt: skip
+        own = np.array([hinge_angle_deg(x, h, kn, a) - true for x in views])
         with np.errstate(all="ignore"):
             e_mean, e_median = np.nanmean(own, 0), np.nanmedian(own, 0)
         every = np.isfinite(own).all(0)

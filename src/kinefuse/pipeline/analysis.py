@@ -150,8 +150,8 @@ def phase_seen(counts: NDArray[np.int64], t_s: Array, phase: tuple[float, float]
         "fraction_min": min(frac.values()) if frac else 0.0,
         "fraction_median": float(np.median(list(frac.values()))) if frac else 0.0,
         "not_seen": not_seen,
-        "axes_learned_from": f"the phase's frames in which {SEEN_MIN_SENSORS} or more sensors "
-        "tracked the limb and its parent",
+        "axes_learned_from": f"each limb's movement in the phase's frames in which "
+        f"{SEEN_MIN_SENSORS} or more sensors tracked it and its parent (its rest: the whole phase)",
     }
 
 
