@@ -94,7 +94,7 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     from kinefuse.evaluation.fusion import calibration_alignment
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS, limb_sensor_counts
+    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS, fused_limb_counts
     from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
     from kinefuse.sim.rig import place_actor
@@ -118,12 +118,8 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
         sensors = load_sensors(store, poses)
         res = run_method(sensors, frame_grid(sensors), "best")
         if keep is not None:
-            t = res.t_server_s
-            counts = limb_sensor_counts(
-                t, [(s.observations.t_server_s, s.observations.states) for s in sensors],
-                float(1.0 / np.median(np.diff(t))), res.mirrored,
-            )  # fmt: skip
-            keep.update(sensors=sensors, grid=t, seen=counts >= SEEN_MIN_SENSORS)
+            seen = fused_limb_counts(sensors, res) >= SEEN_MIN_SENSORS
+            keep.update(sensors=sensors, grid=res.t_server_s, seen=seen)
         t_true, joints, _ = store.truth().motion()
         truth2world, _ = calibration_alignment(store, poses)
     # the truth in the calibration's world (the calibration sets its own origin and heading)

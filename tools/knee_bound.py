@@ -34,24 +34,12 @@ from kinefuse.io.store.session import SessionStore  # noqa: E402
 from kinefuse.pipeline.analysis import hinge_angle_deg  # noqa: E402
 from kinefuse.pipeline.session import frame_grid, load_sensors, run_method  # noqa: E402
 from kinefuse.skeleton import MIRROR_INDEX  # noqa: E402
+from kinefuse.sync.assembly import interpolate  # noqa: E402
 
 SIDES = {
     "left": ("HipLeft", "KneeLeft", "AnkleLeft"),
     "right": ("HipRight", "KneeRight", "AnkleRight"),
 }
-MAX_GAP_S = 0.1  # a sensor's stream is not interpolated across a longer gap
-
-
-def _at(t_src: np.ndarray, x: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """``x`` (N, 25, 3) sampled at ``t_src`` linearly interpolated to ``t``; NaN outside the
-    stream and across gaps longer than :data:`MAX_GAP_S`."""
-    i = np.clip(np.searchsorted(t_src, t), 1, max(len(t_src) - 1, 1))
-    dt = t_src[i] - t_src[i - 1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = ((t - t_src[i - 1]) / dt)[:, None, None]
-    out = x[i - 1] * (1 - a) + x[i] * a
-    out[~((t >= t_src[0]) & (t <= t_src[-1]) & (dt < MAX_GAP_S))] = np.nan
-    return out
 
 
 def _rmse(e: np.ndarray) -> float:
@@ -71,7 +59,7 @@ def take_bound(folder: Path, k: int, walk: tuple[float, float]) -> list[str]:
         raise SystemExit(f"{folder}/take{k}: the fusion's frames are not the saved ones")
     views = []
     for si, s in enumerate(sensors):
-        x = _at(s.t_server_s, s.observations.joints_m, t[frames])
+        x = interpolate(s.t_server_s, s.observations.joints_m, t[frames])
         flip = res.mirrored[frames, si]
         x[flip] = x[flip][:, list(MIRROR_INDEX)]
         views.append(x)

@@ -107,6 +107,16 @@ def limb_sensor_counts(
     return out
 
 
+def fused_limb_counts(sensors: Any, result: Any) -> NDArray[np.int64]:
+    """:func:`limb_sensor_counts` at a fusion's frames: ``sensors`` the
+    :class:`~kinefuse.pipeline.session.CalibratedSensor` list it fused, ``result`` its
+    :class:`~kinefuse.fusion.session.MethodResult` (frame times and swap decisions)."""
+    t = result.t_server_s
+    rate = float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0
+    streams = [(s.observations.t_server_s, s.observations.states) for s in sensors]
+    return limb_sensor_counts(t, streams, rate, result.mirrored)
+
+
 def phase_seen(counts: NDArray[np.int64], t_s: Array, phase: tuple[float, float]) -> dict[str, Any]:
     """How well the calibration phase was seen: per limb the fraction of the phase's frames in
     which at least :data:`SEEN_MIN_SENSORS` sensors tracked it, and the limbs seen in less than

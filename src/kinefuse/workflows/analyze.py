@@ -80,7 +80,7 @@ def sequence_from_session(
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.fusion.methods import METHODS
     from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.analysis import limb_sensor_counts
+    from kinefuse.pipeline.analysis import fused_limb_counts
     from kinefuse.pipeline.session import frame_grid, load_usable_sensors, run_method
 
     if method not in METHODS:
@@ -101,10 +101,7 @@ def sequence_from_session(
         stored_static = (float(st[0]), float(st[1]))
     t = res.t_server_s
     rate = float(1.0 / np.median(np.diff(t))) if t.size > 1 else 30.0
-    counts = limb_sensor_counts(
-        t, [(s.observations.t_server_s, s.observations.states) for s in sensors], rate,
-        res.mirrored,
-    )  # fmt: skip
+    counts = fused_limb_counts(sensors, res)
     seq = SkeletonSequence.from_kinect(
         res.positions,
         t_s=t,
