@@ -67,7 +67,7 @@ from kinefuse.analysis.consistency import (  # noqa: E402
 from kinefuse.analysis.kinematics import joint_angles, reconstruction_error  # noqa: E402
 from kinefuse.analysis.normalize import BODY_JOINTS  # noqa: E402
 from kinefuse.analysis.parameterize import learn_axes  # noqa: E402
-from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
+from kinefuse.analysis.rom import make_rom_motion, prepend_rom, standing_pose  # noqa: E402
 from kinefuse.motion.types import Motion  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -168,18 +168,20 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     rom, truth = make_rom_motion(clip.positions[d], rom_s, rng, rate_hz=60.0)
     combined = prepend_rom(rom, clip, blend_s=1.0)
     walk = (rom.duration_s + 1.0, combined.duration_s)
-    if static_s > 0:
-        stand = standing_motion(rom.positions[0], static_s, combined.rate_hz,
+    lead = 0.0
+    if static_s > 0:  # standing upright, a blend into the ROM's first pose, as simulate --static
+        stand = standing_motion(standing_pose(rom.positions[0]), static_s, combined.rate_hz,
                                 np.random.default_rng(seed + 1))  # fmt: skip
-        both = np.concatenate([stand.positions[:-1], combined.positions])
-        combined = Motion(both, combined.rate_hz, source=f"{stand.source} + {combined.source}")
-        walk = (walk[0] + static_s, walk[1] + static_s)
+        n_before = combined.n_frames
+        combined = prepend_rom(stand, combined, blend_s=1.0)
+        lead = (combined.n_frames - n_before) / combined.rate_hz
+        walk = (walk[0] + lead, walk[1] + lead)
     # hold the last pose 2 s so that the end of the session (where the fused skeleton of the
     # last second goes astray) is not part of the walk
     hold = np.repeat(combined.positions[-1:], int(2.0 * combined.rate_hz), axis=0)
     combined = Motion(np.concatenate([combined.positions, hold]), combined.rate_hz,
                       source=combined.source + " + 2 s hold")  # fmt: skip
-    return d, rom, truth, combined, walk
+    return d, rom, truth, combined, walk, lead
 
 
 def accuracy(args: argparse.Namespace) -> dict[str, object]:
@@ -189,10 +191,10 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     static_s = args.static_s
     if args.ablation and not static_s > 0:
         raise SystemExit("accuracy --ablation needs a standing phase (--static-s > 0)")
-    d, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed, static_s)
+    d, rom, truth, combined, walk, lead = calibration_motion(args.rom_s, args.seed, static_s)
     cal_s = args.wand_s
     static_window = (cal_s, cal_s + static_s)
-    cal_s += static_s  # the ROM phase follows the standing one
+    cal_s += lead  # the ROM phase follows the standing one and its blend
     phase = (cal_s, cal_s + rom.duration_s)
     walk = (args.wand_s + walk[0], args.wand_s + walk[1])  # motion time includes the standing
     rigs = [
@@ -553,7 +555,7 @@ def floor(args: argparse.Namespace) -> dict[str, object]:
     from kinefuse.sim.lab import LabConfig, _seeds
     from kinefuse.sim.tracker_body import _body_axes
 
-    _, rom, truth, combined, walk = calibration_motion(args.rom_s, args.seed)
+    _, rom, truth, combined, walk, _ = calibration_motion(args.rom_s, args.seed)
     t_s = np.arange(int(combined.duration_s * 30.0)) / 30.0  # a Kinect's rate
     joints = combined.at(t_s)
     true_seq = an.SkeletonSequence.from_kinect(joints, t_s=t_s, source="truth")

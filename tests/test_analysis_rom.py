@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from kinefuse import analysis as an
-from kinefuse.analysis.rom import MOVEMENTS, make_rom_motion, prepend_rom
+from kinefuse.analysis.rom import MOVEMENTS, make_rom_motion, prepend_rom, standing_pose
 from kinefuse.errors import InputError
-from kinefuse.motion import load_motion
+from kinefuse.motion import facing_direction, load_motion
+from kinefuse.skeleton import JOINT_INDEX, bone_index_array
 
 
 @pytest.fixture(scope="module")
@@ -66,3 +67,32 @@ def test_bad_input(clip) -> None:  # type: ignore[no-untyped-def]
         make_rom_motion(np.zeros((24, 3)))
     with pytest.raises(InputError, match="would move limbs at"):
         make_rom_motion(clip.positions[0], 5.0)
+
+
+def test_standing_pose_is_upright_on_the_same_body(clip) -> None:  # type: ignore[no-untyped-def]
+    """A static trial's stance from a pose mid-stride (this clip's default pose has both knees
+    near 40°): legs straight below the hips, arms hanging, every bone and the trunk kept."""
+    pose = clip.positions[an.find_default_pose(an.SkeletonSequence.from_motion(clip))]
+    got = standing_pose(pose)
+    j = JOINT_INDEX
+    bones = bone_index_array()
+    length = lambda p: np.linalg.norm(p[bones[:, 1]] - p[bones[:, 0]], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(length(got), length(pose), atol=1e-9)
+    trunk = [j[n] for n in ("SpineBase", "SpineMid", "SpineShoulder", "Neck", "Head",
+                            "HipLeft", "HipRight", "ShoulderLeft", "ShoulderRight")]  # fmt: skip
+    lift = got[trunk] - pose[trunk]
+    np.testing.assert_allclose(lift[:, :2], 0.0, atol=1e-12)  # the trunk only rises, rigidly
+    np.testing.assert_allclose(lift[:, 2], lift[0, 2], atol=1e-12)
+    assert lift[0, 2] > 0.01  # straightened legs are longer than bent ones
+    fwd = facing_direction(pose)
+    for s in ("Left", "Right"):
+        for a, b in (("Hip", "Knee"), ("Knee", "Ankle"), ("Shoulder", "Wrist")):
+            v = got[j[f"{b}{s}"]] - got[j[f"{a}{s}"]]
+            np.testing.assert_allclose(v[:2], 0.0, atol=1e-9, err_msg=f"{a}-{b} {s}")
+            assert v[2] < 0
+        foot = got[j[f"Foot{s}"]] - got[j[f"Ankle{s}"]]
+        assert foot[:2] @ fwd[:2] > 0.8 * np.linalg.norm(foot[:2])  # the foot points ahead
+    feet = [j[f"{n}{s}"] for n in ("Ankle", "Foot") for s in ("Left", "Right")]
+    assert got[feet, 2].min() == pytest.approx(pose[feet, 2].min(), abs=1e-12)
+    with pytest.raises(InputError, match="25 finite Kinect joints"):
+        standing_pose(np.where(np.arange(25)[:, None] == 3, np.nan, pose))

@@ -99,7 +99,7 @@ def main() -> None:
     takes = sorted(int(p.stem[4:]) for p in args.folder.glob("take*.npz"))
     if not takes:
         raise SystemExit(f"{args.folder}: no take*.npz (run bench_analysis.py accuracy --save)")
-    _, _, _, _, w = calibration_motion(args.rom_s, args.seed, args.static_s)
+    _, _, _, _, w, _ = calibration_motion(args.rom_s, args.seed, args.static_s)
     walk = (args.wand_s + w[0], args.wand_s + w[1])
     print("knee included angle RMSE vs the truth over the walk, degrees")
     for k in takes:

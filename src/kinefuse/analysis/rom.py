@@ -359,3 +359,68 @@ def prepend_rom(rom: Motion, clip: Motion, /, *, blend_s: float = 1.0) -> Motion
         rate_hz=clip.rate_hz,
         source=f"ROM {rom.duration_s:.1f} s + {blend_s:g} s blend + {clip.source}",
     )
+
+
+#: The joints that move with each arm when :func:`standing_pose` lets it hang, shoulder first.
+_ARM_CHAIN = ("Shoulder", "Elbow", "Wrist", "Hand", "HandTip", "Thumb")
+
+
+def standing_pose(pose: ArrayLike, /) -> Array:
+    """A static trial's upright stance ``(25, 3)`` made from a subject's pose ``(25, 3)``.
+
+    A clip's default-pose frame (:func:`kinefuse.analysis.find_default_pose`, the paper's
+    heuristics) can be a moment of a stride: 02_walk_a's has the right knee bent 72°, 131_01's
+    both knees near 40°. A static trial is stood upright instead, so this keeps the trunk, head
+    and hips (and every bone length) and changes the limbs:
+
+    * each leg hangs straight down from its hip (knee included angle 0), its ``Foot`` joint
+      ahead of the ankle as in the pose's supporting foot (the lower ankle): the same drop below
+      the ankle, its own length, pointing where the foot pointed (the body's forward if the foot
+      pointed more than 60° away from it);
+    * each arm, rigid from the shoulder (the elbow keeps its bend, the hand its shape), turns by
+      the smallest rotation that puts the wrist straight below the shoulder;
+    * the body moves vertically so that its lowest foot joint is where the pose's was.
+
+    Raises
+    ------
+    InputError
+        ``pose`` is not ``(25, 3)`` or lacks a joint (NaN).
+    """
+    from kinefuse.geometry.rotations import minimal_rotation
+    from kinefuse.motion.retarget import facing_direction
+
+    p = np.array(pose, dtype=np.float64)
+    if p.shape != (N_JOINTS, 3) or not np.isfinite(p).all():
+        raise InputError(
+            f"a standing pose is made from 25 finite Kinect joints (25, 3); got shape "
+            f"{p.shape} with {int((~np.isfinite(p).all(-1)).sum()) if p.ndim == 2 else '?'} "
+            "missing"
+        )
+    j = JOINT_INDEX
+    up = np.array([0.0, 0.0, 1.0])
+    fwd = facing_direction(p)
+    floor_z = min(p[j[f"{f}{s}"], 2] for f in ("Ankle", "Foot") for s in ("Left", "Right"))
+    stance = min(("Left", "Right"), key=lambda s: p[j[f"Ankle{s}"], 2])
+    drop = p[j[f"Foot{stance}"], 2] - p[j[f"Ankle{stance}"], 2]
+    out = p.copy()
+    for s in ("Left", "Right"):
+        hip, knee, ankle, foot = (j[f"{n}{s}"] for n in ("Hip", "Knee", "Ankle", "Foot"))
+        thigh = np.linalg.norm(p[knee] - p[hip])
+        shank = np.linalg.norm(p[ankle] - p[knee])
+        out[knee] = p[hip] - thigh * up
+        out[ankle] = out[knee] - shank * up
+        v = p[foot] - p[ankle]
+        length = float(np.linalg.norm(v))
+        h = v * np.array([1.0, 1.0, 0.0])
+        hn = np.linalg.norm(h)
+        heading = h / hn if hn > 1e-6 and float(h @ fwd) > 0.5 * hn else fwd
+        dz = float(np.clip(drop, -length, length))
+        out[foot] = out[ankle] + np.sqrt(max(length**2 - dz**2, 0.0)) * heading + dz * up
+        arm = [j[f"{n}{s}"] for n in _ARM_CHAIN]
+        sh = p[arm[0]]
+        hang = p[j[f"Wrist{s}"]] - sh
+        r = minimal_rotation(hang / np.linalg.norm(hang), -up)
+        out[arm[1:]] = sh + (p[arm[1:]] - sh) @ r.T
+    feet = [j[f"{f}{s}"] for f in ("Ankle", "Foot") for s in ("Left", "Right")]
+    out[:, 2] += floor_z - out[feet, 2].min()
+    return out

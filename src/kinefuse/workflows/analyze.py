@@ -471,6 +471,7 @@ class RomPhase:
     blend_s: float
     truth: dict[str, Any]  # JSON-able truth (true axes, rest, twist over time ...)
     static_s: float = 0.0  # length of the standing phase before the ROM, seconds; 0: none
+    rom_start_s: float = 0.0  # where the ROM starts in ``motion`` (after standing and a blend)
 
 
 #: Postural sway of the simulated standing phase: the whole body moves horizontally by a slow
@@ -506,8 +507,10 @@ def add_rom_phase(
     static_s: float | None = None,
 ) -> RomPhase:
     """A generated range-of-motion phase of ``rom_s`` seconds before ``clip`` (placed), and
-    before it a standing phase of ``static_s`` seconds (a static trial: the default pose held,
-    with postural sway, :func:`standing_motion`). Either may be None (not both).
+    before it a standing phase of ``static_s`` seconds (a static trial: the subject stands
+    upright, :func:`kinefuse.analysis.rom.standing_pose` of the default pose, with postural sway,
+    :func:`standing_motion`, then blends into the ROM's first pose in ``blend_s``). Either may be
+    None (not both).
 
     The subject's default pose is the clip's default-pose frame
     (:func:`kinefuse.analysis.find_default_pose`), moved (translation, rotation about z) to
@@ -515,10 +518,9 @@ def add_rom_phase(
     changes the pose. Randomness comes from ``seed`` (its own stream, not the simulator's).
     """
     from kinefuse.analysis import find_default_pose
-    from kinefuse.analysis.rom import make_rom_motion, prepend_rom
+    from kinefuse.analysis.rom import make_rom_motion, prepend_rom, standing_pose
     from kinefuse.geometry.rotations import rot_z
     from kinefuse.motion import facing_direction
-    from kinefuse.motion.types import Motion
     from kinefuse.skeleton import JOINT_INDEX
 
     if rom_s is None and static_s is None:
@@ -565,25 +567,23 @@ def add_rom_phase(
     else:
         motion = clip
         start = placed
-    static_len = 0.0
+    static_len = lead = 0.0
     if static_s is not None:
         rng_s = np.random.default_rng(np.random.SeedSequence([int(seed), 0x535441]))  # "STA"
-        stand = standing_motion(start, static_s, clip.rate_hz, rng_s)
-        if rom_s is None:  # standing, a blend into the clip, the clip
-            motion = prepend_rom(stand, clip, blend_s=blend_s)
-        else:  # standing, then the ROM (which starts from the same pose)
-            motion = Motion(
-                positions=np.concatenate([stand.positions[:-1], motion.positions]),
-                rate_hz=clip.rate_hz,
-                source=f"{stand.source} + {motion.source}",
-            )
-        static_len = (stand.n_frames - 1) / clip.rate_hz
+        # standing upright (the default pose can be a moment of a stride), a blend into the
+        # ROM's first pose (or the clip's), then the ROM and the clip
+        stand = standing_motion(standing_pose(start), static_s, clip.rate_hz, rng_s)
+        n_before = motion.n_frames
+        motion = prepend_rom(stand, motion, blend_s=blend_s)
+        static_len = stand.duration_s
+        lead = (motion.n_frames - n_before) / clip.rate_hz
     return RomPhase(
         motion=motion,
         rom_s=0.0 if rom_s is None else float(rom.duration_s),
         blend_s=blend_s,
         truth=info,
         static_s=static_len,
+        rom_start_s=lead,
     )
 
 
@@ -597,7 +597,7 @@ def record_rom_phase(session: Path, phase: RomPhase, start_s: float) -> None:
         if phase.static_s > 0:
             store.set_meta("static_phase_server_s", [start_s, start_s + phase.static_s])
         if phase.rom_s > 0:
-            rom_start = start_s + phase.static_s
+            rom_start = start_s + phase.rom_start_s
             store.set_meta("rom_phase_server_s", [rom_start, rom_start + phase.rom_s])
             store.set_meta("rom_blend_s", phase.blend_s)
             truth = dict(phase.truth)
