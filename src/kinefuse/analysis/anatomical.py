@@ -501,6 +501,7 @@ def skeleton_anatomical_frames(
     limb_frames: Mapping[str, Array],
     window: tuple[float, float],
     zero: str = "standing",
+    static_frames: Mapping[str, Array] | None = None,
 ) -> SkeletonAnatomy:
     """ISB segment frames of a skeleton (joint centres, no markers), from a static window.
 
@@ -533,6 +534,11 @@ def skeleton_anatomical_frames(
         centres as above, so the standing posture reads its own angles; a depth sensor's joint
         centres are not anatomical landmarks, and their joint-definition offsets (centimetres,
         shared by every sensor) then read as constant angle offsets.
+    static_frames : mapping of str to (T, 3, 3) float, optional
+        Limb name -> the tracking frames to express the static frame in, where they differ
+        from ``limb_frames`` (a limb whose twist reference is weak in standing:
+        :func:`kinefuse.pipeline.analysis.skeleton_anatomy` gives the thigh's and upper arm's
+        carried frames when their hinge is nearly straight there).
 
     Raises
     ------
@@ -618,7 +624,8 @@ def skeleton_anatomical_frames(
         if tr is None or not np.isfinite(tr[sel]).all((-2, -1)).any():
             status[seg] = "skipped: the limb has no frame in the static window"
             continue
-        frames[seg] = carry(a_static, chordal_mean(tr[sel]), tr)
+        held = tr if static_frames is None else static_frames.get(seg, tr)
+        frames[seg] = carry(a_static, chordal_mean(held[sel]), tr)
         status[seg] = "ok"
     if "SpineBase" in idx:
         sb = p[:, idx["SpineBase"]]

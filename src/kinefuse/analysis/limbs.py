@@ -52,6 +52,12 @@ class Limb:
         normalized frame. The paper takes the axis closest to the limb in the default pose; for
         the foot (forward and down, near 45°) that choice flips between recordings, so every
         limb names its axis: z for the trunk and limbs, x for the foot.
+    one_way : bool
+        The twist reference is a hinge that bends one way (the thigh's, the knee). A bend read
+        the other way (a hyperextended knee: a depth sensor's knee centre a few centimetres
+        behind the hip-ankle line of a straight leg) lies in the same plane, so the reference's
+        twist is taken modulo 180°, nearest the carried frame
+        (:func:`kinefuse.analysis.normalize._reference_twist`).
     """
 
     name: str
@@ -62,6 +68,7 @@ class Limb:
     twist_ref: tuple[str, ...]
     side: str = ""
     body_axis: int = 2
+    one_way: bool = False
 
     @property
     def twist_observable(self) -> bool:
@@ -97,7 +104,16 @@ def _sided(side: str) -> tuple[Limb, ...]:
             (f"Hand{s}", f"Thumb{s}"),
             side,
         ),
-        Limb(f"thigh_{side}", f"Hip{s}", f"Knee{s}", "pelvis", 2, (f"Knee{s}", f"Ankle{s}"), side),
+        Limb(
+            f"thigh_{side}",
+            f"Hip{s}",
+            f"Knee{s}",
+            "pelvis",
+            2,
+            (f"Knee{s}", f"Ankle{s}"),
+            side,
+            one_way=True,
+        ),
         Limb(
             f"shank_{side}",
             f"Knee{s}",

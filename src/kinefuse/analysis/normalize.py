@@ -486,7 +486,14 @@ def _reference_twist(lb: Limb, k: LimbConstants, p: Array, carried: Array) -> tu
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
     w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
-    g = frame_from(u, r) @ k.c  # the reference's frame, equal to carried where c was taken
+    f = frame_from(u, r)
+    if lb.one_way:
+        # a bend the other way is the same hinge plane (Limb.one_way): its frame is turned by
+        # 180° about the limb (before the twist is measured: a half turn's twist is undefined)
+        expected = carried @ k.c.T  # the reference's frame for a bend the usual way
+        back = dot(f[..., :, 1], expected[..., :, 1]) < 0.0
+        f = np.where(back[..., None, None], f * np.array([1.0, -1.0, -1.0]), f)
+    g = f @ k.c  # the reference's frame, equal to carried where c was taken
     return twist_angle(tmm(carried, g), np.broadcast_to(k.axis, u.shape)), w
 
 
@@ -558,6 +565,26 @@ def propagate(
             lb, k, p, frames[:, par] if par >= 0 else None, src
         )
     return frames, weight
+
+
+def carried_frames(norm: Normalization, positions: Array, /, limb: str) -> Array:
+    """One limb's frames ``(T, 3, 3)`` with its twist carried from its parent (the minimal
+    swing from the default direction), not turned toward its twist reference.
+
+    Where the reference was calibrated (a bent knee near the default direction) the two agree;
+    where it is weak (a standing knee or elbow, nearly straight, whose bend plane is a few
+    centimetres of joint-centre error) the carried frame is the better one. ``positions`` are
+    the normalized sequence's ``(T, 25, 3)``. The limb's own frames for a limb whose twist is
+    not taken from a reference.
+    """
+    i = LIMB_INDEX[limb]
+    k = norm.constants.get(limb)
+    if k is None or k.kind != "twist":
+        return norm.frames[:, i]
+    lb = LIMBS[i]
+    carried = LimbConstants("carried", np.eye(3), k.l0, k.d0, k.axis)
+    p = np.asarray(positions, dtype=np.float64)
+    return _limb_frames(lb, carried, p, norm.frames[:, LIMB_PARENTS[i]], None)[0]
 
 
 def _mean_rot(r: Array) -> Array:

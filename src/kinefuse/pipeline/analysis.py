@@ -210,13 +210,20 @@ def skeleton_anatomy(
     :class:`~kinefuse.analysis.anatomical.SkeletonAnatomy`)."""
     from kinefuse.analysis.anatomical import anatomical_angles, skeleton_anatomical_frames
     from kinefuse.analysis.limbs import LIMB_NAMES
+    from kinefuse.analysis.normalize import carried_frames
 
-    limb_frames = {n: norm.frames[:, i] for i, n in enumerate(LIMB_NAMES)}
-    sa = skeleton_anatomical_frames(seq.kinect_positions(), JOINTS, seq.t_s, limb_frames, window,
-                                    zero=zero)  # fmt: skip
-    angles = anatomical_angles(sa.frames, sa.lab)
     p = seq.kinect_positions()
     sel = (seq.t_s >= window[0]) & (seq.t_s <= window[1])
+    limb_frames = {n: norm.frames[:, i] for i, n in enumerate(LIMB_NAMES)}
+    # a limb whose twist reference is not fully conditioned while standing (a nearly straight
+    # knee or elbow: its bend plane is joint-centre error) holds its static frame in the frame
+    # carried from its parent; the reference takes over where the hinge bends
+    weak = [n for i, n in enumerate(LIMB_NAMES)
+            if sel.any() and np.nanmedian(norm.twist_weight[sel, i]) < 1.0]  # fmt: skip
+    static = {n: carried_frames(norm, p, n) for n in weak}
+    sa = skeleton_anatomical_frames(p, JOINTS, seq.t_s, limb_frames, window, zero=zero,
+                                    static_frames=static)  # fmt: skip
+    angles = anatomical_angles(sa.frames, sa.lab)
     for side in ("left", "right"):
         name = f"elbow_flexion_{side}"
         if name in angles:
