@@ -282,7 +282,16 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 k2: floor[k2]
                 for k2 in ("axis_error_deg_dj", "twist_error_deg", "angle_rmse_deg_walk")
             }
-            if static_s > 0:  # the anatomical angles from the standing phase, same chain
+            refused = None
+            if static_s > 0:  # a fused standing phase that is not still is refused, as analyze does
+                from kinefuse.errors import InputError
+
+                try:
+                    skeleton_anatomy(fused, norm_f, static_window)
+                except InputError as e:
+                    refused = take["anatomical_refused"] = str(e)
+                    print(f"  anatomical angles of take {k} refused: {refused}", flush=True)
+            if static_s > 0 and refused is None:  # the anatomical angles, same chain
                 for zero in ("standing", "geometry"):
                     sfx = "" if zero == "standing" else "_geometry"
                     anat_t, _ = skeleton_anatomy(true_seq, norm_t, static_window, zero)
