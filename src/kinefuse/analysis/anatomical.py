@@ -537,8 +537,9 @@ def skeleton_anatomical_frames(
     static_frames : mapping of str to (T, 3, 3) float, optional
         Limb name -> the tracking frames to express the static frame in, where they differ
         from ``limb_frames`` (a limb whose twist reference is weak in standing:
-        :func:`kinefuse.pipeline.analysis.skeleton_anatomy` gives the thigh's and upper arm's
-        carried frames when their hinge is nearly straight there).
+        :func:`kinefuse.pipeline.analysis.skeleton_anatomy` gives the frame carried from the
+        parent of each limb whose twist weight is under 1 there, e.g. a thigh over a nearly
+        straight knee).
 
     Raises
     ------

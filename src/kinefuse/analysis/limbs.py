@@ -55,9 +55,9 @@ class Limb:
     one_way : bool
         The twist reference is a hinge that bends one way (the thigh's, the knee). A bend read
         the other way (a hyperextended knee: a depth sensor's knee centre a few centimetres
-        behind the hip-ankle line of a straight leg) lies in the same plane, so the reference's
-        twist is taken modulo 180°, nearest the carried frame
-        (:func:`kinefuse.analysis.normalize._reference_twist`).
+        behind the hip-ankle line of a straight leg) lies in the same plane, so where the bend
+        points against the calibrated one the reference's frame is turned by 180° about the limb
+        before its twist is measured (:func:`kinefuse.analysis.normalize._reference_twist`).
     """
 
     name: str
