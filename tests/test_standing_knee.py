@@ -79,3 +79,32 @@ def test_a_knee_read_bent_sideways_standing_keeps_the_flexion(stance) -> None:  
     assert np.median(got["true"]["knee_flexion_right"][150:]) == pytest.approx(60.0, abs=1.0)
     # the offset knee reads its flexion within a few degrees, not the sideways bend as a twist
     assert np.median(k[150:]) == pytest.approx(60.0, abs=4.0), np.median(k[150:])
+
+
+def test_a_static_window_is_refused_when_the_body_moves_not_when_one_joint_wanders(
+    stance,  # type: ignore[no-untyped-def]
+) -> None:
+    """One joint a tracker loses track of (an ankle wandering 6 cm) is not the subject moving;
+    the body swaying 6 cm, or a knee lifted 12 cm, is."""
+    from kinefuse.errors import InputError
+
+    flex = np.concatenate([np.zeros(60), 60.0 * np.sin(np.linspace(0, np.pi, 60))])
+    base = _bent(stance, flex)
+    window = (0.0, 59.0 / RATE)
+    rng = np.random.default_rng(0)
+    ankle = base.copy()
+    ankle[:60, JOINT_INDEX["AnkleRight"]] += rng.normal(0.0, 0.035, (60, 3))
+    sway = base.copy()
+    sway[:60] += np.linspace(-0.07, 0.07, 60)[:, None, None] * np.array([1.0, 0.0, 0.0])
+    lift = base.copy()
+    lift[:60:4, JOINT_INDEX["KneeLeft"], 2] += 0.12  # a quarter of the frames
+    for p, refused in ((base, None), (ankle, None), (sway, "SpineBase|Hip|Knee|Ankle|Shoulder"),
+                       (lift, "KneeLeft is 120 mm")):  # fmt: skip
+        seq = _sequence(p)
+        norm = an.normalize(seq, default_frame=0)
+        if refused is None:
+            _, sa = skeleton_anatomy(seq, norm, window)
+            assert "thigh_right" in sa.frames
+        else:
+            with pytest.raises(InputError, match=rf"moves during the static window .*({refused})"):
+                skeleton_anatomy(seq, norm, window)
