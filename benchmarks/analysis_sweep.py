@@ -1,7 +1,7 @@
 """Paper B's analysis chain over many simulated sessions: the inputs nobody tuned it for (issue 24).
 
 Run: ``python benchmarks/analysis_sweep.py [--seeds 0 1] [--rigs level4 tiered4 tilted4]
-[--clips ...] [--heldout] [--rom-s 60] [--tracker default|light] [--sessions DIR]
+[--clips ...] [--heldout] [--rom-s 60] [--static 10] [--tracker default|light] [--sessions DIR]
 [--json F] [--smoke]`` (about 15-30 s a session; ``--sessions DIR`` keeps the simulated
 sessions and reuses them, so a rerun only analyses; ``--smoke``: one short session).
 
@@ -123,17 +123,21 @@ def simulated(
     seconds: float | None,
     tracker: str,
     keep: Path | None,
+    static_s: float = 0.0,
 ) -> tuple[Path, dict[str, Any]]:
     """The session of one plan entry: simulated into ``folder``, or into ``keep`` and reused
     from there when a complete one of the same parameters is already there."""
-    tag = "" if tracker == "default" else f"_{tracker}"
+    tag = ("" if tracker == "default" else f"_{tracker}") + (
+        f"_static{static_s:g}" if static_s else ""
+    )
     stem = f"{clip.name.replace('.', '_')}_{rig.stem}_{seed}_rom{rom_s:g}{tag}"
     path = (keep or folder) / f"{stem}.sqlite"
     info = path.with_suffix(".sim.json")
     if keep is not None and path.exists() and info.exists():
         return path, dict(json.loads(info.read_text(encoding="utf-8")))
     sim = run_simulate(clip=clip, out=path, rig=rig, seed=seed, calibration_s=0.0, rom_s=rom_s,
-                       seconds=seconds, force=True, tracker=tracker)  # fmt: skip
+                       seconds=seconds, force=True, tracker=tracker,
+                       static_s=static_s or None)  # fmt: skip
     if keep is not None:
         tmp = info.with_suffix(".tmp")
         tmp.write_text(json.dumps(sim, default=str), encoding="utf-8")
@@ -143,12 +147,14 @@ def simulated(
 
 def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
             seconds: float | None, tracker: str = "default",
-            keep: Path | None = None) -> dict[str, Any]:  # fmt: skip
-    """Simulate with --rom, analyse with --true-calibration; the figures of the report."""
+            keep: Path | None = None, static_s: float = 0.0) -> dict[str, Any]:  # fmt: skip
+    """Simulate with --rom (and --static), analyse with --true-calibration (and
+    --static-window auto); the figures of the report."""
     t0 = time.perf_counter()
-    path, sim = simulated(clip, rig, seed, folder, rom_s, seconds, tracker, keep)
+    path, sim = simulated(clip, rig, seed, folder, rom_s, seconds, tracker, keep, static_s)
     out = folder / f"{path.stem}_analysis"
-    r = run_analyze([path], out=out, true_calibration=True, plots=False)
+    r = run_analyze([path], out=out, true_calibration=True, plots=False,
+                    static_window="auto" if static_s else None)  # fmt: skip
     seen = r["calibration_phase"]["seen"]
     rm, rs = r.get("angle_rmse_deg", {}), r.get("angle_rmse_seen_deg", {})
     rt, share = r.get("angle_rmse_tracked_deg", {}), r.get("tracked_fraction_after_phase", {})
@@ -171,6 +177,12 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
         "phase_seen_min": seen["fraction_min"],
         "not_seen": sorted(seen["not_seen"]),
         "two_axis": [r["two_axis_limbs"]["learned_two"], r["two_axis_limbs"]["asked"]],
+        # with --static: the anatomical (static-trial) flexions over the tracked frames
+        "anatomical_flexion_rmse_tracked_deg": {
+            a: r.get("anatomical_rmse_tracked_deg", {}).get(a) for a in ANGLES
+        }
+        if static_s
+        else None,
         "warnings": r["warnings"] + sim["warnings"],
         "seconds": time.perf_counter() - t0,
     }
@@ -315,7 +327,32 @@ def _row_text(r: dict[str, Any]) -> str:
             f"{100 * r['walk_tracked_fraction']:.0f} % | "
             f"{_f(_mx(r['flexion_rmse_deg']))} / {_f(_mx(r['flexion_rmse_seen_deg']))} "
             f"({100 * r['walk_seen_fraction']:.0f} %) | {100 * r['phase_seen_min']:.0f} %{ns} | "
-            f"{r['two_axis'][0]}/{r['two_axis'][1]} |")  # fmt: skip
+            f"{r['two_axis'][0]}/{r['two_axis'][1]} |" + _anatomical_cell(r))  # fmt: skip
+
+
+def _anatomical_cell(r: dict[str, Any]) -> str:
+    """With --static: the anatomical knee and hip flexion RMSE, left / right, tracked frames."""
+    a = r.get("anatomical_flexion_rmse_tracked_deg")
+    if not a:
+        return ""
+    return (f" {_f(a[ANGLES[0]])} / {_f(a[ANGLES[1]])}, "
+            f"{_f(a[ANGLES[2]])} / {_f(a[ANGLES[3]])} |")  # fmt: skip
+
+
+def _anatomical_worst(rows: list[dict[str, Any]]) -> str:
+    """With --static: how many sides' anatomical knee and hip flexion are under 8° (issue 20)."""
+    cells = [r["anatomical_flexion_rmse_tracked_deg"] for r in rows
+             if r.get("anatomical_flexion_rmse_tracked_deg")]  # fmt: skip
+    if not cells:
+        return ""
+    out = []
+    for joint, names in (("knee", ANGLES[:2]), ("hip", ANGLES[2:])):
+        v = [c[n] for c in cells for n in names
+             if isinstance(c[n], int | float) and np.isfinite(c[n])]  # fmt: skip
+        if v:
+            out.append(f"{joint} {sum(x < 8.0 for x in v)} of {len(v)} under 8° (median "
+                       f"{np.median(v):.1f}°, worst {max(v):.1f}°)")  # fmt: skip
+    return "\nanatomical (static trial) flexion over the tracked frames: " + "; ".join(out)
 
 
 def _worst(rows: list[dict[str, Any]]) -> str:
@@ -358,6 +395,9 @@ def main() -> None:
     ap.add_argument("--clips", nargs="+", default=list(CLIPS), help="clips of --data")
     ap.add_argument("--heldout", action="store_true", help="rigs and subjects not in the sweep")
     ap.add_argument("--rom-s", type=float, default=60.0)
+    ap.add_argument("--static", type=float, default=0.0,
+                    help="a standing phase of this many seconds before the ROM (simulate "
+                    "--static), and the anatomical angles from it (issue 20)")  # fmt: skip
     ap.add_argument("--tracker", default="default", choices=("default", "light"),
                     help="simulate --tracker (the tracker error model)")  # fmt: skip
     ap.add_argument("--sessions", type=Path,
@@ -371,13 +411,16 @@ def main() -> None:
     seconds = None
     if args.smoke:
         args.seeds, args.rigs, args.clips, seconds = [0], ["level4"], ["02_walk_a.amc"], 1.0
-    print("| clip | rig | seed | axis median ° (floor) | twist median ° | reconstruction mean mm "
-          "(floor) | "
-          "knee flexion RMSE L / R ° (tracked) | hip flexion RMSE L / R ° (tracked) | "
-          "flexion floor (worst) ° | "
-          "tracked (least) | worst flexion RMSE °: all frames / 2+ sensors (2+ share) | "
-          "phase seen (least limb) | two-axis limbs |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print(
+        "| clip | rig | seed | axis median ° (floor) | twist median ° | reconstruction mean mm "
+        "(floor) | "
+        "knee flexion RMSE L / R ° (tracked) | hip flexion RMSE L / R ° (tracked) | "
+        "flexion floor (worst) ° | "
+        "tracked (least) | worst flexion RMSE °: all frames / 2+ sensors (2+ share) | "
+        "phase seen (least limb) | two-axis limbs |"
+        + (" anatomical knee / hip flexion RMSE L / R ° (tracked) |" if args.static else "")
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.static else ""))
     rows: list[dict[str, Any]] = []
     lines: list[str] = []
     if args.sessions is not None:
@@ -396,16 +439,16 @@ def main() -> None:
                     for s in args.seeds for c in args.clips for g in args.rigs]  # fmt: skip
         for clip, rig, seed in plan:
             r = session(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s, seconds,
-                        args.tracker, args.sessions)  # fmt: skip
+                        args.tracker, args.sessions, args.static)  # fmt: skip
             rows.append(r)
             print(_row_text(r), flush=True)
             if args.breakdown:
                 path, _ = simulated(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s,
-                                    seconds, args.tracker, args.sessions)  # fmt: skip
+                                    seconds, args.tracker, args.sessions, args.static)  # fmt: skip
                 lines.append(breakdown(path))
                 if args.sessions is None:
                     path.unlink()
-    print(_worst(rows))
+    print(_worst(rows) + _anatomical_worst(rows))
     for text in lines:
         print("\n" + text)
     if args.json:

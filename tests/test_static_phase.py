@@ -102,9 +102,12 @@ def test_analyze_auto_finds_the_standing_phase(
         assert anat["present_fraction"][k] > 0.9
     # scored against the same anatomical angles of the true motion (same standing phase); the
     # accuracy itself is measured by bench_analysis.py accuracy (this walk is 2 s long)
-    rmse = rep["anatomical_rmse_deg"]
+    rmse, tracked = rep["anatomical_rmse_deg"], rep["anatomical_rmse_tracked_deg"]
     for k in ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_flexion_right"):
         assert np.isfinite(rmse[k]) and rmse[k] > 0.0, (k, rmse[k])
+        # also over the frames a sensor tracked the segment (analysis_sweep.py --static)
+        assert np.isfinite(tracked[k]) and tracked[k] > 0.0, (k, tracked[k])
+    assert "pelvis_tilt" not in tracked  # no limb of its own to count sensors for
     # the standing phase is the zero of every angle: the fused angles read 0 there
     rows = [ln.split(",") for ln in (out / "angles.csv").read_text().splitlines()[1:]]
     for k in ("knee_flexion_left", "hip_flexion_right", "hip_adduction_left"):

@@ -97,6 +97,9 @@ def truth_figures(
 
         tanat, _ = skeleton_anatomy(tseq, tres["norm"], inp.static_window_s)
         report["anatomical_rmse_deg"] = angle_rmse_deg(inp.anatomical, tanat, sel)
+        if inp.limb_sensors is not None:  # over the frames a sensor tracked the segment
+            rm, _ = _seen_rmse(inp.limb_sensors, inp.anatomical, tanat, after, 1)
+            report["anatomical_rmse_tracked_deg"] = rm
     inside: Any = np.flatnonzero((t >= phase[0]) & (t <= phase[1]))
     ang = res["angles"]
     true_axes = None
