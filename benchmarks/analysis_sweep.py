@@ -44,6 +44,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from kinefuse.errors import InputError  # noqa: E402
 from kinefuse.workflows.analyze import run_analyze  # noqa: E402
 from kinefuse.workflows.simulate import run_simulate  # noqa: E402
 
@@ -153,8 +154,15 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
     t0 = time.perf_counter()
     path, sim = simulated(clip, rig, seed, folder, rom_s, seconds, tracker, keep, static_s)
     out = folder / f"{path.stem}_analysis"
-    r = run_analyze([path], out=out, true_calibration=True, plots=False,
-                    static_window="auto" if static_s else None)  # fmt: skip
+    refused = None
+    try:
+        r = run_analyze([path], out=out, true_calibration=True, plots=False,
+                        static_window="auto" if static_s else None)  # fmt: skip
+    except InputError as e:  # the fused standing phase is not still: analysed without it
+        if not static_s:
+            raise
+        refused = str(e)
+        r = run_analyze([path], out=out, true_calibration=True, plots=False)
     seen = r["calibration_phase"]["seen"]
     rm, rs = r.get("angle_rmse_deg", {}), r.get("angle_rmse_seen_deg", {})
     rt, share = r.get("angle_rmse_tracked_deg", {}), r.get("tracked_fraction_after_phase", {})
@@ -177,12 +185,14 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
         "phase_seen_min": seen["fraction_min"],
         "not_seen": sorted(seen["not_seen"]),
         "two_axis": [r["two_axis_limbs"]["learned_two"], r["two_axis_limbs"]["asked"]],
-        # with --static: the anatomical (static-trial) flexions over the tracked frames
+        # with --static: the anatomical (static-trial) flexions over the tracked frames, or
+        # why the standing phase was refused as a static trial
         "anatomical_flexion_rmse_tracked_deg": {
             a: r.get("anatomical_rmse_tracked_deg", {}).get(a) for a in ANGLES
         }
-        if static_s
+        if static_s and refused is None
         else None,
+        "anatomical_refused": refused,
         "warnings": r["warnings"] + sim["warnings"],
         "seconds": time.perf_counter() - t0,
     }
@@ -333,6 +343,8 @@ def _row_text(r: dict[str, Any]) -> str:
 def _anatomical_cell(r: dict[str, Any]) -> str:
     """With --static: the anatomical knee and hip flexion RMSE, left / right, tracked frames."""
     a = r.get("anatomical_flexion_rmse_tracked_deg")
+    if r.get("anatomical_refused"):
+        return f" refused: {r['anatomical_refused'].split(': ', 1)[-1].split('. Give')[0]} |"
     if not a:
         return ""
     return (f" {_f(a[ANGLES[0]])} / {_f(a[ANGLES[1]])}, "
@@ -343,7 +355,8 @@ def _anatomical_worst(rows: list[dict[str, Any]]) -> str:
     """With --static: how many sides' anatomical knee and hip flexion are under 8° (issue 20)."""
     cells = [r["anatomical_flexion_rmse_tracked_deg"] for r in rows
              if r.get("anatomical_flexion_rmse_tracked_deg")]  # fmt: skip
-    if not cells:
+    refused = sum(1 for r in rows if r.get("anatomical_refused"))
+    if not cells and not refused:
         return ""
     out = []
     for joint, names in (("knee", ANGLES[:2]), ("hip", ANGLES[2:])):
@@ -352,6 +365,8 @@ def _anatomical_worst(rows: list[dict[str, Any]]) -> str:
         if v:
             out.append(f"{joint} {sum(x < 8.0 for x in v)} of {len(v)} under 8° (median "
                        f"{np.median(v):.1f}°, worst {max(v):.1f}°)")  # fmt: skip
+    if refused:
+        out.append(f"{refused} standing phase(s) refused as a static trial (the subject moves)")
     return "\nanatomical (static trial) flexion over the tracked frames: " + "; ".join(out)
 
 
