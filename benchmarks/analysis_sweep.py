@@ -260,7 +260,7 @@ def breakdown(path: Path) -> str:
     from its own parent, e.g. a straight knee; 1 from the bent child) and by how many sensors
     tracked the limb and its parent; the same on the true motion; the DJ axis error (deg) and
     the share of the phase the limb was seen in.
-    What docs/analysis.md says about where the reconstruction error comes from."""
+    What docs/analysis_measured.md says about where the reconstruction error comes from."""
     from kinefuse.analysis.kinematics import reconstruction_error
     from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
     from kinefuse.evaluation.analysis import true_sequence, truth_figures

@@ -13,7 +13,8 @@ of the mean and the
 median of the sensors' angles, and of the best fixed weighting of the sensors' angles (weights
 summing to 1, chosen *with the truth*: the minimum-variance combination of the sensors' errors
 over the frames every sensor has). That last one is an oracle no fusion has; a fusion that
-stays near it is using what the sensors' angles hold. docs/analysis.md, issue 20's knee.
+stays near it is using what the sensors' angles hold. docs/analysis_measured.md, the fused
+walk's history.
 About 20 s per take (each is fused again for its swap decisions).
 """
 

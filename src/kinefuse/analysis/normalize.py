@@ -443,7 +443,7 @@ def root_long_axis(p: Array) -> Array:
     deg off over that subject's sessions, their floor under 6 deg). The hips' midpoint is 10-12
     cm lower and, the mean of two joints, less biased there (the axis's direction error, phase
     median, 18 -> 7 deg). Where the hips are the worse joints (the bench's tilted rig seen at
-    -75 deg: the left hip's height follows the legs by 1-10 cm) it costs: docs/analysis.md,
+    -75 deg: the left hip's height follows the legs by 1-10 cm) it costs: docs/analysis_measured.md,
     "The pelvis's long axis", has both."""
     hip_mid = 0.5 * (p[:, JOINT_INDEX["HipLeft"]] + p[:, JOINT_INDEX["HipRight"]])
     return p[:, JOINT_INDEX["SpineMid"]] - hip_mid
