@@ -67,7 +67,7 @@ from kinefuse.analysis.consistency import (  # noqa: E402
 from kinefuse.analysis.kinematics import joint_angles, reconstruction_error  # noqa: E402
 from kinefuse.analysis.normalize import BODY_JOINTS  # noqa: E402
 from kinefuse.analysis.parameterize import learn_axes  # noqa: E402
-from kinefuse.analysis.rom import make_rom_motion, prepend_rom, standing_pose  # noqa: E402
+from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
 from kinefuse.motion.types import Motion  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,7 +160,7 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     2 s hold motion and the walk's span (motion time, seconds). ``static_s``: a standing phase
     (static trial) of that many seconds before the ROM, as ``simulate --static`` makes it."""
     from kinefuse.motion import load_motion
-    from kinefuse.workflows.analyze import standing_motion
+    from kinefuse.workflows.analyze import stand_before
 
     clip = load_motion(CLIP)
     d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
@@ -170,11 +170,8 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     walk = (rom.duration_s + 1.0, combined.duration_s)
     lead = 0.0
     if static_s > 0:  # standing upright, a blend into the ROM's first pose, as simulate --static
-        stand = standing_motion(standing_pose(rom.positions[0]), static_s, combined.rate_hz,
-                                np.random.default_rng(seed + 1))  # fmt: skip
-        n_before = combined.n_frames
-        combined = prepend_rom(stand, combined, blend_s=1.0)
-        lead = (combined.n_frames - n_before) / combined.rate_hz
+        combined, _, lead = stand_before(combined, rom.positions[0], static_s,
+                                         np.random.default_rng(seed + 1))  # fmt: skip
         walk = (walk[0] + lead, walk[1] + lead)
     # hold the last pose 2 s so that the end of the session (where the fused skeleton of the
     # last second goes astray) is not part of the walk

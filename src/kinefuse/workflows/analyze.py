@@ -498,6 +498,21 @@ def standing_motion(pose: Any, seconds: float, rate_hz: float, rng: Any) -> Any:
     return Motion(positions=pos, rate_hz=float(rate_hz), source=f"standing {seconds:g} s")
 
 
+def stand_before(
+    motion: Any, pose: Any, seconds: float, rng: Any, blend_s: float = 1.0
+) -> tuple[Any, float, float]:
+    """``motion`` with a static trial before it: the subject standing upright
+    (:func:`kinefuse.analysis.rom.standing_pose` of ``pose (25, 3)``; a default pose can be a
+    moment of a stride) for ``seconds`` with postural sway (:func:`standing_motion`), then a
+    blend of ``blend_s`` into ``motion``'s first frame. Returns the motion, the standing
+    phase's length and where ``motion`` now starts (seconds)."""
+    from kinefuse.analysis.rom import prepend_rom, standing_pose
+
+    stand = standing_motion(standing_pose(pose), seconds, motion.rate_hz, rng)
+    both = prepend_rom(stand, motion, blend_s=blend_s)
+    return both, stand.duration_s, (both.n_frames - motion.n_frames) / motion.rate_hz
+
+
 def add_rom_phase(
     clip: Any,
     rom_s: float | None,
@@ -518,7 +533,7 @@ def add_rom_phase(
     changes the pose. Randomness comes from ``seed`` (its own stream, not the simulator's).
     """
     from kinefuse.analysis import find_default_pose
-    from kinefuse.analysis.rom import make_rom_motion, prepend_rom, standing_pose
+    from kinefuse.analysis.rom import make_rom_motion, prepend_rom
     from kinefuse.geometry.rotations import rot_z
     from kinefuse.motion import facing_direction
     from kinefuse.skeleton import JOINT_INDEX
@@ -568,15 +583,9 @@ def add_rom_phase(
         motion = clip
         start = placed
     static_len = lead = 0.0
-    if static_s is not None:
+    if static_s is not None:  # standing upright, a blend into the ROM (or the clip)
         rng_s = np.random.default_rng(np.random.SeedSequence([int(seed), 0x535441]))  # "STA"
-        # standing upright (the default pose can be a moment of a stride), a blend into the
-        # ROM's first pose (or the clip's), then the ROM and the clip
-        stand = standing_motion(standing_pose(start), static_s, clip.rate_hz, rng_s)
-        n_before = motion.n_frames
-        motion = prepend_rom(stand, motion, blend_s=blend_s)
-        static_len = stand.duration_s
-        lead = (motion.n_frames - n_before) / clip.rate_hz
+        motion, static_len, lead = stand_before(motion, start, static_s, rng_s, blend_s)
     return RomPhase(
         motion=motion,
         rom_s=0.0 if rom_s is None else float(rom.duration_s),
