@@ -227,7 +227,10 @@ def draw_subject_bias(rng: np.random.Generator, params: TrackerParams | None = N
         )
     mean = np.asarray(p.subject_bias_mean_m, dtype=np.float64)
     sigma = np.asarray(p.subject_bias_sigma_m, dtype=np.float64)
-    offsets = mean + rng.normal(size=(N_JOINTS, 3)) * sigma[:, None]
+    # one limb, one error: the definition offsets of a limb's joints are coherent along the
+    # chain (as the per-sensor fields are), so a limb is displaced rather than kinked
+    unit = chain_correlate(rng.normal(size=(1, N_JOINTS, 3)), p.limb_coherence)[0]
+    offsets = mean + unit * sigma[:, None]
     swap, inferred, view = _draw_latents(rng, p)
     # the person level from a child stream: the draws above are those of the model without it
     quality = draw_quality(rng.spawn(1)[0], p)

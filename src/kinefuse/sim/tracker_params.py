@@ -142,7 +142,8 @@ class TrackerParams:
             "spread of the per-subject joint offsets, per axis, chosen so that single-sensor "
             "errors against the truth (with the view-dependent offset of view_bias_sigma_m on "
             "top) are 3-10 cm, worst for feet/ankles, as in " + _WANG + "; 0.8 times the "
-            "values used before the view-dependent offset was added",
+            "values used before the view-dependent offset was added. Drawn coherently along "
+            "the skeleton (limb_coherence), so a limb's joints are off together",
         ),
     )
     # (a) view-dependent bias --------------------------------------------------------------
@@ -236,7 +237,11 @@ class TrackerParams:
             + _POP.replace("fitted by tools/fit_tracker_tails.py", "")
             + "by tools/fit_limb_coherence.py: flat from 0.8 to 0.95 (0.8 best on participants "
             "0-4, 0.95 on 5-9 and on all ten); 0.9, the middle, keeps the position medians in "
-            "band on both halves (0.95: x0.78 at 90 deg on participants 0-4)",
+            "band on both halves (0.95: x0.78 at 90 deg on participants 0-4). The subject-level "
+            "offsets (subject_bias_sigma_m) are drawn with the same correlation: a real front "
+            "sensor reads a standing person's straight knees 5 deg bent in the median over the "
+            "ten participants, independent offsets 12 deg (up to 26), coherent ones 5 deg "
+            "(not fitted: tests/test_realism_takes.py)",
         ),
     )
     # (b) jitter ---------------------------------------------------------------------------
