@@ -280,6 +280,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 for k2 in ("axis_error_deg_dj", "twist_error_deg", "angle_rmse_deg_walk")
             }
             refused = None
+            after: list[str] = []  # printed below the take's own lines
             if static_s > 0:  # a fused standing phase that is not still is refused, as analyze does
                 from kinefuse.errors import InputError
 
@@ -287,7 +288,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                     skeleton_anatomy(fused, norm_f, static_window)
                 except InputError as e:
                     refused = take["anatomical_refused"] = str(e)
-                    print(f"  anatomical angles of take {k} refused: {refused}", flush=True)
+                    after.append(f"  anatomical angles of take {k} refused: {refused}")
             if static_s > 0 and refused is None:  # the anatomical angles, same chain
                 for zero in ("standing", "geometry"):
                     sfx = "" if zero == "standing" else "_geometry"
@@ -310,14 +311,14 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 take["anatomical_static_motion_mm"] = {
                     k2: 1e3 * v for k2, v in sa_f.static_motion_m.items()
                 }
-                print(_anatomical_text(take), flush=True)
+                after.append(_anatomical_text(take))
                 if args.ablation:
                     take["fusion_ablation"] = fusion_ablation(
                         kept, true_seq, floor_seq, static_window, walk_frames
                     )
-                    print(_ablation_text(take["fusion_ablation"]), flush=True)
+                    after.append(_ablation_text(take["fusion_ablation"]))
             report[f"take{k}"] = take
-            print(_take_text(k, take), flush=True)
+            print("\n".join([_take_text(k, take), *after]), flush=True)
     if len(norms["fused"]) >= 2:
         cons = normalization_consistency(norms["fused"])
         report["normalization_consistency_deg"] = cons
