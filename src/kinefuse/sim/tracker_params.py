@@ -240,7 +240,7 @@ class TrackerParams:
             "band on both halves (0.95: x0.78 at 90 deg on participants 0-4). The subject-level "
             "offsets (subject_bias_sigma_m) are drawn with the same correlation: a real front "
             "sensor reads a standing person's straight knees 5 deg bent in the median over the "
-            "ten participants, independent offsets 12 deg (up to 26), coherent ones 5 deg "
+            "ten participants, independent offsets 12 deg, coherent ones 5 deg "
             "(not fitted: tests/test_realism_takes.py)",
         ),
     )
