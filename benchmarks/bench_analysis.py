@@ -394,6 +394,7 @@ ABLATION = {
     "no robust step": {"robust": False},
     "isotropic weights": {"covariance": False},
     "no view noise": {"view_sigma_m": 0.0, "far_sigma_m": 0.0},
+    "joints one by one": {"limb_correlation": 0.0},
     "gate chi2 4": {"gate_chi2": 4.0},
     "process noise x0.25": {"accel_scale": 0.25},
 }

@@ -76,9 +76,11 @@ def single_sensor_mae(pair: tuple[BodyFrames, np.ndarray], grid: np.ndarray) -> 
 
 
 def test_fusion_beats_every_single_sensor(rng) -> None:
+    """Independent white noise per joint, fused with the model that says so
+    (``limb_correlation=0``); the default's limb model costs such data a little (below)."""
     streams = make_streams(rng, swap_p=0.0)
     grid = np.arange(0.5, 7.5, 1 / 30)
-    fused = fuse(streams, grid)
+    fused = fuse(streams, grid, BestOptions(limb_correlation=0.0))
     assert np.isfinite(fused.positions).all()
     assert (fused.n_sensors == len(streams)).all()  # nobody gated out of clean data
     raw = [single_sensor_mae(s, grid) for s in streams]
@@ -91,6 +93,9 @@ def test_fusion_beats_every_single_sensor(rng) -> None:
     assert mae(fused, grid) < 0.5 * min(raw)
     assert mae(fused, grid) < 0.8 * min(alone), (mae(fused, grid), alone)
     assert mae(fused, grid) < 0.01  # 1 cm
+    # errors that are not correlated along the limbs, fused as if they were: 3 % worse
+    # (measured), not more than 6 %
+    assert mae(fused, grid) <= mae(fuse(streams, grid), grid) < 1.06 * mae(fused, grid)
 
 
 def test_swaps_are_found_and_mirrored_back(rng) -> None:

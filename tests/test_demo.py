@@ -50,7 +50,7 @@ def test_demo_runs_the_whole_pipeline(tmp_path, capsys) -> None:
     assert report["best"]["mae_m"] < 0.6 * report["paper"]["mae_m"]
     # every comparison and every part of the ablation comes with its 95 % interval
     gains = [*report["comparisons"].values(), *report["ablation"].values()]
-    assert len(report["comparisons"]) == 5 and len(report["ablation"]) == 7
+    assert len(report["comparisons"]) == 5 and len(report["ablation"]) == 8
     for g in gains:
         low, high = g["gain_ci95_percent"]
         assert low <= g["gain_percent"] <= high

@@ -44,6 +44,7 @@ ABLATION: dict[str, BestOptions] = {
     "temporal": BestOptions(temporal=None),
     "bones": BestOptions(bones=False),
     "view": BestOptions(view_sigma_m=0.0, far_sigma_m=0.0),
+    "limbs": BestOptions(limb_correlation=0.0),
 }
 
 #: Method pairs whose MAE the report compares (the paper's ordering, then ours): ``(a, b)``

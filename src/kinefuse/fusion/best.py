@@ -14,6 +14,13 @@ Each part can be switched off (:class:`BestOptions`) so that its gain can be mea
     Measurements that disagree with the others beyond a chi-square gate are down-weighted
     (iteratively reweighted least squares with Huber weights on the Mahalanobis distance).
     Off: plain weighted mean.
+``limb_correlation``
+    A sensor gets a limb's joints wrong together (it regresses them from the same depth
+    pixels): each limb's joints are solved in one generalised least squares, one sensor's
+    errors at joints ``k`` bones apart correlated by ``limb_correlation^k`` (0.5). Otherwise a
+    sensor whose knee weighs less than its hip and ankle (``INFERRED``, seen from the far side)
+    bends the fused leg by the difference between the sensors' displacements. 0: each joint
+    on its own.
 ``lr_swap``
     Sensors that see the person from behind report left and right swapped. The body's facing
     is agreed frame by frame across sensors (a sensor whose reported facing points away from it

@@ -358,7 +358,9 @@ class LiveFusion:
 
     def _combine(self, z: Array, cov: Array) -> tuple[Array, Array, NDArray[np.intp]]:
         b = self.options.best
-        return robust_combine(z, cov, robust=b.robust, gate_chi2=b.gate_chi2)
+        return robust_combine(
+            z, cov, robust=b.robust, gate_chi2=b.gate_chi2, limb_correlation=b.limb_correlation
+        )
 
     def _frame(
         self,

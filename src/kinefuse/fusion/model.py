@@ -12,7 +12,9 @@ fusion.
   axial noise per joint, inflated for INFERRED and occluded joints, grown with a held
   observation's age);
 - :func:`swap_evidence`: what each sensor's skeleton says about the body's facing;
-- :func:`robust_combine`: covariance-weighted, Huber-robust combination across sensors;
+- :func:`robust_combine`: covariance-weighted, Huber-robust combination across sensors, each
+  limb's joints solved together when a sensor's errors along a limb are correlated
+  (``limb_correlation``);
 - :class:`KalmanState`, :func:`kalman_step`, :func:`rts_smooth`: the constant-velocity filter
   per joint and axis, and the Rauch-Tung-Striebel smoother over its recorded states
   (:func:`rts_smooth_tape`: the same, block by block over a :class:`FilterTape`, in memory
@@ -21,6 +23,7 @@ fusion.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -28,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.fusion.view import view_variance
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState, bone_index_array
+from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, PARENTS, TrackingState, bone_index_array
 
 Array = NDArray[np.float64]
 
@@ -395,14 +398,151 @@ def _sum_sensors(a: Array, axis: int = 1) -> Array:
     return np.add.reduce(a, axis=axis)
 
 
+#: The chains whose joints a sensor gets wrong together (a Kinect regresses a limb from the same
+#: depth pixels): ``robust_combine(limb_correlation=rho)`` correlates one sensor's errors of two
+#: joints of a chain by ``rho`` per bone between them.
+LIMBS: tuple[tuple[str, ...], ...] = (
+    ("SpineBase", "SpineMid", "SpineShoulder", "Neck", "Head"),
+    ("ShoulderLeft", "ElbowLeft", "WristLeft", "HandLeft", "HandTipLeft", "ThumbLeft"),
+    ("ShoulderRight", "ElbowRight", "WristRight", "HandRight", "HandTipRight", "ThumbRight"),
+    ("HipLeft", "KneeLeft", "AnkleLeft", "FootLeft"),
+    ("HipRight", "KneeRight", "AnkleRight", "FootRight"),
+)
+
+
+@functools.lru_cache(maxsize=8)
+def limb_correlation_matrices(
+    rho: float,
+) -> tuple[NDArray[np.intp], Array, Array, NDArray[np.intp], NDArray[np.intp]]:
+    """The chains of :data:`LIMBS` padded to one length: their joint indices ``(L, n)`` (``-1``
+    pads), the correlation ``rho^k`` of one sensor's errors at two joints of a chain ``k``
+    bones apart ``(L, n, n)`` (identity on the pads; positive definite for ``0 <= rho < 1``: the
+    correlation of noise passed down a tree, each joint ``rho`` times its parent's plus its
+    own), its inverse, and the pairs ``j <= k`` of the upper triangle (two ``(n (n + 1) / 2,)``
+    index arrays)."""
+    n = max(len(c) for c in LIMBS)
+    idx = np.full((len(LIMBS), n), -1, dtype=np.intp)
+    corr = np.tile(np.eye(n), (len(LIMBS), 1, 1))
+    for li, names in enumerate(LIMBS):
+        joints = [JOINT_INDEX[c] for c in names]
+        idx[li, : len(joints)] = joints
+        # each joint's ancestors within the chain, itself first (the chains list parents first)
+        line: list[list[int]] = []
+        for j in joints:
+            up = PARENTS[j]
+            line.append([j, *(line[joints.index(up)] if up in joints else [])])
+        for a, la in enumerate(line):
+            for b, lb in enumerate(line):
+                common = len(set(la) & set(lb))
+                corr[li, a, b] = rho ** (len(la) + len(lb) - 2 * common)  # bones apart
+    inv = np.asarray(np.linalg.inv(corr), dtype=np.float64)
+    ju, ku = np.triu_indices(n)
+    for arr in (idx, corr, inv, ju, ku):
+        arr.flags.writeable = False
+    return idx, corr, inv, ju.astype(np.intp), ku.astype(np.intp)
+
+
+def sqrt3_sym(m: Array) -> Array:
+    """Square roots of symmetric positive definite 3x3 matrices entries first ``(9, ...)``, in
+    closed form: the eigenvalues ``l`` by the trigonometric method (exact for repeated ones),
+    then, from Cayley-Hamilton for ``Y = M^(1/2)``, ``Y = (M + i2 I)^-1 (i1 M + i3 I)`` with
+    ``i1, i2, i3`` the elementary symmetric functions of ``sqrt(l)``. Element-wise only."""
+    a00, a01, a02, _, a11, a12, _, _, a22 = m
+    q = (a00 + a11 + a22) / 3.0
+    d0, d1, d2 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0)
+    with np.errstate(divide="ignore"):
+        ip = np.where(p > 0.0, 1.0 / p, 0.0)  # p = 0: a multiple of I, any phi
+    b00, b11, b22, b01, b02, b12 = d0 * ip, d1 * ip, d2 * ip, a01 * ip, a02 * ip, a12 * ip
+    det = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+    det = det + b02 * (b01 * b12 - b11 * b02)
+    phi = np.arccos(np.clip(0.5 * det, -1.0, 1.0)) / 3.0
+    l1 = q + 2.0 * p * np.cos(phi)
+    l3 = q + 2.0 * p * np.cos(phi + 2.0 * math.pi / 3.0)
+    s1, s3 = np.sqrt(l1), np.sqrt(np.maximum(l3, 0.0))
+    s2 = np.sqrt(np.maximum(3.0 * q - l1 - l3, 0.0))
+    i1, i2, i3 = s1 + s2 + s3, s1 * s2 + s1 * s3 + s2 * s3, s1 * s2 * s3
+    ai = inv3_sym(m + i2 * _EYE_ENTRIES.reshape(9, *([1] * (m.ndim - 1))))
+    am = ai.reshape(3, 3, *m.shape[1:])
+    prod = am[:, :, None] * m.reshape(3, 3, *m.shape[1:])[None]  # (a, b, c): Ai[a, b] M[b, c]
+    return (i1 * (prod[:, 0] + prod[:, 1] + prod[:, 2]).reshape(m.shape)) + i3 * ai
+
+
+def _limb_solve(z: Array, w_mat: Array, weight: Array, x: Array, cov_x: Array, rho: float) -> None:
+    """Each limb of :data:`LIMBS` solved again in one weighted least squares over its joints,
+    one sensor's errors of two joints ``k`` bones apart correlated by ``rho^k``; in place on
+    ``x (3, T, J)`` and ``cov_x (9, T, J)`` (entries first).
+
+    ``z (T, S, J, 3)``; ``w_mat (9, T, S, J)`` each measurement's information (its covariance's
+    inverse, entries first); ``weight (T, S, J)`` the robust weights of the per-joint solution
+    (0: not used), each scaling its joint's information as there. A sensor's measurements of a
+    limb have the covariance ``C = H (R (x) I3) H`` (``H`` block diagonal: each joint's
+    covariance's symmetric square root over the root of its weight; ``R`` the chain's
+    correlations over the joints this sensor measured), so its information is ``H^-1 (R^-1 (x)
+    I3) H^-1``. With ``rho = 0`` this is the per-joint solution again. Every step is
+    element-wise or per matrix (LAPACK), so a frame alone gives the numbers it gives in a batch.
+    """
+    n_t, n_s = z.shape[:2]
+    idx, r, r_inv_all, ju, ku = limb_correlation_matrices(rho)
+    n_l, n = idx.shape
+    real = idx >= 0
+    j = idx[real]  # the limbs' joints, limb after limb
+    w = np.where(real, weight[:, :, idx], 0.0)  # (T, S, L, n)
+    ok = w > 0
+    # R^-1 over the joints a sensor measured (R's inverse itself where it measured them all)
+    pair = ok[..., :, None] & ok[..., None, :]
+    r_inv = np.broadcast_to(r_inv_all, pair.shape).copy()
+    part = ~np.logical_and.reduce(ok | ~real, axis=-1)  # (T, S, L): a joint of the limb missing
+    if part.any():
+        sub = pair[part]
+        r_inv[part] = np.linalg.inv(np.where(sub, r[np.nonzero(part)[2]], np.eye(n))) * sub
+    # H^-1 of every joint: weight^(1/2) times the information's square root, entries first
+    pos = weight > 0
+    half_j = sqrt3_sym(np.where(pos, w_mat, _EYE_ENTRIES[:, None, None, None])) * np.sqrt(weight)
+    half = np.zeros((9, n_t, n_s, n_l, n))
+    half[..., real] = half_j[..., j]
+    # the measurement side, half_j sum_k r_inv[j, k] half_k z_k
+    zz = np.where(ok, z[:, :, idx].transpose(4, 0, 1, 2, 3), 0.0)  # (3, T, S, L, n)
+    h33 = half.reshape(3, 3, n_t, n_s, n_l, n)
+    y = _matvec(h33, zz)
+    u = r_inv[..., 0] * y[..., 0, None]
+    for k in range(1, n):
+        u = u + r_inv[..., k] * y[..., k, None]
+    rhs = _sum_sensors(_matvec(h33, u), axis=2)  # (3, T, L, n)
+    # the information: blocks half_j r_inv[j, k] half_k over the upper triangle, summed over
+    # the sensors
+    hj, hk = h33[..., ju], h33[..., ku]  # (3, 3, T, S, L, pairs)
+    prod = hj[:, :, None] * hk[None]  # (a, b, c): half_j[a, b] half_k[b, c]
+    blocks = (prod[:, 0] + prod[:, 1] + prod[:, 2]) * r_inv[..., ju, ku]  # (3, 3, T, S, L, P)
+    upper = _sum_sensors(blocks, axis=3).transpose(2, 3, 4, 0, 1)  # (T, L, pairs, 3, 3)
+    full = np.empty((n_t, n_l, n, n, 3, 3))
+    full[:, :, ju, ku] = upper
+    full[:, :, ku, ju] = upper.swapaxes(-1, -2)
+    info = full.swapaxes(-3, -2).reshape(n_t, n_l, 3 * n, 3 * n)
+    b = rhs.transpose(1, 2, 3, 0).reshape(n_t, n_l, 3 * n)
+    has = np.repeat(np.logical_or.reduce(ok, axis=1), 3, axis=-1)  # (T, L, 3n)
+    info = np.where(has[..., :, None] & has[..., None, :], info, np.eye(3 * n))
+    p = np.linalg.inv(info)
+    p = 0.5 * (p + p.swapaxes(-1, -2))
+    sol = (p @ np.where(has, b, 0.0)[..., None])[..., 0].reshape(n_t, n_l, n, 3)
+    diag = p.reshape(n_t, n_l, n, 3, n, 3)[:, :, np.arange(n), :, np.arange(n)]  # (n, T, L, 3, 3)
+    has_j = has.reshape(n_t, n_l, n, 3)[..., 0][:, real]  # (T, joints)
+    x[:, :, j] = np.where(has_j, sol[:, real].transpose(2, 0, 1), np.nan)
+    cov_x[:, :, j] = diag.transpose(1, 2, 0, 3, 4)[:, real].reshape(n_t, -1, 9).transpose(2, 0, 1)
+
+
 def robust_combine(
-    z: Array, cov: Array, *, robust: bool, gate_chi2: float
+    z: Array, cov: Array, *, robust: bool, gate_chi2: float, limb_correlation: float = 0.0
 ) -> tuple[Array, Array, NDArray[np.intp]]:
     """Combine ``(T, S, J, 3)`` measurements with ``(T, S, J, 3, 3)`` covariances.
 
     Iteratively reweighted least squares with Huber weights on the Mahalanobis distance (full
     weight inside the ``gate_chi2`` gate, falling off as 1/d outside it); a measurement far
     outside (4x the gate) is dropped unless that would drop every measurement of the joint.
+    With ``limb_correlation`` ``rho > 0`` each limb's joints are then solved together with the
+    final weights, one sensor's errors at joints ``k`` bones apart correlated by ``rho^k``
+    (:func:`_limb_solve`): a limb a sensor sees displaced as a whole then moves the fused limb
+    as a whole, instead of bending it where the sensors' weights change from joint to joint.
 
     Returns the fused ``(T, J, 3)`` (NaN where nothing), its covariance ``(T, J, 3, 3)`` and the
     number of sensors used (weight above 0.2) ``(T, J)``.
@@ -444,6 +584,8 @@ def robust_combine(
         if not np.logical_or.reduce(rw != previous, axis=None):
             break  # a fixed point: the iterations left would repeat this one, bit for bit
     used = np.add.reduce(rw > 0.2, axis=1, dtype=np.intp)
+    if limb_correlation > 0.0:
+        _limb_solve(z, w_mat, rw, x, cov_x, limb_correlation)
     x = np.where(has, x, np.nan).transpose(1, 2, 0)
     cov_x = np.where(has, cov_x, np.nan).transpose(1, 2, 0).reshape(n_t, n_j, 3, 3)
     return x, cov_x, used

@@ -79,6 +79,10 @@ class BestOptions:
     inferred_inflation: float = 4.0
     occluded_inflation: float = 2.0
     gate_chi2: float = 11.34  # chi-square, 3 dof, 99 %
+    #: correlation of one sensor's errors at two neighbouring joints of a limb (rho^k for k
+    #: bones apart; :data:`kinefuse.fusion.model.LIMBS`), 0: joints combined one by one
+    #: (docs/fusion.md section 17)
+    limb_correlation: float = 0.5
     max_interp_gap_s: float = 0.1
     max_predict_s: float = 0.5
     #: per joint (25 values): lateral and axial measurement noise (m), process noise (m^2/s^3);
@@ -108,5 +112,7 @@ class BestOptions:
             object.__setattr__(self, name, v)
         if not (self.view_sigma_m >= 0 and self.far_sigma_m >= 0):
             raise ValueError("view_sigma_m and far_sigma_m must be >= 0 m (0: off)")
+        if not 0.0 <= self.limb_correlation < 1.0:
+            raise ValueError(f"limb_correlation must be in [0, 1), got {self.limb_correlation}")
         if not (self.view_exponent > 0 and self.far_exponent > 0):
             raise ValueError("view_exponent and far_exponent must be > 0")
