@@ -41,7 +41,7 @@ def test_evaluate_reports_each_run_and_is_quiet_when_piped(
     run_evaluate(session=s, methods=("linear", "best"), out_dir=None, calibration=None,
                  true_calibration=True, progress=heard.append)  # fmt: skip
     assert heard[0].startswith("reading")
-    assert any("with linear (1/9)" in m for m in heard)
+    assert any("with linear (1/10)" in m for m in heard)  # 2 methods, 8 parts of the ablation
     assert any("without temporal" in m for m in heard)
     capsys.readouterr()
     assert main(["evaluate", str(s), "--true-calibration", "--methods", "linear"]) == 0
