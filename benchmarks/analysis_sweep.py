@@ -1,9 +1,11 @@
 """Paper B's analysis chain over many simulated sessions: the inputs nobody tuned it for (issue 24).
 
 Run: ``python benchmarks/analysis_sweep.py [--seeds 0 1] [--rigs level4 tiered4 tilted4]
-[--clips ...] [--heldout] [--rom-s 60] [--static 10] [--tracker default|light] [--sessions DIR]
-[--json F] [--smoke]`` (about 15-30 s a session; ``--sessions DIR`` keeps the simulated
-sessions and reuses them, so a rerun only analyses; ``--smoke``: one short session).
+[--clips ...] [--heldout] [--rom-s 60] [--static 10] [--tracker default|light]
+[--errors-off PART[,PART]] [--sessions DIR] [--json F] [--smoke]`` (about 15-30 s a session;
+``--sessions DIR`` keeps the simulated sessions and reuses them, so a rerun only analyses;
+``--smoke``: one short session). ``--errors-off``: the same sessions with parts of the tracker's
+error model off (``kinefuse simulate --errors-off``), what those parts cost.
 
 Each session is the whole chain as a user runs it: ``kinefuse simulate --rom 60`` (the
 range-of-motion phase at the rig's ``[actor]`` position, else the centre of the sensors' common
@@ -44,6 +46,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from kinefuse.cli.args import error_parts  # noqa: E402
 from kinefuse.errors import InputError  # noqa: E402
 from kinefuse.workflows.analyze import run_analyze  # noqa: E402
 from kinefuse.workflows.simulate import run_simulate  # noqa: E402
@@ -125,11 +128,14 @@ def simulated(
     tracker: str,
     keep: Path | None,
     static_s: float = 0.0,
+    errors_off: tuple[str, ...] = (),
 ) -> tuple[Path, dict[str, Any]]:
     """The session of one plan entry: simulated into ``folder``, or into ``keep`` and reused
     from there when a complete one of the same parameters is already there."""
-    tag = ("" if tracker == "default" else f"_{tracker}") + (
-        f"_static{static_s:g}" if static_s else ""
+    tag = (
+        ("" if tracker == "default" else f"_{tracker}")
+        + (f"_static{static_s:g}" if static_s else "")
+        + (f"_off-{'-'.join(errors_off)}" if errors_off else "")
     )
     stem = f"{clip.name.replace('.', '_')}_{rig.stem}_{seed}_rom{rom_s:g}{tag}"
     path = (keep or folder) / f"{stem}.sqlite"
@@ -138,7 +144,7 @@ def simulated(
         return path, dict(json.loads(info.read_text(encoding="utf-8")))
     sim = run_simulate(clip=clip, out=path, rig=rig, seed=seed, calibration_s=0.0, rom_s=rom_s,
                        seconds=seconds, force=True, tracker=tracker,
-                       static_s=static_s or None)  # fmt: skip
+                       static_s=static_s or None, errors_off=errors_off)  # fmt: skip
     if keep is not None:
         tmp = info.with_suffix(".tmp")
         tmp.write_text(json.dumps(sim, default=str), encoding="utf-8")
@@ -148,11 +154,13 @@ def simulated(
 
 def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
             seconds: float | None, tracker: str = "default",
-            keep: Path | None = None, static_s: float = 0.0) -> dict[str, Any]:  # fmt: skip
-    """Simulate with --rom (and --static), analyse with --true-calibration (and
+            keep: Path | None = None, static_s: float = 0.0,
+            errors_off: tuple[str, ...] = ()) -> dict[str, Any]:  # fmt: skip
+    """Simulate with --rom (and --static, --errors-off), analyse with --true-calibration (and
     --static-window auto); the figures of the report."""
     t0 = time.perf_counter()
-    path, sim = simulated(clip, rig, seed, folder, rom_s, seconds, tracker, keep, static_s)
+    path, sim = simulated(clip, rig, seed, folder, rom_s, seconds, tracker, keep, static_s,
+                          errors_off)  # fmt: skip
     out = folder / f"{path.stem}_analysis"
     refused = None
     try:
@@ -172,7 +180,7 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
         "seed": seed,
         "rom_position_m": sim.get("rom_position_m"),
         "axis_median_deg": r.get("axis_error_deg", {}).get("median"),
-        "floor": floor_figures(path, seed, tracker),
+        "floor": floor_figures(path, seed, tracker, errors_off),
         "twist_median_deg": r.get("twist_error_deg", {}).get("median"),
         "reconstruction_mean_mm": _mm(r["reconstruction_error_m"]["mean"]),
         "flexion_rmse_deg": {a: rm.get(a) for a in ANGLES},
@@ -202,7 +210,9 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
     return row
 
 
-def floor_figures(path: Path, seed: int, tracker: str) -> dict[str, float]:
+def floor_figures(
+    path: Path, seed: int, tracker: str, errors_off: tuple[str, ...] = ()
+) -> dict[str, float]:
     """The session's axis error median, reconstruction error mean and worst knee/hip flexion
     RMSE (over every frame after the phase) with a perfect fusion: its true motion (30 Hz) plus its
     subject's tracker joint-definition offsets alone (what every sensor shares, so no fusion
@@ -225,7 +235,7 @@ def floor_figures(path: Path, seed: int, tracker: str) -> dict[str, float]:
         n_sensors = len(store.sensors())
         t_s = np.arange(float(t_true[0]), float(t_true[-1]), 1.0 / 30.0)
         joints = truth_at(store, t_s)
-    config = LabConfig(seed=seed, errors=ErrorModel(tracker=tracker_model(tracker)))
+    config = LabConfig(seed=seed, errors=ErrorModel(tracker=tracker_model(tracker, errors_off)))
     offsets = _seeds(seed, n_sensors, config).subject.offsets_body_m
     axes = _body_axes(joints, np.array([0.0, 0.0, 1.0]))
     biased = joints + np.einsum("tik,jk->tji", axes, offsets)
@@ -415,6 +425,8 @@ def main() -> None:
                     "--static), and the anatomical angles from it (issue 20)")  # fmt: skip
     ap.add_argument("--tracker", default="default", choices=("default", "light"),
                     help="simulate --tracker (the tracker error model)")  # fmt: skip
+    ap.add_argument("--errors-off", type=error_parts, default=(), metavar="PART[,PART]",
+                    help="simulate --errors-off: tracker error-model parts off")  # fmt: skip
     ap.add_argument("--sessions", type=Path,
                     help="keep the simulated sessions here and reuse them")  # fmt: skip
     ap.add_argument("--breakdown", action="store_true",
@@ -454,12 +466,13 @@ def main() -> None:
                     for s in args.seeds for c in args.clips for g in args.rigs]  # fmt: skip
         for clip, rig, seed in plan:
             r = session(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s, seconds,
-                        args.tracker, args.sessions, args.static)  # fmt: skip
+                        args.tracker, args.sessions, args.static, args.errors_off)  # fmt: skip
             rows.append(r)
             print(_row_text(r), flush=True)
             if args.breakdown:
                 path, _ = simulated(clip, rig, seed, folder, 55.0 if args.smoke else args.rom_s,
-                                    seconds, args.tracker, args.sessions, args.static)  # fmt: skip
+                                    seconds, args.tracker, args.sessions, args.static,
+                                    args.errors_off)  # fmt: skip
                 lines.append(breakdown(path))
                 if args.sessions is None:
                     path.unlink()

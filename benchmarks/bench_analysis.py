@@ -2,7 +2,7 @@
 
     python benchmarks/bench_analysis.py speed [--frames 24000] [--repeat 3]
     python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
-        [--no-subject-bias] [--save DIR]
+        [--no-subject-bias] [--errors-off PART[,PART]] [--save DIR]
     python benchmarks/bench_analysis.py floor [--subjects 10] [--segment-fixed] [--json F]
     python benchmarks/bench_analysis.py --smoke [MODE]
 
@@ -28,7 +28,10 @@ sessions go to a temporary folder.
 Each take is also analysed from its *floor* input: the truth plus the subject-level tracker bias
 alone (the joint-definition offsets every sensor shares, so no fusion can remove them), which is
 what a perfect fusion would deliver. ``--no-subject-bias`` simulates a tracker without that bias
-instead: what the rest of the error model leaves to the chain.
+instead: what the rest of the error model leaves to the chain. ``--errors-off`` switches parts of
+the tracker's error model off as ``kinefuse simulate --errors-off`` does, the same sessions
+simulated without them: ``independent`` (every error a sensor makes on its own) leaves what the
+sensors share, which no weighting of them removes.
 
 ``floor``: no sensors, no fusion: the same calibration phase and walk, the truth plus the
 subject-level tracker bias of ``--subjects`` simulated subjects (``subject_seed`` 0, 1, ...,
@@ -68,6 +71,7 @@ from kinefuse.analysis.kinematics import joint_angles, reconstruction_error  # n
 from kinefuse.analysis.normalize import BODY_JOINTS  # noqa: E402
 from kinefuse.analysis.parameterize import learn_axes  # noqa: E402
 from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
+from kinefuse.cli.args import error_parts  # noqa: E402
 from kinefuse.motion.types import Motion  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,13 +88,14 @@ def _kabsch_rot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_seed: int,  # type: ignore[no-untyped-def]
-                  subject_bias: bool = True, keep: dict | None = None):  # type: ignore[type-arg]  # fmt: skip
+                  errors_off: tuple[str, ...] = (), keep: dict | None = None):  # type: ignore[type-arg]  # fmt: skip
     """Simulate, calibrate (full), fuse (best); return the fused and true sequences, the
     placement, and the truth plus the subject-level tracker bias only (what every sensor shares,
     so no fusion can remove it: the floor of a perfect fusion). ``keep``: a dict that gets the
     calibrated sensors and the frame grid (``"sensors"``, ``"grid"``), to fuse them again, and
     the frames in which two or more sensors tracked each limb (``"seen"`` ``(T, L)``, as
-    ``kinefuse analyze`` counts them: its axes are learned from those)."""
+    ``kinefuse analyze`` counts them: its axes are learned from those). ``errors_off``: parts
+    of the tracker's error model switched off (``kinefuse.sim.tracker_params.ERROR_PARTS``)."""
     from kinefuse.evaluation.fusion import calibration_alignment
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.io.store.session import SessionStore
@@ -99,15 +104,14 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
     from kinefuse.sim.rig import place_actor
     from kinefuse.sim.tracker_body import _body_axes
+    from kinefuse.sim.tracker_params import without_parts
     from kinefuse.workflows.calibrate import run_calibrate
 
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])
     config = LabConfig(seed=seed, calibration_s=cal_s, subject_seed=subject_seed)
-    if not subject_bias:  # a tracker whose joint definitions are the truth's
-        zero = tuple((0.0, 0.0, 0.0) for _ in range(25))
-        tracker = replace(config.errors.tracker, subject_bias_mean_m=zero,
-                          subject_bias_sigma_m=tuple(0.0 for _ in range(25)))  # fmt: skip
+    if errors_off:  # "subject": a tracker whose joint definitions are the truth's
+        tracker = without_parts(config.errors.tracker, errors_off)
         config = replace(config, errors=replace(config.errors, tracker=tracker))
     simulate_session(placed, rig, out, config, overwrite=True)
     with SessionStore.open(out, writable=True) as store:  # a finished simulation
@@ -186,6 +190,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     from kinefuse.sim.rig import default_rig, load_rig
 
     static_s = args.static_s
+    errors_off = tuple(sorted({*args.errors_off, *(["subject"] if args.no_subject_bias else [])}))
     if args.ablation and not static_s > 0:
         raise SystemExit("accuracy --ablation needs a standing phase (--static-s > 0)")
     d, rom, truth, combined, walk, lead = calibration_motion(args.rom_s, args.seed, static_s)
@@ -202,6 +207,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
     report: dict[str, object] = {
         "clip": CLIP.name,
         "rom_s": rom.duration_s,
+        "errors_off": list(errors_off),
         "default_pose_frame_of_clip": d,
     }
     norms: dict[str, list[an.Normalization]] = {"fused": [], "floor": []}
@@ -226,7 +232,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
                 args.seed + k,
                 args.wand_s,
                 args.seed,
-                not args.no_subject_bias,
+                errors_off,
                 keep=kept,
             )
             sim_s = time.perf_counter() - t0
@@ -765,6 +771,9 @@ def main(argv: list[str] | None = None) -> int:
     ac.add_argument("--no-subject-bias", action="store_true",
                     help="simulate a tracker whose joint definitions are the truth's (no "
                     "subject-level bias): what the rest of the error model leaves")  # fmt: skip
+    ac.add_argument("--errors-off", type=error_parts, default=(), metavar="PART[,PART]",
+                    help="simulate the same sessions with these parts of the tracker's error "
+                    "model off, as simulate --errors-off")  # fmt: skip
     fl = sub.add_parser("floor")
     fl.add_argument("--rom-s", type=float, default=120.0)
     fl.add_argument("--seed", type=int, default=0, help="the ROM phase's seed")

@@ -103,6 +103,21 @@ def methods(text: str) -> tuple[str, ...]:
     return names
 
 
+def error_parts(text: str) -> tuple[str, ...]:
+    """Comma-separated parts of the tracker's error model, each one of
+    ``kinefuse.sim.tracker_params.ERROR_PARTS``."""
+    from kinefuse.sim.tracker_params import ERROR_PARTS
+
+    names = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in names if m not in ERROR_PARTS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown error-model part(s) {', '.join(bad) or '(none)'}; choose from "
+            f"{', '.join(ERROR_PARTS)}"
+        )
+    return names
+
+
 def add_calibration_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--calibration", type=Path, help="calibration file (TOML) with sensor poses")

@@ -59,6 +59,16 @@ def _add_simulate_args(p: argparse.ArgumentParser) -> None:
         "light (without them, the model before issue 21; docs/realism.md)",
     )
     p.add_argument(
+        "--errors-off",
+        type=shared.error_parts,
+        default=(),
+        metavar="PART[,PART]",
+        help="switch parts of the tracker's error model off, the rest seeded as without: "
+        "subject, view, inferred, swap (shared by the sensors), pose, jitter, far, gross (each "
+        "sensor's own), independent (all of each sensor's own); what a part costs "
+        "(docs/error_model_tracker.md)",
+    )
+    p.add_argument(
         "--calibration-seconds",
         type=shared.nonneg_float,
         default=20.0,
@@ -114,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         subject_seed=args.subject_seed,
         tracker=args.tracker,
         static_s=args.static,
+        errors_off=args.errors_off,
     )
     for w in r["warnings"]:
         print(f"kinefuse: warning: {w}", file=sys.stderr)

@@ -11,7 +11,7 @@ would scatter the table that ``docs/error_model.md`` is generated from.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Final
 
@@ -892,3 +892,43 @@ def light_tracker(params: TrackerParams | None = None) -> TrackerParams:
     joints' errors independent, as they were then)."""
     base = params if params is not None else TrackerParams()
     return replace(base, **LIGHT)  # type: ignore[arg-type]
+
+
+#: Parts of the error model that a simulation can switch off (``simulate --errors-off``): each
+#: part's fields are set to 0 (a sigma or rate of 0 draws nothing). ``subject``, ``view``,
+#: ``inferred`` and ``swap`` are drawn once per session and shared by its sensors
+#: (:class:`kinefuse.sim.tracker.SubjectBias`); the others each sensor draws on its own random
+#: stream, and ``independent`` names them all. The surface pull, the tracking states, the
+#: bone-length hold and the dropouts (whole frames lost, not errors) stay. Every part's random
+#: numbers are drawn as with the part on and scaled by its 0, so the same seed simulates the
+#: same session without it: the difference is what the part costs.
+ERROR_PARTS: Final[dict[str, tuple[str, ...]]] = {
+    "subject": ("subject_bias_mean_m", "subject_bias_sigma_m"),
+    "view": ("view_bias_sigma_m",),
+    "inferred": ("inferred_sigma_m",),
+    "swap": ("swap_prob_max",),
+    "pose": ("pose_bias_sigma_m",),
+    "jitter": ("jitter_sigma_m", "motion_noise_gain_s", "hf_jitter_sigma_m"),
+    "far": ("far_limb_sigma_m",),
+    "gross": ("gross_limb_rate_hz", "gross_body_rate_hz"),
+    "independent": ("pose_bias_sigma_m", "jitter_sigma_m", "motion_noise_gain_s",
+                    "hf_jitter_sigma_m", "far_limb_sigma_m", "gross_limb_rate_hz",
+                    "gross_body_rate_hz"),
+}  # fmt: skip
+
+
+def _zeroed(value: Any) -> Any:
+    """``value`` (a number or nested tuples of numbers) with every number 0."""
+    return tuple(_zeroed(v) for v in value) if isinstance(value, tuple) else 0.0
+
+
+def without_parts(params: TrackerParams, parts: Sequence[str]) -> TrackerParams:
+    """``params`` with the :data:`ERROR_PARTS` named in ``parts`` switched off."""
+    unknown = [p for p in parts if p not in ERROR_PARTS]
+    if unknown:
+        raise InputError(
+            f"unknown error-model part(s) {', '.join(map(repr, unknown))}; choose from "
+            f"{', '.join(ERROR_PARTS)}"
+        )
+    off = {f: _zeroed(getattr(params, f)) for p in parts for f in ERROR_PARTS[p]}
+    return replace(params, **off)

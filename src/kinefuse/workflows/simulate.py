@@ -3,7 +3,7 @@ included)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from importlib import resources
 from pathlib import Path
@@ -93,6 +93,7 @@ def run_simulate(
     subject_seed: int | None = None,
     tracker: str = "default",
     static_s: float | None = None,
+    errors_off: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
@@ -107,6 +108,8 @@ def run_simulate(
     starts from there (a clip that leaves the volume is warned about by the coverage check).
     ``static_s``: a standing phase (a static trial, for the anatomical angles) of that many
     seconds before the ROM phase (or before the clip), performed at the same place.
+    ``errors_off``: parts of the tracker's error model switched off
+    (:data:`kinefuse.sim.tracker_params.ERROR_PARTS`).
 
     Returns
     -------
@@ -122,6 +125,7 @@ def run_simulate(
     from kinefuse.sim.rig import common_volume_centre, default_rig, load_rig, place_actor
 
     say = progress or (lambda _m: None)
+    model = tracker_model(tracker, errors_off)  # an unknown part is refused before anything
     check_session_out(out, force)
     the_rig = load_rig(rig, room=room) if rig is not None else default_rig(sensors, room=room)
     say(f"loading {clip}")
@@ -165,7 +169,7 @@ def run_simulate(
         depth_rate_hz=depth_rate_hz,
         motion_s=seconds,
         subject_seed=subject_seed,
-        errors=ErrorModel(tracker=tracker_model(tracker)),
+        errors=ErrorModel(tracker=model),
     )
     with atomic_file(
         out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
@@ -191,12 +195,13 @@ def run_simulate(
 TRACKER_MODELS = ("default", "light")
 
 
-def tracker_model(name: str) -> TrackerParams:
+def tracker_model(name: str, errors_off: Sequence[str] = ()) -> TrackerParams:
     """``"default"``: the model with the gross failures and the person level fitted on the
     KinectMultiTrack population (issue 21), every published figure stands on it; ``"light"``:
-    without them (the lighter-tailed model of before issue 21, for comparison)."""
-    from kinefuse.sim.tracker_params import TrackerParams, light_tracker
+    without them (the lighter-tailed model of before issue 21, for comparison). ``errors_off``:
+    parts of it switched off (:func:`kinefuse.sim.tracker_params.without_parts`)."""
+    from kinefuse.sim.tracker_params import TrackerParams, light_tracker, without_parts
 
     if name not in TRACKER_MODELS:
         raise InputError(f"unknown tracker model {name!r}; choose {', '.join(TRACKER_MODELS)}")
-    return light_tracker() if name == "light" else TrackerParams()
+    return without_parts(light_tracker() if name == "light" else TrackerParams(), errors_off)
