@@ -106,15 +106,15 @@ def methods(text: str) -> tuple[str, ...]:
 def error_parts(text: str) -> tuple[str, ...]:
     """Comma-separated parts of the tracker's error model, each one of
     ``kinefuse.sim.tracker_params.ERROR_PARTS``."""
-    from kinefuse.sim.tracker_params import ERROR_PARTS
+    from kinefuse.sim.tracker_params import ERROR_PARTS, TrackerParams, without_parts
 
     names = tuple(m.strip() for m in text.split(",") if m.strip())
-    bad = [m for m in names if m not in ERROR_PARTS]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(
-            f"unknown error-model part(s) {', '.join(bad) or '(none)'}; choose from "
-            f"{', '.join(ERROR_PARTS)}"
-        )
+    if not names:
+        raise argparse.ArgumentTypeError(f"no part given; choose from {', '.join(ERROR_PARTS)}")
+    try:
+        without_parts(TrackerParams(), names)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
     return names
 
 

@@ -895,13 +895,13 @@ def light_tracker(params: TrackerParams | None = None) -> TrackerParams:
 
 
 #: Parts of the error model that a simulation can switch off (``simulate --errors-off``): each
-#: part's fields are set to 0 (a sigma or rate of 0 draws nothing). ``subject``, ``view``,
-#: ``inferred`` and ``swap`` are drawn once per session and shared by its sensors
-#: (:class:`kinefuse.sim.tracker.SubjectBias`); the others each sensor draws on its own random
-#: stream, and ``independent`` names them all. The surface pull, the tracking states, the
-#: bone-length hold and the dropouts (whole frames lost, not errors) stay. Every part's random
-#: numbers are drawn as with the part on and scaled by its 0, so the same seed simulates the
-#: same session without it: the difference is what the part costs.
+#: part's fields are set to 0. ``subject``, ``view``, ``inferred`` and ``swap`` are drawn once
+#: per session and shared by its sensors (:class:`kinefuse.sim.tracker.SubjectBias`); the
+#: others each sensor draws on its own random stream, and ``independent`` names them all. The
+#: surface pull, the tracking states, the bone-length hold and the dropouts (whole frames lost,
+#: not errors) stay. Every part's random numbers are drawn as with the part on and scaled by its
+#: 0, so the same seed simulates the same session without it: the difference is what the part
+#: costs.
 ERROR_PARTS: Final[dict[str, tuple[str, ...]]] = {
     "subject": ("subject_bias_mean_m", "subject_bias_sigma_m"),
     "view": ("view_bias_sigma_m",),
@@ -911,10 +911,10 @@ ERROR_PARTS: Final[dict[str, tuple[str, ...]]] = {
     "jitter": ("jitter_sigma_m", "motion_noise_gain_s", "hf_jitter_sigma_m"),
     "far": ("far_limb_sigma_m",),
     "gross": ("gross_limb_rate_hz", "gross_body_rate_hz"),
-    "independent": ("pose_bias_sigma_m", "jitter_sigma_m", "motion_noise_gain_s",
-                    "hf_jitter_sigma_m", "far_limb_sigma_m", "gross_limb_rate_hz",
-                    "gross_body_rate_hz"),
-}  # fmt: skip
+}
+ERROR_PARTS["independent"] = tuple(
+    f for part in ("pose", "jitter", "far", "gross") for f in ERROR_PARTS[part]
+)
 
 
 def _zeroed(value: Any) -> Any:
