@@ -51,6 +51,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -183,6 +184,25 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     combined = Motion(np.concatenate([combined.positions, hold]), combined.rate_hz,
                       source=combined.source + " + 2 s hold")  # fmt: skip
     return d, rom, truth, combined, walk, lead
+
+
+def saved_takes(
+    folders: list[Path], rom_s: float = 120.0, static_s: float = 10.0, wand_s: float = 15.0
+) -> list[tuple[Path, tuple[float, float]]]:
+    """The sessions ``accuracy --save DIR`` kept (``take*.sqlite``, their arrays beside them),
+    each with its walk's span on the session clock, from folders named after the run's
+    ``--seed`` (``.../s3`` for seed 3); ``rom_s``, ``static_s``, ``wand_s``: that run's options
+    (its defaults here). For the diagnostic scripts of ``tools/``."""
+    out = []
+    for folder in folders:
+        seed = re.search(r"(\d+)$", folder.name)
+        paths = sorted(folder.glob("take*.sqlite"))
+        if seed is None or not paths:
+            raise SystemExit(f"{folder}: not a folder of bench_analysis.py accuracy --save DIR "
+                             "named after its seed (s0, s1, ...)")  # fmt: skip
+        _, _, _, _, w, _ = calibration_motion(rom_s, int(seed.group(1)), static_s)
+        out += [(p, (wand_s + w[0], wand_s + w[1])) for p in paths]
+    return out
 
 
 def accuracy(args: argparse.Namespace) -> dict[str, object]:

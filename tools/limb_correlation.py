@@ -16,7 +16,6 @@ docs/fusion.md section 17. About 2 s per take and value.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -26,7 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_analysis import calibration_motion  # noqa: E402
+from bench_analysis import saved_takes  # noqa: E402
 from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
 from kinefuse.fusion.options import BestOptions  # noqa: E402
 from kinefuse.io.store.session import SessionStore  # noqa: E402
@@ -85,17 +84,9 @@ def main() -> None:
     ap.add_argument("--wand-s", type=float, default=15.0)
     args = ap.parse_args()
     rows: list[list[list[float]]] = []
-    for folder in args.folders:
-        seed = re.search(r"(\d+)$", folder.name)
-        takes = sorted(folder.glob("take*.sqlite"))
-        if seed is None or not takes:
-            raise SystemExit(f"{folder}: not a folder of bench_analysis.py accuracy --save DIR "
-                             "named after its seed (s0, s1, ...)")  # fmt: skip
-        _, _, _, _, w, _ = calibration_motion(args.rom_s, int(seed.group(1)), args.static_s)
-        walk = (args.wand_s + w[0], args.wand_s + w[1])
-        for path in takes:
-            rows.append(take_figures(path, walk, args.values))
-            print(f"{path}: done", file=sys.stderr, flush=True)
+    for path, walk in saved_takes(args.folders, args.rom_s, args.static_s, args.wand_s):
+        rows.append(take_figures(path, walk, args.values))
+        print(f"{path}: done", file=sys.stderr, flush=True)
     a = np.array(rows)  # (takes, values, 6)
     print(f"{a.shape[0]} takes, walk frames; angles against the truth's, joints against the floor")
     print("| limb_correlation | joint MAE cm (hips, knees, ankles) | knee angle RMSE mean (sides "

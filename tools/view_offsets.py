@@ -31,7 +31,6 @@ About 5 s per take.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -42,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_analysis import calibration_motion  # noqa: E402
+from bench_analysis import saved_takes  # noqa: E402
 from kinefuse import analysis as an  # noqa: E402
 from kinefuse.analysis.consistency import angle_rmse_deg  # noqa: E402
 from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
@@ -210,20 +209,11 @@ def main() -> None:
     args = ap.parse_args()
     rows: dict[str, list[list[float]]] = {}
     static = (args.wand_s, args.wand_s + args.static_s)
-    for folder in args.folders:
-        seed = re.search(r"(\d+)$", folder.name)
-        paths = sorted(folder.glob("take*.sqlite"))
-        if seed is None or not paths:
-            raise SystemExit(f"{folder}: not a folder of bench_analysis.py accuracy --save DIR "
-                             "named after its seed (s0, s1, ...)")  # fmt: skip
-        _, _, _, _, w, _ = calibration_motion(args.rom_s, int(seed.group(1)), args.static_s)
-        walk = (args.wand_s + w[0], args.wand_s + w[1])
-        for path in paths:
-            for name, row in take(path, walk, static, args.harmonics, args.ridge).items():
-                rows.setdefault(name, []).append(row)
-                print(f"{path} {name:15s} legs {row[0]:.2f} cm, knee L/R {row[1]:.1f}/"
-                      f"{row[2]:.1f}°, hip L/R {row[3]:.1f}/{row[4]:.1f}°", file=sys.stderr,
-                      flush=True)  # fmt: skip
+    for path, walk in saved_takes(args.folders, args.rom_s, args.static_s, args.wand_s):
+        for name, row in take(path, walk, static, args.harmonics, args.ridge).items():
+            rows.setdefault(name, []).append(row)
+            print(f"{path} {name:15s} legs {row[0]:.2f} cm, knee L/R {row[1]:.1f}/{row[2]:.1f}°, "
+                  f"hip L/R {row[3]:.1f}/{row[4]:.1f}°", file=sys.stderr, flush=True)  # fmt: skip
     n = len(next(iter(rows.values())))
     print(f"{n} takes, walk frames; anatomical flexion against the truth's, legs against the floor")
     print("| fusion | leg joints' error cm | knee flexion mean, worst (under 8°) | hip flexion "
