@@ -186,6 +186,15 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     return d, rom, truth, combined, walk, lead
 
 
+def saved_takes_arguments(ap: argparse.ArgumentParser) -> None:
+    """The arguments of a tool that reads ``accuracy --save`` folders (:func:`saved_takes`)."""
+    ap.add_argument("folders", type=Path, nargs="+",
+                    help="folders written by bench_analysis.py accuracy --save")  # fmt: skip
+    ap.add_argument("--rom-s", type=float, default=120.0)
+    ap.add_argument("--static-s", type=float, default=10.0)
+    ap.add_argument("--wand-s", type=float, default=15.0)
+
+
 def saved_takes(
     folders: list[Path], rom_s: float = 120.0, static_s: float = 10.0, wand_s: float = 15.0
 ) -> list[tuple[Path, tuple[float, float]]]:

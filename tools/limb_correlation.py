@@ -25,7 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_analysis import saved_takes  # noqa: E402
+from bench_analysis import saved_takes, saved_takes_arguments  # noqa: E402
 from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
 from kinefuse.fusion.options import BestOptions  # noqa: E402
 from kinefuse.io.store.session import SessionStore  # noqa: E402
@@ -76,12 +76,8 @@ def take_figures(path: Path, walk: tuple[float, float], values: list[float]) -> 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    ap.add_argument("folders", type=Path, nargs="+",
-                    help="folders written by bench_analysis.py accuracy --save")  # fmt: skip
+    saved_takes_arguments(ap)
     ap.add_argument("--values", type=float, nargs="+", default=[0.0, 0.3, 0.5, 0.7, 0.85])
-    ap.add_argument("--rom-s", type=float, default=120.0)
-    ap.add_argument("--static-s", type=float, default=10.0)
-    ap.add_argument("--wand-s", type=float, default=15.0)
     args = ap.parse_args()
     rows: list[list[list[float]]] = []
     for path, walk in saved_takes(args.folders, args.rom_s, args.static_s, args.wand_s):

@@ -41,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_analysis import saved_takes  # noqa: E402
+from bench_analysis import saved_takes, saved_takes_arguments  # noqa: E402
 from kinefuse import analysis as an  # noqa: E402
 from kinefuse.analysis.consistency import angle_rmse_deg  # noqa: E402
 from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
@@ -199,13 +199,9 @@ def take(path: Path, walk: tuple[float, float], static: tuple[float, float],
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    ap.add_argument("folders", type=Path, nargs="+",
-                    help="folders written by bench_analysis.py accuracy --save")  # fmt: skip
+    saved_takes_arguments(ap)
     ap.add_argument("--harmonics", type=int, default=6)
     ap.add_argument("--ridge", type=float, default=1000.0)
-    ap.add_argument("--rom-s", type=float, default=120.0)
-    ap.add_argument("--static-s", type=float, default=10.0)
-    ap.add_argument("--wand-s", type=float, default=15.0)
     args = ap.parse_args()
     rows: dict[str, list[list[float]]] = {}
     static = (args.wand_s, args.wand_s + args.static_s)
