@@ -33,6 +33,7 @@ LAYERS: tuple[str, ...] = (
     "io.store",
     "sim",
     "io.formats",
+    "devices",  # real cameras (sources) and body trackers: entry-point plug-ins
     "pipeline",
     "evaluation",
     "report",
