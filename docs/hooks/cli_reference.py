@@ -1,0 +1,10 @@
+"""mkdocs hook: publish the command reference generated from kinefuse's parsers."""
+
+from mkdocs.structure.files import File
+
+from kinefuse.cli.reference import render
+
+
+def on_files(files, config):  # noqa: ANN001, ANN201 (mkdocs' hook signature)
+    files.append(File.generated(config, "reference/cli.md", content=render()))
+    return files

@@ -1,0 +1,115 @@
+"""The front door and the user guide: the README's shape, the guide builds, its commands run.
+
+Every ``$ kinefuse ...`` line of a ``console`` block in the getting-started page and the
+tutorials is run here, verbatim, in a fresh folder laid out like a checkout (``../shared`` and
+``rigs/`` beside it), in the page's order: a tutorial that drifts from the program fails here.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+README = ROOT / "README.md"
+
+TUTORIALS = [DOCS / "getting-started.md", *sorted((DOCS / "tutorials").glob("*.md"))]
+
+
+def console_commands(page: Path) -> list[str]:
+    """The ``$ ...`` lines of the page's ``console`` blocks, in order."""
+    out, inside = [], False
+    for line in page.read_text().splitlines():
+        if line.startswith("```"):
+            inside = line.strip() == "```console" if not inside else False
+            continue
+        if inside and line.startswith("$ "):
+            out.append(line[2:].strip())
+    return out
+
+
+def test_readme_is_a_front_door() -> None:
+    text = README.read_text()
+    lines = text.splitlines()
+    assert len(lines) <= 80, f"README.md has {len(lines)} lines (at most 80)"
+    commands = lines[3:5]
+    assert commands[0].endswith(".venv/bin/kinefuse demo"), commands[0]
+    assert commands[1].endswith(".venv/bin/python -m pytest"), commands[1]
+    for line in lines:
+        if line.startswith("|"):
+            for cell in line.strip("|").split("|"):
+                assert len(cell.split()) <= 40, f"README cell over 40 words: {cell[:60]}..."
+    assert not re.search(r"\bissues? \d+", text, re.IGNORECASE), "issue numbers in README.md"
+    for link in re.findall(r"\]\(([^)#]+)", text):
+        if "://" not in link:
+            assert (ROOT / link).exists(), f"README links to a missing file: {link}"
+
+
+def test_guide_pages_name_no_issues() -> None:
+    """Issue numbers and who-did-what belong to the studies section, not the user guide."""
+    for page in [DOCS / "index.md", *TUTORIALS]:
+        assert not re.search(r"\bissues? \d+", page.read_text(), re.IGNORECASE), page
+
+
+def test_the_guide_builds_strict(tmp_path: Path) -> None:
+    mkdocs = shutil.which("mkdocs", path=str(Path(sys.executable).parent))
+    assert mkdocs, "mkdocs is part of the test extra: pip install -e '.[test]'"
+    run = subprocess.run(
+        [mkdocs, "build", "--strict", "--site-dir", str(tmp_path / "site")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env={**_env(), "NO_MKDOCS_2_WARNING": "1"},
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    reference = (tmp_path / "site" / "reference" / "cli" / "index.html").read_text()
+    for command in ("demo", "simulate", "calibrate", "serve", "sensor", "fuse", "analyze"):
+        assert f"kinefuse {command}" in reference
+
+
+def test_the_cli_reference_lists_every_command() -> None:
+    from kinefuse.cli.main import COMMANDS
+    from kinefuse.cli.reference import render
+
+    page = render()
+    for module in COMMANDS:
+        name = module.__name__.rsplit(".", 1)[1]
+        assert f"## kinefuse {name}" in page
+        assert "usage: kinefuse " + name in page
+
+
+def _env() -> dict[str, str]:
+    import os
+
+    env = dict(os.environ)
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    return env
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("page", TUTORIALS, ids=lambda p: p.stem)
+def test_every_tutorial_command_runs(page: Path, tmp_path: Path, shared_data: Path) -> None:
+    commands = console_commands(page)
+    if page.parent.name == "tutorials":
+        assert commands, f"{page.name} shows no command to run"
+    work = tmp_path / "work"
+    work.mkdir()
+    (tmp_path / "shared").symlink_to(shared_data.parent)
+    (work / "rigs").symlink_to(ROOT / "rigs")
+    for command in commands:
+        argv = shlex.split(command)
+        assert argv[0] == "kinefuse", f"{page.name}: a tutorial runs kinefuse: {command}"
+        run = subprocess.run(
+            argv, cwd=work, capture_output=True, text=True, env=_env(), timeout=600
+        )
+        assert run.returncode == 0, (
+            f"{page.name}: `{command}` exited {run.returncode}:\n" + (run.stderr[-2000:])
+        )
