@@ -1,9 +1,12 @@
-"""Every benchmark has a ``--smoke`` mode, and CI runs them all (issue 23: benchmarks never rot).
+"""Every benchmark and every study has a ``--smoke`` mode, and CI runs them all (none rots).
 
-``.ci/run`` runs ``python benchmarks/X.py --smoke`` for every ``benchmarks/*.py``, one loop, so
-a new benchmark cannot be forgotten; running them is CI's job. Here, without running anything:
-each file declares the option (``add_argument("--smoke", ...)``, read from its syntax tree) and
-imports neither pytest nor a test module (a benchmark must run without the test extra).
+``benchmarks/`` holds the speed, memory, load and soak harnesses; ``studies/`` the fits, sweeps,
+comparisons and probes behind the documented figures (the scripts that read ``../shared/data``).
+``.ci/run`` runs ``python FOLDER/X.py --smoke`` for every ``benchmarks/*.py`` and
+``studies/*.py``, one loop, so a new one cannot be forgotten; running them is CI's job. Here,
+without running anything: each file declares the option (``add_argument("--smoke", ...)``, read
+from its syntax tree) and imports neither pytest nor a test module (it runs without the test
+extra).
 """
 
 from __future__ import annotations
@@ -14,11 +17,21 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-BENCHMARKS = sorted((ROOT / "benchmarks").glob("*.py"))
+BENCHMARKS = sorted((ROOT / "benchmarks").glob("*.py")) + sorted((ROOT / "studies").glob("*.py"))
+
+#: a study that reads ``analysis_accuracy.py accuracy --save`` folders declares ``--smoke``
+#: through that script's shared arguments
+SHARED_SMOKE = "saved_takes_arguments"
 
 
 def _declares_smoke(tree: ast.AST) -> bool:
-    return any(
+    shared = any(
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id == SHARED_SMOKE
+        for node in ast.walk(tree)
+    )
+    return shared or any(
         isinstance(node, ast.Call)
         and isinstance(node.func, ast.Attribute)
         and node.func.attr == "add_argument"
@@ -37,8 +50,20 @@ def _imported(tree: ast.AST) -> set[str]:
     return names
 
 
-def test_there_are_benchmarks() -> None:
-    assert len(BENCHMARKS) >= 10
+def test_there_are_benchmarks_and_studies() -> None:
+    assert len([p for p in BENCHMARKS if p.parent.name == "benchmarks"]) >= 10
+    assert len([p for p in BENCHMARKS if p.parent.name == "studies"]) >= 10
+
+
+def test_nothing_installed_reads_the_shared_data() -> None:
+    """``../shared`` is this repository's data, not an installed user's: only tests, benchmarks
+    and studies may name it in code (a provenance note in a docstring or comment is fine)."""
+    offenders = []
+    for path in sorted((ROOT / "src" / "kinefuse").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and node.value == "shared":
+                offenders.append(str(path.relative_to(ROOT)))
+    assert not offenders, f"installed code builds a path to ../shared: {offenders}"
 
 
 @pytest.mark.parametrize("path", BENCHMARKS, ids=lambda p: p.name)
@@ -59,6 +84,7 @@ def test_benchmark_imports_no_test_code(path: Path) -> None:
 
 def test_ci_runs_every_benchmark_smoke_mode() -> None:
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
-    assert "benchmarks/*.py" in ci and "--smoke" in ci
-    # after the tests, before the linters
+    assert "benchmarks/*.py studies/*.py" in ci and "--smoke" in ci
+    # after the tests, before the linters, which read both folders
     assert ci.index("-m pytest") < ci.index("benchmarks/*.py") < ci.index("ruff check")
+    assert "ruff check src tests benchmarks studies" in ci

@@ -213,7 +213,7 @@ def test_offline_best_is_not_mirrored_where_every_view_is_ambiguous(shared_data,
     view is ambiguous and a vote per second is a tie. The per-second consensus offline ``best``
     used then mirrored whole seconds (14.1 and 10.5 cm MAE, limbs 40-70 cm off, while
     ``best-live`` had 5.3 and 4.5 cm); the causal vote's continuity (the facing so far, the
-    walking direction) keeps it right. Sessions of ``benchmarks/fusion_sweep.py``."""
+    walking direction) keeps it right. Sessions of ``studies/fusion_sweep.py``."""
     from pathlib import Path
 
     from kinefuse.evaluation.fusion import truth_at

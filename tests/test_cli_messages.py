@@ -13,7 +13,7 @@ from kinefuse.errors import CalibrationError, RigError
 from kinefuse.sim.rig import load_rig
 
 
-@pytest.mark.parametrize("command", ["realism", "realdata"])
+@pytest.mark.parametrize("command", ["realdata"])
 def test_report_commands_show_their_own_usage(command, capsys) -> None:
     with pytest.raises(SystemExit) as e:
         main([command, "--help"])

@@ -81,7 +81,7 @@ def test_a_sensor_that_sees_no_body_does_not_switch_the_walking_vote_off(two, st
 
 
 def test_a_turn_on_the_spot_is_not_mirrored_by_the_walking_vote(shared_data, tmp_path) -> None:
-    """CMU 131_01 on the level 4-sensor rig, seed 2 (a session of benchmarks/paper_comparison.py):
+    """CMU 131_01 on the level 4-sensor rig, seed 2 (a session of studies/paper_comparison.py):
     at 3.6 s the person turns round while the pelvis moves backwards at 1 m/s, and every sensor's
     view is ambiguous. The walking vote mirrored the skeleton for 0.5 s (29-46 cm; best-live
     6.2 cm against best's 4.3 cm over the clip)."""
@@ -116,7 +116,7 @@ def test_agreeing_back_views_do_not_overturn_a_confirmed_facing(shared_data, tmp
     from kinefuse.evaluation.fusion import truth_at
 
     ring = []
-    for i in range(5):  # benchmarks/analysis_sweep.py's held-out ring5
+    for i in range(5):  # studies/analysis_sweep.py's held-out ring5
         a = 2 * np.pi * i / 5 + 0.3
         ring += ["[[sensor]]", f'id = "r{i}"',
                  f"position_m = [{2.5 * np.cos(a):.3f}, {2.5 * np.sin(a):.3f}, "

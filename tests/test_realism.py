@@ -296,7 +296,7 @@ def test_walking_passes(walk: Motion) -> None:
 
 
 def test_single_sensor_realism(walk: Motion) -> None:
-    # every heading, as `kinefuse realism --single`: with the population's failures the
+    # every heading, as `python studies/realism.py --single`: with the population's failures the
     # typical person is at 9.4 cm over the 8 headings, 11.0 over every other one
     passes = walking_passes(walk, DEFAULT_HEADINGS)
     res = single_sensor_realism(passes, np.random.default_rng(0))

@@ -115,10 +115,10 @@ def test_iqr_band_is_a_coin_toss_on_five_takes() -> None:
 
 
 def test_population_seeds_are_the_participants_own() -> None:
-    """`kinefuse realism --population`: one participant's takes share their simulated subjects
-    (the person level is the person's at every layout), two participants never do, and a file
-    not named as KinectMultiTrack names its takes still gets seeds of its own."""
-    from kinefuse.workflows.realism import population_seeds
+    """`python studies/realism.py --population`: one participant's takes share their simulated
+    subjects (the person level is the person's at every layout), two participants never do, and
+    a file not named as KinectMultiTrack names its takes still gets seeds of its own."""
+    from kinefuse.evaluation.realism_person import population_seeds
 
     a0 = population_seeds("Study_3_Kinect_0_Time_1.csv", 2)
     a1 = population_seeds("Study_3_Kinect_1_Time_2.csv", 2)

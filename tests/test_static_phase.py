@@ -101,7 +101,7 @@ def test_analyze_auto_finds_the_standing_phase(
         assert k in anat["angle_names"]
         assert anat["present_fraction"][k] > 0.9
     # scored against the same anatomical angles of the true motion (same standing phase); the
-    # accuracy itself is measured by bench_analysis.py accuracy (this walk is 2 s long)
+    # accuracy itself is measured by analysis_accuracy.py accuracy (this walk is 2 s long)
     rmse, tracked = rep["anatomical_rmse_deg"], rep["anatomical_rmse_tracked_deg"]
     for k in ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_flexion_right"):
         assert np.isfinite(rmse[k]) and rmse[k] > 0.0, (k, rmse[k])

@@ -21,7 +21,7 @@ time (add the session's wand phase for server time). Against a truth (simulated 
 ``axis_errors_deg(model, true_axes_in_normalization(truth.axes, true_frames, norm.frames))``,
 ``angle_rmse_deg(ang.anatomical(), ang_true.anatomical(), frames)``,
 ``twist_errors_deg(ang.twist, ang_true.twist, ang.twist_weight, frames)`` where ``ang_true``
-is the same analysis of the true positions (see ``benchmarks/bench_analysis.py accuracy``).
+is the same analysis of the true positions (see ``studies/analysis_accuracy.py accuracy``).
 
 Modules
 -------

@@ -478,8 +478,8 @@ def segment_poses(
 #: or one of them is above twice this. Larger than the marker files' 30 mm: a fused
 #: depth-sensor skeleton jitters about 1 cm per axis while standing still, and one joint (an
 #: ankle the other leg hides, a hip seen from the side) can wander 6 cm while the body stands
-#: (fused standing phases of ``benchmarks/bench_analysis.py accuracy`` and
-#: ``benchmarks/analysis_sweep.py --static``).
+#: (fused standing phases of ``studies/analysis_accuracy.py accuracy`` and
+#: ``studies/analysis_sweep.py --static``).
 MAX_SKELETON_STATIC_MOTION_M = 0.05
 
 #: The joints whose stillness a skeleton's static window is checked on (the hands and feet

@@ -437,7 +437,7 @@ def root_long_axis(p: Array) -> Array:
 
     Not SpineBase -> SpineMid, 17-18 cm apart: a depth sensor that sees the body from behind
     fits a body it believes turned around, and its SpineMid lands several cm in front, its
-    SpineBase behind (fused, in a seed-1 session of ``benchmarks/analysis_sweep.py``: +4.5 /
+    SpineBase behind (fused, in a seed-1 session of ``studies/analysis_sweep.py``: +4.5 /
     -1.2 cm while that sensor took part, about nothing otherwise). The pelvis tilted by up to
     16 deg at each switch, and the trunk's and thighs' angles and axes with it (trunk axes 15-35
     deg off over that subject's sessions, their floor under 6 deg). The hips' midpoint is 10-12

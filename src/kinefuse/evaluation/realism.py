@@ -14,7 +14,7 @@ Two checks (``docs/realism.md`` shows the table and how to recompute it):
 2. **One simulated sensor against the truth**
    (:func:`kinefuse.evaluation.realism_single.single_sensor_realism`).
 3. **Figures per take**, real beside simulated (:mod:`kinefuse.evaluation.realism_takes`, the
-   ``kinefuse realism`` command).
+   ``python studies/realism.py`` command).
 
 This is evaluation code: it reads the simulator's truth.
 """

@@ -28,6 +28,7 @@ has a heavy tail (a few people tracked much worse), which a log-normal ``q`` doe
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from math import comb
@@ -236,3 +237,16 @@ def iqr_band_pass_rate(
 
     ratio = iqr(n_sim) / iqr(n_real)
     return float(np.mean((ratio >= band[0]) & (ratio <= band[1])))
+
+
+def population_seeds(file_name: str, n: int) -> list[int]:
+    """The ``n`` simulated subjects of a take in a population comparison: the participant's own
+    (:func:`subject_seed`, shared by that participant's takes at every layout), or, for a file not
+    named as KinectMultiTrack names its takes, seeds of its own from its name. Seeds ``0..n-1``
+    for every take would give every take of a layout the same ``n`` person-level draws, and the
+    simulated spread between people would rest on ``n``."""
+    try:
+        return [subject_seed(file_name, k) for k in range(n)]
+    except InputError:
+        base = 1000 * (1000 + zlib.crc32(file_name.encode()) % 1_000_000)
+        return [base + k for k in range(n)]

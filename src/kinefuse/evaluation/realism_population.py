@@ -1,4 +1,4 @@
-"""Real against simulated figures as populations: ``kinefuse realism --population [DIR]``.
+"""Real against simulated figures as populations: ``python studies/realism.py --population [DIR]``.
 
 One real take is one person at one layout; one simulated copy of a take with one seed is one
 simulated subject (its own subject-level draw, :func:`kinefuse.sim.tracker.draw_subject_bias`,

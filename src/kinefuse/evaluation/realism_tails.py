@@ -14,7 +14,7 @@ distinct frames of the front sensor:
   while that stream's pelvis moves faster than 0.1 m/s (a held guess);
 - the distribution of every joint distance, for the pictures of ``docs/realism.md``.
 
-``tools/fit_tracker_tails.py`` prints these for the population and fits the failure processes of
+``studies/fit_tracker_tails.py`` prints these for the population and fits the failure processes of
 :mod:`kinefuse.sim.tracker_failures` to them.
 """
 

@@ -1,4 +1,4 @@
-"""Real against simulated figures, take by take: ``kinefuse realism [--take CSV ...]``.
+"""Real against simulated figures, take by take: ``python studies/realism.py [--take CSV ...]``.
 
 For any KinectMultiTrack take (two real Kinect v2 sensors watching one person) this module
 computes the same figures for the real streams and for a simulated copy of the take, with ONE

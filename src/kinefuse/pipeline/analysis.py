@@ -54,7 +54,7 @@ SEEN_MIN_SENSORS = 2
 #: frames: what the fusion delivers there is mostly one sensor's (or no sensor's) guess, and the
 #: axes it teaches are off by tens of degrees (issue 24: a walkway that saw the phase 4-15 % of
 #: the time gave a 25° axis error). A round number of ours: the sessions of
-#: ``benchmarks/analysis_sweep.py`` see every limb in 60 % of the phase or more.
+#: ``studies/analysis_sweep.py`` see every limb in 60 % of the phase or more.
 SEEN_MIN_FRACTION = 0.5
 
 
@@ -244,7 +244,7 @@ def hinge_angle_deg(positions: Array, proximal: str, joint: str, distal: str) ->
     forearm's frame takes its twist from the thumb, 3 cm beside the hand, and with the
     standing frame level (not along the forearm) that twist, pronation included, read as
     flexion, 13.5 / 14.8° RMS (left / right) off the elbow's own angle on the true walk of
-    ``benchmarks/bench_analysis.py accuracy`` (docs/analysis.md)."""
+    ``studies/analysis_accuracy.py accuracy`` (docs/analysis.md)."""
     from kinefuse.skeleton import JOINT_INDEX
 
     u = positions[:, JOINT_INDEX[proximal]] - positions[:, JOINT_INDEX[joint]]

@@ -1,7 +1,7 @@
 """Gross tracking failures and the person level of the Kinect v2 tracker model.
 
 Two processes measured on the real KinectMultiTrack population (participants 0-9, every main
-take; ``tools/fit_tracker_tails.py`` prints the figures and the fitted values,
+take; ``studies/fit_tracker_tails.py`` prints the figures and the fitted values,
 ``docs/realism.md`` shows them):
 
 **Thrown limbs** (:func:`gross_failures`). Now and then a real Kinect v2 places a whole limb

@@ -93,7 +93,7 @@ _WANG = "Wang et al. 2015 (Kinect v2 vs optical mocap: most joints 5-10 cm, feet
 _KMT = "KinectMultiTrack real two-Kinect recording (../shared/data/kinect/kinect_multitrack)"
 _POP = (
     "KinectMultiTrack population, participants 0-9, 25 main takes at 0/45/90 deg "
-    "(../shared/data/kinect/kinect_multitrack_population), fitted by tools/fit_tracker_tails.py"
+    "(../shared/data/kinect/kinect_multitrack_population), fitted by studies/fit_tracker_tails.py"
 )
 _WALKER = "kinect2-tracking walker.json (real Kinect v2 walk with tracking states)"
 
@@ -234,8 +234,8 @@ class TrackerParams:
             "error), so that a limb's joints are off together: the real sensors' knee and "
             "elbow angles agree 2-3x better than independent errors of the same size allow. "
             "Fitted to the two sensors' knee and elbow angle disagreement per layout over "
-            + _POP.replace("fitted by tools/fit_tracker_tails.py", "")
-            + "by tools/fit_limb_coherence.py: flat from 0.8 to 0.95 (0.8 best on participants "
+            + _POP.replace("fitted by studies/fit_tracker_tails.py", "")
+            + "by studies/fit_limb_coherence.py: flat from 0.8 to 0.95 (0.8 best on participants "
             "0-4, 0.95 on 5-9 and on all ten); 0.9, the middle, keeps the position medians in "
             "band on both halves (0.95: x0.78 at 90 deg on participants 0-4). The subject-level "
             "offsets (subject_bias_sigma_m) are drawn with the same correlation: a real front "
@@ -639,7 +639,7 @@ class TrackerParams:
             "model's view-dependent errors make no such runs) so that the simulated runs of an "
             "arm and of a leg more than 20 cm off in the two-sensor disagreement come as often "
             "as the real ones (arms 0.34-0.35/s, legs 0.60-0.77/s on participants 0-4 / 5-9): "
-            "the mean of the fits on the two halves (1.77 / 2.19; tools/fit_tracker_tails.py "
+            "the mean of the fits on the two halves (1.77 / 2.19; studies/fit_tracker_tails.py "
             "--participants, one fixed-point step each; 0.98 before the arms and legs were told "
             "apart); 0 in the light model. " + _POP,
         ),
@@ -875,7 +875,7 @@ def describe_params(params: TrackerParams | None = None) -> list[dict[str, Any]]
 #: level off (a rate or sigma of 0 draws nothing) and the view-dependent offset growing as
 #: |sin(view)|^4 as fitted on the three shared takes; a session simulated with it is bit for bit
 #: the one every figure stood on before issue 21. The default model has the processes on and
-#: the exponent refitted, on the KinectMultiTrack population (tools/fit_tracker_tails.py,
+#: the exponent refitted, on the KinectMultiTrack population (studies/fit_tracker_tails.py,
 #: docs/realism.md section 6).
 LIGHT: dict[str, float] = {
     "gross_limb_rate_hz": 0.0,

@@ -1,16 +1,17 @@
 """The fit of the tracker model's ``limb_coherence`` (docs/realism.md, "One limb, one error").
 
-    PYTHONPATH=src python tools/fit_limb_coherence.py [--seeds 1] [--participants 0-9]
+    python studies/fit_limb_coherence.py [--seeds 1] [--participants 0-9]
         [--rho 0 0.5 0.7 0.8 0.9 0.95]
 
 For each candidate ``rho`` this simulates every KinectMultiTrack take of the chosen
-participants (each take its own simulated subjects, as ``kinefuse realism --population``) and
-compares, per layout, the median over takes of the two sensors' knee and elbow angle
+participants (each take its own simulated subjects, as ``python studies/realism.py --population``)
+and compares, per layout, the median over takes of the two sensors' knee and elbow angle
 disagreement (``limb_angle_median_deg`` of :func:`kinefuse.evaluation.realism_takes.pair_figures`)
 with the real one. The chosen value is the candidate with the smallest mean ``|log(sim / real)|``
 over the three layouts. The median position disagreement is printed beside it: ``rho`` leaves
 each joint's own error unchanged, so it should barely move (the Kabsch fit absorbs a little more
 of an error that the joints share). About 30 s per candidate with one seed on the shared machine.
+``--smoke``: participant 2's takes, one candidate, one seed (CI runs it).
 """
 
 from __future__ import annotations
@@ -22,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.evaluation.realism import load_walk
+from kinefuse.evaluation.realism_person import population_seeds
 from kinefuse.evaluation.realism_population import population_summary
 from kinefuse.evaluation.realism_takes import compare_take
 from kinefuse.sim.tracker_params import TrackerParams
-from kinefuse.workflows.realism import population_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -38,7 +39,10 @@ def main() -> None:
     ap.add_argument("--participants", default="0-9", help="A-B: fit on these participants")
     ap.add_argument("--rho", type=float, nargs="+", default=[0.0, 0.5, 0.7, 0.8, 0.9, 0.95])
     ap.add_argument("--population", type=Path, default=POPULATION)
+    ap.add_argument("--smoke", action="store_true", help="participant 2, one candidate (seconds)")
     args = ap.parse_args()
+    if args.smoke:
+        args.participants, args.rho, args.seeds = "2-2", [0.5], 1
     lo, hi = (int(v) for v in args.participants.split("-"))
     takes = [
         t for t in sorted(args.population.glob("*.csv")) if lo <= int(t.name.split("_")[1]) <= hi

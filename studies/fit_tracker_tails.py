@@ -1,6 +1,6 @@
 """Measure the heavy tails of real Kinect v2 tracking and fit the tracker's failure processes.
 
-    PYTHONPATH=src python tools/fit_tracker_tails.py [--seeds 1] [--participants 0-4]
+    python studies/fit_tracker_tails.py [--seeds 1] [--participants 0-4]
         [--cache tests/data/...json]
 
 Reads every take of the KinectMultiTrack population (participants 0-9,
@@ -19,6 +19,7 @@ others are this tool's values on all ten, rounded. ``--cache`` writes the real p
 (the test cache). It also prints, at 0 degrees, the share of joint distances above 10-30 cm per
 joint group, real against the model and the light model. About 4 minutes
 with ``--seeds 1`` on a quiet machine.
+``--smoke``: participant 2's takes, one seed (CI runs it).
 """
 
 from __future__ import annotations
@@ -145,7 +146,10 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=1, help="simulations per take (processes off)")
     ap.add_argument("--cache", type=Path, default=None, help="write the real per-take figures")
     ap.add_argument("--participants", default="0-9", help="fit on these participants (A-B)")
+    ap.add_argument("--smoke", action="store_true", help="participant 2 only (seconds)")
     args = ap.parse_args()
+    if args.smoke:
+        args.participants, args.seeds = "2-2", 1
     lo, hi = (int(v) for v in args.participants.split("-"))
     walk = load_motion(DATA / "motion" / "cmu" / "02_walk_a.amc")
     takes = [t for t in sorted(args.population.glob("*.csv")) if lo <= participant(t) <= hi]

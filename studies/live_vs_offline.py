@@ -1,6 +1,6 @@
 """Causal ``best-live`` against offline ``best`` and the paper's chain (issue 10's acceptance).
 
-Run: ``python benchmarks/live_vs_offline.py [--seed 0] [--smoke]`` (``--smoke``: a 3 s demo session
+Run: ``python studies/live_vs_offline.py [--seed 0] [--smoke]`` (``--smoke``: a 3 s demo session
 of 2 sensors after a 6 s wand phase and one walk on one rig, to check that it runs; the ratio is
 then not the acceptance figure). Simulates the demo session (bundled clip, 4 sensors, estimated
 calibration from the wand) and the three walking clips of ``../shared/data`` on two rigs (true

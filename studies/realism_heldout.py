@@ -1,16 +1,17 @@
 """The held-out check of docs/realism.md section 6: fit on half the participants, judge on the rest.
 
-    PYTHONPATH=src python tools/realism_heldout.py --fit-on 0-4 [--seeds 2]
-    PYTHONPATH=src python tools/realism_heldout.py --fit-on 5-9 [--seeds 2]
+    python studies/realism_heldout.py --fit-on 0-4 [--seeds 2]
+    python studies/realism_heldout.py --fit-on 5-9 [--seeds 2]
 
-The tracker values below are what ``tools/fit_tracker_tails.py --participants A-B`` prints for
+The tracker values below are what ``studies/fit_tracker_tails.py --participants A-B`` prints for
 each half (the thrown-limb fixed-point step and ``person_log_sigma``); the default model's values
 are the means of the two. This simulates the takes of the *other* participants with those values
-and prints the same per-layout comparison as ``kinefuse realism --population``. Every take gets
-its own simulated subjects (seeds ``subject_seed(file, 0..N-1)``,
+and prints the same per-layout comparison as ``python studies/realism.py --population``.
+Every take gets its own simulated subjects (seeds ``subject_seed(file, 0..N-1)``,
 :func:`kinefuse.evaluation.realism_person.subject_seed`): with seeds ``0..N-1`` for every take,
 as the CLI has them, all takes of a layout share the same N person-level draws. About 10 minutes
 with ``--seeds 2`` on the shared machine.
+``--smoke``: two judged takes, one seed (CI runs it).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 POPULATION = DATA / "kinect" / "kinect_multitrack_population"
 
-#: tools/fit_tracker_tails.py --seeds 1 --participants A-B, per half (from the default model of
+#: studies/fit_tracker_tails.py --seeds 1 --participants A-B, per half (from the default model of
 #: issue 21 as it stands; person_log_sigma: the random-effects estimate of realism_person)
 HALF_FITS: dict[str, dict[str, float]] = {
     "0-4": {
@@ -80,6 +81,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--population", type=Path, default=POPULATION)
     ap.add_argument("--earlier-limbs", action="store_true", help="EARLIER_LIMB_FITS' limbs")
+    ap.add_argument("--smoke", action="store_true", help="two judged takes, one seed (seconds)")
     args = ap.parse_args()
     lo, hi = (int(v) for v in args.fit_on.split("-"))
     fit = dict(HALF_FITS[args.fit_on])
@@ -92,6 +94,8 @@ def main() -> None:
         for t in sorted(args.population.glob("*.csv"))
         if not lo <= int(t.name.split("_")[1]) <= hi
     ]
+    if args.smoke:
+        takes, args.seeds = takes[:2], 1
     results = []
     for i, t in enumerate(takes):
         print(f"[{i + 1}/{len(takes)}] {t.name}", flush=True)

@@ -1,6 +1,6 @@
 """Make the README's screenshots: the live viewer, the replay viewer and the HTML report.
 
-    python tools/readme_screenshots.py [--out docs/img]
+    python studies/readme_screenshots.py [--out docs/img]
 
 Simulates 8 s of the bundled clip (CMU 01_01) watched by 4 sensors after 12 s of wand waving,
 calibrates (``full``), fuses with ``best``, ``paper`` and ``best-live`` (stored in the session),
@@ -12,6 +12,7 @@ then, with Debian's chromium (/usr/bin/chromium) driven by Playwright:
 * ``report.png``: the top of the ``report.html`` that ``kinefuse evaluate --out`` writes.
 
 The session and report go to a temporary folder; only the three PNGs are written to ``--out``.
+``--smoke``: the three pictures into a temporary folder (CI runs it).
 """
 
 from __future__ import annotations
@@ -66,7 +67,10 @@ class Loop:
 def main() -> int:
     ap = argparse.ArgumentParser(description="write the README's screenshots")
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "img")
+    ap.add_argument("--smoke", action="store_true", help="into a temporary folder")
     args = ap.parse_args()
+    if args.smoke:
+        args.out = Path(tempfile.mkdtemp(prefix="readme_screenshots_"))
     from playwright.sync_api import sync_playwright
 
     args.out.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """Could the fusion learn the tracker's view-dependent joint offsets? The takes of
-``benchmarks/bench_analysis.py accuracy --save DIR`` (one folder per subject) fused three ways.
+``studies/analysis_accuracy.py accuracy --save DIR`` (one folder per subject) fused three ways.
 
-    PYTHONPATH=src python tools/view_offsets.py DIR [DIR ...] [--harmonics 6] [--ridge 1000]
+    python studies/view_offsets.py DIR [DIR ...] [--harmonics 6] [--ridge 1000]
         [--rom-s 120] [--static-s 10] [--wand-s 15]
 
 (each DIR's subject seed is read from its name's trailing digits, ``.../s3`` -> ``--seed 3``, as
@@ -24,8 +24,9 @@ function for every sensor:
 mirrored-back frames are left out of the fits and not corrected. Per variant, over every take
 and side and the benchmark's walk frames: the leg joints' mean error against the floor and the
 anatomical knee and hip flexion RMSE against the truth's (static phase, zero at standing: the
-figures of ``bench_analysis.py accuracy``). ``docs/analysis.md``, "What the sensors share".
+figures of ``analysis_accuracy.py accuracy``). ``docs/analysis.md``, "What the sensors share".
 About 5 s per take.
+``--smoke``: makes one small ``accuracy --save`` folder first and reads it (CI runs it).
 """
 
 from __future__ import annotations
@@ -38,18 +39,17 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from analysis_accuracy import saved_takes_arguments, saved_takes_of
+from kinefuse import analysis as an
+from kinefuse.analysis.consistency import angle_rmse_deg
+from kinefuse.evaluation.poses import resolve_poses
+from kinefuse.io.store.session import SessionStore
+from kinefuse.pipeline.analysis import skeleton_anatomy
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+from kinefuse.skeleton import JOINT_INDEX, TrackingState
+from kinefuse.sync.assembly import interpolate
 
-from bench_analysis import saved_takes, saved_takes_arguments  # noqa: E402
-from kinefuse import analysis as an  # noqa: E402
-from kinefuse.analysis.consistency import angle_rmse_deg  # noqa: E402
-from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
-from kinefuse.io.store.session import SessionStore  # noqa: E402
-from kinefuse.pipeline.analysis import skeleton_anatomy  # noqa: E402
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method  # noqa: E402
-from kinefuse.skeleton import JOINT_INDEX, TrackingState  # noqa: E402
-from kinefuse.sync.assembly import interpolate  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 LEGS = [JOINT_INDEX[f"{j}{s}"] for j in ("Hip", "Knee", "Ankle") for s in ("Left", "Right")]
 ANGLES = ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_flexion_right")
@@ -204,8 +204,9 @@ def main() -> None:
     ap.add_argument("--ridge", type=float, default=1000.0)
     args = ap.parse_args()
     rows: dict[str, list[list[float]]] = {}
+    takes = saved_takes_of(args)
     static = (args.wand_s, args.wand_s + args.static_s)
-    for path, walk in saved_takes(args.folders, args.rom_s, args.static_s, args.wand_s):
+    for path, walk in takes:
         for name, row in take(path, walk, static, args.harmonics, args.ridge).items():
             rows.setdefault(name, []).append(row)
             print(f"{path} {name:15s} legs {row[0]:.2f} cm, knee L/R {row[1]:.1f}/{row[2]:.1f}°, "

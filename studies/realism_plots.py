@@ -1,6 +1,6 @@
 """Pictures of the real and simulated two-sensor disagreement for ``docs/realism.md``.
 
-    PYTHONPATH=src python tools/realism_plots.py [--seeds 1] [--out docs/img]
+    python studies/realism_plots.py [--seeds 1] [--out docs/img]
 
 Per layout (0, 45, 90 degrees), over every take of the KinectMultiTrack population: the share of
 joint distances above x (log scale, the tails), real against the model and the light model
@@ -8,11 +8,13 @@ joint distances above x (log scale, the tails), real against the model and the l
 ``realism_tails_LAYOUT.png``); and the per-take
 medians and p95 of every participant beside the simulated subjects
 (``realism_population.png``). A few minutes on the shared machine.
+``--smoke``: participant 2's takes, pictures into a temporary folder (CI runs it).
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -49,12 +51,17 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=1)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "img")
+    ap.add_argument(
+        "--smoke", action="store_true", help="participant 2's takes into a temporary folder"
+    )
     args = ap.parse_args()
+    if args.smoke:
+        args.out = Path(tempfile.mkdtemp(prefix="realism_plots_"))
     walk = load_motion(DATA / "motion" / "cmu" / "02_walk_a.amc")
     folder = DATA / "kinect" / "kinect_multitrack_population"
     dist: dict[str, dict[str, list[np.ndarray]]] = {}
     meds: dict[str, dict[str, list[tuple[float, float]]]] = {}
-    for path in sorted(folder.glob("*.csv")):
+    for path in sorted(folder.glob("Study_2_*.csv" if args.smoke else "*.csv")):
         rec = read_kinect_multitrack(path)
         rp = real_pair(rec)
         lay = take_layout(rec, rp)

@@ -1,6 +1,6 @@
 """Paper B's analysis chain over many simulated sessions: the inputs nobody tuned it for (issue 24).
 
-Run: ``python benchmarks/analysis_sweep.py [--seeds 0 1] [--rigs level4 tiered4 tilted4]
+Run: ``python studies/analysis_sweep.py [--seeds 0 1] [--rigs level4 tiered4 tilted4]
 [--clips ...] [--heldout] [--rom-s 60] [--static 10] [--tracker default|light]
 [--errors-off PART[,PART]] [--sessions DIR] [--json F] [--smoke]`` (about 15-30 s a session;
 ``--sessions DIR`` keeps the simulated sessions and reuses them, so a rerun only analyses;
@@ -216,7 +216,7 @@ def floor_figures(
     """The session's axis error median, reconstruction error mean and worst knee/hip flexion
     RMSE (over every frame after the phase) with a perfect fusion: its true motion (30 Hz) plus its
     subject's tracker joint-definition offsets alone (what every sensor shares, so no fusion
-    removes it), analysed and scored as the fused take is (``bench_analysis.py floor`` does the
+    removes it), analysed and scored as the fused take is (``analysis_accuracy.py floor`` does the
     same for ``subject_seed`` subjects; here the subject is the session's own, drawn from its
     seed)."""
     from kinefuse.analysis.kinematics import reconstruction_error

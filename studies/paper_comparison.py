@@ -1,7 +1,7 @@
 """Paper A's comparison rerun: linear, geometric, nonlinear, paper and best on simulated
 sessions of the real walking clips, with true calibration, and the ablation of best.
 
-Run: ``python benchmarks/paper_comparison.py [--seeds 0 1 2] [--clips ...] [--rigs ...] [--smoke]``
+Run: ``python studies/paper_comparison.py [--seeds 0 1 2] [--clips ...] [--rigs ...] [--smoke]``
 (``--smoke``: one session, to check that it runs). Prints Markdown tables and a summary (the ones
 in docs/fusion.md). Reads the clips from ``../shared/data`` beside the project.
 

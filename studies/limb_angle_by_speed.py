@@ -1,13 +1,14 @@
 """The two sensors' knee (or elbow) angle disagreement split by how fast the joint bends.
 
-    PYTHONPATH=src python tools/limb_angle_by_speed.py [--joint knee|elbow]
+    python studies/limb_angle_by_speed.py [--joint knee|elbow]
         [--tracker default|light] [--limb-coherence RHO]
 
 For every KinectMultiTrack take of the population, real and simulated (one simulated subject per
-take, as ``kinefuse realism --population``): per paired frame and side, the two sensors'
+take, as ``python studies/realism.py --population``): per paired frame and side, the two sensors'
 disagreement on the included angle (left and right matched as they agree best), binned by the
 joint's angular speed (the two sensors' mean angle, over +-3 frames), per layout: the median
 and 90th percentile. docs/realism.md "One limb, one error". About 1 minute per run.
+``--smoke``: participant 2's takes only (CI runs it).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from kinefuse.evaluation.realism import load_walk
+from kinefuse.evaluation.realism_person import population_seeds
 from kinefuse.evaluation.realism_population import layout_key
 from kinefuse.evaluation.realism_takes import (
     StreamPair,
@@ -30,7 +32,6 @@ from kinefuse.evaluation.realism_takes import (
 )
 from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
 from kinefuse.pipeline.analysis import hinge_angle_deg
-from kinefuse.workflows.realism import population_seeds
 from kinefuse.workflows.simulate import tracker_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,13 +66,15 @@ def main() -> None:
     ap.add_argument("--tracker", choices=("default", "light"), default="default")
     ap.add_argument("--limb-coherence", type=float, help="override the model's limb_coherence")
     ap.add_argument("--population", type=Path, default=POPULATION)
+    ap.add_argument("--smoke", action="store_true", help="participant 2's takes only (seconds)")
     args = ap.parse_args()
     walk = load_walk(DATA / "motion" / "cmu" / "02_walk_a.amc")
     params = tracker_model(args.tracker)
     if args.limb_coherence is not None:
         params = replace(params, limb_coherence=args.limb_coherence)
     acc: dict[str, dict[str, list[np.ndarray]]] = {}
-    for path in sorted(args.population.glob("*.csv")):
+    pattern = "Study_2_*.csv" if args.smoke else "*.csv"
+    for path in sorted(args.population.glob(pattern)):
         rec = read_kinect_multitrack(path)
         real = real_pair(rec)
         lay = take_layout(rec, real)

@@ -1,7 +1,7 @@
-"""How the fusion's ``limb_correlation`` was chosen: the takes of ``benchmarks/bench_analysis.py
+"""How the fusion's ``limb_correlation`` was chosen: the takes of ``studies/analysis_accuracy.py
 accuracy --save DIR`` (one folder per subject) fused again with each value.
 
-    PYTHONPATH=src python tools/limb_correlation.py DIR [DIR ...] [--values 0 0.3 0.5 0.7 0.85]
+    python studies/limb_correlation.py DIR [DIR ...] [--values 0 0.3 0.5 0.7 0.85]
         [--rom-s 120] [--static-s 10] [--wand-s 15]
 
 (each DIR's subject seed is read from its name's trailing digits, ``.../s3`` -> ``--seed 3``, as
@@ -11,6 +11,7 @@ the floor (the truth plus the subject's joint offsets, what a perfect fusion giv
 and the hips, knees and ankles), and the RMSE of the knee's included angle (180 degrees minus
 hip-knee-ankle) and of the hip's (thigh against SpineBase -> SpineMid) against the truth's.
 docs/fusion.md section 17. About 2 s per take and value.
+``--smoke``: makes one small ``accuracy --save`` folder first and reads it (CI runs it).
 """
 
 from __future__ import annotations
@@ -22,16 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from analysis_accuracy import saved_takes_arguments, saved_takes_of
+from kinefuse.evaluation.poses import resolve_poses
+from kinefuse.fusion.options import BestOptions
+from kinefuse.io.store.session import SessionStore
+from kinefuse.pipeline.analysis import hinge_angle_deg
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+from kinefuse.skeleton import JOINT_INDEX
 
-from bench_analysis import saved_takes, saved_takes_arguments  # noqa: E402
-from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
-from kinefuse.fusion.options import BestOptions  # noqa: E402
-from kinefuse.io.store.session import SessionStore  # noqa: E402
-from kinefuse.pipeline.analysis import hinge_angle_deg  # noqa: E402
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method  # noqa: E402
-from kinefuse.skeleton import JOINT_INDEX  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 LEGS = [JOINT_INDEX[f"{j}{s}"] for j in ("Hip", "Knee", "Ankle") for s in ("Left", "Right")]
 
@@ -80,7 +80,7 @@ def main() -> None:
     ap.add_argument("--values", type=float, nargs="+", default=[0.0, 0.3, 0.5, 0.7, 0.85])
     args = ap.parse_args()
     rows: list[list[list[float]]] = []
-    for path, walk in saved_takes(args.folders, args.rom_s, args.static_s, args.wand_s):
+    for path, walk in saved_takes_of(args):
         rows.append(take_figures(path, walk, args.values))
         print(f"{path}: done", file=sys.stderr, flush=True)
     a = np.array(rows)  # (takes, values, 6)

@@ -1,10 +1,10 @@
 """Analysis (paper B): speed against a per-frame implementation, and accuracy through the lab.
 
-    python benchmarks/bench_analysis.py speed [--frames 24000] [--repeat 3]
-    python benchmarks/bench_analysis.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
+    python studies/analysis_accuracy.py speed [--frames 24000] [--repeat 3]
+    python studies/analysis_accuracy.py accuracy [--rom-s 120] [--seed 0] [--takes 3] [--json F]
         [--no-subject-bias] [--errors-off PART[,PART]] [--save DIR]
-    python benchmarks/bench_analysis.py floor [--subjects 10] [--segment-fixed] [--json F]
-    python benchmarks/bench_analysis.py --smoke [MODE]
+    python studies/analysis_accuracy.py floor [--subjects 10] [--segment-fixed] [--json F]
+    python studies/analysis_accuracy.py --smoke [MODE]
 
 ``--smoke``: every mode (or MODE) on tiny inputs, through the same code, to check that it runs
 (seconds; the figures are then not the ones to quote).
@@ -188,11 +188,28 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
 
 def saved_takes_arguments(ap: argparse.ArgumentParser) -> None:
     """The arguments of a tool that reads ``accuracy --save`` folders (:func:`saved_takes`)."""
-    ap.add_argument("folders", type=Path, nargs="+",
-                    help="folders written by bench_analysis.py accuracy --save")  # fmt: skip
+    ap.add_argument("folders", type=Path, nargs="*",
+                    help="folders written by analysis_accuracy.py accuracy --save")  # fmt: skip
+    ap.add_argument("--smoke", action="store_true",
+                    help="make one small folder first (smoke_takes) and read it")  # fmt: skip
     ap.add_argument("--rom-s", type=float, default=120.0)
     ap.add_argument("--static-s", type=float, default=10.0)
     ap.add_argument("--wand-s", type=float, default=15.0)
+
+
+def saved_takes_of(args: argparse.Namespace) -> list[tuple[Path, tuple[float, float]]]:
+    """:func:`saved_takes` of a tool's parsed :func:`saved_takes_arguments` (``--smoke``: of
+    :func:`smoke_takes`' folder, with its options)."""
+    if args.smoke:
+        args.rom_s, args.static_s, args.wand_s = (
+            SMOKE_TAKES[k] for k in ("rom_s", "static_s", "wand_s")
+        )
+        return saved_takes(smoke_takes(), args.rom_s, args.static_s, args.wand_s)
+    if not args.folders:
+        raise SystemExit(
+            "give the folders an `analysis_accuracy.py accuracy --save DIR` wrote, or --smoke"
+        )
+    return saved_takes(args.folders, args.rom_s, args.static_s, args.wand_s)
 
 
 def saved_takes(
@@ -201,13 +218,13 @@ def saved_takes(
     """The sessions ``accuracy --save DIR`` kept (``take*.sqlite``, their arrays beside them),
     each with its walk's span on the session clock, from folders named after the run's
     ``--seed`` (``.../s3`` for seed 3); ``rom_s``, ``static_s``, ``wand_s``: that run's options
-    (its defaults here). For the diagnostic scripts of ``tools/``."""
+    (its defaults here). For the diagnostic scripts beside it."""
     out = []
     for folder in folders:
         seed = re.search(r"(\d+)$", folder.name)
         paths = sorted(folder.glob("take*.sqlite"))
         if seed is None or not paths:
-            raise SystemExit(f"{folder}: not a folder of bench_analysis.py accuracy --save DIR "
+            raise SystemExit(f"{folder}: not a folder of analysis_accuracy.py accuracy --save DIR "
                              "named after its seed (s0, s1, ...)")  # fmt: skip
         _, _, _, _, w, _ = calibration_motion(rom_s, int(seed.group(1)), static_s)
         out += [(p, (wand_s + w[0], wand_s + w[1])) for p in paths]
@@ -245,7 +262,7 @@ def accuracy(args: argparse.Namespace) -> dict[str, object]:
         taken = [p.name for p in args.save.glob("take*") if p.suffix in (".sqlite", ".npz")]
         if taken:
             raise SystemExit(
-                f"bench_analysis: --save {args.save} already holds {sorted(taken)}; give an "
+                f"analysis_accuracy: --save {args.save} already holds {sorted(taken)}; give an "
                 "empty or new folder (the takes are never overwritten)"
             )
     with tempfile.TemporaryDirectory() as tmp:
@@ -773,6 +790,20 @@ SMOKE = {
     "accuracy": ["--rom-s", "55", "--takes", "1", "--wand-s", "6", "--static-s", "3", "--ablation"],
     "floor": ["--rom-s", "55", "--subjects", "1"],
 }
+
+
+#: the options of :func:`smoke_takes`' run, as the tools that read its folder take them
+SMOKE_TAKES = {"rom_s": 55.0, "static_s": 3.0, "wand_s": 6.0}
+
+
+def smoke_takes() -> list[Path]:
+    """One small ``accuracy --save`` folder (seed 0) in a temporary folder, for the ``--smoke``
+    mode of the tools that read such folders; its options are :data:`SMOKE_TAKES`."""
+    folder = Path(tempfile.mkdtemp(prefix="analysis_accuracy_")) / "s0"
+    o = SMOKE_TAKES
+    main(["accuracy", "--rom-s", str(o["rom_s"]), "--takes", "1", "--wand-s", str(o["wand_s"]),
+          "--static-s", str(o["static_s"]), "--save", str(folder)])  # fmt: skip
+    return [folder]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,14 +1,14 @@
 """The view-dependent measurement noise (``BestOptions.view_*``, ``far_*``) on one simulated take.
 
-Run: ``python benchmarks/view_noise.py [--rig default4] [--heading 20] [--seed 11] [--variants
+Run: ``python studies/view_noise.py [--rig default4] [--heading 20] [--seed 11] [--variants
 "0,4,0,4;0.1,4,0.05,4"] [--smoke]`` (``--smoke``: a 55 s ROM phase after a 6 s wand phase instead of
-120 s after 15 s, to check that it runs). Simulates one take like those of ``bench_analysis.py
+120 s after 15 s, to check that it runs). Simulates one take like those of ``analysis_accuracy.py
 accuracy`` (the same clip, a range-of-motion phase before the walk, the full calibration from the
 wand) on the given rig, heading and seed, then fuses it with ``best`` once per variant
 (``view_sigma_m,view_exponent,far_sigma_m,far_exponent``; default: off, then the shipped defaults)
 and prints the mean joint error (ROM phase and walk) and the walk's hip and knee flexion RMSE
 against the truth. The default take (default4 rig, heading 20 deg, seed 11, subject seed 11) is the
-one the defaults were chosen on (docs/fusion.md section 9); ``bench_analysis.py accuracy`` (seeds
+one the defaults were chosen on (docs/fusion.md section 9); ``analysis_accuracy.py accuracy`` (seeds
 0-2, headings 0, 120, -75) and ``live_vs_offline.py`` validate them.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_analysis import CLIP, ROOT, _resample, simulate_take
+from analysis_accuracy import CLIP, ROOT, _resample, simulate_take
 from kinefuse import analysis as an
 from kinefuse.analysis.consistency import angle_rmse_deg
 from kinefuse.analysis.kinematics import joint_angles

@@ -1,6 +1,6 @@
 """``best`` and ``best-live`` over many simulated sessions: the failures a few seeds hide.
 
-Run: ``python benchmarks/fusion_sweep.py [--seeds 0 1 2 3 4 5 6] [--rigs level4 tiered4 tilted4]
+Run: ``python studies/fusion_sweep.py [--seeds 0 1 2 3 4 5 6] [--rigs level4 tiered4 tilted4]
 [--clips ...] [--smoke]`` (about 1 s a session; ``--smoke``: one session, to check that it runs).
 Each session is one of the three walking clips of ``../shared/data`` on one rig with one seed, fused
 from the true sensor poses. Per session it prints the MAE of both methods, their ratio and the worst

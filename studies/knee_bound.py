@@ -1,7 +1,7 @@
 """How far the fused knee angle is from what any fixed weighting of the sensors' own knee angles
-could reach, on the takes of ``benchmarks/bench_analysis.py accuracy --save DIR``.
+could reach, on the takes of ``studies/analysis_accuracy.py accuracy --save DIR``.
 
-    PYTHONPATH=src python tools/knee_bound.py DIR [--rom-s 120] [--seed 0] [--static-s 10]
+    python studies/knee_bound.py DIR [--rom-s 120] [--seed 0] [--static-s 10]
         [--wand-s 15]
 
 (the options those of the ``accuracy`` run that saved DIR; its defaults here). Per take and
@@ -16,26 +16,25 @@ over the frames every sensor has). That last one is an oracle no fusion has; a f
 stays near it is using what the sensors' angles hold. docs/analysis_measured.md, the fused
 walk's history.
 About 20 s per take (each is fused again for its swap decisions).
+``--smoke``: makes one small ``accuracy --save`` folder first and reads it (CI runs it).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from analysis_accuracy import SMOKE_TAKES, calibration_motion, smoke_takes
+from kinefuse.evaluation.poses import resolve_poses
+from kinefuse.io.store.session import SessionStore
+from kinefuse.pipeline.analysis import hinge_angle_deg
+from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+from kinefuse.skeleton import MIRROR_INDEX
+from kinefuse.sync.assembly import interpolate
 
-from bench_analysis import calibration_motion  # noqa: E402
-from kinefuse.evaluation.poses import resolve_poses  # noqa: E402
-from kinefuse.io.store.session import SessionStore  # noqa: E402
-from kinefuse.pipeline.analysis import hinge_angle_deg  # noqa: E402
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method  # noqa: E402
-from kinefuse.skeleton import MIRROR_INDEX  # noqa: E402
-from kinefuse.sync.assembly import interpolate  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SIDES = {
     "left": ("HipLeft", "KneeLeft", "AnkleLeft"),
@@ -90,16 +89,24 @@ def take_bound(folder: Path, k: int, walk: tuple[float, float]) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    ap.add_argument("folder", type=Path,
-                    help="a folder written by bench_analysis.py accuracy --save")  # fmt: skip
+    ap.add_argument("folder", type=Path, nargs="?",
+                    help="a folder written by analysis_accuracy.py accuracy --save")  # fmt: skip
+    ap.add_argument("--smoke", action="store_true", help="make one small folder first and read it")
     ap.add_argument("--rom-s", type=float, default=120.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--static-s", type=float, default=10.0)
     ap.add_argument("--wand-s", type=float, default=15.0)
     args = ap.parse_args()
+    if args.smoke:
+        (args.folder,) = smoke_takes()
+        args.rom_s, args.static_s, args.wand_s = (
+            SMOKE_TAKES[k] for k in ("rom_s", "static_s", "wand_s")
+        )
+    if args.folder is None:
+        ap.error("give a folder that `analysis_accuracy.py accuracy --save DIR` wrote, or --smoke")
     takes = sorted(int(p.stem[4:]) for p in args.folder.glob("take*.npz"))
     if not takes:
-        raise SystemExit(f"{args.folder}: no take*.npz (run bench_analysis.py accuracy --save)")
+        raise SystemExit(f"{args.folder}: no take*.npz (run analysis_accuracy.py accuracy --save)")
     _, _, _, _, w, _ = calibration_motion(args.rom_s, args.seed, args.static_s)
     walk = (args.wand_s + w[0], args.wand_s + w[1])
     print("knee included angle RMSE vs the truth over the walk, degrees")
