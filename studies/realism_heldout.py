@@ -11,7 +11,7 @@ Every take gets its own simulated subjects (seeds ``subject_seed(file, 0..N-1)``
 :func:`kinefuse.evaluation.realism_person.subject_seed`): with seeds ``0..N-1`` for every take,
 as the CLI has them, all takes of a layout share the same N person-level draws. About 10 minutes
 with ``--seeds 2`` on the shared machine.
-``--smoke``: two judged takes, one seed (CI runs it).
+``--smoke``: fitted on 0-4 (unless told), two judged takes, one seed (CI runs it).
 """
 
 from __future__ import annotations
@@ -77,12 +77,16 @@ EARLIER_LIMB_FITS: dict[str, dict[str, float]] = {
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--fit-on", choices=sorted(HALF_FITS), required=True)
+    ap.add_argument("--fit-on", choices=sorted(HALF_FITS), help="required but with --smoke")
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--population", type=Path, default=POPULATION)
     ap.add_argument("--earlier-limbs", action="store_true", help="EARLIER_LIMB_FITS' limbs")
     ap.add_argument("--smoke", action="store_true", help="two judged takes, one seed (seconds)")
     args = ap.parse_args()
+    if args.smoke and args.fit_on is None:
+        args.fit_on = "0-4"
+    if args.fit_on is None:
+        ap.error("--fit-on is required (0-4 or 5-9)")
     lo, hi = (int(v) for v in args.fit_on.split("-"))
     fit = dict(HALF_FITS[args.fit_on])
     if args.earlier_limbs:
