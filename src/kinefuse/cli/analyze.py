@@ -7,19 +7,25 @@ import sys
 from pathlib import Path
 
 from kinefuse.cli import args as shared
+from kinefuse.errors import InputError
 from kinefuse.fusion.methods import METHODS
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse analyze``."""
     p = sub.add_parser(
-        "analyze", help="normalized limb frames and joint angles (paper B; docs/analysis.md)"
+        "analyze",
+        help="normalized limb frames and joint angles (paper B; docs/analysis.md)",
+        description="Limb frames and joint angles of sessions, clips and marker files, or of "
+        "every trial of a study folder (STUDY_DIR/: in parallel, resumable, one summary; "
+        "docs/tutorials/study.md). Exit 0 done, 2 bad input, 1 a study with failed trials, 3 "
+        "nothing analysed.",
     )
     p.add_argument(
         "inputs",
         nargs="+",
         type=Path,
-        help="session (.sqlite), clip (.bvh/.amc), markers (.trc/.c3d)",
+        help="session (.sqlite), clip (.bvh/.amc), markers (.trc/.c3d), or one study folder",
     )
     p.add_argument(
         "--calibration-phase",
@@ -62,7 +68,60 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--out", type=Path, required=True, help="fresh output folder")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
+    study = p.add_argument_group("a study folder (docs/tutorials/study.md)")
+    study.add_argument(
+        "--jobs", type=shared.count, metavar="N", help="trials at once (default: one per core)"
+    )
+    study.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run the trials on this Dask cluster instead (pip install 'kinefuse[dask]')",
+    )
+    study.add_argument(
+        "--force", action="store_true", help="analyse again the trials done in an earlier run"
+    )
     p.set_defaults(func=run)
+
+
+def run_study(args: argparse.Namespace) -> int:
+    """``kinefuse analyze STUDY_DIR/``: every trial, one summary (docs/tutorials/study.md)."""
+    import json
+
+    from kinefuse.workflows.progress import TerminalProgress
+    from kinefuse.workflows.study import run_study as study
+
+    for option in ("static", "static_window", "calibration_phase", "calibration"):
+        if getattr(args, option) is not None:
+            flag = "--" + option.replace("_", "-")
+            raise InputError(
+                f"{flag} is per trial: in a study the static trials follow the naming rule, "
+                f"or list each trial's options in STUDY_DIR/study.toml (docs/tutorials/study.md)"
+            )
+    with TerminalProgress("analyze", enabled=not args.json) as bar:
+        result = study(
+            args.inputs[0],
+            out=args.out,
+            jobs=args.jobs,
+            scheduler=args.scheduler,
+            force=args.force,
+            marker_map=args.map,
+            method=args.method,
+            names=args.names,
+            plots=not args.no_plots,
+            progress=bar if bar.active else lambda m: print(m, file=sys.stderr),
+        )
+    if args.json:
+        print(json.dumps(result.to_json(), indent=2))
+    else:
+        n, bad = len(result.trials), result.failed
+        skipped = sum(t.status == "skipped" for t in result.trials)
+        print(f"{n - len(bad)} of {n} trials analysed ({skipped} done in an earlier run)")
+        for t in bad:
+            print(f"  failed: {t.id}: {t.message}")
+        print(f"wrote {result.summary_csv}, {result.cycles_csv}, {result.html}")
+    if result.exit_code() == 3:
+        print("kinefuse: error: no trial of the study could be analysed", file=sys.stderr)
+    return result.exit_code()
 
 
 def _static_window(text: str) -> tuple[float, float] | str:
@@ -70,6 +129,11 @@ def _static_window(text: str) -> tuple[float, float] | str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if len(args.inputs) == 1 and args.inputs[0].is_dir():
+        return run_study(args)
+    for option in ("jobs", "scheduler", "force"):
+        if getattr(args, option):
+            raise InputError(f"--{option} is for a study folder (kinefuse analyze STUDY_DIR/)")
     from kinefuse.workflows.analyze import format_analyze, json_text, run_analyze
 
     if not args.no_plots:
