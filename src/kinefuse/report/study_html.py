@@ -55,7 +55,7 @@ def render_study(
         "<style>body{font-family:sans-serif;margin:2em;max-width:70em}"
         "table{border-collapse:collapse;font-size:0.85em}"
         "td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
-        "td:first-child,th:first-child{text-align:left}.failed{color:#b00}</style>",
+        "td:nth-child(-n+3),th:nth-child(-n+3){text-align:left}.failed{color:#b00}</style>",
         "</head><body>",
         f"<h1>Study {_e(result['study'])}</h1>",
         f"<p>Results in <code>{_e(result['out'])}</code>: <code>summary.csv</code>, "
