@@ -25,13 +25,28 @@ TUTORIALS = [DOCS / "getting-started.md", *sorted((DOCS / "tutorials").glob("*.m
 
 def console_commands(page: Path) -> list[str]:
     """The ``$ ...`` lines of the page's ``console`` blocks, in order."""
-    out, inside = [], False
+    return [text for kind, text in runnable_blocks(page) if kind == "console"]
+
+
+def runnable_blocks(page: Path) -> list[tuple[str, str]]:
+    """The page's ``$ ...`` lines of ``console`` blocks and its ``python`` blocks, in order:
+    ``("console", command)`` or ``("python", source)``."""
+    out: list[tuple[str, str]] = []
+    kind, lines = "", []
     for line in page.read_text().splitlines():
         if line.startswith("```"):
-            inside = line.strip() == "```console" if not inside else False
+            if not kind:
+                kind = line.strip()[3:] or "text"
+                lines = []
+            else:
+                if kind == "python":
+                    out.append(("python", "\n".join(lines)))
+                kind = ""
             continue
-        if inside and line.startswith("$ "):
-            out.append(line[2:].strip())
+        if kind == "console" and line.startswith("$ "):
+            out.append(("console", line[2:].strip()))
+        elif kind == "python":
+            lines.append(line)
     return out
 
 
@@ -96,15 +111,22 @@ def _env() -> dict[str, str]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("page", TUTORIALS, ids=lambda p: p.stem)
-def test_every_tutorial_command_runs(page: Path, tmp_path: Path, shared_data: Path) -> None:
-    commands = console_commands(page)
+def test_every_tutorial_command_runs(
+    page: Path, tmp_path: Path, shared_data: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    blocks = runnable_blocks(page)
     if page.parent.name == "tutorials":
-        assert commands, f"{page.name} shows no command to run"
+        assert blocks, f"{page.name} shows nothing to run"
     work = tmp_path / "work"
     work.mkdir()
     (tmp_path / "shared").symlink_to(shared_data.parent)
     (work / "rigs").symlink_to(ROOT / "rigs")
-    for command in commands:
+    monkeypatch.chdir(work)
+    namespace: dict[str, object] = {}
+    for kind, command in blocks:
+        if kind == "python":  # the page's blocks share one namespace, as a notebook's cells
+            exec(compile(command, f"{page.name} (python block)", "exec"), namespace)
+            continue
         argv = shlex.split(command)
         assert argv[0] == "kinefuse", f"{page.name}: a tutorial runs kinefuse: {command}"
         run = subprocess.run(
