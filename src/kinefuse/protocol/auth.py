@@ -64,7 +64,7 @@ def verify_mac(token: str, nonce: bytes, mac: bytes, *, role: str, sensor_id: st
     if not hmac.compare_digest(want, bytes(mac)):
         raise AuthError(
             "authentication failed: the reply does not match this server's token; "
-            "start the client with the server's --token"
+            "start the client with the server's token (--token-file FILE)"
         )
 
 
@@ -121,7 +121,7 @@ def verify_server_mac(
     if not hmac.compare_digest(want, bytes(mac)):
         raise AuthError(
             "the server could not prove that it knows the token (wrong server_mac): a server "
-            "with another --token, or an impostor; nothing was sent to it"
+            "with another token, or an impostor; nothing was sent to it"
         )
 
 
