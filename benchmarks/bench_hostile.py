@@ -53,7 +53,7 @@ from kinefuse.protocol import (
 from kinefuse.protocol.auth import compute_mac
 from kinefuse.skeleton import N_JOINTS, standing_pose
 
-TOKEN = "bench-hostile-token"
+TOKEN = "e1f3a5b7c9d0e2f4a6b8c1d3e5f7a9b0c2d4e6f8a1b3c5d7e9f0a2b4c6d8e1f3"  # serve takes 128+ bits
 
 
 def pose(d: float) -> np.ndarray:

@@ -25,6 +25,7 @@ from kinefuse.cli import (
     sensor,
     serve,
     simulate,
+    token,
     view,
 )
 from kinefuse.errors import KinefuseError
@@ -36,6 +37,7 @@ COMMANDS = (
     calibrate,
     serve,
     sensor,
+    token,
     proxy,
     fuse,
     evaluate,
