@@ -193,8 +193,8 @@ class Server:
         self._probe_id = 0
         #: refused connections: counted, the last 100 kept, logged and recorded rate-limited
         self.refusals = RefusalLog()
-        #: connections in their handshake, and the slots they hold (guard.HandshakeSlots)
-        self._pending: set[Connection] = set()
+        #: connections in their handshake, and the slot each holds: (address, known)
+        self._pending: dict[Connection, tuple[str, bool]] = {}
         self.slots = HandshakeSlots(
             max_pending=options.max_pending,
             max_pending_known=options.max_pending_known,
@@ -202,7 +202,6 @@ class Server:
             fail_rate=options.auth_fail_rate,
             fail_burst=options.auth_fail_burst,
         )
-        self._slot: dict[Connection, tuple[str, bool]] = {}
         self.last_outcome: CalibrationOutcome | None = None
 
     @property
@@ -343,8 +342,7 @@ class Server:
             msg_rate=o.msg_rate,
             msg_burst=o.msg_burst,
         )
-        self._pending.add(conn)
-        self._slot[conn] = (addr, known)
+        self._pending[conn] = (addr, known)
         self._conns.add(conn)
         self._tg.create_task(self._connection(conn))
 
@@ -358,14 +356,13 @@ class Server:
 
     def _release(self, conn: Connection) -> None:
         """``conn`` leaves its handshake (welcomed or closed): its slot is free again."""
-        self._pending.discard(conn)
-        slot = self._slot.pop(conn, None)
+        slot = self._pending.pop(conn, None)
         if slot is not None:
             self.slots.release(*slot)
 
     def _welcomed(self, conn: Connection) -> None:
         """The handshake is done: full-size frames from now on, the address known."""
-        slot = self._slot.get(conn)
+        slot = self._pending.get(conn)
         if slot is not None:
             self.slots.welcomed(slot[0])
         self._release(conn)
@@ -388,8 +385,8 @@ class Server:
         except ConnectionClosed as e:
             log.info("%s: %s", conn.name, e)
         except WireError as e:
-            if isinstance(e, AuthError) and conn in self._slot:
-                self.slots.auth_failed(self._slot[conn][0], self.clock())
+            if isinstance(e, AuthError) and conn in self._pending:
+                self.slots.auth_failed(self._pending[conn][0], self.clock())
             self._refused(conn.name, e.code, str(e), sensor.sensor_id if sensor else None)
             conn.refuse(e.code, str(e))
         except Exception as e:  # a bug serving this peer: close it, keep serving the others
