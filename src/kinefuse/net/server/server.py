@@ -129,6 +129,9 @@ class ServerOptions:
     #: failed authentications an address may have per second, and at once (then: limit)
     auth_fail_rate: float = 1.0
     auth_fail_burst: float = 10.0
+    #: a connection refused at the door is closed this much later (s), at most this many at once
+    refuse_linger_s: float = 0.5
+    max_lingering: int = 128
     max_controls: int = 8
     #: frames a peer may send per second on average, and at once
     msg_rate: float = 600.0
@@ -203,6 +206,8 @@ class Server:
             fail_burst=options.auth_fail_burst,
         )
         self.last_outcome: CalibrationOutcome | None = None
+        #: connections refused at the door, closed a moment later (:meth:`_refuse_at_door`)
+        self._lingering: set[asyncio.StreamWriter] = set()
 
     @property
     def refused(self) -> list[tuple[str, str]]:
@@ -264,6 +269,8 @@ class Server:
                 tg.create_task(self._housekeeping())
                 await self._stop.wait()
                 srv.close()
+                for w in list(self._lingering):
+                    w.close()
                 # the loop sees the stop before its next frame; a frame being fused (in a worker
                 # thread) is published first, so the publisher is closed after the last one
                 await fusing
@@ -321,13 +328,10 @@ class Server:
         addr = str(peer[0]) if isinstance(peer, tuple) else str(peer)
         known, refusal = self.slots.admit(addr, self.clock())
         if refusal is not None:
-            # refused before any task or buffer is spent on it: one short write and a close
             code, reason = refusal
             name = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
             self._refused(name, code, reason)
-            with contextlib.suppress(Exception):
-                writer.write(encode(Error(code=code, reason=reason[:1024])))
-                writer.close()
+            self._refuse_at_door(writer, code, reason)
             return
         sock = writer.get_extra_info("socket")
         if sock is not None:  # a bounded kernel send buffer: a peer that never reads shows soon
@@ -345,6 +349,28 @@ class Server:
         self._pending[conn] = (addr, known)
         self._conns.add(conn)
         self._tg.create_task(self._connection(conn))
+
+    def _refuse_at_door(self, writer: asyncio.StreamWriter, code: str, reason: str) -> None:
+        """Refuse a connection before any task or buffer is spent on it: the Error at once,
+        nothing more read, and the close ``refuse_linger_s`` later (at once when
+        ``max_lingering`` refused connections are waiting already). A well-behaved client
+        closes on the Error itself; an attacker that reopens as soon as the server closes
+        gets to do it twice a second per connection, not hundreds of times."""
+        with contextlib.suppress(Exception):
+            writer.write(encode(Error(code=code, reason=reason[:1024])))
+            tr = writer.transport
+            if isinstance(tr, asyncio.Transport):
+                tr.pause_reading()
+            if len(self._lingering) >= self.options.max_lingering:
+                writer.close()
+                return
+            self._lingering.add(writer)
+
+            def close() -> None:
+                self._lingering.discard(writer)
+                writer.close()
+
+            asyncio.get_running_loop().call_later(self.options.refuse_linger_s, close)
 
     def _refused(self, name: str, code: str, reason: str, sensor_id: str | None = None) -> None:
         """Count a refusal of the peer ``name``; log and record it unless too many came lately
