@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from kinefuse.errors import InputError, KinefuseError
+from kinefuse.protocol.fields import printable
 
 log = logging.getLogger("kinefuse.serve")
 
@@ -277,7 +278,7 @@ async def _control_calibrate(
             send(Error("auth", "this peer has a token and the server asked for none"))
             raise KinefuseError(f"refusing the server at {host}:{port}: {no_challenge_error()}")
         if isinstance(msg, Error):
-            raise KinefuseError(f"the server refused: {msg.reason} ({msg.code})")
+            raise KinefuseError(f"the server refused: {printable(msg.reason)} ({msg.code})")
         if not isinstance(msg, Welcome):
             raise KinefuseError(f"expected welcome from the server, got {msg.TYPE}")
         beat = msg.heartbeat_s
@@ -303,9 +304,11 @@ async def _control_calibrate(
                 await writer.drain()
                 return msg
             if isinstance(msg, Error):
-                raise KinefuseError(f"the server refused: {msg.reason} ({msg.code})")
+                raise KinefuseError(f"the server refused: {printable(msg.reason)} ({msg.code})")
             if isinstance(msg, Goodbye):
-                raise KinefuseError(f"the server said goodbye before a result: {msg.reason}")
+                raise KinefuseError(
+                    f"the server said goodbye before a result: {printable(msg.reason)}"
+                )
     finally:
         writer.close()
 
@@ -323,7 +326,8 @@ def run_calibrate_live(
     ``(host, port)`` (:func:`kinefuse.net.address.parse_hostport` reads ``HOST:PORT``)."""
     host, port = address
     res = asyncio.run(_control_calibrate(host, port, token, method, seconds, timeout_s))
-    reasons = [r.strip() for r in res.message.split(";")[1:]]
+    text = printable(res.message, 1024)  # the server's words reach the terminal escaped
+    reasons = [r.strip() for r in text.split(";")[1:]]
     return {
         "method": res.method,
         "detector": "client",
@@ -333,7 +337,7 @@ def run_calibrate_live(
         "reasons": reasons,
         "accepted": bool(res.ok),
         "used_by_server": bool(res.ok),
-        "message": res.message.split(";")[0],
+        "message": text.split(";")[0],
         "sensors": [
             {
                 "id": sid,
