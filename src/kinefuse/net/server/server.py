@@ -24,12 +24,17 @@ The parts live beside it: ``server_conn`` (one connection's bytes and messages),
 Per sensor the server keeps a :class:`~kinefuse.net.server.sensor_state.SensorState` across
 connections (pose, clocks, statistics): a client that dies is marked offline and fusion goes on
 with the others; when it comes back (same ``sensor_id``) it is re-synchronized and fused with its
-pose at once. A second connection claiming a connected sensor id is refused (``duplicate_id``).
+pose at once. Each connection is a new stream: its ``seq`` starts afresh (a restarted sensor's
+counter from 0 is fused from its first frame), a ``seq`` that does not increase on it is a stale
+frame (counted in the status, and the connection closed). A second connection claiming a
+connected sensor id is refused (``duplicate_id``). Who may start a handshake is decided at the
+accept (:class:`~kinefuse.net.server.guard.HandshakeSlots`); a sensor's own events are logged
+rate-limited, and every string a peer sent is escaped before it is logged.
 
 The server clock is ``clock()``: ``time.monotonic() - t0`` by default (recorded as the meta
 ``server_t0_monotonic``), injectable for tests.
 
-Why about 640 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
+Why about 820 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
 the per-connection protocol, the control commands and the report live in the ``server_*``
 modules beside it.
 """
