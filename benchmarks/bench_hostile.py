@@ -15,6 +15,11 @@ over a run by more than the 5 ms an attack may cost, so a fixed baseline at the 
 measured the drift), the server's peak RSS against the first quiet phase, and how the
 attackers were closed (error codes, and the latest close after the phase began). Every
 connection is to 127.0.0.1, every wait bounded.
+
+The handshake lockout (its own phase, :func:`handshake_lockout`): 32 unauthenticated
+connections from 127.0.0.2 (another machine, for the server) reopened as soon as they are cut,
+while a third sensor is killed and restarted; the time it took to be welcomed again is printed
+after the table.
 """
 
 from __future__ import annotations

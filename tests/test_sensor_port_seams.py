@@ -24,7 +24,9 @@ from typing import Any
 
 import msgpack
 import numpy as np
+import pytest
 
+import test_mutual_auth as mutual
 import test_server_safety as safety
 from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
 from kinefuse.camera.intrinsics import Intrinsics
@@ -32,6 +34,7 @@ from kinefuse.cli.main import main
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.bus import FusedFrame
+from kinefuse.net.client.client import ClientRefused
 from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.protocol import (
     AuthReply,
@@ -514,3 +517,20 @@ def test_a_sensor_id_with_a_trailing_newline_is_refused() -> None:
     err, ids = run_lab(body)
     assert err is not None and err.code == "field" and "sensor_id" in err.reason
     assert "\\n" in err.reason and ids == []
+
+
+def test_a_sensor_without_a_token_is_told_to_use_a_token_file() -> None:
+    """The real client against the real server: the hint names ``--token-file`` (``--token``
+    shows the secret to every user in ``ps``)."""
+
+    async def go() -> str:
+        srv, task = await mutual.real_server(TOKEN)
+        try:
+            with pytest.raises(ClientRefused) as e:
+                await asyncio.wait_for(mutual.client(srv.port, token=None).run(), 15)
+            return str(e.value)
+        finally:
+            await mutual.stop_server(srv, task)
+
+    text = asyncio.run(go())
+    assert "--token-file FILE" in text and "--token TOKEN" not in text

@@ -224,6 +224,7 @@ class HandshakeSlots:
         self.n_strangers = 0
         self._known: dict[str, None] = {}
         self._fails: dict[str, TokenBucket] = {}
+        self._last_prune = -math.inf
 
     def admit(self, addr: str, now: float) -> tuple[bool, tuple[str, str] | None]:
         """Whether ``addr`` is known, and ``(code, reason)`` if it may not start a handshake
@@ -282,6 +283,9 @@ class HandshakeSlots:
         bucket.take(now)
 
     def prune(self, now: float) -> None:
-        """Forget the throttled addresses whose buckets are full again."""
+        """Forget the throttled addresses whose buckets are full again (once a second)."""
+        if now - self._last_prune < 1.0:
+            return
+        self._last_prune = now
         for addr in [a for a, b in self._fails.items() if b.level(now) >= b.burst]:
             del self._fails[addr]
