@@ -52,7 +52,7 @@ from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 SWEEP = (4, 8, 12, 16, 24)
 MARK = {"benchmark": "bench_capacity"}
-TOKEN = "bench-capacity-token"
+TOKEN = "a7c9e1b3d5f70a2c4e6b8d0f1a3c5e7b9d2f4a6c8e0b1d3f5a7c9e2b4d6f8a0c"  # serve takes 128+ bits
 #: seconds from the first frame before the window opens (clock sync, the fusion's first frames)
 WARM_S = 4.0
 #: the clients start this long after they are created (connect, handshake, first probes)

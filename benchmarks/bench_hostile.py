@@ -15,6 +15,11 @@ over a run by more than the 5 ms an attack may cost, so a fixed baseline at the 
 measured the drift), the server's peak RSS against the first quiet phase, and how the
 attackers were closed (error codes, and the latest close after the phase began). Every
 connection is to 127.0.0.1, every wait bounded.
+
+The handshake lockout (its own phase, :func:`handshake_lockout`): 32 unauthenticated
+connections from 127.0.0.2 (another machine, for the server) reopened as soon as they are cut,
+while a third sensor is killed and restarted; the time it took to be welcomed again is printed
+after the table.
 """
 
 from __future__ import annotations
@@ -53,7 +58,7 @@ from kinefuse.protocol import (
 from kinefuse.protocol.auth import compute_mac
 from kinefuse.skeleton import N_JOINTS, standing_pose
 
-TOKEN = "bench-hostile-token"
+TOKEN = "e1f3a5b7c9d0e2f4a6b8c1d3e5f7a9b0c2d4e6f8a1b3c5d7e9f0a2b4c6d8e1f3"  # serve takes 128+ bits
 
 
 def pose(d: float) -> np.ndarray:
@@ -232,6 +237,67 @@ async def unknown_flood(port: int, seconds: float, n: int = 400_000) -> list[tup
     return [await p.closed(seconds + 10)]
 
 
+# -- the handshake lockout: strangers hold the handshake slots while a sensor restarts ----------
+
+#: where the lockout's attacker connects from: another machine, as far as the server can tell
+#: (any 127.x.y.z is this host's loopback on Linux)
+ATTACKER_ADDRESS = "127.0.0.2"
+#: what the lockout phase found: the restarted sensor's time back (s), or its refusal
+LOCKOUT: dict[str, object] = {}
+
+
+async def handshake_lockout(port: int, seconds: float, n: int = 32) -> list[tuple[str, float]]:
+    """``n`` unauthenticated connections from :data:`ATTACKER_ADDRESS`, each reopened as soon
+    as the server cuts it (at its handshake deadline, or at once when refused), for ``seconds``;
+    a third sensor, connected before, is killed a third of the way in and restarted: the time
+    from its new connection to its Welcome goes to :data:`LOCKOUT`."""
+    stop = asyncio.Event()
+    closed: list[tuple[str, float]] = []
+
+    async def attacker() -> None:
+        while not stop.is_set():
+            try:
+                r, w = await asyncio.wait_for(
+                    asyncio.open_connection("127.0.0.1", port, local_addr=(ATTACKER_ADDRESS, 0)), 5
+                )
+            except (OSError, TimeoutError):
+                await asyncio.sleep(0.01)
+                continue
+            closed.append(await Peer(r, w).closed(10.0))
+            w.close()
+
+    victim = await Peer.open(port)
+    await victim.auth("sensor", "s2")
+    tasks = [asyncio.ensure_future(attacker()) for _ in range(n)]
+    try:
+        await asyncio.sleep(seconds / 3)
+        victim.w.transport.abort()  # killed
+        await asyncio.sleep(0.1)
+        t0 = time.monotonic()
+        try:
+            again = await Peer.open(port)
+            await again.auth("sensor", "s2")
+            LOCKOUT["back_s"] = time.monotonic() - t0
+            again.w.close()
+        except (AssertionError, ConnectionError, TimeoutError, OSError) as e:
+            LOCKOUT["refused"] = f"{type(e).__name__}: {e}"
+        await asyncio.sleep(max(0.0, seconds - (time.monotonic() - t0) - seconds / 3))
+    finally:
+        stop.set()
+        await asyncio.gather(*tasks, return_exceptions=True)
+    return closed
+
+
+def lockout_report() -> str:
+    """The lockout phase's line: the restarted sensor's time back, the attempts it took."""
+    if "back_s" in LOCKOUT:
+        back = float(LOCKOUT["back_s"])  # type: ignore[arg-type]
+        return (
+            f"handshake lockout: the restarted sensor was welcomed {back:.2f} s after it connected"
+        )
+    return f"handshake lockout: the restarted sensor was refused ({LOCKOUT.get('refused')})"
+
+
 def rss_kib(pid: int) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -258,6 +324,7 @@ ATTACKS = (
     ("control-request flood", control_flood),
     ("200 idle connections", idle),
     ("unknown messages", unknown_flood),
+    ("handshake lockout x32", handshake_lockout),
 )
 
 
@@ -387,6 +454,8 @@ def main() -> None:
             f"{codes} latest {latest:.1f} s"
         )
     print("(p99 change: against the quiet phase just before; RSS: against the first quiet one)")
+    if LOCKOUT:
+        print(lockout_report())
 
 
 if __name__ == "__main__":

@@ -69,7 +69,7 @@ from kinefuse.skeleton import N_JOINTS, standing_pose
 SEED = 20261123
 N_DECODER = 96_000
 N_SOCKET = 4_000
-TOKEN = "fuzz-token-0123"
+TOKEN = "c4e6a8b0d2f41357e9f1a3b5c7d9e0f2a4b6c8d0e2f4a6b8c0d2e4f6a8b0c2d4"  # 256 bits
 
 
 # -- inputs ------------------------------------------------------------------------------------

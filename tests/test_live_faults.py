@@ -35,7 +35,7 @@ from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 CAL_S = 6.0  # the wand phase of the test sessions, s
 MOTION_S = 9.0  # their motion, s (a restarted client has several seconds left to stream)
-TOKEN = "test-token-123"
+TOKEN = "3f1c9a7be2d54f08a6b1c3e5d7f9021b4c6e8a0d2f4b6c8e0a2c4e6f8b0d2f4a"  # 256 bits
 
 
 @pytest.fixture(scope="module")

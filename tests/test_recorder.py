@@ -46,7 +46,8 @@ def test_rows_are_committed_within_half_a_second_and_the_stop_completes(tmp_path
             rec.add_observation(
                 "k0", seq, 1.0 + seq / 30, 2.0 + seq / 30, 3.0, 2.9, joints, states, None, None
             )
-        rec.add_observation("k0", 4, 9.0, 9.0, 9.0, 9.0, joints, states, None, None)  # again
+        rec.new_stream("k0")  # a restarted sensor counts from 0 again: kept, after the others
+        rec.add_observation("k0", 4, 9.0, 9.0, 9.0, 9.0, joints, states, None, None)
         rec.add_probe("k0", 1.0, 11.0, 11.001, 1.002)
         for k in range(5):
             pub.publish(
@@ -65,19 +66,21 @@ def test_rows_are_committed_within_half_a_second_and_the_stop_completes(tmp_path
         rec.stop()
         await task
         await rec.close(clean=True)
-        return seen, rec.duplicates_dropped
+        return seen
 
-    seen, dups = asyncio.run(asyncio.wait_for(main(), 20))
-    assert seen == (10, 5)
-    assert dups == 1
+    seen = asyncio.run(asyncio.wait_for(main(), 20))
+    assert seen == (11, 5)
     with SessionStore.open(path) as st:
         assert st.complete and st.meta()["recorded_by"] == "test"
         o = st.observations("k0")
-        assert o.seq.tolist() == list(range(10))
-        np.testing.assert_allclose(o.t_host_s, 2.0 + np.arange(10) / 30)
+        assert o.seq.tolist() == list(range(11))  # the new stream's seq 4 is recorded as 10
+        np.testing.assert_allclose(o.t_host_s[:10], 2.0 + np.arange(10) / 30)
+        assert o.t_host_s[10] == 9.0
         assert len(st.clock_probes("k0")) == 1
         seq, t = store_live.obs_times(st, "k0")
-        assert seq.tolist() == list(range(10)) and np.allclose(t, 2.9)
+        assert seq.tolist() == list(range(11)) and np.allclose(t[:10], 2.9)
+        shifts = [d for _, kind, _, d in store_live.events(st) if kind == "seq_offset"]
+        assert shifts == [{"seq": 4, "offset": 6}]
         lf = store_live.live_fused(st)
         assert lf.frame.tolist() == [0, 1, 2, 3, 4] and np.allclose(lf.latency_s, 0.02)
         t_live, j_live, _ = st.fused("live")

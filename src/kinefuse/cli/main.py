@@ -24,6 +24,7 @@ from kinefuse.cli import (
     sensor,
     serve,
     simulate,
+    token,
     view,
 )
 from kinefuse.errors import KinefuseError
@@ -35,6 +36,7 @@ COMMANDS = (
     calibrate,
     serve,
     sensor,
+    token,
     proxy,
     fuse,
     evaluate,

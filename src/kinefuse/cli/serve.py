@@ -23,6 +23,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="read the shared secret clients must prove from FILE (default: KINEFUSE_TOKEN)",
     )
     p.add_argument("--token", help="the shared secret itself (visible in ps: prefer --token-file)")
+    p.add_argument(
+        "--allow-weak-token",
+        action="store_true",
+        help="take a token under 128 bits of estimated entropy (it can be guessed offline from "
+        "one recorded handshake; make a strong one with kinefuse token new FILE)",
+    )
     p.add_argument("--record", type=Path, help="record everything into this NEW session file")
     p.add_argument("--calibration", type=Path, help="start with these poses (calibration TOML)")
     p.add_argument("--method", choices=LIVE_METHODS, default="best-live", help="live fusion")
@@ -91,4 +97,5 @@ def run(args: argparse.Namespace) -> int:
         lsl=args.lsl,
         lsl_xml=args.lsl_xml,
         verbose=args.verbose,
+        allow_weak_token=args.allow_weak_token,
     )

@@ -26,6 +26,7 @@ from kinefuse.protocol.errors import (
     VersionError,
     WireError,
 )
+from kinefuse.protocol.fields import printable
 from kinefuse.protocol.messages import (
     MESSAGE_TYPES,
     PROTOCOL_VERSION,
@@ -91,4 +92,5 @@ __all__ = [
     "WireError",
     "check_version",
     "encode",
+    "printable",
 ]

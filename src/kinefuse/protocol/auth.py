@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import math
 import secrets
+import string
 
 from kinefuse.protocol.errors import AuthError
 
@@ -40,6 +42,54 @@ def check_token(token: str) -> bytes:
     if len(token) > MAX_TOKEN_CHARS:
         raise ValueError(f"the token has {len(token)} characters; at most {MAX_TOKEN_CHARS}")
     return token.encode("utf-8")
+
+
+#: the least estimated entropy of a token a server takes without ``--allow-weak-token``, bits
+MIN_TOKEN_BITS = 128
+#: bytes of randomness in a token ``kinefuse token new`` writes (64 hex characters)
+NEW_TOKEN_BYTES = 32
+
+
+def new_token() -> str:
+    """A fresh random token: ``NEW_TOKEN_BYTES`` (256 bits) from :mod:`secrets`, as hex."""
+    return secrets.token_hex(NEW_TOKEN_BYTES)
+
+
+def token_bits(token: str) -> float:
+    """An estimate of a token's entropy, bits: ``n * log2(alphabet)``, where the
+    alphabet is the character classes it uses (lower case 26, upper case 26, digits 10, any
+    other 33) and ``n`` its length, counted at most three times per distinct character (so
+    ``aaaa...`` or a word repeated does not pass for random). A random 64-hex-digit token
+    scores about 250, ``kinect2024`` about 50: it cannot see that a long phrase of words is
+    guessable, so it only refuses what is plainly too short or too repetitive."""
+    if not token:
+        return 0.0
+    pool = 0
+    for chars, size in (
+        (string.ascii_lowercase, 26),
+        (string.ascii_uppercase, 26),
+        (string.digits, 10),
+    ):
+        if any(c in chars for c in token):
+            pool += size
+    if any(not (c.isascii() and c.isalnum()) for c in token):
+        pool += 33
+    n = min(len(token), 3 * len(set(token)))
+    return n * math.log2(max(pool, 2))
+
+
+def check_token_strength(token: str, *, allow_weak: bool = False) -> None:
+    """Raise ``ValueError`` for a token under ``MIN_TOKEN_BITS`` of estimated entropy (unless
+    ``allow_weak``): one recorded handshake lets anyone test guesses offline, as fast as they
+    can compute HMACs, so only a token too big to guess keeps the sensors' port closed."""
+    bits = token_bits(token)
+    if bits < MIN_TOKEN_BITS and not allow_weak:
+        raise ValueError(
+            f"the token is too weak to keep the port closed (about {bits:.0f} bits of "
+            f"entropy, at least {MIN_TOKEN_BITS} needed: one recorded handshake lets anyone "
+            "test guesses offline); make one with `kinefuse token new FILE` and give it with "
+            "--token-file FILE, or accept the risk with --allow-weak-token"
+        )
 
 
 def new_nonce() -> bytes:
@@ -64,7 +114,7 @@ def verify_mac(token: str, nonce: bytes, mac: bytes, *, role: str, sensor_id: st
     if not hmac.compare_digest(want, bytes(mac)):
         raise AuthError(
             "authentication failed: the reply does not match this server's token; "
-            "start the client with the server's --token"
+            "start the client with the server's token (--token-file FILE)"
         )
 
 
@@ -121,7 +171,7 @@ def verify_server_mac(
     if not hmac.compare_digest(want, bytes(mac)):
         raise AuthError(
             "the server could not prove that it knows the token (wrong server_mac): a server "
-            "with another --token, or an impostor; nothing was sent to it"
+            "with another token, or an impostor; nothing was sent to it"
         )
 
 

@@ -27,7 +27,22 @@ from kinefuse.protocol.errors import FieldError
 #: integers on the wire are signed 64-bit
 INT64_MAX = 2**63 - 1
 
-_ID_RE = re.compile(r"^[A-Za-z0-9_.:\-]+$")
+#: an identifier, matched whole (``fullmatch``: no ``$`` that lets a trailing newline through)
+_ID_RE = re.compile(r"[A-Za-z0-9_.:\-]+")
+
+
+def printable(text: object, max_len: int = 300) -> str:
+    """``text`` as it may reach a log or a terminal: every character that is not printable
+    (control characters such as ESC or a newline, format characters such as a bidi override)
+    shown as its Python escape (``\\x1b``, ``\\n``, ``\\u202e``), cut to ``max_len`` characters
+    with ``...``. A peer's strings (ids, serials, reasons) go through it before they are logged,
+    so a peer cannot clear a terminal or forge a log line."""
+    s = str(text)
+    if len(s) > max_len:
+        s = s[:max_len] + "..."
+    if s.isprintable():
+        return s
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in s)
 
 
 class Kind(ABC):
@@ -72,7 +87,7 @@ class Str(Kind):
             raise FieldError(msg, name, "must not be empty")
         if self.choices and raw not in self.choices:
             raise FieldError(msg, name, f"{raw!r} is not one of {', '.join(self.choices)}")
-        if self.ident and raw and not _ID_RE.match(raw):
+        if self.ident and raw and not _ID_RE.fullmatch(raw):
             raise FieldError(
                 msg, name, f"{raw!r} has characters outside letters, digits and _ . : -"
             )

@@ -44,7 +44,7 @@ from kinefuse.protocol.fields import (
 )
 
 #: (major, minor) this code speaks; see docs/protocol.md "Versioning"
-PROTOCOL_VERSION: tuple[int, int] = (1, 1)
+PROTOCOL_VERSION: tuple[int, int] = (1, 2)
 
 N_JOINTS = 25
 ROLES = ("sensor", "control")
@@ -384,7 +384,9 @@ class StatusRequest(Message):
 @dataclass(frozen=True, eq=False)
 class SensorInfo:
     """One sensor in a :class:`Status` (times in ms, NaN unknown; ``sensor2world`` (4, 4) or
-    None if not calibrated; ``floor_error``: why the sensor's floor fit failed, or None)."""
+    None if not calibrated; ``floor_error``: why the sensor's floor fit failed, or None;
+    ``stale_frames``: body frames refused because their seq did not increase on their
+    connection, since the server started (None: a server older than protocol 1.2))."""
 
     sensor_id: str
     connected: bool
@@ -396,6 +398,7 @@ class SensorInfo:
     tracked_fraction: float
     sensor2world: NDArray[np.float64] | None = None
     floor_error: str | None = None
+    stale_frames: int | None = None
 
 
 _NANF = Float(-1e12, 1e12, allow_nan=True)
@@ -412,6 +415,7 @@ _SENSOR_INFO = Records(
         ("tracked_fraction", Float(0.0, 1.0, allow_nan=True)),
         ("sensor2world", Optional(Array((4, 4), lo=-1e4, hi=1e4))),
         ("floor_error", Optional(_TEXT)),
+        ("stale_frames", Optional(Int(0))),
     ),
     make=SensorInfo,
     label="SensorInfo",

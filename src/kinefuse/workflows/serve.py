@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from kinefuse.errors import InputError, KinefuseError
+from kinefuse.protocol.fields import printable
 
 log = logging.getLogger("kinefuse.serve")
 
@@ -48,11 +49,62 @@ def token_from(arg: str | None, file: Path | None = None) -> str | None:
         tok: str | None = lines[0].strip() if lines else ""
         if not tok:
             raise InputError(f"the token file {file} is empty; put the token on its first line")
+        warn_if_shared(Path(file))
         return tok
     tok = arg if arg is not None else os.environ.get("KINEFUSE_TOKEN")
     if tok is not None and not tok:
         raise InputError("the token is empty; give a non-empty --token-file (or KINEFUSE_TOKEN)")
     return tok
+
+
+def warn_if_shared(file: Path) -> bool:
+    """Warn (and return True) when the token file can be read by the group or others: anyone
+    who can read it can stream to the server as any sensor."""
+    try:
+        mode = file.stat().st_mode
+    except OSError:
+        return False
+    if mode & 0o077 and not file.is_fifo():
+        logging.getLogger("kinefuse").warning(
+            "the token file %s can be read by other users (mode %s): anyone who reads it can "
+            "send data as any sensor; make it private: chmod 600 %s",
+            file,
+            oct(mode & 0o777),
+            file,
+        )
+        return True
+    return False
+
+
+def check_serve_token(token: str | None, *, allow_weak: bool) -> None:
+    """Refuse (``InputError``) a token too weak to keep the sensor port closed, unless
+    ``allow_weak`` (``kinefuse serve --allow-weak-token``)."""
+    from kinefuse.protocol.auth import check_token_strength
+
+    if token is not None:
+        try:
+            check_token_strength(token, allow_weak=allow_weak)
+        except ValueError as e:
+            raise InputError(str(e)) from None
+
+
+def write_new_token(path: Path) -> Path:
+    """``kinefuse token new FILE``: a new random 256-bit token (64 hex characters) in a new
+    file of mode 0600, written through a temporary file and renamed (an existing file is
+    never replaced)."""
+    from kinefuse.errors import OutputError
+    from kinefuse.io.outputs import atomic_file, never_replace
+    from kinefuse.protocol.auth import new_token
+
+    if Path(path).exists() or Path(path).is_symlink():
+        raise OutputError(
+            f"{path} exists; a token file is never replaced (the server and the sensors may "
+            "hold that token): choose a new path"
+        )
+    with atomic_file(path, what="token file", recognizer=never_replace) as tmp:
+        tmp.chmod(0o600)
+        tmp.write_text(new_token() + "\n", encoding="utf-8")
+    return Path(path)
 
 
 def _unwrap(eg: BaseExceptionGroup[BaseException]) -> BaseException:
@@ -79,12 +131,14 @@ def run_serve(
     lsl: str | None = None,
     lsl_xml: Path | None = None,
     verbose: bool = False,
+    allow_weak_token: bool = False,
 ) -> int:
     """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop."""
     from kinefuse.net.server.calibration import LiveCalibrationOptions
     from kinefuse.net.server.server import Server, ServerOptions
 
     _setup_logging(verbose)
+    check_serve_token(token, allow_weak=allow_weak_token)
     if not (math.isfinite(latency_budget_ms) and latency_budget_ms >= 0):
         raise InputError(f"--latency-budget-ms must be >= 0, got {latency_budget_ms}")
     if record is not None:
@@ -208,7 +262,9 @@ async def _control_calibrate(
         msg = await recv(10.0)
         if isinstance(msg, Challenge):
             if token is None or client_nonce is None:
-                raise KinefuseError("the server requires a token: pass --token (or KINEFUSE_TOKEN)")
+                raise KinefuseError(
+                    "the server requires a token: pass --token-file FILE (or KINEFUSE_TOKEN)"
+                )
             try:
                 verify_server_mac(
                     token, client_nonce, msg.nonce, msg.server_mac, role="control", sensor_id=""
@@ -222,7 +278,7 @@ async def _control_calibrate(
             send(Error("auth", "this peer has a token and the server asked for none"))
             raise KinefuseError(f"refusing the server at {host}:{port}: {no_challenge_error()}")
         if isinstance(msg, Error):
-            raise KinefuseError(f"the server refused: {msg.reason} ({msg.code})")
+            raise KinefuseError(f"the server refused: {printable(msg.reason)} ({msg.code})")
         if not isinstance(msg, Welcome):
             raise KinefuseError(f"expected welcome from the server, got {msg.TYPE}")
         beat = msg.heartbeat_s
@@ -248,9 +304,11 @@ async def _control_calibrate(
                 await writer.drain()
                 return msg
             if isinstance(msg, Error):
-                raise KinefuseError(f"the server refused: {msg.reason} ({msg.code})")
+                raise KinefuseError(f"the server refused: {printable(msg.reason)} ({msg.code})")
             if isinstance(msg, Goodbye):
-                raise KinefuseError(f"the server said goodbye before a result: {msg.reason}")
+                raise KinefuseError(
+                    f"the server said goodbye before a result: {printable(msg.reason)}"
+                )
     finally:
         writer.close()
 
@@ -268,7 +326,8 @@ def run_calibrate_live(
     ``(host, port)`` (:func:`kinefuse.net.address.parse_hostport` reads ``HOST:PORT``)."""
     host, port = address
     res = asyncio.run(_control_calibrate(host, port, token, method, seconds, timeout_s))
-    reasons = [r.strip() for r in res.message.split(";")[1:]]
+    text = printable(res.message, 1024)  # the server's words reach the terminal escaped
+    reasons = [r.strip() for r in text.split(";")[1:]]
     return {
         "method": res.method,
         "detector": "client",
@@ -278,7 +337,7 @@ def run_calibrate_live(
         "reasons": reasons,
         "accepted": bool(res.ok),
         "used_by_server": bool(res.ok),
-        "message": res.message.split(";")[0],
+        "message": text.split(";")[0],
         "sensors": [
             {
                 "id": sid,

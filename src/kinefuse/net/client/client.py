@@ -55,7 +55,7 @@ from kinefuse.net.client.clocks import HostClock, Monotonic
 from kinefuse.net.client.depth import DepthWork
 from kinefuse.net.client.parts import Prefetch, Prepared, ServerLink, wait_event
 from kinefuse.net.client.playback import Timed, Timeline
-from kinefuse.protocol import auth
+from kinefuse.protocol import auth, printable
 from kinefuse.protocol.codec import check_version
 from kinefuse.protocol.errors import AuthError, VersionError, WireError
 from kinefuse.protocol.messages import (
@@ -87,7 +87,7 @@ class ClientRefused(KinefuseError):
     """
 
     def __init__(self, code: str, message: str) -> None:
-        super().__init__(message)
+        super().__init__(printable(message, 2000))  # it quotes the server: printed, escaped
         self.code = code
 
 
@@ -159,7 +159,7 @@ class _Outcome(Exception):
     """How one connection ended (internal control flow)."""
 
     def __init__(self, kind: str, detail: str = "") -> None:
-        super().__init__(detail or kind)
+        super().__init__(printable(detail or kind, 2000))  # it quotes the server: logged, escaped
         self.kind = kind
 
 
@@ -385,7 +385,9 @@ class SensorClient:
             if opt.token is None or client_nonce is None:
                 conn.send(Goodbye("no token"))
                 raise ClientRefused(
-                    "auth", "the server requires a token: start the sensor with --token TOKEN"
+                    "auth",
+                    "the server requires a token: start the sensor with --token-file FILE "
+                    "(the server's token; or KINEFUSE_TOKEN)",
                 )
             try:
                 auth.verify_server_mac(
@@ -405,7 +407,8 @@ class SensorClient:
             if msg.code == "auth":
                 raise ClientRefused(
                     "auth",
-                    f"the server refused the token ({msg.reason}); give the server's --token",
+                    f"the server refused the token ({msg.reason}); give the server's token "
+                    "with --token-file FILE",
                 )
             if msg.code == "version":
                 raise ClientRefused("version", f"the server speaks another version: {msg.reason}")

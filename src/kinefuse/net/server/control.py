@@ -21,6 +21,7 @@ from kinefuse.protocol import (
     Shutdown,
     StatusRequest,
     Welcome,
+    printable,
 )
 from kinefuse.protocol.errors import LimitExceeded, OutOfOrder
 
@@ -78,7 +79,7 @@ async def serve_control(srv: Server, conn: Connection) -> None:
                 conn.send(status_message(srv, msg.request_id))
             elif isinstance(msg, Shutdown):
                 conn.send(Goodbye(reason="shutting down"))
-                srv.request_stop(f"shutdown asked by {conn.peer}: {msg.reason}")
+                srv.request_stop(f"shutdown asked by {conn.peer}: {printable(msg.reason)}")
                 return
             elif isinstance(msg, Goodbye):
                 return

@@ -14,6 +14,17 @@ recording is data, never replaced), written in place (not through a temporary fi
 committed survives a crash), marked complete by a clean :meth:`close`. On a clean close the live
 fused frames are also stored as the fused result ``"live"`` (``kinefuse export``-able) and the
 run's figures as metadata.
+
+Sequence numbers: the store keys a sensor's observations (and sightings) by ``(sensor, seq)``,
+and the server takes each connection as a new stream whose ``seq`` may start again at 0 (a
+restarted sensor). So the recorder keeps a sensor's recorded seqs increasing across its streams
+(:class:`SeqMap`): a frame is recorded under its own ``seq`` while that is above everything
+recorded of the sensor (always, in a run without restarts, so the rows match the sensor's
+frames and a simulation's truth), else under the next free number, and a stream is never
+allowed a jump above ``MAX_SEQ_GAP`` (so a peer that sent seq 2**63-1 cannot leave the real
+sensor no number to record under). Every shift of a body frame's seq is recorded as the event
+``seq_offset`` (the wire seq is the recorded one minus ``offset``); recordings made before
+read as they did (no new column).
 """
 
 from __future__ import annotations
@@ -21,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import dataclasses
 import logging
 import math
 from collections import defaultdict
@@ -45,6 +57,43 @@ Array = NDArray[np.float64]
 
 #: the fused result name a clean stop stores the live frames under
 LIVE_METHOD = "live"
+#: the largest step between two recorded seqs of a sensor (2**32 frames: 4.5 years at 30 Hz)
+MAX_SEQ_GAP = 1 << 32
+
+
+class SeqMap:
+    """Recorded seqs of one sensor's frames of one kind, increasing across its streams (see the
+    module docstring).
+
+    Attributes
+    ----------
+    offset : int
+        Recorded minus wire seq of the current stream.
+    high : int or None
+        The highest recorded seq (None: nothing recorded).
+    """
+
+    def __init__(self) -> None:
+        self.offset = 0
+        self.high: int | None = None
+        self._fresh = True
+
+    def new_stream(self) -> None:
+        """The next seq is the first of a new stream (a new connection)."""
+        self._fresh = True
+
+    def record(self, seq: int) -> tuple[int, bool]:
+        """The recorded seq of wire ``seq`` (increasing within a stream), and whether the
+        offset changed for it."""
+        offset = 0 if self._fresh else self.offset
+        rec = seq + offset
+        floor = -1 if self.high is None else self.high
+        if rec <= floor or rec - max(floor, 0) > MAX_SEQ_GAP:
+            rec = floor + 1
+            offset = rec - seq
+        changed = offset != self.offset
+        self.offset, self.high, self._fresh = offset, rec, False
+        return rec, changed
 
 
 @dataclass
@@ -142,11 +191,11 @@ class Recorder:
         self._batch = _Batch()
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="recorder")
         self._store: SessionStore | None = None
-        self._last_obs_seq: dict[str, int] = {}
+        self._obs_seq: dict[str, SeqMap] = defaultdict(SeqMap)
+        self._sighting_seq: dict[str, SeqMap] = defaultdict(SeqMap)
         self._stop = asyncio.Event()
         self.rows_written = 0
         self.flushes = 0
-        self.duplicates_dropped = 0
         self._closed = False
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -247,6 +296,11 @@ class Recorder:
     ) -> None:
         self._batch.sensors.append((sensor_id, serial, intrinsics, rate_hz))
 
+    def new_stream(self, sensor_id: str) -> None:
+        """A sensor's new connection: its seqs start a new stream (see :class:`SeqMap`)."""
+        self._obs_seq[sensor_id].new_stream()
+        self._sighting_seq[sensor_id].new_stream()
+
     def add_observation(
         self,
         sensor_id: str,
@@ -260,12 +314,14 @@ class Recorder:
         occluded: NDArray[np.bool_] | None,
         n_crossings: int | None,
     ) -> None:
-        """One body frame (joints NaN exactly where states is 0: the server sanitized it)."""
-        last = self._last_obs_seq.get(sensor_id)
-        if last is not None and seq <= last:
-            self.duplicates_dropped += 1
-            return
-        self._last_obs_seq[sensor_id] = seq
+        """One body frame (joints NaN exactly where states is 0: the server sanitized it);
+        ``seq`` is the wire seq, increasing on the sensor's current stream."""
+        rec, changed = self._obs_seq[sensor_id].record(seq)
+        if changed:  # a restarted stream (the wire seq is the recorded one minus the offset)
+            self.add_event(
+                self._clock(), "seq_offset", sensor_id, {"seq": seq, "offset": rec - seq}
+            )
+        seq = rec
         b = self._batch.obs[sensor_id]
         b.seq.append(seq)
         b.t_device.append(t_device_s)
@@ -292,7 +348,10 @@ class Recorder:
         self._batch.clock[sensor_id].append((t_server_s, offset_s, drift_ppm, offset_se_s, epoch))
 
     def add_sighting(self, row: store_live.SightingRow) -> None:
-        self._batch.sightings.append(row)
+        """One wand sighting; ``row.seq`` is the wire seq (kept increasing like a body frame's,
+        without an event: a sighting's seq is only its key)."""
+        seq, _ = self._sighting_seq[row.sensor_id].record(row.seq)
+        self._batch.sightings.append(dataclasses.replace(row, seq=seq))
 
     def add_floor(self, sensor_id: str, t_server_s: float, floor: FloorPlane) -> None:
         self._batch.floors.append((sensor_id, t_server_s, floor))
@@ -389,6 +448,7 @@ def _status_detail(s: Status) -> dict[str, Any]:
                 "fps": x.fps,
                 "latency_ms": x.latency_ms,
                 "tracked_fraction": x.tracked_fraction,
+                "stale_frames": x.stale_frames,
             }
             for x in s.sensors
         ],

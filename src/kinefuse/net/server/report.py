@@ -38,6 +38,7 @@ def server_status(srv: Server) -> Status:
                 tracked_fraction=c.tracked_fraction(),
                 sensor2world=None if p is None else np.asarray(p, dtype=float).reshape(4, 4),
                 floor_error=c.floor_error,
+                stale_frames=c.stale,
             )
         )
     return Status(

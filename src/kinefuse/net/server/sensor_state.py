@@ -1,8 +1,11 @@
 """What the server keeps per sensor: identity, clocks, the bounded queue of observations, stats.
 
 A :class:`SensorState` lives as long as the server (keyed by sensor id), so a client that
-reconnects finds its pose, its device clock and its statistics again; only the connection
-(:class:`Connection` in :mod:`kinefuse.net.server.server`) is per TCP connection.
+reconnects finds its pose and its statistics again. What its frames say belongs to the
+connection (:class:`Connection` in :mod:`kinefuse.net.server.server`): each connection is a new
+stream, its sequence numbers and clocks start afresh (a restarted sensor counts from 0 again,
+its device clock may have restarted; a peer that took an offline id for a while leaves nothing
+behind that could hold the real sensor's frames back).
 
 Times of an observation (all seconds):
 
@@ -26,6 +29,7 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import SyncError
+from kinefuse.net.server.guard import EventLimit
 from kinefuse.skeleton import N_JOINTS, TrackingState
 from kinefuse.sync.device import NOMINAL_LATENCY_S, DeviceClockEstimate, estimate_device_clock
 from kinefuse.sync.online import OnlineClock, OnlineClockParams
@@ -115,8 +119,10 @@ class SensorState:
         self.connections = 0
         self.queue: deque[Observation] = deque(maxlen=queue_size)
         self.dropped = 0
+        #: the latest body frame's seq on the current connection (None: none yet)
         self.last_seq: int | None = None
-        self.stale = 0  # frames not newer than last_seq (a restarted client replaying)
+        #: body frames refused because their seq did not increase on their connection
+        self.stale = 0
         #: body frames dropped as too late (a stalled sensor's backlog)
         self.late_dropped = 0
         #: server time the current run of late frames began (None: the last frame was on time)
@@ -127,17 +133,23 @@ class SensorState:
         self.latency_s = float("nan")
         #: why the client's floor fit of this calibration failed (its heartbeats say), or None
         self.floor_error: str | None = None
+        #: what of this sensor is logged and recorded one by one (the rest is summarized)
+        self.events = EventLimit(per_window=10, window_s=10.0)
         self._arrivals: deque[float] = deque(maxlen=90)
         self._tracked: deque[float] = deque(maxlen=90)
 
     # -- connection lifecycle ----------------------------------------------------------------
 
     def connect(self) -> None:
-        """A new connection: re-sync the clock from scratch (it may be another route or PC)."""
+        """A new connection, a new stream: its sequence numbers start afresh, the clocks are
+        synchronized from scratch (it may be another route or PC, a restarted device)."""
         self.connected = True
         self.connections += 1
         if self.connections > 1:
             self.clock.reset(f"reconnect #{self.connections - 1}")
+            self.device = DeviceClockTracker()
+        self.last_seq = None
+        self.late_since = None
         self.queue.clear()
 
     def disconnect(self) -> None:
@@ -159,14 +171,6 @@ class SensorState:
         return self.host_to_server(self.device.to_host(t_device_s))
 
     # -- observations ----------------------------------------------------------------------------
-
-    def accept(self, seq: int) -> bool:
-        """Whether a body frame is new (its seq above every one seen, across connections)."""
-        if self.last_seq is not None and seq <= self.last_seq:
-            self.stale += 1
-            return False
-        self.last_seq = seq
-        return True
 
     def lateness(self, t_device_s: float, t_host_s: float, t_arrival_s: float) -> float:
         """How much later than its clocks say a body frame is here, seconds (-inf: unknown).

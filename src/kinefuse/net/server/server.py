@@ -24,12 +24,17 @@ The parts live beside it: ``server_conn`` (one connection's bytes and messages),
 Per sensor the server keeps a :class:`~kinefuse.net.server.sensor_state.SensorState` across
 connections (pose, clocks, statistics): a client that dies is marked offline and fusion goes on
 with the others; when it comes back (same ``sensor_id``) it is re-synchronized and fused with its
-pose at once. A second connection claiming a connected sensor id is refused (``duplicate_id``).
+pose at once. Each connection is a new stream: its ``seq`` starts afresh (a restarted sensor's
+counter from 0 is fused from its first frame), a ``seq`` that does not increase on it is a stale
+frame (counted in the status, and the connection closed). A second connection claiming a
+connected sensor id is refused (``duplicate_id``). Who may start a handshake is decided at the
+accept (:class:`~kinefuse.net.server.guard.HandshakeSlots`); a sensor's own events are logged
+rate-limited, and every string a peer sent is escaped before it is logged.
 
 The server clock is ``clock()``: ``time.monotonic() - t0`` by default (recorded as the meta
 ``server_t0_monotonic``), injectable for tests.
 
-Why about 640 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
+Why about 820 lines: :class:`Server` is the one owner of the run's tasks and their shutdown order;
 the per-connection protocol, the control commands and the report live in the ``server_*``
 modules beside it.
 """
@@ -63,12 +68,13 @@ from kinefuse.net.server.calibration import (
 from kinefuse.net.server.conn import Connection, ConnectionClosed, DuplicateSensor, TooSlow
 from kinefuse.net.server.control import serve_control
 from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
-from kinefuse.net.server.guard import RefusalLog, StampGate
+from kinefuse.net.server.guard import HandshakeSlots, RefusalLog, StampGate
 from kinefuse.net.server.recorder import Recorder
 from kinefuse.net.server.report import outcome_meta, result_message, run_stats, server_status
 from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_joints
 from kinefuse.protocol import (
     MAX_FRAME_BYTES,
+    AuthError,
     AuthReply,
     BodyFrameMessage,
     CalibrationStart,
@@ -76,6 +82,7 @@ from kinefuse.protocol import (
     Challenge,
     ClockProbe,
     ClockReply,
+    Error,
     FloorPlaneMessage,
     Goodbye,
     Heartbeat,
@@ -84,6 +91,8 @@ from kinefuse.protocol import (
     Welcome,
     WireError,
     check_version,
+    encode,
+    printable,
 )
 from kinefuse.protocol.auth import compute_server_mac, new_nonce, verify_mac
 from kinefuse.protocol.errors import OutOfOrder
@@ -116,8 +125,18 @@ class ServerOptions:
     # what a hostile peer may cost (issue 23; docs/protocol.md "Limits"):
     #: frames before the Welcome (a Hello is a few kB): an unauthenticated peer buffers no MiB
     handshake_frame_bytes: int = 64 << 10
-    #: connections accepted but not welcomed yet; more are refused at once (busy)
+    #: connections accepted but not welcomed yet (guard.HandshakeSlots): from strangers, from
+    #: addresses a peer was welcomed from before, and from any one address; more are refused at
+    #: once (busy)
     max_pending: int = 32
+    max_pending_known: int = 16
+    max_pending_per_address: int = 8
+    #: failed authentications an address may have per second, and at once (then: limit)
+    auth_fail_rate: float = 1.0
+    auth_fail_burst: float = 10.0
+    #: a connection refused at the door is closed this much later (s), at most this many at once
+    refuse_linger_s: float = 0.5
+    max_lingering: int = 128
     max_controls: int = 8
     #: frames a peer may send per second on average, and at once
     msg_rate: float = 600.0
@@ -182,8 +201,18 @@ class Server:
         self._probe_id = 0
         #: refused connections: counted, the last 100 kept, logged and recorded rate-limited
         self.refusals = RefusalLog()
-        self._pending: set[Connection] = set()
+        #: connections in their handshake, and the slot each holds: (address, known)
+        self._pending: dict[Connection, tuple[str, bool]] = {}
+        self.slots = HandshakeSlots(
+            max_pending=options.max_pending,
+            max_pending_known=options.max_pending_known,
+            per_address=options.max_pending_per_address,
+            fail_rate=options.auth_fail_rate,
+            fail_burst=options.auth_fail_burst,
+        )
         self.last_outcome: CalibrationOutcome | None = None
+        #: connections refused at the door, closed a moment later (:meth:`_refuse_at_door`)
+        self._lingering: set[asyncio.StreamWriter] = set()
 
     @property
     def refused(self) -> list[tuple[str, str]]:
@@ -216,7 +245,7 @@ class Server:
         if not is_loopback(o.host) and not o.token:
             log.warning(
                 "listening on %s without a token: anyone who can reach this port can send data; "
-                "pass --token (or KINEFUSE_TOKEN) and open the port only to the sensor PCs",
+                "pass --token-file (or KINEFUSE_TOKEN) and open the port only to the sensor PCs",
                 o.host,
             )
         if o.record is not None:
@@ -245,6 +274,8 @@ class Server:
                 tg.create_task(self._housekeeping())
                 await self._stop.wait()
                 srv.close()
+                for w in list(self._lingering):
+                    w.close()
                 # the loop sees the stop before its next frame; a frame being fused (in a worker
                 # thread) is published first, so the publisher is closed after the last one
                 await fusing
@@ -298,6 +329,15 @@ class Server:
             writer.close()
             return
         o = self.options
+        peer = writer.get_extra_info("peername")
+        addr = str(peer[0]) if isinstance(peer, tuple) else str(peer)
+        known, refusal = self.slots.admit(addr, self.clock())
+        if refusal is not None:
+            code, reason = refusal
+            name = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+            self._refused(name, code, reason)
+            self._refuse_at_door(writer, code, reason)
+            return
         sock = writer.get_extra_info("socket")
         if sock is not None:  # a bounded kernel send buffer: a peer that never reads shows soon
             with contextlib.suppress(OSError):
@@ -311,27 +351,52 @@ class Server:
             msg_rate=o.msg_rate,
             msg_burst=o.msg_burst,
         )
-        if len(self._pending) >= o.max_pending:
-            # refused before any task or buffer is spent on it
-            self._refused(conn, "busy", f"{o.max_pending} connections are in their handshake")
-            conn.refuse("busy", "the server has too many connections in their handshake")
-            return
-        self._pending.add(conn)
+        self._pending[conn] = (addr, known)
         self._conns.add(conn)
         self._tg.create_task(self._connection(conn))
 
-    def _refused(
-        self, conn: Connection, code: str, reason: str, sensor_id: str | None = None
-    ) -> None:
-        """Count a refusal; log and record it unless too many came lately (then summarized)."""
-        text = f"closing {conn.name}: {reason} ({code})"
+    def _refuse_at_door(self, writer: asyncio.StreamWriter, code: str, reason: str) -> None:
+        """Refuse a connection before any task or buffer is spent on it: the Error at once,
+        nothing more read, and the close ``refuse_linger_s`` later (at once when
+        ``max_lingering`` refused connections are waiting already). A well-behaved client
+        closes on the Error itself; an attacker that reopens as soon as the server closes
+        gets to do it twice a second per connection, not hundreds of times."""
+        with contextlib.suppress(Exception):
+            writer.write(encode(Error(code=code, reason=reason[:1024])))
+            tr = writer.transport
+            if isinstance(tr, asyncio.Transport):
+                tr.pause_reading()
+            if len(self._lingering) >= self.options.max_lingering:
+                writer.close()
+                return
+            self._lingering.add(writer)
+
+            def close() -> None:
+                self._lingering.discard(writer)
+                writer.close()
+
+            asyncio.get_running_loop().call_later(self.options.refuse_linger_s, close)
+
+    def _refused(self, name: str, code: str, reason: str, sensor_id: str | None = None) -> None:
+        """Count a refusal of the peer ``name``; log and record it unless too many came lately
+        (then summarized)."""
+        text = printable(f"closing {name}: {reason} ({code})", 600)
         if self.refusals.add(self.clock(), code, text):
             log.warning("%s", text)
-            self._event("refused", sensor_id, code=code, reason=reason[:300], peer=conn.peer)
+            self._event("refused", sensor_id, code=code, reason=reason[:300], peer=name)
+
+    def _release(self, conn: Connection) -> None:
+        """``conn`` leaves its handshake (welcomed or closed): its slot is free again."""
+        slot = self._pending.pop(conn, None)
+        if slot is not None:
+            self.slots.release(*slot)
 
     def _welcomed(self, conn: Connection) -> None:
-        """The handshake is done: full-size frames from now on."""
-        self._pending.discard(conn)
+        """The handshake is done: full-size frames from now on, the address known."""
+        slot = self._pending.get(conn)
+        if slot is not None:
+            self.slots.welcomed(slot[0])
+        self._release(conn)
         conn.decoder.max_frame_bytes = self.options.max_frame_bytes
 
     async def _connection(self, conn: Connection) -> None:
@@ -351,7 +416,9 @@ class Server:
         except ConnectionClosed as e:
             log.info("%s: %s", conn.name, e)
         except WireError as e:
-            self._refused(conn, e.code, str(e), sensor.sensor_id if sensor else None)
+            if isinstance(e, AuthError) and conn in self._pending:
+                self.slots.auth_failed(self._pending[conn][0], self.clock())
+            self._refused(conn.name, e.code, str(e), sensor.sensor_id if sensor else None)
             conn.refuse(e.code, str(e))
         except Exception as e:  # a bug serving this peer: close it, keep serving the others
             log.exception("internal error serving %s; closing it", conn.name)
@@ -359,14 +426,13 @@ class Server:
             conn.refuse("internal", f"server error: {type(e).__name__}")
         finally:
             conn.close()
-            self._pending.discard(conn)
+            self._release(conn)
             self._conns.discard(conn)
             self._controls.discard(conn)
             if sensor is not None and self._sensor_conns.get(sensor.sensor_id) is conn:
                 del self._sensor_conns[sensor.sensor_id]
                 sensor.disconnect()
-                log.info("sensor %s is offline", sensor.sensor_id)
-                self._event("disconnected", sensor.sensor_id)
+                self._sensor_event(sensor, logging.INFO, "disconnected", " is offline")
                 self._status_dirty = True
             await conn.wait_closed()
 
@@ -415,6 +481,8 @@ class Server:
                 self.recorder.add_sensor(sid, hello.serial, hello.intrinsics)
         client.connect()
         self._sensor_conns[sid] = conn
+        if self.recorder is not None:  # a new stream: its seq may start again below the last
+            self.recorder.new_stream(sid)
         self._welcomed(conn)
         cal = self.calibration
         if cal.collecting:
@@ -429,16 +497,12 @@ class Server:
                 calibration_id=cal.calibration_id,
             )
         )
-        log.info(
-            "sensor %s connected from %s (connection #%d)%s",
-            sid,
-            conn.peer,
-            client.connections,
-            ", calibrated" if sid in cal.poses else "",
-        )
-        self._event(
+        self._sensor_event(
+            client,
+            logging.INFO,
             "connected",
-            sid,
+            f" connected from {conn.peer} (connection #{client.connections})"
+            + (", calibrated" if sid in cal.poses else ""),
             peer=conn.peer,
             connection=client.connections,
             has_pose=sid in cal.poses,
@@ -485,7 +549,6 @@ class Server:
         self, conn: Connection, client: SensorState, outstanding: dict[int, float]
     ) -> None:
         sid = client.sensor_id
-        last_seq: int | None = None
         o = self.options
         # time stamps outside a plausible window are refused at the door (guard.StampGate)
         gate = StampGate(window_s=o.stamp_window_s, max_offset_s=o.max_clock_offset_s)
@@ -502,11 +565,16 @@ class Server:
                 gate.reply(msg.t1, msg.t2, msg.t3, t_arr)
                 self._clock_reply(client, msg, t_arr)
             elif isinstance(msg, BodyFrameMessage):
-                if last_seq is not None and msg.seq <= last_seq:
+                if client.last_seq is not None and msg.seq <= client.last_seq:
+                    # a stale frame (the sensor's counter went back under a running client):
+                    # counted in its status, and the connection closed; a client that
+                    # reconnects starts a new stream, fused from its first frame
+                    client.stale += 1
+                    self._status_dirty = True
                     raise OutOfOrder(
-                        f"body_frame seq {msg.seq} after {last_seq}: seq must increase"
+                        f"body_frame seq {msg.seq} after {client.last_seq}: seq must increase "
+                        "on a connection (a restarted sensor must connect again)"
                     )
-                last_seq = msg.seq
                 gate.host(msg.TYPE, "t_host_s", msg.t_host_s, t_arr)
                 gate.device(msg.TYPE, msg.t_device_s, msg.t_host_s)
                 self._body(client, msg, t_arr)
@@ -521,7 +589,9 @@ class Server:
                 if self.recorder is not None:
                     self.recorder.add_floor(sid, t_arr, fl)
             elif isinstance(msg, Goodbye):
-                log.info("sensor %s said goodbye: %s", sid, msg.reason)
+                self._sensor_event(
+                    client, logging.INFO, "goodbye", f" said goodbye: {printable(msg.reason)}"
+                )
                 return
             elif isinstance(msg, Heartbeat):
                 self._floor_error(client, msg.floor_error)
@@ -534,9 +604,21 @@ class Server:
             return
         client.floor_error = error
         if error is not None:
-            log.warning("sensor %s: %s", client.sensor_id, error)
-            self._event("floor_error", client.sensor_id, error=error)
+            self._sensor_event(
+                client, logging.WARNING, "floor_error", f": {printable(error)}", error=error
+            )
         self._status_dirty = True
+
+    def _sensor_event(
+        self, client: SensorState, level: int, kind: str, text: str, **detail: object
+    ) -> None:
+        """Log ``sensor ID`` + ``text`` and record the event ``kind``, unless this sensor had too
+        many events lately (then counted and summarized by :meth:`_housekeeping`): a peer that
+        changes its floor error 600 times a second, or reconnects as fast as it can, costs the
+        log and the recording a bounded amount. ``text`` is escaped already (:func:`printable`)."""
+        if client.events.allow(self.clock(), kind):
+            log.log(level, "sensor %s%s", client.sensor_id, text)
+            self._event(kind, client.sensor_id, **detail)
 
     def _clock_reply(self, client: SensorState, msg: ClockReply, t4: float) -> None:
         try:
@@ -554,8 +636,7 @@ class Server:
                 )
 
     def _body(self, client: SensorState, msg: BodyFrameMessage, t_arr: float) -> None:
-        if not client.accept(msg.seq):
-            return  # a frame seen before this connection (a restarted client replaying)
+        client.last_seq = msg.seq  # increasing on this connection (the reader checked)
         late = client.lateness(msg.t_device_s, msg.t_host_s, t_arr)
         backlog = late > self.options.max_backlog_s
         if backlog:
@@ -705,6 +786,7 @@ class Server:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stop.wait(), 0.1)
             now = self.clock()
+            self.slots.prune(now)
             suppressed = self.refusals.summary(now)
             if suppressed:
                 log.warning(
@@ -714,6 +796,17 @@ class Server:
                     ", ".join(f"{c}: {n}" for c, n in sorted(suppressed.items())),
                 )
                 self._event("refused_summary", None, **suppressed)
+            for client in self.clients.values():
+                more = client.events.summary(now)
+                if more:
+                    log.warning(
+                        "sensor %s: %d more events in the last %g s, not logged one by one (%s)",
+                        client.sensor_id,
+                        sum(more.values()),
+                        client.events.window_s,
+                        ", ".join(f"{k}: {n}" for k, n in sorted(more.items())),
+                    )
+                    self._event("events_summary", client.sensor_id, **more)
             why = self.calibration.should_stop(now)
             if why is not None:
                 self._finish_calibration(abort=False, why=why)
