@@ -21,10 +21,13 @@ are mirrored by their signs, as ISB and OpenSim do):
 * foot: ``X`` from the heel to the toe, projected onto the floor in the static trial (the foot
   is taken as flat when standing, as Plug-in Gait's "foot flat" option does), ``Y`` up, ``Z``
   ``= X x Y``. Dorsiflexion is 0 when that line is perpendicular to the shank's ``Y``.
-* trunk (thorax): ``Y`` from the pelvis origin (or the spine base) to the shoulder midpoint
+* trunk (thorax): ``Y`` from the lumbar joint (:func:`lumbar_joint_centre`, the OpenSim gait
+  models' ``back`` joint; without ASIS markers the spine base) to the shoulder midpoint
   (or the spine joint between the shoulders); ``Z`` along the shoulder line (left to right),
   perpendicular to ``Y``; ``X = Y x Z``. (ISB's thorax uses C7, T8, IJ and PX; marker sets
-  without them, and skeletons, get this approximation.)
+  without them, and skeletons, get this approximation.) The shoulder markers slide with the
+  shoulder girdle, so in a marker file's motion the trunk frame is built in every frame from
+  the lumbar joint the pelvis carries and the shoulder markers, not carried as a rigid cluster.
 * upper arm (humerus): ``Y`` from the elbow centre to the shoulder (glenohumeral) centre; ``Z``
   from the epicondyles like the thigh (ISB 2005, first option); without them from the trunk.
 * forearm: ``Y`` from the wrist centre to the elbow centre; ``Z`` from the styloids (radial
@@ -146,6 +149,41 @@ def pelvis_frame_from_hips(hip_right: ArrayLike, hip_left: ArrayLike, up: ArrayL
     y = u - 0.5 * (hr + hl)
     y = _unit(y - (y * z).sum(-1, keepdims=True) * z)
     return _stack(np.cross(y, z), y, z)
+
+
+#: The lumbar (``back``) joint of the OpenSim gait models relative to the ASIS midpoint, in the
+#: pelvis frame, metres, for the generic model's ASIS width :data:`MODEL_ASIS_WIDTH_M`. From
+#: Rajagopal2016.osim (the same ``back`` joint as gait2392 and Hamner 2010): the joint's
+#: ``pelvis_offset`` at ``(-0.1007, 0.0815, 0)`` in the pelvis frame, the ASIS markers of the
+#: model's Rajagopal pipeline marker set at ``(0.013, 0.030, ±0.128)`` (its
+#: ``subject_scaled_walk_markerset.xml`` divided by the pelvis scale factors of its
+#: ``scaleSet_applied_walk.xml``). The same marker set puts both acromion markers straight above
+#: this joint (``x = 0`` in the torso frame), so the torso's long axis runs from it to the
+#: middle of the acromions.
+MODEL_LUMBAR_FROM_ASIS_M: Final = np.array([-0.1137, 0.0515, 0.0])
+MODEL_ASIS_WIDTH_M: Final = 0.256
+
+
+def lumbar_joint_centre(pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: float) -> Array:
+    """The lumbar joint centre (L5/S1, where the gait models' torso turns on the pelvis).
+
+    Parameters
+    ----------
+    pelvis : (..., 3, 3) float
+        ISB pelvis frame (:func:`pelvis_frame`).
+    asis_mid : (..., 3) float
+        The ASIS midpoint, metres.
+    asis_width_m : float
+        Distance between the ASIS markers, metres (scales the model's offset).
+
+    Returns
+    -------
+    (..., 3) float
+        ``asis_mid + pelvis @ MODEL_LUMBAR_FROM_ASIS_M * asis_width_m / MODEL_ASIS_WIDTH_M``.
+    """
+    off = MODEL_LUMBAR_FROM_ASIS_M * (asis_width_m / MODEL_ASIS_WIDTH_M)
+    out: Array = np.asarray(asis_mid, float) + np.asarray(pelvis, float) @ off
+    return out
 
 
 def lab_frame(forward: ArrayLike) -> Array:

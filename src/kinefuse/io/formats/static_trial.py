@@ -229,6 +229,23 @@ def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Arra
     return d if side == "right" or key == "foot" else -d
 
 
+def _trunk_frames(
+    motion: MarkerData, mmap: MarkerMap, pelvis_pose: tuple[Array, Array], lumbar: Array
+) -> Array | None:
+    """Trunk frames ``(T, 3, 3)`` built in every frame: ``Y`` from the lumbar joint (``lumbar``,
+    found in the static trial, carried by the pelvis) to the middle of the shoulders, ``Z``
+    along the shoulder line; None when the motion lacks the shoulders."""
+    pos, jn, _ = apply_marker_map(motion, mmap, partial=True)
+    idx = {n: i for i, n in enumerate(jn)}
+    if not {"ShoulderLeft", "ShoulderRight"} <= set(idx):
+        return None
+    r, p = pelvis_pose
+    lum = np.einsum("tij,j->ti", r, lumbar) + p
+    sl, sr = pos[:, idx["ShoulderLeft"]], pos[:, idx["ShoulderRight"]]
+    out: Array = an.frame_from_long_axis(0.5 * (sl + sr) - lum, sr - sl)
+    return out
+
+
 def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -> AnatomicalFrames:
     """ISB frames of every segment the map and the files allow (module docstring).
 
@@ -251,16 +268,29 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     up = np.array([0.0, 0.0, 1.0])
     pv = mmap.pelvis
     pelvis_pts = None if pv is None else _cluster_points(static, pv.marker_names())
+    asis_mid: Array | None = None
+    asis_width = 0.0
     if pv is not None and pelvis_pts is not None:
         pts = [_median(pelvis_pts[:, k]) for k in range(pelvis_pts.shape[1])]
         back = pts[2] if pv.sacrum else 0.5 * (pts[2] + pts[3])
-        static_frames["pelvis"], _ = an.pelvis_frame(pts[0], pts[1], back)
+        static_frames["pelvis"], asis_mid = an.pelvis_frame(pts[0], pts[1], back)
+        asis_width = float(np.linalg.norm(pts[0] - pts[1]))
     elif {"HipLeft", "HipRight", "SpineMid"} <= set(jp):
         static_frames["pelvis"] = an.pelvis_frame_from_hips(jp["HipRight"], jp["HipLeft"],
                                                             jp["SpineMid"])  # fmt: skip
     else:
         status["pelvis"] = "skipped: no pelvis markers ([pelvis]) and no hip joints in the map"
-    if {"SpineBase", "SpineShoulder", "ShoulderLeft", "ShoulderRight"} <= set(jp):
+    shoulders = {"ShoulderLeft", "ShoulderRight"} <= set(jp)
+    lumbar: Array | None = None
+    if shoulders and asis_mid is not None:
+        # the torso's long axis as the gait models define it: from the lumbar joint to the
+        # middle of the shoulders (anatomical.lumbar_joint_centre)
+        lumbar = an.lumbar_joint_centre(static_frames["pelvis"], asis_mid, asis_width)
+        static_frames["trunk"] = an.frame_from_long_axis(
+            0.5 * (jp["ShoulderLeft"] + jp["ShoulderRight"]) - lumbar,
+            jp["ShoulderRight"] - jp["ShoulderLeft"],
+        )
+    elif shoulders and {"SpineBase", "SpineShoulder"} <= set(jp):
         static_frames["trunk"] = an.frame_from_long_axis(
             jp["SpineShoulder"] - jp["SpineBase"], jp["ShoulderRight"] - jp["ShoulderLeft"]
         )
@@ -314,6 +344,14 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
             joints.append((lb.parent, seg, jp[lb.proximal]))
     poses = an.segment_poses(templates, moving, joints)
     frames = {seg: an.carry(static_frames[seg], np.eye(3), poses[seg][0]) for seg in templates}
+    if "trunk" in frames and lumbar is not None and "pelvis" in frames:
+        # the shoulder markers slide with the shoulder girdle (their spread changes by
+        # centimetres with the arm swing), so the trunk is not carried as a rigid cluster: its
+        # long axis is built in every frame, from the lumbar joint the pelvis carries to the
+        # middle of the shoulders, as in the static trial
+        trunk = _trunk_frames(motion, mmap, poses["pelvis"], lumbar)
+        if trunk is not None:
+            frames["trunk"] = trunk
     for seg in frames:
         status[seg] = "ok"
     for kind in (*_LEG, *_ARM):
