@@ -67,8 +67,10 @@ Array = NDArray[np.float64]
 __all__ = [
     "ANATOMICAL_ANGLES",
     "MAX_SKELETON_STATIC_MOTION_M",
+    "OPENSIM_MODELS",
     "OPENSIM_NAMES",
     "AnatomicalAngle",
+    "OpenSimModel",
     "SkeletonAnatomy",
     "anatomical_angles",
     "carry",
@@ -76,6 +78,7 @@ __all__ = [
     "jcs_zxy",
     "lab_frame",
     "opensim_angles",
+    "opensim_model",
     "pelvis_frame",
     "pelvis_frame_from_hips",
     "progression_axis",
@@ -384,10 +387,14 @@ def _side_table() -> tuple[AnatomicalAngle, ...]:
 #: Every anatomical angle: name, segments, component, sign and meaning (zero and sign).
 ANATOMICAL_ANGLES: Final[tuple[AnatomicalAngle, ...]] = _side_table()
 
-#: kinefuse anatomical name -> (OpenSim gait-model coordinate, sign factor). gait2354 (and
-#: gait2392, Rajagopal 2016) define every coordinate as a rotation about the axes above (Z
-#: flexion, X adduction, Y rotation, the left side's X and Y mirrored); knee_angle is negative
-#: in flexion; pelvis_tilt is a rotation about the lab's Z (positive: the pelvis's front up).
+#: kinefuse anatomical name -> (OpenSim coordinate, sign factor), for the gait models whose
+#: knee is negative in flexion. Every coordinate is a rotation of the distal body relative to
+#: the proximal one about the axes above, as the models' joints define them: ``hip_r``,
+#: ``acromial_r`` (``arm_flex`` about Z, ``arm_add`` about X, ``arm_rot`` about Y, body-fixed)
+#: and ``back`` (``lumbar_extension``, ``lumbar_bending``, ``lumbar_rotation``, torso relative
+#: to pelvis) are Z-X-Y sequences, the left side's X and Y axes mirrored; ``knee_angle`` and
+#: ``elbow_flex`` turn about the flexion axis (zero straight), ``ankle_angle`` about the ankle
+#: axis; ``pelvis_tilt`` is a rotation about the lab's Z (positive: the pelvis's front up).
 OPENSIM_NAMES: Final[dict[str, tuple[str, float]]] = {
     "pelvis_tilt": ("pelvis_tilt", -1.0),
     "pelvis_obliquity": ("pelvis_list", -1.0),
@@ -411,6 +418,52 @@ OPENSIM_NAMES: Final[dict[str, tuple[str, float]]] = {
         }.items()
     },
 }
+
+
+@dataclass(frozen=True)
+class OpenSimModel:
+    """An OpenSim model's coordinate conventions where they differ between models."""
+
+    name: str
+    knee_sign: float  # +1: knee_angle positive in flexion (Rajagopal 2016); -1: negative
+    arms: bool  # the model has arm coordinates (arm_flex/add/rot, elbow_flex)
+    source: str  # the model file the convention was read from
+
+
+#: The models ``--names opensim:MODEL`` knows (``--names opensim``: :data:`DEFAULT_OPENSIM`).
+#: Their knee is a ``CustomJoint`` whose flexion coordinate turns the tibia about the femur's
+#: Z axis: negative in flexion in gait2354, gait2392 and Hamner 2010 (``knee_angle`` range
+#: -120..10 deg), positive in Rajagopal 2016 (``knee_angle_r`` range 0..120 deg, the axis
+#: reversed). gait2354/gait2392 have a single torso with fixed arms; Hamner 2010 and Rajagopal
+#: 2016 have the ``acromial``, ``elbow`` and ``radioulnar`` joints.
+OPENSIM_MODELS: Final[dict[str, OpenSimModel]] = {
+    m.name: m
+    for m in (
+        OpenSimModel("gait2354", -1.0, False, "Models/Gait2354_Simbody/gait2354_simbody.osim"),
+        OpenSimModel("gait2392", -1.0, False, "Models/Gait2392_Simbody/gait2392_simbody.osim"),
+        OpenSimModel("hamner", -1.0, True, "Models/Hamner/FullBodyModel_Hamner2010_v2_0.osim"),
+        OpenSimModel("rajagopal", 1.0, True, "Models/Rajagopal/Rajagopal2016.osim"),
+    )
+}
+#: ``--names opensim`` alone: the gait-model knee (negative in flexion) with Hamner's arms.
+DEFAULT_OPENSIM: Final = "hamner"
+
+
+def opensim_model(names: str) -> OpenSimModel | None:
+    """The model of a ``--names`` value: ``kinefuse`` -> None, ``opensim`` ->
+    :data:`DEFAULT_OPENSIM`, ``opensim:MODEL`` -> that model (case-insensitive; also
+    ``rajagopal2016``); :class:`~kinefuse.errors.InputError` for anything else."""
+    text = names.strip().lower()
+    if text == "kinefuse":
+        return None
+    head, _, model = text.partition(":")
+    model = (model or DEFAULT_OPENSIM).removesuffix("2016").removesuffix("2010")
+    if head != "opensim" or model not in OPENSIM_MODELS:
+        raise InputError(
+            f"--names {names!r}: give kinefuse, opensim or opensim:MODEL with MODEL one of "
+            f"{', '.join(OPENSIM_MODELS)}"
+        )
+    return OPENSIM_MODELS[model]
 
 
 def anatomical_angles(
@@ -456,14 +509,27 @@ def anatomical_angles(
     return out
 
 
-def opensim_angles(angles: Mapping[str, Array]) -> dict[str, Array]:
-    """Anatomical angles under OpenSim's gait-model coordinate names and signs (degrees);
-    angles OpenSim's gait models do not have are left out."""
-    return {
-        OPENSIM_NAMES[k][0]: OPENSIM_NAMES[k][1] * np.asarray(v)
-        for k, v in angles.items()
-        if k in OPENSIM_NAMES
-    }
+def opensim_angles(
+    angles: Mapping[str, Array], model: str | OpenSimModel = DEFAULT_OPENSIM
+) -> dict[str, Array]:
+    """Anatomical angles under an OpenSim model's coordinate names and signs (degrees).
+
+    ``model``: a name of :data:`OPENSIM_MODELS` or one of its entries. Angles the model does
+    not have are left out (the arms for gait2354 and gait2392)."""
+    m = model if isinstance(model, OpenSimModel) else opensim_model(f"opensim:{model}")
+    assert m is not None
+    arm = ("arm_", "elbow_")
+    out = {}
+    for k, v in angles.items():
+        if k not in OPENSIM_NAMES:
+            continue
+        name, sign = OPENSIM_NAMES[k]
+        if name.startswith(arm) and not m.arms:
+            continue
+        if name.startswith("knee_angle"):
+            sign = m.knee_sign
+        out[name] = sign * np.asarray(v)
+    return out
 
 
 def segment_poses(
