@@ -41,11 +41,10 @@ def test_rajagopal_arm_and_trunk_targets_that_hold(rajagopal: Path, shared_data:
         assert (
             c[f"elbow_flex_{s}"]["r"] >= 0.95 and c[f"elbow_flex_{s}"]["rms_after_offset_deg"] <= 4
         )
-        assert c[f"arm_add_{s}"]["rms_after_offset_deg"] <= 4.0
+        assert c[f"arm_add_{s}"]["r"] >= 0.7 and c[f"arm_add_{s}"]["rms_after_offset_deg"] <= 4
         assert c[f"knee_angle_{s}"]["r"] >= 0.97  # Rajagopal's knee: positive in flexion
     e = c["elbow_flex_r"]
     assert abs(e["offset_deg"]) <= 5.0, e
-    assert c["arm_add_r"]["r"] >= 0.7
     assert c["lumbar_extension"]["r"] >= 0.8
     assert not any(v["wraps"] for v in c.values())
 
@@ -53,8 +52,7 @@ def test_rajagopal_arm_and_trunk_targets_that_hold(rajagopal: Path, shared_data:
 @pytest.mark.xfail(strict=True, reason="not met yet (docs/analysis.md, OpenSim coordinates)")
 @pytest.mark.parametrize(
     ("name", "key", "limit"),
-    [("elbow_flex_l", "offset_deg", 5.0), ("lumbar_extension", "offset_deg", 5.0),
-     ("arm_add_l", "r", 0.7)],
+    [("elbow_flex_l", "offset_deg", 5.0), ("lumbar_extension", "offset_deg", 5.0)],
 )  # fmt: skip
 def test_rajagopal_targets_not_met_yet(
     rajagopal: Path, shared_data: Path, name: str, key: str, limit: float
@@ -90,20 +88,22 @@ def test_unknown_names_are_refused_before_any_work(shared_data: Path, tmp_path: 
 
 
 def test_status_is_in_the_csv_the_json_and_the_report(rajagopal: Path) -> None:
-    """The left arm's axial rotation (OpenSim's arm_rot_l is 56 deg off too) leaves its range:
-    implausible, with the reason, in all three places; the knee is ok."""
+    """The left knee's anatomical adduction (varus) reaches 34 deg in swing, outside its range
+    on 15 % of the frames (the cross-talk of knee flexion into an axis a few degrees off):
+    implausible, with the reason, in all three places; the knee's flexion is ok."""
     from kinefuse.workflows.analyze_one import format_report
 
     rows = [ln.split(",") for ln in (rajagopal / "angles.csv").read_text().splitlines()]
     assert rows[0][-1] == "status"
     status = {(r[2], r[3]): r[6] for r in rows[1:]}
-    assert status[("shoulder_axial_rotation_left", "anatomical")] == "implausible"
+    assert status[("knee_adduction_left", "anatomical")] == "implausible"
     assert status[("knee_flexion_left", "anatomical")] == "ok"
+    assert status[("elbow_flexion_left", "anatomical")] == "ok"
     rep = json.loads((rajagopal / "analysis.json").read_text())
-    why = rep["angle_status"]["anatomical"]["shoulder_axial_rotation_left"]["reasons"]
-    assert any("outside its range" in w for w in why)
+    why = rep["angle_status"]["anatomical"]["knee_adduction_left"]["reasons"]
+    assert any("outside its range -20..20 deg" in w for w in why)
     assert rep["anatomical"]["angle_status"]["knee_flexion_left"] == "ok"
-    assert "implausible anatomical shoulder_axial_rotation_left: outside" in format_report(rep)
+    assert "implausible anatomical knee_adduction_left: outside" in format_report(rep)
 
 
 def test_a_wrapped_elbow_is_implausible(rajagopal: Path) -> None:

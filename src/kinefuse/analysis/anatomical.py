@@ -89,6 +89,11 @@ __all__ = [
 ]
 
 
+def unit(v: ArrayLike) -> Array:
+    """Unit vectors along the last axis; NaN where a vector is (near) zero or NaN."""
+    return _unit(np.asarray(v, dtype=np.float64))
+
+
 def _unit(v: Array) -> Array:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -120,6 +125,49 @@ def frame_from_long_axis(y_axis: ArrayLike, z_hint: ArrayLike) -> Array:
     x = _unit(np.cross(y, zh))
     z = np.cross(x, y)
     return _stack(x, y, z)
+
+
+#: Elbow flexion (degrees) below which the humerus keeps its carried second axis, and above
+#: which it takes the one from the forearm's plane (:func:`humerus_from_forearm`); between the
+#: two the axes are blended.
+ELBOW_PLANE_DEG: Final = (10.0, 25.0)
+
+
+def humerus_from_forearm(humerus: ArrayLike, forearm_y: ArrayLike) -> Array:
+    """The humerus frame with ISB's second definition of its ``Z`` (Wu et al. 2005, 2.3.2:
+    perpendicular to the plane of the humerus's and the forearm's long axes), where the elbow
+    is bent enough for that plane to exist.
+
+    The elbow is a hinge: its flexion turns the forearm in that plane, so this ``Z`` is the
+    flexion axis, elbow flexion is the angle between the two long axes (0 at full extension,
+    never wrapping) and the humerus's rotation about its long axis is read from the forearm
+    rather than from markers over the biceps. With the elbow straighter than
+    :data:`ELBOW_PLANE_DEG` the given (carried, epicondyle) ``Z`` is kept; in between the two
+    are blended.
+
+    Parameters
+    ----------
+    humerus : (..., 3, 3) float
+        The humerus frame (``Y`` its long axis, ``Z`` from the epicondyles, carried).
+    forearm_y : (..., 3) float
+        The forearm's long axis (wrist to elbow centre).
+
+    Returns
+    -------
+    (..., 3, 3) float
+    """
+    h = np.asarray(humerus, dtype=np.float64)
+    yh, zh = h[..., 1], h[..., 2]
+    yf = _unit(np.asarray(forearm_y, dtype=np.float64))
+    n = np.cross(yh, yf)
+    s = np.linalg.norm(n, axis=-1, keepdims=True)
+    lo, hi = np.sin(np.radians(ELBOW_PLANE_DEG))
+    w = np.clip((s - lo) / (hi - lo), 0.0, 1.0)
+    plane = _unit(n)
+    # the plane's normal points right for a bent elbow; keep the carried axis's side
+    plane = np.where((plane * zh).sum(-1, keepdims=True) < 0, -plane, plane)
+    z = np.where(w > 0, w * np.nan_to_num(plane) + (1 - w) * zh, zh)
+    return frame_from_long_axis(yh, z)
 
 
 def pelvis_frame(rasis: ArrayLike, lasis: ArrayLike, back: ArrayLike) -> tuple[Array, Array]:

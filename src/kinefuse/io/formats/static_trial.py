@@ -229,6 +229,78 @@ def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Arra
     return d if side == "right" or key == "foot" else -d
 
 
+#: Segments whose long axis is rebuilt in every frame from their two joint centres (the
+#: cluster keeps only the rotation about it): an arm's markers are not one rigid body (the upper
+#: arm's cluster holds the acromion marker, which moves with the shoulder girdle; the
+#: forearm's holds the lateral epicondyle, on the humerus, and markers on both the radius and
+#: the ulna, which pronation turns about each other).
+LONG_AXIS_PER_FRAME = ("upper_arm", "forearm")
+
+
+def _elbow_centres(
+    pos: Array, idx: dict[str, int], motion: MarkerData, static: MarkerData, mmap: MarkerMap
+) -> None:
+    """Put each elbow centre (in place in ``pos``) on the hinge's axis through the lateral
+    epicondyle marker, half the static trial's epicondyle width medial of it, where the elbow
+    is bent enough for the axis (the normal of the plane of the upper arm and the forearm) to
+    exist (:data:`kinefuse.analysis.anatomical.ELBOW_PLANE_DEG`, blended with the carried
+    centre below). A centre carried from the static trial by the upper arm's markers turns with
+    their error about the arm (the biceps marker over a contracting muscle, the acromion marker
+    on the shoulder girdle); the lateral marker sits on the axis itself."""
+    for side in ("right", "left"):
+        cap = side.capitalize()
+        pair = mmap.anatomy.get(f"elbow_axis_{side}")
+        need = (f"Shoulder{cap}", f"Elbow{cap}", f"Wrist{cap}")
+        if pair is None or not set(need) <= set(idx):
+            continue
+        lat_m, lat_s = _cluster_points(motion, pair[1:]), _cluster_points(static, pair)
+        if lat_m is None or lat_s is None:
+            continue
+        half = 0.5 * float(np.nanmedian(np.linalg.norm(lat_s[:, 1] - lat_s[:, 0], axis=-1)))
+        lat = lat_m[:, 0]
+        sh, wr = pos[:, idx[need[0]]], pos[:, idx[need[2]]]
+        carried = pos[:, idx[need[1]]].copy()
+        c = lat.copy()  # on the axis already: the bend is measured about it from the start
+        lo, hi = np.sin(np.radians(an.ELBOW_PLANE_DEG))
+        for _ in range(3):  # the axis from the centre, the centre from the axis
+            n = np.cross(an.unit(sh - c), an.unit(c - wr))
+            sn = np.linalg.norm(n, axis=-1, keepdims=True)
+            w = np.nan_to_num(np.clip((sn - lo) / (hi - lo), 0.0, 1.0))
+            medial = an.unit(n) * (-1.0 if side == "right" else 1.0)
+            hinge = lat + half * medial
+            c = np.where(w > 0, w * np.nan_to_num(hinge) + (1 - w) * carried, carried)
+        pos[:, idx[need[1]]] = c
+
+
+def _long_axes_per_frame(
+    motion: MarkerData,
+    static: MarkerData,
+    mmap: MarkerMap,
+    frames: dict[str, Array],
+    kinds: tuple[str, ...],
+) -> None:
+    """Rebuild the long axis ``Y`` of the ``kinds`` segments in ``frames`` (in place) from the
+    motion's joint centres of every frame (the elbow's on its hinge axis,
+    :func:`_elbow_centres`); ``Z`` stays the carried one made perpendicular, and the humerus's
+    comes from the forearm where the elbow is bent
+    (:func:`kinefuse.analysis.anatomical.humerus_from_forearm`)."""
+    pos, jn, _ = apply_marker_map(motion, mmap, partial=True)
+    idx = {n: i for i, n in enumerate(jn)}
+    _elbow_centres(pos, idx, motion, static, mmap)
+    for kind in kinds:
+        for side in ("right", "left"):
+            seg = f"{kind}_{side}"
+            lb = limb(seg)
+            if seg not in frames or lb.proximal not in idx or lb.distal not in idx:
+                continue
+            y = pos[:, idx[lb.proximal]] - pos[:, idx[lb.distal]]
+            frames[seg] = an.frame_from_long_axis(y, frames[seg][..., 2])
+    for side in ("right", "left"):
+        arm, fore = f"upper_arm_{side}", f"forearm_{side}"
+        if arm in frames and fore in frames:
+            frames[arm] = an.humerus_from_forearm(frames[arm], frames[fore][..., 1])
+
+
 def _trunk_frames(
     motion: MarkerData, mmap: MarkerMap, pelvis_pose: tuple[Array, Array], lumbar: Array
 ) -> Array | None:
@@ -352,6 +424,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         trunk = _trunk_frames(motion, mmap, poses["pelvis"], lumbar)
         if trunk is not None:
             frames["trunk"] = trunk
+    _long_axes_per_frame(motion, st_aug, mmap, frames, LONG_AXIS_PER_FRAME)
     for seg in frames:
         status[seg] = "ok"
     for kind in (*_LEG, *_ARM):
