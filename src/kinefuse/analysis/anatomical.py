@@ -75,6 +75,8 @@ __all__ = [
     "anatomical_angles",
     "carry",
     "frame_from_long_axis",
+    "hinge_axis",
+    "humerus_from_forearm",
     "jcs_zxy",
     "lab_frame",
     "opensim_angles",
@@ -133,17 +135,56 @@ def frame_from_long_axis(y_axis: ArrayLike, z_hint: ArrayLike) -> Array:
 ELBOW_PLANE_DEG: Final = (10.0, 25.0)
 
 
-def humerus_from_forearm(humerus: ArrayLike, forearm_y: ArrayLike) -> Array:
-    """The humerus frame with ISB's second definition of its ``Z`` (Wu et al. 2005, 2.3.2:
-    perpendicular to the plane of the humerus's and the forearm's long axes), where the elbow
-    is bent enough for that plane to exist.
+def hinge_axis(
+    humerus_y: ArrayLike, forearm_y: ArrayLike, carrying_rad: float = 0.0
+) -> tuple[Array, Array]:
+    """The elbow's flexion axis from the two long axes, for a hinge with a constant carrying
+    angle.
 
-    The elbow is a hinge: its flexion turns the forearm in that plane, so this ``Z`` is the
-    flexion axis, elbow flexion is the angle between the two long axes (0 at full extension,
-    never wrapping) and the humerus's rotation about its long axis is read from the forearm
-    rather than from markers over the biceps. With the elbow straighter than
-    :data:`ELBOW_PLANE_DEG` the given (carried, epicondyle) ``Z`` is kept; in between the two
-    are blended.
+    A hinge about the humerus's ``Z`` with the forearm ``carrying_rad`` out of the humerus's
+    ``X-Y`` plane (the ``b`` of :func:`jcs_zxy`) keeps ``Z . Yf = sin(b)``; with ``Z``
+    perpendicular to ``Yh`` that fixes ``Z`` from ``Yh`` and ``Yf`` alone where the elbow is
+    bent (``b = 0``: the normal of their plane, ISB 2005's second humerus definition).
+
+    Parameters
+    ----------
+    humerus_y, forearm_y : (..., 3) float
+        The long axes (elbow to shoulder, wrist to elbow).
+    carrying_rad : float
+        ``b``, radians (from the static trial's epicondyle frames).
+
+    Returns
+    -------
+    axis : (..., 3) float
+        Unit ``Z`` (to the right for a bent elbow), NaN where undefined.
+    weight : (..., 1) float
+        How far the elbow is bent for the axis to hold: 0 straighter than the first of
+        :data:`ELBOW_PLANE_DEG` (beyond the carrying angle), 1 beyond the second.
+    """
+    yh = _unit(np.asarray(humerus_y, dtype=np.float64))
+    yf = _unit(np.asarray(forearm_y, dtype=np.float64))
+    n = np.cross(yh, yf)
+    beta = np.linalg.norm(n, axis=-1, keepdims=True)  # sine of the angle between the axes
+    u = _unit(yf - (yf * yh).sum(-1, keepdims=True) * yh)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sphi = np.clip(np.sin(carrying_rad) / beta, -1.0, 1.0)
+    axis = np.sqrt(1.0 - sphi**2) * _unit(n) + sphi * u
+    lo, hi = np.sin(np.radians(ELBOW_PLANE_DEG) + abs(carrying_rad))
+    w = np.nan_to_num(np.clip((beta - lo) / (hi - lo), 0.0, 1.0))
+    return axis, w
+
+
+def humerus_from_forearm(
+    humerus: ArrayLike, forearm_y: ArrayLike, carrying_rad: float = 0.0
+) -> Array:
+    """The humerus frame whose ``Z`` is the elbow's hinge axis (:func:`hinge_axis`) where the
+    elbow is bent enough for it to be defined.
+
+    The elbow is a hinge: its flexion turns the forearm about this axis, so elbow flexion
+    reads the hinge's own angle (0 at full extension, never wrapping) and the humerus's
+    rotation about its long axis is read from the forearm rather than from markers over the
+    biceps. With the elbow straighter than :data:`ELBOW_PLANE_DEG` the given (carried,
+    epicondyle) ``Z`` is kept; in between the two are blended.
 
     Parameters
     ----------
@@ -151,6 +192,8 @@ def humerus_from_forearm(humerus: ArrayLike, forearm_y: ArrayLike) -> Array:
         The humerus frame (``Y`` its long axis, ``Z`` from the epicondyles, carried).
     forearm_y : (..., 3) float
         The forearm's long axis (wrist to elbow centre).
+    carrying_rad : float
+        The elbow's carrying angle ``b`` in the static trial, radians.
 
     Returns
     -------
@@ -158,15 +201,8 @@ def humerus_from_forearm(humerus: ArrayLike, forearm_y: ArrayLike) -> Array:
     """
     h = np.asarray(humerus, dtype=np.float64)
     yh, zh = h[..., 1], h[..., 2]
-    yf = _unit(np.asarray(forearm_y, dtype=np.float64))
-    n = np.cross(yh, yf)
-    s = np.linalg.norm(n, axis=-1, keepdims=True)
-    lo, hi = np.sin(np.radians(ELBOW_PLANE_DEG))
-    w = np.clip((s - lo) / (hi - lo), 0.0, 1.0)
-    plane = _unit(n)
-    # the plane's normal points right for a bent elbow; keep the carried axis's side
-    plane = np.where((plane * zh).sum(-1, keepdims=True) < 0, -plane, plane)
-    z = np.where(w > 0, w * np.nan_to_num(plane) + (1 - w) * zh, zh)
+    axis, w = hinge_axis(yh, forearm_y, carrying_rad)
+    z = np.where(w > 0, w * np.nan_to_num(axis) + (1 - w) * zh, zh)
     return frame_from_long_axis(yh, z)
 
 
@@ -428,6 +464,11 @@ def _side_table() -> tuple[AnatomicalAngle, ...]:
                             f"upper_arm_{side}", 2, s, "positive internal rotation"),
             AnatomicalAngle(f"elbow_flexion_{side}", f"upper_arm_{side}", f"forearm_{side}", 0,
                             1.0, "positive flexion; 0 straight"),
+            AnatomicalAngle(f"elbow_adduction_{side}", f"upper_arm_{side}", f"forearm_{side}", 1,
+                            s, "positive adduction (varus); the carrying angle reads negative"),
+            AnatomicalAngle(f"forearm_pronation_{side}", f"upper_arm_{side}", f"forearm_{side}",
+                            2, s, "positive pronation; 0 in the anatomical position (palm "
+                            "forward); only where the forearm has two styloid markers"),
         ]  # fmt: skip
     return tuple(out)
 
@@ -515,7 +556,7 @@ def opensim_model(names: str) -> OpenSimModel | None:
 
 
 def anatomical_angles(
-    frames: Mapping[str, Array], lab: ArrayLike | None = None
+    frames: Mapping[str, Array], lab: ArrayLike | None = None, skip: Sequence[str] = ()
 ) -> dict[str, Array]:
     """Every angle of :data:`ANATOMICAL_ANGLES` whose two frames are given, degrees.
 
@@ -526,6 +567,9 @@ def anatomical_angles(
         ``upper_arm_left``, ``forearm_left``, and the right side) -> its anatomical frame.
     lab : (3, 3) float, optional
         The lab frame of the pelvis angles (:func:`lab_frame`); without it no pelvis angle.
+    skip : sequence of str
+        Angles not to give (their frames cannot define them, e.g. ``forearm_pronation_left``
+        without styloid markers).
 
     Returns
     -------
@@ -542,7 +586,7 @@ def anatomical_angles(
     out: dict[str, Array] = {}
     cache: dict[tuple[str, str], tuple[Array, Array, Array]] = {}
     for ang in ANATOMICAL_ANGLES:
-        if ang.proximal not in have or ang.distal not in have:
+        if ang.proximal not in have or ang.distal not in have or ang.name in skip:
             continue
         key = (ang.proximal, ang.distal)
         if key not in cache:

@@ -109,6 +109,8 @@ ANGLE_RANGES_DEG: dict[str, tuple[float, float]] = {
     "shoulder_elevation": (0.0, 180.0),
     "shoulder_axial_rotation": (-90.0, 70.0),
     "elbow_flexion": (-10.0, 150.0),
+    "elbow_adduction": (-30.0, 20.0),
+    "forearm_pronation": (-20.0, 180.0),
 }
 #: Degrees an angle may exceed its range by before a frame counts as outside it.
 RANGE_MARGIN_DEG = 10.0

@@ -227,7 +227,7 @@ def _markers_with_static(
         path=path,
         kind="markers",
         seq=seq,
-        anatomical=anatomical_angles(af.frames, af.lab),
+        anatomical=anatomical_angles(af.frames, af.lab, af.undefined),
         anatomical_status=af.status,
         static_source=where,
         unbuilt_joints=unbuilt_joints(markers, mmap) or None,

@@ -212,6 +212,8 @@ class AnatomicalFrames:
     frames: dict[str, Array]  # segment -> (T, 3, 3)
     lab: Array  # (3, 3)
     status: dict[str, str] = field(default_factory=dict)  # segment -> "ok" or the reason
+    #: angles the frames do not define (forearm pronation without two styloid markers)
+    undefined: tuple[str, ...] = ()
 
 
 def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Array | None:
@@ -238,15 +240,20 @@ LONG_AXIS_PER_FRAME = ("upper_arm", "forearm")
 
 
 def _elbow_centres(
-    pos: Array, idx: dict[str, int], motion: MarkerData, static: MarkerData, mmap: MarkerMap
+    pos: Array,
+    idx: dict[str, int],
+    motion: MarkerData,
+    static: MarkerData,
+    mmap: MarkerMap,
+    carrying: dict[str, float],
 ) -> None:
-    """Put each elbow centre (in place in ``pos``) on the hinge's axis through the lateral
-    epicondyle marker, half the static trial's epicondyle width medial of it, where the elbow
-    is bent enough for the axis (the normal of the plane of the upper arm and the forearm) to
-    exist (:data:`kinefuse.analysis.anatomical.ELBOW_PLANE_DEG`, blended with the carried
-    centre below). A centre carried from the static trial by the upper arm's markers turns with
-    their error about the arm (the biceps marker over a contracting muscle, the acromion marker
-    on the shoulder girdle); the lateral marker sits on the axis itself."""
+    """Put each elbow centre (in place in ``pos``) on the hinge's axis
+    (:func:`kinefuse.analysis.anatomical.hinge_axis`) through the lateral epicondyle marker,
+    half the static trial's epicondyle width medial of it, where the elbow is bent enough for
+    the axis to be defined (blended with the carried centre below). A centre carried from the
+    static trial by the upper arm's markers turns with their error about the arm (the biceps
+    marker over a contracting muscle, the acromion marker on the shoulder girdle); the lateral
+    marker sits on the axis itself."""
     for side in ("right", "left"):
         cap = side.capitalize()
         pair = mmap.anatomy.get(f"elbow_axis_{side}")
@@ -261,13 +268,9 @@ def _elbow_centres(
         sh, wr = pos[:, idx[need[0]]], pos[:, idx[need[2]]]
         carried = pos[:, idx[need[1]]].copy()
         c = lat.copy()  # on the axis already: the bend is measured about it from the start
-        lo, hi = np.sin(np.radians(an.ELBOW_PLANE_DEG))
         for _ in range(3):  # the axis from the centre, the centre from the axis
-            n = np.cross(an.unit(sh - c), an.unit(c - wr))
-            sn = np.linalg.norm(n, axis=-1, keepdims=True)
-            w = np.nan_to_num(np.clip((sn - lo) / (hi - lo), 0.0, 1.0))
-            medial = an.unit(n) * (-1.0 if side == "right" else 1.0)
-            hinge = lat + half * medial
+            axis, w = an.hinge_axis(sh - c, c - wr, carrying.get(side, 0.0))
+            hinge = lat + half * axis * (-1.0 if side == "right" else 1.0)  # medial
             c = np.where(w > 0, w * np.nan_to_num(hinge) + (1 - w) * carried, carried)
         pos[:, idx[need[1]]] = c
 
@@ -278,6 +281,7 @@ def _long_axes_per_frame(
     mmap: MarkerMap,
     frames: dict[str, Array],
     kinds: tuple[str, ...],
+    carrying: dict[str, float],
 ) -> None:
     """Rebuild the long axis ``Y`` of the ``kinds`` segments in ``frames`` (in place) from the
     motion's joint centres of every frame (the elbow's on its hinge axis,
@@ -286,7 +290,7 @@ def _long_axes_per_frame(
     (:func:`kinefuse.analysis.anatomical.humerus_from_forearm`)."""
     pos, jn, _ = apply_marker_map(motion, mmap, partial=True)
     idx = {n: i for i, n in enumerate(jn)}
-    _elbow_centres(pos, idx, motion, static, mmap)
+    _elbow_centres(pos, idx, motion, static, mmap, carrying)
     for kind in kinds:
         for side in ("right", "left"):
             seg = f"{kind}_{side}"
@@ -294,11 +298,19 @@ def _long_axes_per_frame(
             if seg not in frames or lb.proximal not in idx or lb.distal not in idx:
                 continue
             y = pos[:, idx[lb.proximal]] - pos[:, idx[lb.distal]]
-            frames[seg] = an.frame_from_long_axis(y, frames[seg][..., 2])
+            z = frames[seg][..., 2]
+            pair = mmap.anatomy.get(f"wrist_axis_{side}") if kind == "forearm" else None
+            sty = None if pair is None else _cluster_points(motion, pair)
+            if sty is not None:  # ulnar to radial styloid, to the right on both sides
+                d = sty[:, 1] - sty[:, 0]
+                z = np.where(np.isfinite(d), d if side == "right" else -d, z)
+            frames[seg] = an.frame_from_long_axis(y, z)
     for side in ("right", "left"):
         arm, fore = f"upper_arm_{side}", f"forearm_{side}"
         if arm in frames and fore in frames:
-            frames[arm] = an.humerus_from_forearm(frames[arm], frames[fore][..., 1])
+            frames[arm] = an.humerus_from_forearm(
+                frames[arm], frames[fore][..., 1], carrying.get(side, 0.0)
+            )
 
 
 def _trunk_frames(
@@ -424,7 +436,13 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         trunk = _trunk_frames(motion, mmap, poses["pelvis"], lumbar)
         if trunk is not None:
             frames["trunk"] = trunk
-    _long_axes_per_frame(motion, st_aug, mmap, frames, LONG_AXIS_PER_FRAME)
+    # each elbow's carrying angle in the static trial (its epicondyle frames): the hinge's
+    carrying = {}
+    for side in ("right", "left"):
+        arm, fore = (static_frames.get(f"{k}_{side}") for k in ("upper_arm", "forearm"))
+        if arm is not None and fore is not None:
+            carrying[side] = float(an.jcs_zxy(arm, fore)[1])
+    _long_axes_per_frame(motion, st_aug, mmap, frames, LONG_AXIS_PER_FRAME, carrying)
     for seg in frames:
         status[seg] = "ok"
     for kind in (*_LEG, *_ARM):
@@ -440,4 +458,10 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         lab = an.lab_frame(an.progression_axis(disp, facing))
     else:
         lab = an.lab_frame(np.array([1.0, 0.0, 0.0]))
-    return AnatomicalFrames(frames=frames, lab=lab, status=status)
+    undefined = tuple(
+        f"forearm_pronation_{side}"
+        for side in ("right", "left")
+        if mmap.anatomy.get(f"wrist_axis_{side}") is None
+        or _cluster_points(motion, mmap.anatomy[f"wrist_axis_{side}"]) is None
+    )
+    return AnatomicalFrames(frames=frames, lab=lab, status=status, undefined=undefined)
