@@ -119,3 +119,27 @@ def test_a_wrapped_elbow_is_implausible(rajagopal: Path) -> None:
     jump = v.copy()
     jump[v.size // 2] += 60.0
     assert any("jumps faster" in w for w in angle_status("elbow_flexion_right", t, jump))
+
+
+@pytest.mark.parametrize("clip", ["motion/cmu/02_walk_a.amc", "motion/cmu/01_01.bvh"])
+def test_pronation_where_the_forearm_has_two_styloids(
+    clip: str, shared_data: Path, tmp_path: Path, rajagopal: Path
+) -> None:
+    """The Gait2354 set (two wrist markers) placed on a real clip gives back the clip's forearm
+    pronation and its elbow as a hinge; the Rajagopal set (one wrist marker) has no pronation."""
+    from kinefuse.evaluation.marker_placement import gait2354_trial, write_trc
+    from kinefuse.workflows.analyze import load_input
+
+    tr = gait2354_trial(shared_data / clip)
+    t_static = np.arange(tr.static.shape[0]) / tr.rate_hz
+    static = write_trc(tmp_path / "static.trc", t_static, tr.names, tr.static)
+    walk = write_trc(tmp_path / "walk.trc", tr.t_s, tr.motion_names, tr.motion)
+    inp = load_input(walk, marker_map="gait2354", static=static)
+    assert inp.anatomical is not None
+    for s in ("left", "right"):
+        for k, limit in (("forearm_pronation", 2.0), ("elbow_flexion", 0.5)):
+            d = inp.anatomical[f"{k}_{s}"] - tr.true_angles[f"{k}_{s}"]
+            assert np.sqrt(np.nanmean(d**2)) < limit, (k, s, np.sqrt(np.nanmean(d**2)))
+    csv = (rajagopal / "angles.csv").read_text()
+    assert ",elbow_flexion_left,anatomical," in csv
+    assert ",forearm_pronation_left,anatomical," not in csv
