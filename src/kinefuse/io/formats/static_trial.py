@@ -10,6 +10,12 @@ The anatomical frames (:mod:`kinefuse.analysis.anatomical`) are built in the sta
 the map's joint centres (Kinect joints ``HipRight``, ``KneeRight``, ...) and its ``[anatomy]``
 axis landmarks, and carried by the segment's cluster; every cluster is fitted to its own markers
 plus the joint centres its neighbours carry (:func:`~kinefuse.analysis.anatomical.segment_poses`).
+The trunk and the arms are not rigid clusters (the shoulder markers slide with the shoulder
+girdle; an arm's clusters hold the acromion, the biceps, the lateral epicondyle and markers on
+both forearm bones): the trunk's long axis is built in every frame from the lumbar joint the
+pelvis carries to the middle of the shoulders, the arms' long axes from their joint centres,
+and the elbow as a hinge with the static trial's carrying angle
+(:func:`~kinefuse.analysis.anatomical.hinge_axis`).
 
 Checks (each an :class:`~kinefuse.errors.InputError` naming what came and what to do):
 
@@ -261,8 +267,8 @@ def _elbow_centres(
         if pair is None or not set(need) <= set(idx):
             continue
         lat_m, lat_s = _cluster_points(motion, pair[1:]), _cluster_points(static, pair)
-        if lat_m is None or lat_s is None:
-            continue
+        if lat_m is None or lat_s is None or _cluster_points(motion, pair) is not None:
+            continue  # no lateral marker, or both epicondyles: the map's centre is measured
         half = 0.5 * float(np.nanmedian(np.linalg.norm(lat_s[:, 1] - lat_s[:, 0], axis=-1)))
         lat = lat_m[:, 0]
         sh, wr = pos[:, idx[need[0]]], pos[:, idx[need[2]]]
@@ -276,22 +282,23 @@ def _elbow_centres(
 
 
 def _long_axes_per_frame(
+    pos: Array,
+    idx: dict[str, int],
     motion: MarkerData,
     static: MarkerData,
     mmap: MarkerMap,
     frames: dict[str, Array],
-    kinds: tuple[str, ...],
     carrying: dict[str, float],
 ) -> None:
-    """Rebuild the long axis ``Y`` of the ``kinds`` segments in ``frames`` (in place) from the
-    motion's joint centres of every frame (the elbow's on its hinge axis,
-    :func:`_elbow_centres`); ``Z`` stays the carried one made perpendicular, and the humerus's
-    comes from the forearm where the elbow is bent
+    """Rebuild the long axis ``Y`` of the :data:`LONG_AXIS_PER_FRAME` segments in ``frames``
+    (in place) from the motion's joint centres ``pos`` of every frame (the elbow's on its hinge
+    axis, :func:`_elbow_centres`); ``Z`` stays the carried one made perpendicular (the
+    forearm's from its two styloid markers where the map's ``wrist_axis`` has them), and the
+    humerus's comes from the forearm where the elbow is bent
     (:func:`kinefuse.analysis.anatomical.humerus_from_forearm`)."""
-    pos, jn, _ = apply_marker_map(motion, mmap, partial=True)
-    idx = {n: i for i, n in enumerate(jn)}
+    pos = pos.copy()
     _elbow_centres(pos, idx, motion, static, mmap, carrying)
-    for kind in kinds:
+    for kind in LONG_AXIS_PER_FRAME:
         for side in ("right", "left"):
             seg = f"{kind}_{side}"
             lb = limb(seg)
@@ -314,13 +321,12 @@ def _long_axes_per_frame(
 
 
 def _trunk_frames(
-    motion: MarkerData, mmap: MarkerMap, pelvis_pose: tuple[Array, Array], lumbar: Array
+    pos: Array, idx: dict[str, int], pelvis_pose: tuple[Array, Array], lumbar: Array
 ) -> Array | None:
     """Trunk frames ``(T, 3, 3)`` built in every frame: ``Y`` from the lumbar joint (``lumbar``,
-    found in the static trial, carried by the pelvis) to the middle of the shoulders, ``Z``
-    along the shoulder line; None when the motion lacks the shoulders."""
-    pos, jn, _ = apply_marker_map(motion, mmap, partial=True)
-    idx = {n: i for i, n in enumerate(jn)}
+    found in the static trial, carried by the pelvis) to the middle of the shoulders (joint
+    centres ``pos``), ``Z`` along the shoulder line; None when the motion lacks the
+    shoulders."""
     if not {"ShoulderLeft", "ShoulderRight"} <= set(idx):
         return None
     r, p = pelvis_pose
@@ -428,12 +434,15 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
             joints.append((lb.parent, seg, jp[lb.proximal]))
     poses = an.segment_poses(templates, moving, joints)
     frames = {seg: an.carry(static_frames[seg], np.eye(3), poses[seg][0]) for seg in templates}
+    # the motion's joint centres in every frame: the trunk and the arms are built from them
+    mpos, mjn, _ = apply_marker_map(motion, mmap, partial=True)
+    midx = {n: i for i, n in enumerate(mjn)}
     if "trunk" in frames and lumbar is not None and "pelvis" in frames:
         # the shoulder markers slide with the shoulder girdle (their spread changes by
         # centimetres with the arm swing), so the trunk is not carried as a rigid cluster: its
         # long axis is built in every frame, from the lumbar joint the pelvis carries to the
         # middle of the shoulders, as in the static trial
-        trunk = _trunk_frames(motion, mmap, poses["pelvis"], lumbar)
+        trunk = _trunk_frames(mpos, midx, poses["pelvis"], lumbar)
         if trunk is not None:
             frames["trunk"] = trunk
     # each elbow's carrying angle in the static trial (its epicondyle frames): the hinge's
@@ -442,7 +451,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         arm, fore = (static_frames.get(f"{k}_{side}") for k in ("upper_arm", "forearm"))
         if arm is not None and fore is not None:
             carrying[side] = float(an.jcs_zxy(arm, fore)[1])
-    _long_axes_per_frame(motion, st_aug, mmap, frames, LONG_AXIS_PER_FRAME, carrying)
+    _long_axes_per_frame(mpos, midx, motion, st_aug, mmap, frames, carrying)
     for seg in frames:
         status[seg] = "ok"
     for kind in (*_LEG, *_ARM):
