@@ -143,3 +143,22 @@ def test_pronation_where_the_forearm_has_two_styloids(
     csv = (rajagopal / "angles.csv").read_text()
     assert ",elbow_flexion_left,anatomical," in csv
     assert ",forearm_pronation_left,anatomical," not in csv
+
+
+def test_the_html_report_has_the_status_column(rajagopal: Path) -> None:
+    """report.html's angle table: the walk's real curves, one implausible (with why), one ok."""
+    from kinefuse.report.html import angle_status_table
+
+    rows = [ln.split(",") for ln in (rajagopal / "angles.csv").read_text().splitlines()[1:]]
+    curves: dict[str, list[float]] = {}
+    times: list[float] = []
+    for r in rows:
+        if r[3] != "anatomical" or r[2] not in ("knee_adduction_left", "knee_flexion_left"):
+            continue
+        curves.setdefault(r[2], []).append(float(r[4]) if r[4] else np.nan)
+        if r[2] == "knee_flexion_left":
+            times.append(float(r[0]))
+    html = angle_status_table(np.array(times), {k: np.array(v) for k, v in curves.items()})
+    assert "<th>status</th>" in html
+    assert "<td>knee_flexion_left</td><td>ok</td>" in html
+    assert "<td>knee_adduction_left</td><td>implausible</td><td>outside its range" in html

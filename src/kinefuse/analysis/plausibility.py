@@ -17,6 +17,7 @@ The thresholds are defaults of ours, not fitted to any data.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -178,10 +179,10 @@ def angle_status(name: str, t_s: NDArray[np.float64], deg: NDArray[np.float64]) 
 
 def angle_statuses(
     t_s: NDArray[np.float64], angles_deg: dict[str, NDArray[np.float64]]
-) -> dict[str, dict[str, object]]:
+) -> dict[str, dict[str, Any]]:
     """:func:`angle_status` of every angle: ``{"status": "ok" | "implausible", "reasons":
     [...]}`` (``"no data"`` for an angle without a value)."""
-    out: dict[str, dict[str, object]] = {}
+    out: dict[str, dict[str, Any]] = {}
     for name, v in angles_deg.items():
         if not np.isfinite(v).any():
             out[name] = {"status": "no data", "reasons": []}
