@@ -97,6 +97,9 @@ def test_status_is_in_the_csv_the_json_and_the_report(rajagopal: Path) -> None:
     why = rep["angle_status"]["anatomical"]["knee_adduction_left"]["reasons"]
     assert any("outside its range -20..20 deg" in w for w in why)
     assert rep["anatomical"]["angle_status"]["knee_flexion_left"] == "ok"
+    joints = rep["joint_status"]["anatomical"]
+    assert joints["KneeLeft"].startswith("implausible: knee_adduction_left: outside its range")
+    assert joints["KneeRight"] == "ok" and joints["pelvis"] == "ok"
     assert "implausible anatomical knee_adduction_left: outside" in format_report(rep)
 
 

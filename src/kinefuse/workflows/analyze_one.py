@@ -293,6 +293,8 @@ def analyse_one(
         m: {k: v for k, v in sorted(st.items()) if v["status"] != "ok"}
         for m, st in statuses.items()
     }
+    # per joint: implausible when one of its angles is, with the angles' reasons
+    report["joint_status"] = {m: _joint_status(st) for m, st in statuses.items()}
     report["angle_status_rule"] = (
         "implausible: the angle wraps through ±180 deg, jumps faster than a body moves, or is "
         "outside its physiological range on more than 5 % of its frames "
@@ -401,6 +403,20 @@ def _write_outputs(
             )
         )
     return written, plan.summary()
+
+
+def _joint_status(statuses: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """Joint (``angles.csv``'s joint column; ``pelvis`` for the pelvis's angles) -> ``ok``, or
+    ``implausible: ANGLE: reasons | ...`` when one of its angles is."""
+    out: dict[str, list[str]] = {}
+    for k, v in sorted(statuses.items()):
+        if v["status"] == "no data":
+            continue
+        j = angle_joint(k)
+        bad = out.setdefault(k.split("_", 1)[0] if j == "unknown" else j, [])
+        if v["status"] == "implausible":
+            bad.append(f"{k}: {'; '.join(v['reasons'])}")
+    return {j: "implausible: " + " | ".join(b) if b else "ok" for j, b in out.items()}
 
 
 def _status_of(statuses: dict[str, dict[str, dict[str, Any]]] | None, key: str) -> str:
