@@ -3,7 +3,7 @@
 Analyses each shared OpenSim walk with its static trial (``kinefuse analyze WALK --static STATIC
 --names opensim:MODEL``) and compares ``angles.mot`` with OpenSim's IK of the same walk by
 coordinate name: per coordinate the correlation r, the mean offset (kinefuse - OpenSim), the RMS
-after removing it and the raw RMSE, degrees, and whether it wraps; then the issue-43 targets it
+after removing it and the raw RMSE, degrees, and whether it wraps; then the acceptance targets it
 misses. The references: the Gait2354 walk's IK (gait2354 model, no arms) and the Rajagopal
 walk's IK (Rajagopal 2016 model, arms included; ``../shared/data/MANIFEST.md``). Nothing is
 fitted to these walks: ISB frames, Harrington's hip centres, the models' joint definitions.

@@ -168,10 +168,11 @@ def threshold_failures(c: dict[str, dict[str, Any]]) -> list[str]:
 
 
 def arm_trunk_failures(c: dict[str, dict[str, Any]]) -> list[str]:
-    """Issue 43's targets against OpenSim IK, on the coordinates the reference has: hip and knee
-    r >= 0.97, |offset| <= 5, RMS after offset <= 4 deg; ankle r >= 0.9; ``elbow_flex`` r >=
-    0.95, |offset| <= 5, RMS <= 4; ``arm_flex`` r >= 0.95, |offset| <= 8, RMS <= 4; ``arm_add``
-    r >= 0.7, RMS <= 4; ``lumbar_extension`` |offset| <= 5, r >= 0.8; no coordinate wraps.
+    """The leg, arm and trunk targets against OpenSim IK, on the coordinates the reference
+    has: hip and knee r >= 0.97, |offset| <= 5, RMS after offset <= 4 deg; ankle r >= 0.9;
+    ``elbow_flex`` r >= 0.95, |offset| <= 5, RMS <= 4; ``arm_flex`` r >= 0.95, |offset| <= 8,
+    RMS <= 4; ``arm_add`` r >= 0.7, RMS <= 4; ``lumbar_extension`` |offset| <= 5, r >= 0.8; no
+    coordinate wraps.
     Returns the misses, with the values."""
     bad = []
     for name, v in c.items():
