@@ -196,3 +196,29 @@ def test_held_out_variants_hold_the_arm_targets(
     assert [m for m in missed if not m.startswith(f"elbow_flex_{side}: |offset|")] == []
     assert abs(c[f"elbow_flex_{side}"]["offset_deg"]) < 5.5  # degrees: the margin, above
     assert c["lumbar_extension"]["r"] >= 0.8
+
+
+def test_hinge_axis_recovers_the_flexion_axis(rng: np.random.Generator) -> None:
+    """A forearm turned about the humerus's Z by a, at a carrying angle b: the hinge axis from
+    the two long axes and b is that Z, and the humerus frame built on it reads a back."""
+    from kinefuse.analysis.anatomical import hinge_axis, humerus_from_forearm, jcs_zxy
+    from kinefuse.geometry.rotations import rot_x, rot_z
+
+    for _ in range(20):
+        hum = rot_z(rng.uniform(-1, 1)) @ rot_x(rng.uniform(-1, 1))
+        a, b = rng.uniform(np.radians(30), np.radians(140)), rng.uniform(-0.25, 0.25)
+        fore = hum @ rot_z(a) @ rot_x(b)
+        axis, w = hinge_axis(hum[:, 1], fore[:, 1], b)
+        np.testing.assert_allclose(axis, hum[:, 2], atol=1e-9)
+        assert w[0] == 1.0
+        # the carried Z 40 deg off about the long axis: the hinge takes over
+        off = hum @ np.array(
+            [[np.cos(0.7), 0, np.sin(0.7)], [0, 1, 0], [-np.sin(0.7), 0, np.cos(0.7)]]
+        )
+        got = humerus_from_forearm(off, fore[:, 1], b)
+        assert float(jcs_zxy(got, fore)[0]) == pytest.approx(a, abs=1e-9)
+    # a straight elbow: no axis, the carried one stays
+    hum = np.eye(3)
+    _, w = hinge_axis(hum[:, 1], hum[:, 1], 0.0)
+    assert w[0] == 0.0
+    np.testing.assert_allclose(humerus_from_forearm(hum, hum[:, 1]), hum, atol=1e-12)

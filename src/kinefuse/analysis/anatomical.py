@@ -73,6 +73,7 @@ __all__ = [
     "OpenSimModel",
     "SkeletonAnatomy",
     "anatomical_angles",
+    "blend",
     "carry",
     "frame_from_long_axis",
     "hinge_axis",
@@ -202,8 +203,18 @@ def humerus_from_forearm(
     h = np.asarray(humerus, dtype=np.float64)
     yh, zh = h[..., 1], h[..., 2]
     axis, w = hinge_axis(yh, forearm_y, carrying_rad)
-    z = np.where(w > 0, w * np.nan_to_num(axis) + (1 - w) * zh, zh)
-    return frame_from_long_axis(yh, z)
+    return frame_from_long_axis(yh, blend(axis, zh, w))
+
+
+def blend(a: ArrayLike, b: ArrayLike, w: ArrayLike) -> Array:
+    """``w * a + (1 - w) * b`` per row: ``a`` where ``w >= 1``, ``b`` where ``w <= 0``, and in
+    between the other side where one is NaN (a NaN with no weight does not spread)."""
+    a_, b_, w_ = (np.asarray(x, dtype=np.float64) for x in (a, b, w))
+    with np.errstate(invalid="ignore"):
+        mixed = w_ * a_ + (1 - w_) * b_
+    mixed = np.where(np.isnan(a_), b_, np.where(np.isnan(b_), a_, mixed))
+    out: Array = np.where(w_ >= 1, a_, np.where(w_ <= 0, b_, mixed))
+    return out
 
 
 def pelvis_frame(rasis: ArrayLike, lasis: ArrayLike, back: ArrayLike) -> tuple[Array, Array]:

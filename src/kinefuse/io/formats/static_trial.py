@@ -277,7 +277,7 @@ def _elbow_centres(
         for _ in range(3):  # the axis from the centre, the centre from the axis
             axis, w = an.hinge_axis(sh - c, c - wr, carrying.get(side, 0.0))
             hinge = lat + half * axis * (-1.0 if side == "right" else 1.0)  # medial
-            c = np.where(w > 0, w * np.nan_to_num(hinge) + (1 - w) * carried, carried)
+            c = an.blend(hinge, carried, w)
         pos[:, idx[need[1]]] = c
 
 
