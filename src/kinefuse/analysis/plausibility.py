@@ -89,9 +89,13 @@ def plausibility(
 #: Physiological range of each anatomical angle, degrees (ISB signs of
 #: :data:`kinefuse.analysis.anatomical.ANATOMICAL_ANGLES`), from the normal active ranges of
 #: motion of the American Academy of Orthopaedic Surgeons (Greene & Heckman 1994, *The Clinical
-#: Measurement of Joint Motion*; the trunk's from its thoracolumbar values), each widened by
-#: :data:`RANGE_MARGIN_DEG` when checked (soft tissue, marker placement). Angles relative to the
-#: lab (the pelvis's) have no physiological range.
+#: Measurement of Joint Motion*; the trunk's from its thoracolumbar values; pronation from full
+#: supination, ISB's zero), each widened by :data:`RANGE_MARGIN_DEG` when checked (soft
+#: tissue, marker placement). Not from those tables, and ours: knee flexion to 150 (AAOS's 135
+#: is active flexion; a deep squat goes further), knee adduction ±20 and elbow adduction
+#: -30..20 (a joint's varus-valgus play is a few degrees, the elbow's carrying angle 10-15 deg
+#: of valgus; beyond these it is an axis misread). Angles relative to the lab (the pelvis's)
+#: have no physiological range.
 ANGLE_RANGES_DEG: dict[str, tuple[float, float]] = {
     "trunk_extension": (-80.0, 30.0),
     "trunk_lateral_bend": (-35.0, 35.0),
