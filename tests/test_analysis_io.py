@@ -300,9 +300,9 @@ def test_mot_and_csv_round_trip_and_load_in_opensim(
         tmp_path / "a.csv", t, ang, {"knee_flexion_r": "KneeRight", "hip_flexion_r": "HipRight"}
     )
     lines = csv.read_text().splitlines()
-    assert lines[0] == "time_s,joint,angle,method,degrees,filled"
+    assert lines[0] == "time_s,joint,angle,method,degrees,filled,status"
     assert len(lines) == 1 + 2 * 50
-    assert lines[-1] == "0.490000,HipRight,hip_flexion_r,functional,,0"
+    assert lines[-1] == "0.490000,HipRight,hip_flexion_r,functional,,0,"  # status: not given
 
 
 def test_mot_with_gaps_loads_whole_in_storage(

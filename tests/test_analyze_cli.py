@@ -112,7 +112,7 @@ def test_analyze_every_shared_file(
         if rel in WALKS:
             assert 25.0 < float(np.ptp(v)) < 100.0  # a gait cycle's swing (degrees)
     csv = (out / "angles.csv").read_text().splitlines()
-    assert csv[0] == "time_s,joint,angle,method,degrees,filled"
+    assert csv[0] == "time_s,joint,angle,method,degrees,filled,status"
     assert any(",KneeLeft,knee_flexion_left,functional," in line for line in csv[1:50])
 
 

@@ -97,7 +97,7 @@ def mot_rows_in_opensim(path: Path, monkeypatch: pytest.MonkeyPatch) -> int:
 
 def csv_angles(path: Path) -> set[str]:
     lines = path.read_text().splitlines()
-    assert lines[0] == "time_s,joint,angle,method,degrees,filled"
+    assert lines[0] == "time_s,joint,angle,method,degrees,filled,status"
     return {line.split(",")[2] for line in lines[1:]}
 
 

@@ -21,10 +21,13 @@ are mirrored by their signs, as ISB and OpenSim do):
 * foot: ``X`` from the heel to the toe, projected onto the floor in the static trial (the foot
   is taken as flat when standing, as Plug-in Gait's "foot flat" option does), ``Y`` up, ``Z``
   ``= X x Y``. Dorsiflexion is 0 when that line is perpendicular to the shank's ``Y``.
-* trunk (thorax): ``Y`` from the pelvis origin (or the spine base) to the shoulder midpoint
+* trunk (thorax): ``Y`` from the lumbar joint (:func:`lumbar_joint_centre`, the OpenSim gait
+  models' ``back`` joint; without ASIS markers the spine base) to the shoulder midpoint
   (or the spine joint between the shoulders); ``Z`` along the shoulder line (left to right),
   perpendicular to ``Y``; ``X = Y x Z``. (ISB's thorax uses C7, T8, IJ and PX; marker sets
-  without them, and skeletons, get this approximation.)
+  without them, and skeletons, get this approximation.) The shoulder markers slide with the
+  shoulder girdle, so in a marker file's motion the trunk frame is built in every frame from
+  the lumbar joint the pelvis carries and the shoulder markers, not carried as a rigid cluster.
 * upper arm (humerus): ``Y`` from the elbow centre to the shoulder (glenohumeral) centre; ``Z``
   from the epicondyles like the thigh (ISB 2005, first option); without them from the trunk.
 * forearm: ``Y`` from the wrist centre to the elbow centre; ``Z`` from the styloids (radial
@@ -64,15 +67,21 @@ Array = NDArray[np.float64]
 __all__ = [
     "ANATOMICAL_ANGLES",
     "MAX_SKELETON_STATIC_MOTION_M",
+    "OPENSIM_MODELS",
     "OPENSIM_NAMES",
     "AnatomicalAngle",
+    "OpenSimModel",
     "SkeletonAnatomy",
     "anatomical_angles",
+    "blend",
     "carry",
     "frame_from_long_axis",
+    "hinge_axis",
+    "humerus_from_forearm",
     "jcs_zxy",
     "lab_frame",
     "opensim_angles",
+    "opensim_model",
     "pelvis_frame",
     "pelvis_frame_from_hips",
     "progression_axis",
@@ -81,6 +90,11 @@ __all__ = [
     "shoulder_yxy",
     "skeleton_anatomical_frames",
 ]
+
+
+def unit(v: ArrayLike) -> Array:
+    """Unit vectors along the last axis; NaN where a vector is (near) zero or NaN."""
+    return _unit(np.asarray(v, dtype=np.float64))
 
 
 def _unit(v: Array) -> Array:
@@ -116,6 +130,93 @@ def frame_from_long_axis(y_axis: ArrayLike, z_hint: ArrayLike) -> Array:
     return _stack(x, y, z)
 
 
+#: Elbow flexion (degrees) below which the humerus keeps its carried second axis, and above
+#: which it takes the one from the forearm's plane (:func:`humerus_from_forearm`); between the
+#: two the axes are blended.
+ELBOW_PLANE_DEG: Final = (10.0, 25.0)
+
+
+def hinge_axis(
+    humerus_y: ArrayLike, forearm_y: ArrayLike, carrying_rad: float = 0.0
+) -> tuple[Array, Array]:
+    """The elbow's flexion axis from the two long axes, for a hinge with a constant carrying
+    angle.
+
+    A hinge about the humerus's ``Z`` with the forearm ``carrying_rad`` out of the humerus's
+    ``X-Y`` plane (the ``b`` of :func:`jcs_zxy`) keeps ``Z . Yf = sin(b)``; with ``Z``
+    perpendicular to ``Yh`` that fixes ``Z`` from ``Yh`` and ``Yf`` alone where the elbow is
+    bent (``b = 0``: the normal of their plane, ISB 2005's second humerus definition).
+
+    Parameters
+    ----------
+    humerus_y, forearm_y : (..., 3) float
+        The long axes (elbow to shoulder, wrist to elbow).
+    carrying_rad : float
+        ``b``, radians (from the static trial's epicondyle frames).
+
+    Returns
+    -------
+    axis : (..., 3) float
+        Unit ``Z`` (to the right for a bent elbow), NaN where undefined.
+    weight : (..., 1) float
+        How far the elbow is bent for the axis to hold: 0 straighter than the first of
+        :data:`ELBOW_PLANE_DEG` (beyond the carrying angle), 1 beyond the second.
+    """
+    yh = _unit(np.asarray(humerus_y, dtype=np.float64))
+    yf = _unit(np.asarray(forearm_y, dtype=np.float64))
+    n = np.cross(yh, yf)
+    beta = np.linalg.norm(n, axis=-1, keepdims=True)  # sine of the angle between the axes
+    u = _unit(yf - (yf * yh).sum(-1, keepdims=True) * yh)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sphi = np.clip(np.sin(carrying_rad) / beta, -1.0, 1.0)
+    axis = np.sqrt(1.0 - sphi**2) * _unit(n) + sphi * u
+    lo, hi = np.sin(np.radians(ELBOW_PLANE_DEG) + abs(carrying_rad))
+    w = np.nan_to_num(np.clip((beta - lo) / (hi - lo), 0.0, 1.0))
+    return axis, w
+
+
+def humerus_from_forearm(
+    humerus: ArrayLike, forearm_y: ArrayLike, carrying_rad: float = 0.0
+) -> Array:
+    """The humerus frame whose ``Z`` is the elbow's hinge axis (:func:`hinge_axis`) where the
+    elbow is bent enough for it to be defined.
+
+    The elbow is a hinge: its flexion turns the forearm about this axis, so elbow flexion
+    reads the hinge's own angle (0 at full extension, never wrapping) and the humerus's
+    rotation about its long axis is read from the forearm rather than from markers over the
+    biceps. With the elbow straighter than :data:`ELBOW_PLANE_DEG` the given (carried,
+    epicondyle) ``Z`` is kept; in between the two are blended.
+
+    Parameters
+    ----------
+    humerus : (..., 3, 3) float
+        The humerus frame (``Y`` its long axis, ``Z`` from the epicondyles, carried).
+    forearm_y : (..., 3) float
+        The forearm's long axis (wrist to elbow centre).
+    carrying_rad : float
+        The elbow's carrying angle ``b`` in the static trial, radians.
+
+    Returns
+    -------
+    (..., 3, 3) float
+    """
+    h = np.asarray(humerus, dtype=np.float64)
+    yh, zh = h[..., 1], h[..., 2]
+    axis, w = hinge_axis(yh, forearm_y, carrying_rad)
+    return frame_from_long_axis(yh, blend(axis, zh, w))
+
+
+def blend(a: ArrayLike, b: ArrayLike, w: ArrayLike) -> Array:
+    """``w * a + (1 - w) * b`` per row: ``a`` where ``w >= 1``, ``b`` where ``w <= 0``, and in
+    between the other side where one is NaN (a NaN with no weight does not spread)."""
+    a_, b_, w_ = (np.asarray(x, dtype=np.float64) for x in (a, b, w))
+    with np.errstate(invalid="ignore"):
+        mixed = w_ * a_ + (1 - w_) * b_
+    mixed = np.where(np.isnan(a_), b_, np.where(np.isnan(b_), a_, mixed))
+    out: Array = np.where(w_ >= 1, a_, np.where(w_ <= 0, b_, mixed))
+    return out
+
+
 def pelvis_frame(rasis: ArrayLike, lasis: ArrayLike, back: ArrayLike) -> tuple[Array, Array]:
     """ISB pelvis frame from the ASIS and the PSIS midpoint (or sacral marker).
 
@@ -146,6 +247,41 @@ def pelvis_frame_from_hips(hip_right: ArrayLike, hip_left: ArrayLike, up: ArrayL
     y = u - 0.5 * (hr + hl)
     y = _unit(y - (y * z).sum(-1, keepdims=True) * z)
     return _stack(np.cross(y, z), y, z)
+
+
+#: The lumbar (``back``) joint of the OpenSim gait models relative to the ASIS midpoint, in the
+#: pelvis frame, metres, for the generic model's ASIS width :data:`MODEL_ASIS_WIDTH_M`. From
+#: Rajagopal2016.osim (the same ``back`` joint as gait2392 and Hamner 2010): the joint's
+#: ``pelvis_offset`` at ``(-0.1007, 0.0815, 0)`` in the pelvis frame, the ASIS markers of the
+#: model's Rajagopal pipeline marker set at ``(0.013, 0.030, ±0.128)`` (its
+#: ``subject_scaled_walk_markerset.xml`` divided by the pelvis scale factors of its
+#: ``scaleSet_applied_walk.xml``). The same marker set puts both acromion markers straight above
+#: this joint (``x = 0`` in the torso frame), so the torso's long axis runs from it to the
+#: middle of the acromions.
+MODEL_LUMBAR_FROM_ASIS_M: Final = np.array([-0.1137, 0.0515, 0.0])
+MODEL_ASIS_WIDTH_M: Final = 0.256
+
+
+def lumbar_joint_centre(pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: float) -> Array:
+    """The lumbar joint centre (L5/S1, where the gait models' torso turns on the pelvis).
+
+    Parameters
+    ----------
+    pelvis : (..., 3, 3) float
+        ISB pelvis frame (:func:`pelvis_frame`).
+    asis_mid : (..., 3) float
+        The ASIS midpoint, metres.
+    asis_width_m : float
+        Distance between the ASIS markers, metres (scales the model's offset).
+
+    Returns
+    -------
+    (..., 3) float
+        ``asis_mid + pelvis @ MODEL_LUMBAR_FROM_ASIS_M * asis_width_m / MODEL_ASIS_WIDTH_M``.
+    """
+    off = MODEL_LUMBAR_FROM_ASIS_M * (asis_width_m / MODEL_ASIS_WIDTH_M)
+    out: Array = np.asarray(asis_mid, float) + np.asarray(pelvis, float) @ off
+    return out
 
 
 def lab_frame(forward: ArrayLike) -> Array:
@@ -339,6 +475,11 @@ def _side_table() -> tuple[AnatomicalAngle, ...]:
                             f"upper_arm_{side}", 2, s, "positive internal rotation"),
             AnatomicalAngle(f"elbow_flexion_{side}", f"upper_arm_{side}", f"forearm_{side}", 0,
                             1.0, "positive flexion; 0 straight"),
+            AnatomicalAngle(f"elbow_adduction_{side}", f"upper_arm_{side}", f"forearm_{side}", 1,
+                            s, "positive adduction (varus); the carrying angle reads negative"),
+            AnatomicalAngle(f"forearm_pronation_{side}", f"upper_arm_{side}", f"forearm_{side}",
+                            2, s, "positive pronation; 0 in the anatomical position (palm "
+                            "forward); only where the forearm has two styloid markers"),
         ]  # fmt: skip
     return tuple(out)
 
@@ -346,10 +487,14 @@ def _side_table() -> tuple[AnatomicalAngle, ...]:
 #: Every anatomical angle: name, segments, component, sign and meaning (zero and sign).
 ANATOMICAL_ANGLES: Final[tuple[AnatomicalAngle, ...]] = _side_table()
 
-#: kinefuse anatomical name -> (OpenSim gait-model coordinate, sign factor). gait2354 (and
-#: gait2392, Rajagopal 2016) define every coordinate as a rotation about the axes above (Z
-#: flexion, X adduction, Y rotation, the left side's X and Y mirrored); knee_angle is negative
-#: in flexion; pelvis_tilt is a rotation about the lab's Z (positive: the pelvis's front up).
+#: kinefuse anatomical name -> (OpenSim coordinate, sign factor), for the gait models whose
+#: knee is negative in flexion. Every coordinate is a rotation of the distal body relative to
+#: the proximal one about the axes above, as the models' joints define them: ``hip_r``,
+#: ``acromial_r`` (``arm_flex`` about Z, ``arm_add`` about X, ``arm_rot`` about Y, body-fixed)
+#: and ``back`` (``lumbar_extension``, ``lumbar_bending``, ``lumbar_rotation``, torso relative
+#: to pelvis) are Z-X-Y sequences, the left side's X and Y axes mirrored; ``knee_angle`` and
+#: ``elbow_flex`` turn about the flexion axis (zero straight), ``ankle_angle`` about the ankle
+#: axis; ``pelvis_tilt`` is a rotation about the lab's Z (positive: the pelvis's front up).
 OPENSIM_NAMES: Final[dict[str, tuple[str, float]]] = {
     "pelvis_tilt": ("pelvis_tilt", -1.0),
     "pelvis_obliquity": ("pelvis_list", -1.0),
@@ -375,8 +520,54 @@ OPENSIM_NAMES: Final[dict[str, tuple[str, float]]] = {
 }
 
 
+@dataclass(frozen=True)
+class OpenSimModel:
+    """An OpenSim model's coordinate conventions where they differ between models."""
+
+    name: str
+    knee_sign: float  # +1: knee_angle positive in flexion (Rajagopal 2016); -1: negative
+    arms: bool  # the model has arm coordinates (arm_flex/add/rot, elbow_flex)
+    source: str  # the model file the convention was read from
+
+
+#: The models ``--names opensim:MODEL`` knows (``--names opensim``: :data:`DEFAULT_OPENSIM`).
+#: Their knee is a ``CustomJoint`` whose flexion coordinate turns the tibia about the femur's
+#: Z axis: negative in flexion in gait2354, gait2392 and Hamner 2010 (``knee_angle`` range
+#: -120..10 deg), positive in Rajagopal 2016 (``knee_angle_r`` range 0..120 deg, the axis
+#: reversed). gait2354/gait2392 have a single torso with fixed arms; Hamner 2010 and Rajagopal
+#: 2016 have the ``acromial``, ``elbow`` and ``radioulnar`` joints.
+OPENSIM_MODELS: Final[dict[str, OpenSimModel]] = {
+    m.name: m
+    for m in (
+        OpenSimModel("gait2354", -1.0, False, "Models/Gait2354_Simbody/gait2354_simbody.osim"),
+        OpenSimModel("gait2392", -1.0, False, "Models/Gait2392_Simbody/gait2392_simbody.osim"),
+        OpenSimModel("hamner", -1.0, True, "Models/Hamner/FullBodyModel_Hamner2010_v2_0.osim"),
+        OpenSimModel("rajagopal", 1.0, True, "Models/Rajagopal/Rajagopal2016.osim"),
+    )
+}
+#: ``--names opensim`` alone: the gait-model knee (negative in flexion) with Hamner's arms.
+DEFAULT_OPENSIM: Final = "hamner"
+
+
+def opensim_model(names: str) -> OpenSimModel | None:
+    """The model of a ``--names`` value: ``kinefuse`` -> None, ``opensim`` ->
+    :data:`DEFAULT_OPENSIM`, ``opensim:MODEL`` -> that model (case-insensitive; also
+    ``rajagopal2016``); :class:`~kinefuse.errors.InputError` for anything else."""
+    text = names.strip().lower()
+    if text == "kinefuse":
+        return None
+    head, _, model = text.partition(":")
+    model = (model or DEFAULT_OPENSIM).removesuffix("2016").removesuffix("2010")
+    if head != "opensim" or model not in OPENSIM_MODELS:
+        raise InputError(
+            f"--names {names!r}: give kinefuse, opensim or opensim:MODEL with MODEL one of "
+            f"{', '.join(OPENSIM_MODELS)}"
+        )
+    return OPENSIM_MODELS[model]
+
+
 def anatomical_angles(
-    frames: Mapping[str, Array], lab: ArrayLike | None = None
+    frames: Mapping[str, Array], lab: ArrayLike | None = None, skip: Sequence[str] = ()
 ) -> dict[str, Array]:
     """Every angle of :data:`ANATOMICAL_ANGLES` whose two frames are given, degrees.
 
@@ -387,6 +578,9 @@ def anatomical_angles(
         ``upper_arm_left``, ``forearm_left``, and the right side) -> its anatomical frame.
     lab : (3, 3) float, optional
         The lab frame of the pelvis angles (:func:`lab_frame`); without it no pelvis angle.
+    skip : sequence of str
+        Angles not to give (their frames cannot define them, e.g. ``forearm_pronation_left``
+        without styloid markers).
 
     Returns
     -------
@@ -403,7 +597,7 @@ def anatomical_angles(
     out: dict[str, Array] = {}
     cache: dict[tuple[str, str], tuple[Array, Array, Array]] = {}
     for ang in ANATOMICAL_ANGLES:
-        if ang.proximal not in have or ang.distal not in have:
+        if ang.proximal not in have or ang.distal not in have or ang.name in skip:
             continue
         key = (ang.proximal, ang.distal)
         if key not in cache:
@@ -418,14 +612,27 @@ def anatomical_angles(
     return out
 
 
-def opensim_angles(angles: Mapping[str, Array]) -> dict[str, Array]:
-    """Anatomical angles under OpenSim's gait-model coordinate names and signs (degrees);
-    angles OpenSim's gait models do not have are left out."""
-    return {
-        OPENSIM_NAMES[k][0]: OPENSIM_NAMES[k][1] * np.asarray(v)
-        for k, v in angles.items()
-        if k in OPENSIM_NAMES
-    }
+def opensim_angles(
+    angles: Mapping[str, Array], model: str | OpenSimModel = DEFAULT_OPENSIM
+) -> dict[str, Array]:
+    """Anatomical angles under an OpenSim model's coordinate names and signs (degrees).
+
+    ``model``: a name of :data:`OPENSIM_MODELS` or one of its entries. Angles the model does
+    not have are left out (the arms for gait2354 and gait2392)."""
+    m = model if isinstance(model, OpenSimModel) else opensim_model(f"opensim:{model}")
+    assert m is not None
+    arm = ("arm_", "elbow_")
+    out = {}
+    for k, v in angles.items():
+        if k not in OPENSIM_NAMES:
+            continue
+        name, sign = OPENSIM_NAMES[k]
+        if name.startswith(arm) and not m.arms:
+            continue
+        if name.startswith("knee_angle"):
+            sign = m.knee_sign
+        out[name] = sign * np.asarray(v)
+    return out
 
 
 def segment_poses(

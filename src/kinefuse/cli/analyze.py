@@ -59,10 +59,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument(
         "--names",
-        choices=["kinefuse", "opensim"],
         default="kinefuse",
+        metavar="kinefuse|opensim|opensim:MODEL",
         help="angles.mot columns: kinefuse names (both methods), or the anatomical angles "
-        "under OpenSim's gait-model coordinate names and signs",
+        "under an OpenSim model's coordinate names and signs (MODEL: gait2354, gait2392, "
+        "hamner, rajagopal; opensim alone: hamner)",
     )
     shared.add_calibration_args(p)
     p.add_argument("--out", type=Path, required=True, help="fresh output folder")

@@ -17,6 +17,7 @@ import numpy as np
 from kinefuse.io.formats.angles import read_angles_mot
 
 __all__ = [
+    "arm_trunk_failures",
     "compare_angles",
     "compare_with_ik",
     "format_comparison",
@@ -30,7 +31,8 @@ def compare_with_ik(
     ours: str | Path, ik: str | Path, *, mirrored: bool = False
 ) -> dict[str, dict[str, Any]]:
     """Per shared coordinate: ``r``, ``offset_deg``, ``rms_after_offset_deg``, ``rmse_deg``,
-    ``present`` (fraction of the IK frames), ``n`` (frames compared). ``mirrored``: the IK of
+    ``present`` (fraction of the IK frames), ``n`` (frames compared), ``wraps`` (our curve
+    steps by more than 180 deg between two written frames). ``mirrored``: the IK of
     the left-right mirrored trial (:func:`mirror_ik`), for ``ours`` of the mirrored markers."""
     t_o, a_o, _ = read_angles_mot(ours)
     t_i, a_i, _ = read_angles_mot(ik)
@@ -56,6 +58,7 @@ def compare_angles(
         a, b = v[ok], ref[ok]
         off = float(np.mean(a - b)) if a.size else float("nan")
         out[name] = {
+            "wraps": bool(np.any(np.abs(np.diff(a_o[name][np.isfinite(a_o[name])])) > 180.0)),
             "n": int(ok.sum()),
             "present": float(ok.mean()),
             "r": float(np.corrcoef(a, b)[0, 1]) if a.size > 2 and a.std() > 0 else float("nan"),
@@ -71,11 +74,13 @@ def format_comparison(table: dict[str, dict[str, Any]]) -> str:
     """The comparison as a text table (degrees)."""
     lines = [
         f"{'coordinate':20s} {'present':>8s} {'r':>7s} {'offset':>8s} {'rms-off':>8s} {'rmse':>7s}"
+        " wraps"
     ]
     for k, v in table.items():
         lines.append(
             f"{k:20s} {100 * v['present']:7.1f}% {v['r']:7.3f} {v['offset_deg']:8.2f} "
-            f"{v['rms_after_offset_deg']:8.2f} {v['rmse_deg']:7.2f}"
+            f"{v['rms_after_offset_deg']:8.2f} {v['rmse_deg']:7.2f} "
+            f"{'yes' if v.get('wraps') else 'no':>5s}"
         )
     return "\n".join(lines)
 
@@ -159,4 +164,38 @@ def threshold_failures(c: dict[str, dict[str, Any]]) -> list[str]:
         need(n, get(n, "rms_after_offset_deg") <= 4.0, "rms after offset <= 4 deg")
     for n in ("pelvis_list", "pelvis_rotation"):
         need(n, get(n, "r") >= 0.7, "r >= 0.7")
+    return bad
+
+
+def arm_trunk_failures(c: dict[str, dict[str, Any]]) -> list[str]:
+    """The leg, arm and trunk targets against OpenSim IK, on the coordinates the reference
+    has: hip and knee r >= 0.97, |offset| <= 5, RMS after offset <= 4 deg; ankle r >= 0.9;
+    ``elbow_flex`` r >= 0.95, |offset| <= 5, RMS <= 4; ``arm_flex`` r >= 0.95, |offset| <= 8,
+    RMS <= 4; ``arm_add`` r >= 0.7, RMS <= 4; ``lumbar_extension`` |offset| <= 5, r >= 0.8; no
+    coordinate wraps.
+    Returns the misses, with the values."""
+    bad = []
+    for name, v in c.items():
+        base = name.removesuffix("_r").removesuffix("_l")
+        r, off, rms = v["r"], abs(v["offset_deg"]), v["rms_after_offset_deg"]
+        need: list[tuple[bool, str]] = [(not v.get("wraps", False), "no wrap")]
+        if base in ("hip_flexion", "knee_angle"):
+            need += [(r >= 0.97, "r >= 0.97"), (off <= 5.0, "|offset| <= 5"),
+                     (rms <= 4.0, "rms after offset <= 4")]  # fmt: skip
+        elif base == "ankle_angle":
+            need += [(r >= 0.9, "r >= 0.9")]
+        elif base == "elbow_flex":
+            need += [(r >= 0.95, "r >= 0.95"), (off <= 5.0, "|offset| <= 5"),
+                     (rms <= 4.0, "rms after offset <= 4")]  # fmt: skip
+        elif base == "arm_flex":
+            need += [(r >= 0.95, "r >= 0.95"), (off <= 8.0, "|offset| <= 8"),
+                     (rms <= 4.0, "rms after offset <= 4")]  # fmt: skip
+        elif base == "arm_add":
+            need += [(r >= 0.7, "r >= 0.7"), (rms <= 4.0, "rms after offset <= 4")]
+        elif base == "lumbar_extension":
+            need += [(off <= 5.0, "|offset| <= 5"), (r >= 0.8, "r >= 0.8")]
+        for ok, what in need:
+            if not ok:
+                bad.append(f"{name}: {what} (r {r:.3f}, offset {v['offset_deg']:.2f}, rms after "
+                           f"offset {rms:.2f} deg)")  # fmt: skip
     return bad

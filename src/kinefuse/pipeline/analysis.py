@@ -223,7 +223,11 @@ def skeleton_anatomy(
     static = {n: carried_frames(norm, p, n) for n in weak}
     sa = skeleton_anatomical_frames(p, JOINTS, seq.t_s, limb_frames, window, zero=zero,
                                     static_frames=static)  # fmt: skip
-    angles = anatomical_angles(sa.frames, sa.lab)
+    # the forearm's twist comes from the thumb: no pronation, no carrying angle from it
+    forearm = [
+        f"{a}_{s}" for a in ("elbow_adduction", "forearm_pronation") for s in ("left", "right")
+    ]
+    angles = anatomical_angles(sa.frames, sa.lab, forearm)
     for side in ("left", "right"):
         name = f"elbow_flexion_{side}"
         if name in angles:

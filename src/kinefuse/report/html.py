@@ -89,6 +89,18 @@ def joint_angle_curves(
     return t, keep
 
 
+def angle_status_table(t_s: Array, angles: dict[str, Array]) -> str:
+    """An HTML table: per angle its plausibility status and why
+    (:func:`kinefuse.analysis.plausibility.angle_statuses`)."""
+    from kinefuse.analysis.plausibility import angle_statuses
+
+    rows = "".join(
+        f"<tr><td>{_e(k)}</td><td>{_e(v['status'])}</td><td>{_e('; '.join(v['reasons']))}</td></tr>"
+        for k, v in angle_statuses(t_s, angles).items()
+    )
+    return f"<table><tr><th>angle</th><th>status</th><th>why</th></tr>{rows}</table>"
+
+
 CSS = """
 body { font: 14px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; color: #1f2933;
        max-width: 1080px; margin: 0 auto; padding: 20px 28px 60px; background: #fff; }
@@ -369,6 +381,7 @@ def render_report(
             angle_note = f"the analysis could not run on {method}: {exc}"
     if angles is not None and angles[1]:
         add(_img(hp.data_uri(hp.angle_figure(*angles, facts.rom_phase_s)), "joint angles"))
+        add(angle_status_table(*angles))
         if angle_note:
             add(f'<p class="note">{_e(angle_note)}</p>')
     elif angle_note:

@@ -227,7 +227,7 @@ def _markers_with_static(
         path=path,
         kind="markers",
         seq=seq,
-        anatomical=anatomical_angles(af.frames, af.lab),
+        anatomical=anatomical_angles(af.frames, af.lab, af.undefined),
         anatomical_status=af.status,
         static_source=where,
         unbuilt_joints=unbuilt_joints(markers, mmap) or None,
@@ -372,9 +372,12 @@ def run_analyze(
     Everything is written into a hidden staging folder beside ``out`` and renamed onto ``out``
     at the end, so a failed run leaves nothing behind (and never touches other files).
     """
+    from kinefuse.analysis.anatomical import opensim_model
+
     say = progress or (lambda _m: None)
     if not inputs:
         raise InputError("give at least one input file")
+    opensim_model(names)  # refuse an unknown --names before any work
     kinds = [_kind(Path(p)) for p in inputs]
     if marker_map is not None and "markers" not in kinds:
         raise InputError("--map is for marker files (.trc, .c3d); none of the inputs is one")

@@ -281,7 +281,30 @@ def analyse_one(
         }
         if static_motion_mm is not None:
             report["anatomical"]["static_motion_p90_mm"] = static_motion_mm
-    written, mot = _write_outputs(folder, inp, res, plots, truth, plot_dpi, names)
+    from kinefuse.analysis.plausibility import angle_statuses
+
+    # every angle's plausibility (wraps, jumps, leaves its range): in angles.csv, here and in
+    # the text report
+    statuses = {
+        "functional": angle_statuses(seq.t_s, res["named"]),
+        "anatomical": angle_statuses(seq.t_s, inp.anatomical or {}),
+    }
+    report["angle_status"] = {
+        m: {k: v for k, v in sorted(st.items()) if v["status"] != "ok"}
+        for m, st in statuses.items()
+    }
+    # per joint: implausible when one of its angles is, with the angles' reasons
+    report["joint_status"] = {m: _joint_status(st) for m, st in statuses.items()}
+    report["angle_status_rule"] = (
+        "implausible: the angle wraps through ±180 deg, jumps faster than a body moves, or is "
+        "outside its physiological range on more than 5 % of its frames "
+        "(kinefuse.analysis.plausibility.angle_status); angles not listed are ok"
+    )
+    if inp.anatomical is not None:
+        report["anatomical"]["angle_status"] = {
+            k: v["status"] for k, v in sorted(statuses["anatomical"].items())
+        }
+    written, mot = _write_outputs(folder, inp, res, plots, truth, plot_dpi, names, statuses)
     report["angles_mot"] = mot
     report["written"] = [str(p) for p in written]
     return report, res
@@ -307,8 +330,9 @@ def _write_outputs(
     truth: dict[str, Any] | None,
     plot_dpi: int | None = None,
     mot_names: str = "kinefuse",
+    statuses: dict[str, dict[str, dict[str, Any]]] | None = None,
 ) -> tuple[list[Path], dict[str, Any]]:
-    from kinefuse.analysis.anatomical import opensim_angles
+    from kinefuse.analysis.anatomical import opensim_angles, opensim_model
     from kinefuse.workflows.analyze import write_limb_frames
 
     seq, norm, named = res["seq"], res["norm"], res["named"]
@@ -321,15 +345,16 @@ def _write_outputs(
     rows.update({f"{k}\tanatomical": v for k, v in anat.items()})
     csv_flags = {f"{k}\tfunctional": v for k, v in flags.items()}
     csv_flags.update({f"{k}\tanatomical": v for k, v in aflags.items()})
-    if mot_names == "opensim":
+    model = opensim_model(mot_names)
+    if model is not None:
         if inp.anatomical is None:
             from kinefuse.errors import InputError
 
             raise InputError(
-                f"{inp.path}: --names opensim writes the anatomical angles, which need a static "
-                "trial (--static STATIC.trc or --static-window START:END)"
+                f"{inp.path}: --names {mot_names} writes the anatomical angles, which need a "
+                "static trial (--static STATIC.trc or --static-window START:END)"
             )
-        mot_cols = opensim_angles(anat)
+        mot_cols = opensim_angles(anat, model)
     else:
         mot_cols = dict(filled)
         mot_cols.update({f"{k}_anatomical": v for k, v in anat.items()})
@@ -343,6 +368,7 @@ def _write_outputs(
             methods={k: k.split("\t")[1] for k in rows},
             filled=csv_flags,
             labels={k: k.split("\t")[0] for k in rows},
+            status={k: _status_of(statuses, k) for k in rows},
         ),
         write_angles_mot(folder / "angles.mot", t, mot_cols, plan=plan),
         write_limb_frames(folder / "limb_frames.csv", t, LIMB_NAMES, norm.transforms()),
@@ -377,6 +403,26 @@ def _write_outputs(
             )
         )
     return written, plan.summary()
+
+
+def _joint_status(statuses: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """Joint (``angles.csv``'s joint column; ``pelvis`` for the pelvis's angles) -> ``ok``, or
+    ``implausible: ANGLE: reasons | ...`` when one of its angles is."""
+    out: dict[str, list[str]] = {}
+    for k, v in sorted(statuses.items()):
+        if v["status"] == "no data":
+            continue
+        j = angle_joint(k)
+        bad = out.setdefault(k.split("_", 1)[0] if j == "unknown" else j, [])
+        if v["status"] == "implausible":
+            bad.append(f"{k}: {'; '.join(v['reasons'])}")
+    return {j: "implausible: " + " | ".join(b) if b else "ok" for j, b in out.items()}
+
+
+def _status_of(statuses: dict[str, dict[str, dict[str, Any]]] | None, key: str) -> str:
+    """The status of an ``angles.csv`` row key (``name<TAB>method``); "" when not known."""
+    name, method = key.split("\t")
+    return str((statuses or {}).get(method, {}).get(name, {}).get("status", ""))
 
 
 def consistency_report(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -427,6 +473,10 @@ def format_report(report: dict[str, Any]) -> str:
         bad = {k: v for k, v in r["limb_status"].items() if v != "ok"}
         if bad:
             lines.append("  limbs not ok: " + "; ".join(f"{k}: {v}" for k, v in bad.items()))
+        for m, st in r.get("angle_status", {}).items():
+            for k, v in st.items():
+                if v["status"] == "implausible":
+                    lines.append(f"  implausible {m} {k}: {'; '.join(v['reasons'])}")
         for m, e in r.get("axis_error_by_method_deg", {}).items():
             lines.append(
                 f"  axis error {m:>3}: median {_num(e['median'])} deg, mean {_num(e['mean'])} deg"

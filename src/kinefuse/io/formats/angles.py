@@ -1,10 +1,13 @@
 """Joint angles out: ``angles.csv`` (long table) and ``angles.mot`` (OpenSim motion file).
 
-``angles.csv``: a header ``time_s,joint,angle,method,degrees,filled`` and one row per frame and
-angle, frames in time order and angles in the order given; ``method`` is ``functional`` (paper B's
-learned axes) or ``anatomical`` (ISB joint coordinate systems from a static trial); an empty
-``degrees`` cell is a missing value; ``filled`` is 1 where a short gap was filled by
-interpolation (:mod:`kinefuse.analysis.gaps`), else 0.
+``angles.csv``: a header ``time_s,joint,angle,method,degrees,filled,status`` and one row per
+frame and angle, frames in time order and angles in the order given; ``method`` is
+``functional`` (paper B's learned axes) or ``anatomical`` (ISB joint coordinate systems from a
+static trial); an empty ``degrees`` cell is a missing value; ``filled`` is 1 where a short gap
+was filled by interpolation (:mod:`kinefuse.analysis.gaps`), else 0; ``status`` is the angle's
+plausibility over the whole take (:func:`kinefuse.analysis.plausibility.angle_status`: ``ok``,
+``implausible``, or ``no data``; the same on every row of the angle; the reasons are in
+``analysis.json``).
 
 ``angles.mot``: OpenSim's storage format, as ``opensim.Storage`` and ``TimeSeriesTable`` read it::
 
@@ -50,8 +53,10 @@ from kinefuse.io.outputs import atomic_write_lines, atomic_write_text
 
 #: what each writer's file is, for messages
 _WHAT = {".csv": "angles file", ".mot": "OpenSim motion file"}
-_CSV_HEADER = "time_s,joint,angle,method,degrees,filled"
-_CSV_HEADERS_OURS = (_CSV_HEADER, "time_s,joint,angle,degrees")  # this one and the earlier one
+_CSV_HEADER = "time_s,joint,angle,method,degrees,filled,status"
+#: this one and the earlier ones
+_CSV_HEADERS_OURS = (_CSV_HEADER, "time_s,joint,angle,method,degrees,filled",
+                     "time_s,joint,angle,degrees")  # fmt: skip
 _MOT_GENERATOR = "kinefuse"
 
 
@@ -123,10 +128,11 @@ def write_angles_csv(
     methods: Mapping[str, str] | None = None,
     filled: Mapping[str, ArrayLike] | None = None,
     labels: Mapping[str, str] | None = None,
+    status: Mapping[str, str] | None = None,
     overwrite: bool = False,
 ) -> Path:
-    """Write ``angles.csv``: ``time_s,joint,angle,method,degrees,filled``, one row per frame
-    and angle.
+    """Write ``angles.csv``: ``time_s,joint,angle,method,degrees,filled,status``, one row per
+    frame and angle.
 
     Parameters
     ----------
@@ -144,6 +150,8 @@ def write_angles_csv(
     labels : mapping of str to str, optional
         Key -> the angle name written (default: the key); lets one name appear under two
         methods.
+    status : mapping of str to str, optional
+        Angle name -> its plausibility (``ok``, ``implausible``, ``no data``; default empty).
     overwrite : bool
         Replace an existing file, only one kinefuse wrote as this kind of file.
 
@@ -161,7 +169,8 @@ def write_angles_csv(
     if missing:
         raise InputError(f"no joint given for angle(s) {', '.join(missing)}")
     label = {n: (labels or {}).get(n, n) for n in ang}
-    for n in [*label.values(), *joints.values(), *meth.values()]:
+    stat = {n: (status or {}).get(n, "") for n in ang}
+    for n in [*label.values(), *joints.values(), *meth.values(), *stat.values()]:
         if any(c in n for c in ',"\n\r'):
             raise InputError(f"angle and joint names cannot hold commas, quotes or newlines: {n!r}")
     names = list(ang)
@@ -173,12 +182,13 @@ def write_angles_csv(
         vals = np.stack([ang[n] for n in names], axis=1)  # (T, A)
         flags = np.stack([fl[n] for n in names], axis=1)
         heads = [f"{joints[n]},{label[n]},{meth[n]}" for n in names]
+        tails = [stat[n] for n in names]
         for k in range(t.size):
             tk = f"{t[k]:.6f}"
             for i, head in enumerate(heads):
                 v = vals[k, i]
                 cell = "" if not np.isfinite(v) else f"{v:.4f}"
-                yield f"{tk},{head},{cell},{int(flags[k, i])}\n"
+                yield f"{tk},{head},{cell},{int(flags[k, i])},{tails[i]}\n"
 
     what = _WHAT.get(Path(path).suffix.lower(), "angles file")
     return atomic_write_lines(

@@ -10,6 +10,12 @@ The anatomical frames (:mod:`kinefuse.analysis.anatomical`) are built in the sta
 the map's joint centres (Kinect joints ``HipRight``, ``KneeRight``, ...) and its ``[anatomy]``
 axis landmarks, and carried by the segment's cluster; every cluster is fitted to its own markers
 plus the joint centres its neighbours carry (:func:`~kinefuse.analysis.anatomical.segment_poses`).
+The trunk and the arms are not rigid clusters (the shoulder markers slide with the shoulder
+girdle; an arm's clusters hold the acromion, the biceps, the lateral epicondyle and markers on
+both forearm bones): the trunk's long axis is built in every frame from the lumbar joint the
+pelvis carries to the middle of the shoulders, the arms' long axes from their joint centres,
+and the elbow as a hinge with the static trial's carrying angle
+(:func:`~kinefuse.analysis.anatomical.hinge_axis`).
 
 Checks (each an :class:`~kinefuse.errors.InputError` naming what came and what to do):
 
@@ -212,6 +218,8 @@ class AnatomicalFrames:
     frames: dict[str, Array]  # segment -> (T, 3, 3)
     lab: Array  # (3, 3)
     status: dict[str, str] = field(default_factory=dict)  # segment -> "ok" or the reason
+    #: angles the frames do not define (forearm pronation without two styloid markers)
+    undefined: tuple[str, ...] = ()
 
 
 def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Array | None:
@@ -227,6 +235,105 @@ def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Arra
     a, b = _median(pts[:, 0]), _median(pts[:, 1])
     d = b - a  # medial -> lateral (heel -> toe for the foot)
     return d if side == "right" or key == "foot" else -d
+
+
+#: Segments whose long axis is rebuilt in every frame from their two joint centres (the
+#: cluster keeps only the rotation about it): an arm's markers are not one rigid body (the upper
+#: arm's cluster holds the acromion marker, which moves with the shoulder girdle; the
+#: forearm's holds the lateral epicondyle, on the humerus, and markers on both the radius and
+#: the ulna, which pronation turns about each other).
+LONG_AXIS_PER_FRAME = ("upper_arm", "forearm")
+
+
+def _elbow_centres(
+    pos: Array,
+    idx: dict[str, int],
+    motion: MarkerData,
+    static: MarkerData,
+    mmap: MarkerMap,
+    carrying: dict[str, float],
+) -> None:
+    """Put each elbow centre (in place in ``pos``) on the hinge's axis
+    (:func:`kinefuse.analysis.anatomical.hinge_axis`) through the lateral epicondyle marker,
+    half the static trial's epicondyle width medial of it, where the elbow is bent enough for
+    the axis to be defined (blended with the carried centre below). A centre carried from the
+    static trial by the upper arm's markers turns with their error about the arm (the biceps
+    marker over a contracting muscle, the acromion marker on the shoulder girdle); the lateral
+    marker sits on the axis itself."""
+    for side in ("right", "left"):
+        cap = side.capitalize()
+        pair = mmap.anatomy.get(f"elbow_axis_{side}")
+        need = (f"Shoulder{cap}", f"Elbow{cap}", f"Wrist{cap}")
+        if pair is None or not set(need) <= set(idx):
+            continue
+        lat_m, lat_s = _cluster_points(motion, pair[1:]), _cluster_points(static, pair)
+        if lat_m is None or lat_s is None or _cluster_points(motion, pair) is not None:
+            continue  # no lateral marker, or both epicondyles: the map's centre is measured
+        half = 0.5 * float(np.nanmedian(np.linalg.norm(lat_s[:, 1] - lat_s[:, 0], axis=-1)))
+        lat = lat_m[:, 0]
+        sh, wr = pos[:, idx[need[0]]], pos[:, idx[need[2]]]
+        carried = pos[:, idx[need[1]]].copy()
+        c = lat.copy()  # on the axis already: the bend is measured about it from the start
+        for _ in range(3):  # the axis from the centre, the centre from the axis
+            axis, w = an.hinge_axis(sh - c, c - wr, carrying.get(side, 0.0))
+            hinge = lat + half * axis * (-1.0 if side == "right" else 1.0)  # medial
+            c = an.blend(hinge, carried, w)
+        pos[:, idx[need[1]]] = c
+
+
+def _long_axes_per_frame(
+    pos: Array,
+    idx: dict[str, int],
+    motion: MarkerData,
+    static: MarkerData,
+    mmap: MarkerMap,
+    frames: dict[str, Array],
+    carrying: dict[str, float],
+) -> None:
+    """Rebuild the long axis ``Y`` of the :data:`LONG_AXIS_PER_FRAME` segments in ``frames``
+    (in place) from the motion's joint centres ``pos`` of every frame (the elbow's on its hinge
+    axis, :func:`_elbow_centres`); ``Z`` stays the carried one made perpendicular (the
+    forearm's from its two styloid markers where the map's ``wrist_axis`` has them), and the
+    humerus's comes from the forearm where the elbow is bent
+    (:func:`kinefuse.analysis.anatomical.humerus_from_forearm`)."""
+    pos = pos.copy()
+    _elbow_centres(pos, idx, motion, static, mmap, carrying)
+    for kind in LONG_AXIS_PER_FRAME:
+        for side in ("right", "left"):
+            seg = f"{kind}_{side}"
+            lb = limb(seg)
+            if seg not in frames or lb.proximal not in idx or lb.distal not in idx:
+                continue
+            y = pos[:, idx[lb.proximal]] - pos[:, idx[lb.distal]]
+            z = frames[seg][..., 2]
+            pair = mmap.anatomy.get(f"wrist_axis_{side}") if kind == "forearm" else None
+            sty = None if pair is None else _cluster_points(motion, pair)
+            if sty is not None:  # ulnar to radial styloid, to the right on both sides
+                d = sty[:, 1] - sty[:, 0]
+                z = np.where(np.isfinite(d), d if side == "right" else -d, z)
+            frames[seg] = an.frame_from_long_axis(y, z)
+    for side in ("right", "left"):
+        arm, fore = f"upper_arm_{side}", f"forearm_{side}"
+        if arm in frames and fore in frames:
+            frames[arm] = an.humerus_from_forearm(
+                frames[arm], frames[fore][..., 1], carrying.get(side, 0.0)
+            )
+
+
+def _trunk_frames(
+    pos: Array, idx: dict[str, int], pelvis_pose: tuple[Array, Array], lumbar: Array
+) -> Array | None:
+    """Trunk frames ``(T, 3, 3)`` built in every frame: ``Y`` from the lumbar joint (``lumbar``,
+    found in the static trial, carried by the pelvis) to the middle of the shoulders (joint
+    centres ``pos``), ``Z`` along the shoulder line; None when the motion lacks the
+    shoulders."""
+    if not {"ShoulderLeft", "ShoulderRight"} <= set(idx):
+        return None
+    r, p = pelvis_pose
+    lum = np.einsum("tij,j->ti", r, lumbar) + p
+    sl, sr = pos[:, idx["ShoulderLeft"]], pos[:, idx["ShoulderRight"]]
+    out: Array = an.frame_from_long_axis(0.5 * (sl + sr) - lum, sr - sl)
+    return out
 
 
 def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -> AnatomicalFrames:
@@ -251,16 +358,29 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     up = np.array([0.0, 0.0, 1.0])
     pv = mmap.pelvis
     pelvis_pts = None if pv is None else _cluster_points(static, pv.marker_names())
+    asis_mid: Array | None = None
+    asis_width = 0.0
     if pv is not None and pelvis_pts is not None:
         pts = [_median(pelvis_pts[:, k]) for k in range(pelvis_pts.shape[1])]
         back = pts[2] if pv.sacrum else 0.5 * (pts[2] + pts[3])
-        static_frames["pelvis"], _ = an.pelvis_frame(pts[0], pts[1], back)
+        static_frames["pelvis"], asis_mid = an.pelvis_frame(pts[0], pts[1], back)
+        asis_width = float(np.linalg.norm(pts[0] - pts[1]))
     elif {"HipLeft", "HipRight", "SpineMid"} <= set(jp):
         static_frames["pelvis"] = an.pelvis_frame_from_hips(jp["HipRight"], jp["HipLeft"],
                                                             jp["SpineMid"])  # fmt: skip
     else:
         status["pelvis"] = "skipped: no pelvis markers ([pelvis]) and no hip joints in the map"
-    if {"SpineBase", "SpineShoulder", "ShoulderLeft", "ShoulderRight"} <= set(jp):
+    shoulders = {"ShoulderLeft", "ShoulderRight"} <= set(jp)
+    lumbar: Array | None = None
+    if shoulders and asis_mid is not None:
+        # the torso's long axis as the gait models define it: from the lumbar joint to the
+        # middle of the shoulders (anatomical.lumbar_joint_centre)
+        lumbar = an.lumbar_joint_centre(static_frames["pelvis"], asis_mid, asis_width)
+        static_frames["trunk"] = an.frame_from_long_axis(
+            0.5 * (jp["ShoulderLeft"] + jp["ShoulderRight"]) - lumbar,
+            jp["ShoulderRight"] - jp["ShoulderLeft"],
+        )
+    elif shoulders and {"SpineBase", "SpineShoulder"} <= set(jp):
         static_frames["trunk"] = an.frame_from_long_axis(
             jp["SpineShoulder"] - jp["SpineBase"], jp["ShoulderRight"] - jp["ShoulderLeft"]
         )
@@ -314,6 +434,24 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
             joints.append((lb.parent, seg, jp[lb.proximal]))
     poses = an.segment_poses(templates, moving, joints)
     frames = {seg: an.carry(static_frames[seg], np.eye(3), poses[seg][0]) for seg in templates}
+    # the motion's joint centres in every frame: the trunk and the arms are built from them
+    mpos, mjn, _ = apply_marker_map(motion, mmap, partial=True)
+    midx = {n: i for i, n in enumerate(mjn)}
+    if "trunk" in frames and lumbar is not None and "pelvis" in frames:
+        # the shoulder markers slide with the shoulder girdle (their spread changes by
+        # centimetres with the arm swing), so the trunk is not carried as a rigid cluster: its
+        # long axis is built in every frame, from the lumbar joint the pelvis carries to the
+        # middle of the shoulders, as in the static trial
+        trunk = _trunk_frames(mpos, midx, poses["pelvis"], lumbar)
+        if trunk is not None:
+            frames["trunk"] = trunk
+    # each elbow's carrying angle in the static trial (its epicondyle frames): the hinge's
+    carrying = {}
+    for side in ("right", "left"):
+        arm, fore = (static_frames.get(f"{k}_{side}") for k in ("upper_arm", "forearm"))
+        if arm is not None and fore is not None:
+            carrying[side] = float(an.jcs_zxy(arm, fore)[1])
+    _long_axes_per_frame(mpos, midx, motion, st_aug, mmap, frames, carrying)
     for seg in frames:
         status[seg] = "ok"
     for kind in (*_LEG, *_ARM):
@@ -329,4 +467,10 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         lab = an.lab_frame(an.progression_axis(disp, facing))
     else:
         lab = an.lab_frame(np.array([1.0, 0.0, 0.0]))
-    return AnatomicalFrames(frames=frames, lab=lab, status=status)
+    undefined = tuple(
+        f"forearm_pronation_{side}"
+        for side in ("right", "left")
+        if mmap.anatomy.get(f"wrist_axis_{side}") is None
+        or _cluster_points(motion, mmap.anatomy[f"wrist_axis_{side}"]) is None
+    )
+    return AnatomicalFrames(frames=frames, lab=lab, status=status, undefined=undefined)
