@@ -30,7 +30,7 @@ def import_pyk4a() -> Any:
     try:
         import pyk4a
     except ImportError as e:
-        if "No module named 'pyk4a'" in str(e):
+        if e.name == "pyk4a":  # not installed
             raise InputError(
                 "the k4a source needs pyk4a and the Azure Kinect SDK: pip install "
                 "'kinefuse[k4a]' (docs/devices.md, Azure Kinect)"

@@ -188,4 +188,5 @@ def calibration_from_k4a_json(
         distortion_depth=_distortion(dparams),
         distortion_color=dist_color,
         device=f"{device} {serial}".strip(),
+        raw=text.decode() if isinstance(text, bytes) else text,
     )

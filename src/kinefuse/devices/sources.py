@@ -122,8 +122,8 @@ KNOWN_SOURCES: tuple[SourceInfo, ...] = (
     ),
     SourceInfo(
         "realsense-file",
-        "realsense-file:FILE.bag",
-        "a RealSense recording (.bag)",
+        "realsense-file:FILE.bag|FILE.db3",
+        "a RealSense recording",
         "pyrealsense2",
         "pip install 'kinefuse[realsense]'",
     ),
@@ -131,7 +131,7 @@ KNOWN_SOURCES: tuple[SourceInfo, ...] = (
         "kinect2",
         "kinect2[:INDEX]",
         "a Kinect v2 (64-bit Windows, Kinect for Windows SDK 2.0 runtime)",
-        "pykinect",
+        "kinect_next",
         "pip install 'kinefuse[kinect2]' on 64-bit Windows with the Kinect for Windows SDK 2.0 "
         "runtime",
         "win32",
