@@ -25,6 +25,7 @@ from kinefuse.cli import (
     sensor,
     serve,
     simulate,
+    track,
     view,
 )
 from kinefuse.errors import KinefuseError
@@ -41,6 +42,7 @@ COMMANDS = (
     evaluate,
     realism,
     realdata,
+    track,
     analyze,
     view,
     inspect,

@@ -85,6 +85,17 @@ def _check_whole(path: Path) -> None:
         )
 
 
+def _wall_seconds(iso: str) -> float:
+    """The container's ``creation_time`` (UTC, whole seconds in k4arecorder's files) as Unix
+    seconds; NaN if absent."""
+    import datetime as dt
+
+    try:
+        return dt.datetime.fromisoformat(iso.replace("Z", "+00:00")).timestamp()
+    except ValueError:
+        return math.nan
+
+
 class MkvRecording:
     """An Azure Kinect recording, captures in file order (a *camera* of :mod:`.sources`).
 
@@ -106,6 +117,12 @@ class MkvRecording:
         ``K4A_START_OFFSET_NS`` in seconds: a block's timestamp + this = device time.
     rate_hz : float
         The capture rate (the image blocks' duration).
+    sync_mode : str
+        ``K4A_WIRED_SYNC_MODE``: ``STANDALONE``, ``MASTER`` or ``SUBORDINATE`` (devices on a sync
+        cable share one device clock).
+    start_wall_s : float
+        When the recording started on the recording PC's wall clock (the container's
+        ``creation_time``, to the second), Unix seconds; NaN if absent.
     live : bool
         False: a recording is played on its own timestamps.
     """
@@ -172,10 +189,16 @@ class MkvRecording:
         except ValueError:
             raise InputError(f"{p}: K4A_START_OFFSET_NS is not an integer") from None
         self.serial = str(meta.get("K4A_DEVICE_SERIAL_NUMBER", ""))
+        self.sync_mode = str(meta.get("K4A_WIRED_SYNC_MODE", "STANDALONE"))
+        self.start_wall_s = _wall_seconds(str(meta.get("creation_time", "")))
         self._tracks = tracks
         self._time_base = {i: float(container.streams[i].time_base) for i in tracks.values()}
-        #: until the first image block says its duration
-        self.rate_hz = 30.0
+        self.rate_hz = 30.0  # k4arecorder's default, unless an image block says otherwise
+        video = [container.streams[tracks[n]] for n in ("DEPTH", "COLOR", "IR") if n in tracks]
+        for packet in container.demux(video):
+            if packet.duration and packet.pts is not None:
+                self.rate_hz = 1.0 / (packet.duration * float(packet.stream.time_base))
+                break
 
     @property
     def streams(self) -> tuple[str, ...]:
@@ -208,9 +231,6 @@ class MkvRecording:
                     seq, current, imu = seq + 1, {}, []
                 if not current:
                     t_cur = t
-                if packet.duration:
-                    self.rate_hz = 1.0 / (packet.duration * self._time_base[packet.stream.index])
-                    half = 0.5 / self.rate_hz
                 current[name] = self._decode(packet, name)
             if current:
                 yield self._capture(seq, t_cur, current, imu)
