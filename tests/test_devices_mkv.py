@@ -257,3 +257,55 @@ def test_kinefuse_sensor_plays_the_recording_into_a_real_server(mkv: Path, tmp_p
         assert info.serial == "001514394512"
         assert info.intrinsics == MkvRecording(mkv).calibration.depth
     assert main(["inspect", str(rec)]) == 0
+
+
+#: device pixels and where libk4a 1.4 (pyk4a-bundle 1.5.0, ``Calibration.convert_2d_to_3d``)
+#: unprojects them, projected with the pinhole intrinsics: pixel (u, v) -> pinhole (u', v')
+LIBK4A_PINHOLE = (((600, 349), (629.41, 349.01)), ((533, 349), (544.62, 349.01)),
+                  ((100, 500), (72.14, 518.10)))  # fmt: skip
+
+
+def test_depth_frames_are_resampled_to_the_pinhole_camera_as_libk4a_unprojects(mkv) -> None:
+    from kinefuse.devices.undistort import DepthUndistorter
+
+    rec = MkvRecording(mkv)
+    und = DepthUndistorter(rec.calibration)
+    w = rec.calibration.depth.width
+    for (u, v), (pu, pv) in LIBK4A_PINHOLE:
+        src_v, src_u = divmod(int(und.source_index[round(pv), round(pu)]), w)
+        assert abs(src_u - u) <= 1 and abs(src_v - v) <= 1, ((u, v), (src_u, src_v))
+    # the principal point sees the same ray in both; the frame the adapter sends is resampled
+    k = rec.calibration.depth
+    assert und.source_index[round(k.cy), round(k.cx)] == round(k.cy) * w + round(k.cx)
+    cap = next(rec.captures())
+    (frame,) = list(open_camera_source(f"mkv:{mkv}"))
+    assert isinstance(frame, DepthFrame) and cap.depth_mm is not None
+    np.testing.assert_array_equal(frame.depth_mm, und(cap.depth_mm))
+    assert (frame.depth_mm != cap.depth_mm).mean() > 0.3  # the edges moved
+
+
+def test_the_resampling_agrees_with_libk4a_everywhere_where_pyk4a_loads(mkv: Path) -> None:
+    pyk4a = pytest.importorskip("pyk4a", exc_type=ImportError)
+    from kinefuse.devices.undistort import DepthUndistorter
+
+    rec = MkvRecording(mkv)
+    k = rec.calibration.depth
+    und = DepthUndistorter(rec.calibration)
+    pb = pyk4a.PyK4APlayback(str(mkv))
+    pb.open()
+    errors = []
+    try:
+        for v in range(0, k.height, 24):
+            for u in range(0, k.width, 24):
+                try:
+                    p = pb.calibration.convert_2d_to_3d((u, v), 1000.0, pyk4a.CalibrationType.DEPTH)
+                except ValueError:
+                    continue  # no valid ray for libk4a
+                pu, pv = k.project(np.asarray(p) / 1000.0)
+                iu, iv = round(pu), round(pv)
+                if 0 <= iu < k.width and 0 <= iv < k.height:
+                    sv, su = divmod(int(und.source_index[iv, iu]), k.width)
+                    errors.append(np.hypot(su - u, sv - v))
+    finally:
+        pb.close()
+    assert len(errors) > 300 and max(errors) <= 1.0

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from kinefuse.devices.mkv import MkvRecording
+from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.errors import InputError
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import TrackingState
@@ -56,7 +57,10 @@ def test_track_makes_a_session_of_the_recording_that_inspect_shows(mkv, tmp_path
         assert info.rate_hz == 5.0
         ((seq, t, frames),) = list(st.iter_depth_frames(info.id))
         assert seq.tolist() == [0] and t[0] == pytest.approx(0.800222)
-        np.testing.assert_array_equal(frames[0], next(MkvRecording(mkv).captures()).depth_mm)
+        rec = MkvRecording(mkv)  # stored in the pinhole camera of the stored intrinsics
+        raw = next(rec.captures()).depth_mm
+        assert raw is not None
+        np.testing.assert_array_equal(frames[0], DepthUndistorter(rec.calibration)(raw))
         obs = st.observations(info.id)
         assert obs.n_frames == 1 and not obs.has_body.any()  # one empty body frame: no tracker
     q = _kinefuse("inspect", "S.sqlite", cwd=tmp_path)

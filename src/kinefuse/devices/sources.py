@@ -27,6 +27,7 @@ from typing import Protocol, runtime_checkable
 from urllib.parse import parse_qsl
 
 import numpy as np
+from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration, Capture
@@ -37,6 +38,7 @@ from kinefuse.devices.trackers import (
     available_trackers,
     load_tracker,
 )
+from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
 from kinefuse.skeleton import N_JOINTS, TrackingState
@@ -280,12 +282,26 @@ class CameraFrameSource:
         self.captures = 0
         self.with_person = 0
         self.refused: list[str] = []
+        cal = camera.calibration
+        #: resamples the device's depth to the pinhole camera kinefuse works with (None: the
+        #: device gives undistorted images)
+        self._pinhole = DepthUndistorter(cal) if any(cal.distortion_depth) else None
+
+    def depth_of(self, capture: Capture) -> NDArray[np.uint16] | None:
+        """A capture's depth image in the pinhole camera :meth:`intrinsics` describes (the
+        tracker gets the device's own images and calibration)."""
+        d = capture.depth_mm
+        if d is None or self._pinhole is None:
+            return d
+        return self._pinhole(d)
 
     @property
     def sensor_ids(self) -> tuple[str, ...]:
         return (self._id,)
 
     def intrinsics(self, sensor_id: str) -> Intrinsics:
+        """The depth camera as a pinhole (the device's focal lengths and principal point; its
+        distortion is taken out of the depth frames, :meth:`depth_of`)."""
         return self.camera.calibration.depth
 
     def __iter__(self) -> Iterator[Frame]:
@@ -294,7 +310,9 @@ class CameraFrameSource:
             self.captures += 1
             t_host = cap.t_host_s
             if self.depth and cap.depth_mm is not None:
-                yield DepthFrame(self._id, cap.seq, cap.t_device_s, t_host, cap.depth_mm)
+                depth = self.depth_of(cap)
+                assert depth is not None
+                yield DepthFrame(self._id, cap.seq, cap.t_device_s, t_host, depth)
             if self.tracker is None:
                 continue
             result = self.tracker.track(cap, cal)

@@ -165,7 +165,7 @@ def _track_one(
                     with_person += body is not None
                 obs.append(body_frame(sensor_id, cap, body, math.nan))
                 if cap.depth_mm is not None and cap.t_device_s - last_depth >= 1 / depth_hz - 1e-6:
-                    depth.append((cap.seq, cap.t_device_s, cap.depth_mm))
+                    depth.append((cap.seq, cap.t_device_s, src.depth_of(cap)))
                     last_depth = cap.t_device_s
                     depth_kept += 1
                 if len(obs) >= _CHUNK:
