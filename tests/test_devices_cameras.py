@@ -235,6 +235,12 @@ def test_k4abt_without_its_library_is_one_line(shared_data: Path) -> None:
     _refused(p, "pykinect-azure", "Body Tracking SDK")
 
 
+def test_a_recording_without_pyav_is_one_line(shared_data: Path) -> None:
+    mkv = shared_data / "depth" / "pyk4a_recording.mkv"
+    p = _kinefuse("sensor", "--server", "127.0.0.1:9", "--source", f"mkv:{mkv}", block="av")
+    _refused(p, "pip install 'kinefuse[mkv]'")
+
+
 def test_list_sources_shows_every_source_and_tracker_with_how_to_install() -> None:
     rows = {r[0]: r for r in list_sources()}
     for kind in ("sim", "multitrack", "kinect2json", "mkv", "k4a", "realsense", "realsense-file",

@@ -116,9 +116,17 @@ def test_the_calibration_agrees_with_libk4a_where_pyk4a_loads(mkv: Path) -> None
     np.testing.assert_array_equal(next(rec.captures()).depth_mm, depth)
 
 
-def _run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+def _env() -> dict[str, str]:
+    """The tests' environment: this checkout, and the test trackers of ``tests/plugins``
+    (real ``kinefuse.trackers`` entry points)."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT / "src") + os.pathsep + env.get("PYTHONPATH", "")
+    paths = [str(ROOT / "src"), str(ROOT / "tests" / "plugins"), env.get("PYTHONPATH", "")]
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    return env
+
+
+def _run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    env = _env()
     return subprocess.run(
         [sys.executable, "-m", "kinefuse", *args],
         capture_output=True,
@@ -222,8 +230,7 @@ def test_an_unknown_or_missing_tracker_is_one_line(mkv: Path) -> None:
 
 @pytest.mark.slow
 def test_kinefuse_sensor_plays_the_recording_into_a_real_server(mkv: Path, tmp_path: Path) -> None:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT / "src") + os.pathsep + env.get("PYTHONPATH", "")
+    env = _env()
     rec = tmp_path / "rec.sqlite"
     srv = subprocess.Popen(
         [sys.executable, "-m", "kinefuse", "serve", "--port", "0", "--record", str(rec)],
@@ -245,6 +252,14 @@ def test_kinefuse_sensor_plays_the_recording_into_a_real_server(mkv: Path, tmp_p
         assert p.returncode == 0, p.stderr
         assert "sensor azure1 connected" in p.stderr
         assert "1 depth frames" in p.stderr and "the source ended" in p.stderr
+        assert "0 body frames sent" in p.stderr  # no tracker: depth only
+        # a second sensor from the same recording, with a tracker: its body frame is recorded
+        p = _run(
+            "sensor", "--server", f"127.0.0.1:{port}", "--source", f"mkv:{mkv}#azure2",
+            "--tracker", "standing", "-v",
+        )  # fmt: skip
+        assert p.returncode == 0, p.stderr
+        assert "1 body frames sent" in p.stderr
         srv.send_signal(signal.SIGINT)
         _out, err = srv.communicate(timeout=30)
         assert srv.returncode == 0, err
@@ -256,6 +271,10 @@ def test_kinefuse_sensor_plays_the_recording_into_a_real_server(mkv: Path, tmp_p
         info = st.sensor("azure1")
         assert info.serial == "001514394512"
         assert info.intrinsics == MkvRecording(mkv).calibration.depth
+        assert st.observation_count("azure1") == 0
+        obs = st.observations("azure2")
+        assert obs.n_frames == 1 and obs.has_body.all()
+        assert obs.t_sensor_s[0] == pytest.approx(0.800222)
     assert main(["inspect", str(rec)]) == 0
 
 

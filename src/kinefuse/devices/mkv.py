@@ -281,6 +281,6 @@ def open_mkv(arg: str, options: dict[str, str]) -> MkvRecording:
         import av  # noqa: F401
     except ImportError:
         raise InputError(
-            "reading an Azure Kinect recording needs PyAV: pip install 'kinefuse[k4a]'"
+            "reading an Azure Kinect recording needs PyAV: pip install 'kinefuse[mkv]'"
         ) from None
     return MkvRecording(arg)

@@ -106,7 +106,7 @@ KNOWN_SOURCES: tuple[SourceInfo, ...] = (
         "mkv:FILE.mkv[#ID]",
         "an Azure Kinect / Femto recording (k4arecorder)",
         "av",
-        "pip install 'kinefuse[k4a]'",
+        "pip install 'kinefuse[mkv]'",
     ),
     SourceInfo(
         "k4a",
