@@ -150,3 +150,43 @@ def test_track_refuses_what_it_cannot_read_or_must_not_overwrite(mkv, tmp_path) 
     assert (tmp_path / "mine.sqlite").read_text() == "someone's file\n"
     p = _kinefuse("track", str(mkv), "--out", "T.sqlite", "--tracker", "k4abt", cwd=tmp_path)
     assert p.returncode == 2 and "k4abt" in p.stderr and not (tmp_path / "T.sqlite").exists()
+
+
+def test_motion_lag_recovers_a_clock_offset_from_the_trunk_speed_alone() -> None:
+    """Real motion (the bundled CMU 01_01 walk) seen by two 'sensors' in different frames, at
+    30 Hz with interleaved samples, 1 cm of noise, the second's clock 1.73 s late."""
+    from importlib.resources import files
+
+    from scipy.spatial.transform import Rotation
+
+    from kinefuse.motion import load_motion
+    from kinefuse.workflows.track import motion_lag_s
+
+    m = load_motion(str(files("kinefuse") / "data" / "01_01.amc.gz"))
+    rng = np.random.default_rng(11)
+    t = np.arange(m.positions.shape[0]) / m.rate_hz
+    ra = Rotation.from_euler("z", 40, degrees=True).as_matrix()
+    rb = Rotation.from_euler("zx", [-70, 10], degrees=True).as_matrix()
+    pa = m.positions[::4] @ ra.T + [1.0, 2.0, 0.0]
+    pb = m.positions[2::4] @ rb.T + [-1.0, 0.5, 0.3]
+    pa += rng.normal(0, 0.01, pa.shape)
+    pb += rng.normal(0, 0.01, pb.shape)
+    found = motion_lag_s(t[::4], pa, t[2::4] + 1.73, pb)
+    assert found is not None
+    lag, r = found
+    assert lag == pytest.approx(1.73, abs=0.01) and r > 0.9
+    # a person standing still gives no clock
+    still = np.repeat(pa[:1], pa.shape[0], axis=0)
+    assert motion_lag_s(t[::4], still, t[2::4], pb) is None
+
+
+def test_two_recordings_of_a_standing_person_keep_their_start_time_clocks(mkv, tmp_path) -> None:
+    shutil.copy(mkv, tmp_path / "a.mkv")
+    shutil.copy(mkv, tmp_path / "b.mkv")
+    p = _kinefuse("track", "a.mkv", "b.mkv", "--out", "S.sqlite", "--tracker", "standing",
+                  "--jobs", "1", cwd=tmp_path, plugins=True)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "2 of 2 frames had a person" in p.stdout
+    with SessionStore.open(tmp_path / "S.sqlite") as st:
+        clock = st.meta()["track_clock"]
+    assert "start times" in clock and "motion" not in clock  # one still frame each: no lag

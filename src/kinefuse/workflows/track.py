@@ -14,7 +14,10 @@ clock, used as it is; otherwise each recording starts at its file's start time
 (``creation_time``, whole seconds) relative to the earliest, and recordings without one are
 assumed to have started together. Each sensor's frames get host arrival times on that session
 clock (plus the nominal latency the clock fit takes off) and identity clock probes: the session
-clock *is* the host clock. Motion alignment of recordings started apart is not done here.
+clock *is* the host clock. Then, unless the devices share a clock, the recordings in which the
+tracker saw a person are aligned on the first of them by the person's motion
+(:func:`motion_lag_s`: the trunk's speed, which no change of frame alters, cross-correlated
+within 5 s), which corrects start times that are off by up to that much.
 
 **Resumable.** The session is complete only once every recording is merged; a rerun on the same
 output skips the recordings already merged (by sensor id) and redoes the others.
@@ -36,7 +39,7 @@ import numpy as np
 
 from kinefuse.errors import InputError, StoreError
 
-__all__ = ["format_track", "recording_spec", "track_recordings"]
+__all__ = ["format_track", "motion_lag_s", "recording_spec", "track_recordings"]
 
 #: what the session's metadata says made it (a session without it is not ours to continue)
 GENERATOR = "kinefuse track"
@@ -105,11 +108,80 @@ def _offsets(headers: Sequence[_Header]) -> tuple[dict[str, float], str]:
     if all(math.isfinite(w) for w in walls):
         w0 = min(walls)
         offs = {h.sensor_id: (h.start_wall_s - w0) - h.first_device_s for h in headers}
-        return offs, "by the recordings' start times (whole seconds; not the motion)"
+        return offs, "by the recordings' start times (whole seconds)"
     return (
         {h.sensor_id: -h.first_device_s for h in headers},
         "assumed started together (no common clock, no start times)",
     )
+
+
+def _trunk_speed(t: np.ndarray, joints: np.ndarray, hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The trunk centre's speed (m/s) on a grid at ``hz`` from ``t[0]``: a rigid change of frame
+    leaves it unchanged, so two sensors' speeds compare before any calibration. NaN where the
+    trunk was not seen or across gaps over 0.2 s."""
+    from kinefuse.skeleton import TRUNK_JOINTS, joint_index
+
+    trunk = joints[:, [joint_index(n) for n in TRUNK_JOINTS], :]
+    ok = np.isfinite(trunk).all(axis=2).any(axis=1)
+    with np.errstate(invalid="ignore"):
+        centre = np.nanmean(np.where(np.isfinite(trunk), trunk, np.nan), axis=1)
+    t, centre = t[ok], centre[ok]
+    if t.size < 3:
+        return np.zeros(0), np.zeros(0)
+    grid = t[0] + np.arange(int((t[-1] - t[0]) * hz) + 1) / hz
+    p = np.stack([np.interp(grid, t, centre[:, k]) for k in range(3)], axis=1)
+    speed = np.full(grid.size, np.nan)
+    speed[1:-1] = np.linalg.norm(p[2:] - p[:-2], axis=1) * hz / 2
+    gap = np.diff(t) > 0.2
+    if gap.any():  # no speed across a gap in the tracking
+        for a, b in zip(t[:-1][gap], t[1:][gap], strict=True):
+            speed[(grid > a - 1 / hz) & (grid < b + 1 / hz)] = np.nan
+    return grid, speed
+
+
+def motion_lag_s(
+    t_ref: np.ndarray,
+    joints_ref: np.ndarray,
+    t_other: np.ndarray,
+    joints_other: np.ndarray,
+    *,
+    max_lag_s: float = 5.0,
+    hz: float = 30.0,
+    min_overlap_s: float = 5.0,
+) -> tuple[float, float] | None:
+    """How much later the same motion appears in ``other``'s times than in ``ref``'s: the
+    ``lag`` to subtract from ``other``'s times, from the cross-correlation of the two trunk
+    speeds (:func:`_trunk_speed`) over lags within ``max_lag_s``; and the correlation at the
+    peak. None when they overlap by less than ``min_overlap_s`` of motion at any lag, or the
+    peak is below 0.5 (the person stood still, or one sensor did not see them)."""
+    ga, va = _trunk_speed(np.asarray(t_ref), np.asarray(joints_ref), hz)
+    gb, vb = _trunk_speed(np.asarray(t_other), np.asarray(joints_other), hz)
+    if ga.size < 3 or gb.size < 3:
+        return None
+    n = round(max_lag_s * hz)
+    best = (-np.inf, 0)
+    corr = np.full(2 * n + 1, np.nan)
+    for i, k in enumerate(range(-n, n + 1)):
+        # other's sample at its time g + k/hz against ref's at g: other = ref delayed by k/hz
+        vb_at = np.interp(ga + k / hz, gb, vb, left=np.nan, right=np.nan)
+        ok = np.isfinite(va) & np.isfinite(vb_at)
+        if ok.sum() < min_overlap_s * hz:
+            continue
+        a, b = va[ok] - va[ok].mean(), vb_at[ok] - vb_at[ok].mean()
+        den = float(np.sqrt((a * a).sum() * (b * b).sum()))
+        if den <= 0:
+            continue
+        corr[i] = float((a * b).sum()) / den
+        if corr[i] > best[0]:
+            best = (corr[i], i)
+    peak, i = best
+    if not np.isfinite(peak) or peak < 0.5:
+        return None
+    frac = 0.0
+    if 0 < i < 2 * n and np.isfinite(corr[i - 1]) and np.isfinite(corr[i + 1]):
+        den = corr[i - 1] - 2 * corr[i] + corr[i + 1]
+        frac = 0.5 * (corr[i - 1] - corr[i + 1]) / den if den < 0 else 0.0
+    return (i - n + frac) / hz, float(peak)
 
 
 def _track_one(
@@ -314,6 +386,23 @@ def _track(
     workers = max(1, min(jobs or os.cpu_count() or 1, len(todo) or 1))
     if todo:
         results = _run_workers(todo, parts, tracker, depth_hz, workers, say)
+        if "wired sync" not in how and len(ids) > 1:
+            say("aligning the recordings by the person's motion")
+            moved = _align_by_motion(store, parts, ids, done, offsets)
+            if moved:
+                offsets = {
+                    **offsets,
+                    **{sid: offsets[sid] - lag for sid, (lag, _c) in moved.items()},
+                }
+                how += (
+                    "; then by the person's motion ("
+                    + ", ".join(
+                        f"{sid} {lag * 1000:+.0f} ms, r {c:.2f}" for sid, (lag, c) in moved.items()
+                    )
+                    + ")"
+                )
+                store.set_meta("track_offsets_s", offsets)
+                store.set_meta("track_clock", how)
         for _spec, sid in todo:  # merged in the order given
             say(f"{sid}: writing into {out.name}")
             _merge(store, parts / f"{sid}.sqlite", sid, float(offsets[sid]))
@@ -339,6 +428,36 @@ def _track(
         "workers": workers if todo else 0,
         "sensors": [recs.get(sid, {"sensor_id": sid}) for sid in ids],
     }
+
+
+def _align_by_motion(
+    store: Any, parts: Path, ids: list[str], done: set[str], offsets: dict[str, float]
+) -> dict[str, tuple[float, float]]:
+    """Lags of the new sensors against the first sensor that saw a person (on the session clock
+    so far), from the trunk's speed; sensors already in the session keep their clock."""
+    from kinefuse.io.store.session import SessionStore
+
+    def series(sid: str) -> tuple[np.ndarray, np.ndarray]:
+        if sid in done:
+            o = store.observations(sid)
+        else:
+            with SessionStore.open(parts / f"{sid}.sqlite") as p:
+                o = p.observations(sid)
+        return o.t_device_s + float(offsets[sid]), o.joints_m
+
+    streams = {sid: series(sid) for sid in ids}
+    seen = [sid for sid in ids if np.isfinite(streams[sid][1]).any()]
+    if len(seen) < 2:
+        return {}
+    ref = seen[0]
+    out = {}
+    for sid in seen[1:]:
+        if sid in done:
+            continue
+        lag = motion_lag_s(*streams[ref], *streams[sid])
+        if lag is not None:
+            out[sid] = lag
+    return out
 
 
 def _run_workers(
