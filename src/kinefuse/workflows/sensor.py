@@ -173,9 +173,14 @@ def run_sensor(
 def list_sources() -> str:
     """``kinefuse sensor --list-sources``: every source kind and tracker, one per line, with
     whether it is installed here and, where not, the command that installs it."""
+    from importlib.metadata import entry_points
+
     from kinefuse.devices.sources import list_sources as rows
+    from kinefuse.net.client.playback import ENTRY_POINT_GROUP
 
     table = rows()
+    for ep in entry_points(group=ENTRY_POINT_GROUP):  # drivers: FrameSources of their own
+        table.append((ep.name, f"{ep.name}:ARG", "installed", f"driver entry point {ep.value}"))
     w0 = max(len(r[0]) for r in table)
     lines = []
     for kind, form, status, what in table:
