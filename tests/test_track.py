@@ -128,11 +128,19 @@ def test_an_interrupted_run_is_continued_by_the_next(mkv, tmp_path) -> None:
         track_recordings([str(a), str(b)], out, jobs=1, progress=ctrl_c_while_writing_b)
     with SessionStore.open(out) as st:
         assert not st.complete and [s.id for s in st.sensors()] == ["a"]
+    # and b's merge itself cut after its first transactions (the sensor and its depth frames)
+    part = tmp_path / "S.sqlite.track-parts" / "b.sqlite"
+    with SessionStore.open(part) as p, SessionStore.open(out, writable=True) as st:
+        info = p.sensor("b")
+        st.add_sensor("b", info.serial, info.intrinsics, info.rate_hz)
+        for seq, t, frames in p.iter_depth_frames("b"):
+            st.append_depth_frames("b", seq, t, frames)
     d = track_recordings([str(a), str(b)], out, jobs=1)
     assert d["skipped"] == ["a"]
     with SessionStore.open(out) as st:
         assert st.complete and [s.id for s in st.sensors()] == ["a", "b"]
         assert st.depth_frame_count("a") == st.depth_frame_count("b") == 1
+        assert st.observation_count("b") == 1 and st.clock_probes("b").shape[0] > 0
     # complete: another recording goes into a new session
     c = tmp_path / "c.mkv"
     shutil.copy(mkv, c)

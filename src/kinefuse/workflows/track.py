@@ -263,7 +263,8 @@ def _track_one(
 
 def _merge(out: Any, part: Path, sensor_id: str, offset_s: float) -> None:
     """A finished part into the session: the sensor, its frames on the session clock, identity
-    probes (the session clock is the host clock)."""
+    probes (the session clock is the host clock). Each append is one transaction, so a merge
+    that was interrupted is continued where it stopped (what is stored is skipped)."""
     from kinefuse.io.store.session import SessionStore
     from kinefuse.sync.device import NOMINAL_LATENCY_S
 
@@ -271,16 +272,27 @@ def _merge(out: Any, part: Path, sensor_id: str, offset_s: float) -> None:
         if not p.complete:
             raise StoreError(f"{part}: the worker did not finish this recording")
         info = p.sensor(sensor_id)
-        out.add_sensor(sensor_id, info.serial, info.intrinsics, info.rate_hz)
+        if sensor_id not in {s.id for s in out.sensors()}:
+            out.add_sensor(sensor_id, info.serial, info.intrinsics, info.rate_hz)
+        have = out.depth_frame_count(sensor_id)  # appended in this order, chunk by chunk
         for seq, t, frames in p.iter_depth_frames(sensor_id):
-            out.append_depth_frames(sensor_id, seq, t, frames)
+            skip = min(have, len(seq))
+            have -= skip
+            if skip < len(seq):
+                out.append_depth_frames(sensor_id, seq[skip:], t[skip:], frames[skip:])
         o = p.observations(sensor_id)
         host = o.t_device_s + offset_s + NOMINAL_LATENCY_S
-        out.append_observations(
-            sensor_id, o.seq, o.t_device_s, o.joints_m, o.states, t_receive_host_s=host
-        )
-        t = np.arange(math.floor(host.min()), math.ceil(host.max()) + 1.0) if host.size else host
-        out.append_clock_probes(sensor_id, t, t, t, t)
+        if out.observation_count(sensor_id) == 0:
+            out.append_observations(
+                sensor_id, o.seq, o.t_device_s, o.joints_m, o.states, t_receive_host_s=host
+            )
+        if out.clock_probes(sensor_id).shape[0] == 0:
+            t = (
+                np.arange(math.floor(host.min()), math.ceil(host.max()) + 1.0)
+                if host.size
+                else host
+            )
+            out.append_clock_probes(sensor_id, t, t, t, t)
 
 
 def _open_output(out: Path) -> Any:
@@ -362,7 +374,8 @@ def _track(
     progress: Callable[[str], None] | None,
 ) -> dict[str, Any]:
     meta = store.meta()
-    done = {s.id for s in store.sensors()}
+    done = set(meta.get("track_recordings") or {})  # merged to the end
+    registered = {s.id for s in store.sensors()}  # merged, or a merge that was interrupted
     known = dict(meta.get("track_offsets_s") or {})
     if store.complete and set(ids) - done:
         raise InputError(
@@ -388,7 +401,7 @@ def _track(
         results = _run_workers(todo, parts, tracker, depth_hz, workers, say)
         if "wired sync" not in how and len(ids) > 1:
             say("aligning the recordings by the person's motion")
-            moved = _align_by_motion(store, parts, ids, done, offsets)
+            moved = _align_by_motion(store, parts, ids, done, registered, offsets)
             if moved:
                 offsets = {
                     **offsets,
@@ -431,7 +444,12 @@ def _track(
 
 
 def _align_by_motion(
-    store: Any, parts: Path, ids: list[str], done: set[str], offsets: dict[str, float]
+    store: Any,
+    parts: Path,
+    ids: list[str],
+    done: set[str],
+    registered: set[str],
+    offsets: dict[str, float],
 ) -> dict[str, tuple[float, float]]:
     """Lags of the new sensors against the first sensor that saw a person (on the session clock
     so far), from the trunk's speed; sensors already in the session keep their clock."""
@@ -452,7 +470,7 @@ def _align_by_motion(
     ref = seen[0]
     out = {}
     for sid in seen[1:]:
-        if sid in done:
+        if sid in registered:
             continue
         lag = motion_lag_s(*streams[ref], *streams[sid])
         if lag is not None:
