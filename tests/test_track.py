@@ -198,3 +198,11 @@ def test_two_recordings_of_a_standing_person_keep_their_start_time_clocks(mkv, t
     with SessionStore.open(tmp_path / "S.sqlite") as st:
         clock = st.meta()["track_clock"]
     assert "start times" in clock and "motion" not in clock  # one still frame each: no lag
+
+
+def test_an_unreadable_recording_is_refused_before_any_output(mkv, tmp_path) -> None:
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(mkv.read_bytes()[:300_000])
+    p = _kinefuse("track", str(mkv), "cut.mkv", "--out", "S.sqlite", cwd=tmp_path)
+    assert p.returncode == 2 and "truncated" in p.stderr and "Traceback" not in p.stderr
+    assert not (tmp_path / "S.sqlite").exists()

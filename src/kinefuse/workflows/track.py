@@ -344,11 +344,11 @@ def track_recordings(
         raise InputError(f"--depth-hz must be a positive rate, got {depth_hz}")
     if tracker:
         load_tracker(tracker).close()  # refuse a missing tracker before any work
+    from kinefuse.devices.sources import parse_spec
+
     specs = [recording_spec(r) for r in recordings]
     ids: list[str] = []
     for spec in specs:
-        from kinefuse.devices.sources import parse_spec
-
         _kind, arg, _opt, sid = parse_spec(spec)
         base = sid or Path(arg).stem or "sensor"
         sid = base
@@ -356,9 +356,12 @@ def track_recordings(
         while sid in ids:
             sid, k = f"{base}-{k}", k + 1
         ids.append(sid)
+    say = progress or (lambda _m: None)
+    say("reading the recordings' clocks")  # and refusing an unreadable one before any output
+    headers = [_header(spec, sid) for spec, sid in zip(specs, ids, strict=True)]
     store = _open_output(Path(out))
     try:
-        return _track(store, Path(out), specs, ids, tracker, jobs, depth_hz, progress)
+        return _track(store, Path(out), headers, tracker, jobs, depth_hz, say)
     finally:
         store.close()
 
@@ -366,13 +369,14 @@ def track_recordings(
 def _track(
     store: Any,
     out: Path,
-    specs: list[str],
-    ids: list[str],
+    headers: list[_Header],
     tracker: str | None,
     jobs: int | None,
     depth_hz: float,
-    progress: Callable[[str], None] | None,
+    say: Callable[[str], None],
 ) -> dict[str, Any]:
+    specs = [h.spec for h in headers]
+    ids = [h.sensor_id for h in headers]
     meta = store.meta()
     done = set(meta.get("track_recordings") or {})  # merged to the end
     registered = {s.id for s in store.sensors()}  # merged, or a merge that was interrupted
@@ -383,10 +387,7 @@ def _track(
             f"{', '.join(sorted(set(ids) - done))} into a new --out"
         )
     todo = [(spec, sid) for spec, sid in zip(specs, ids, strict=True) if sid not in done]
-    say = progress or (lambda _m: None)
     if not known or any(sid not in known for _spec, sid in todo):
-        say("reading the recordings' clocks")
-        headers = [_header(spec, sid) for spec, sid in zip(specs, ids, strict=True)]
         offsets, how = _offsets(headers)
         offsets = {**offsets, **known}  # sensors merged before keep their session clock
         store.set_meta("track_offsets_s", offsets)
