@@ -63,7 +63,7 @@ class K4ACamera:
             fps = int(options.get("fps", "30"))
         except ValueError:
             fps = -1
-        if fps not in _RATES or (fps == 30 and depth_mode == "WFOV_UNBINNED"):
+        if fps not in _RATES or (fps == 30 and (depth_mode == "WFOV_UNBINNED" or color == "3072P")):
             raise InputError(
                 "k4a: fps must be 5, 15 or 30 (WFOV_UNBINNED and 3072P run at 15 at most)"
             )
