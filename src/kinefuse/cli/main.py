@@ -25,6 +25,7 @@ from kinefuse.cli import (
     serve,
     simulate,
     token,
+    track,
     view,
 )
 from kinefuse.errors import KinefuseError
@@ -41,6 +42,7 @@ COMMANDS = (
     fuse,
     evaluate,
     realdata,
+    track,
     analyze,
     view,
     inspect,

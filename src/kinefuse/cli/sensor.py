@@ -22,15 +22,26 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--server",
         type=shared.host_port,
-        required=True,
         metavar="HOST:PORT",
-        help="address of the `kinefuse serve` to send to",
+        help="address of the `kinefuse serve` to send to (required unless --list-sources)",
     )
     p.add_argument(
         "--source",
-        required=True,
         help="sim:SESSION.sqlite#SENSOR_ID, multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, "
-        "driver:MODULE:FACTORY[?KEY=VALUE&...][#SENSOR_ID] or an installed driver NAME:ARG",
+        "a camera (mkv:FILE.mkv, k4a:[INDEX|SERIAL], realsense:[SERIAL], "
+        "realsense-file:FILE.bag, kinect2), "
+        "driver:MODULE:FACTORY[?KEY=VALUE&...][#SENSOR_ID] or an installed driver NAME:ARG "
+        "(--list-sources lists them; required unless --list-sources)",
+    )
+    p.add_argument(
+        "--tracker",
+        metavar="NAME",
+        help="the body tracker of a camera source (k4abt, pose, ...; default: none, depth only)",
+    )
+    p.add_argument(
+        "--list-sources",
+        action="store_true",
+        help="list every source kind and tracker, whether it is installed, and how to install it",
     )
     p.add_argument(
         "--token-file",
@@ -92,9 +103,18 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    from kinefuse.workflows.sensor import run_sensor
+    from kinefuse.errors import InputError
+    from kinefuse.workflows.sensor import list_sources, run_sensor
     from kinefuse.workflows.serve import token_from
 
+    if args.list_sources:
+        print(list_sources())
+        return 0
+    if args.server is None or not args.source:
+        raise InputError(
+            "kinefuse sensor needs --server HOST:PORT and --source SOURCE "
+            "(kinefuse sensor --list-sources lists the sources)"
+        )
     return run_sensor(
         clock_drift_ppm=args.clock_drift_ppm,
         clock_offset_ms=args.clock_offset_ms,
@@ -108,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
         source=args.source,
         speed=args.speed,
         token=token_from(args.token, args.token_file),
+        tracker=args.tracker,
         truth_out=args.truth_out,
         verbose=args.verbose,
     )

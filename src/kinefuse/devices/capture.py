@@ -35,6 +35,9 @@ class CameraCalibration:
         as the device names them); empty when the device undistorts.
     device : str
         What the calibration came from ("Azure Kinect DK", "RealSense D435", ...).
+    raw : str
+        The device's own calibration text where it has one (the Azure Kinect's JSON), for a
+        library that needs it as the device gave it (Microsoft's body tracker); else "".
     """
 
     depth: Intrinsics
@@ -43,6 +46,7 @@ class CameraCalibration:
     distortion_depth: tuple[float, ...] = ()
     distortion_color: tuple[float, ...] = ()
     device: str = ""
+    raw: str = ""
 
 
 @dataclass(frozen=True, eq=False)

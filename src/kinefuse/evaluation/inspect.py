@@ -57,7 +57,8 @@ def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]
         ``schema_version``, ``path``, ``meta``; ``sensors``: a list of per-sensor dicts
         (``id``, ``serial``, ``frames``, ``frames_with_body``, ``rate_hz`` measured from the
         sensor-clock timestamps, ``nominal_rate_hz``, ``duration_s``, ``depth_frames``,
-        ``clock_probes``, ``observation_error_m`` median or None); ``duration_s`` (longest
+        ``clock_probes``, ``observation_error_m`` median or None, ``intrinsics`` of its depth
+        camera as stored); ``duration_s`` (longest
         per-sensor span of capture times, seconds); ``joints`` (25); ``has_truth``;
         ``tracking_state_fraction`` (``tracked``, ``inferred``, ``not_tracked`` over all
         frames x joints of all sensors); ``observation_error_m`` (``median``, ``p95``,
@@ -113,6 +114,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
             "depth_frames": store.depth_frame_count(info.id),
             "clock_probes": int(store.clock_probes(info.id).shape[0]),
             "observation_error_m": None,
+            "intrinsics": info.intrinsics.to_dict(),
         }
         if truth is not None:
             t_seq, _, t_joints, _, t_swapped = truth.observations(info.id)
@@ -226,6 +228,14 @@ def format_inspect(d: dict[str, Any]) -> str:
             f"{s['id']:<12}{s['frames']:>8}{s['frames_with_body']:>8}{_pct0(seen):>7}{rate:>9}"
             f"{s['depth_frames']:>7}{s['clock_probes']:>8}{_cm(s['observation_error_m']):>12}"
         )
+    for s in d["sensors"]:
+        k = s.get("intrinsics")
+        if k:
+            lines.append(
+                f"intrinsics {s['id']}: {k['width']}x{k['height']} px, fx {k['fx']:.2f} "
+                f"fy {k['fy']:.2f} cx {k['cx']:.2f} cy {k['cy']:.2f}, depth "
+                f"{k['min_range_m']:.2f}-{k['max_range_m']:.2f} m"
+            )
     f = d["tracking_state_fraction"]
     lines += [
         "",

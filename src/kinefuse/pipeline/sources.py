@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.devices.kinect2 import KINECT_CAMERA_TO_SENSOR
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
 from kinefuse.frames.source import FrameSource
@@ -50,7 +51,7 @@ __all__ = [
 Array = NDArray[np.float64]
 
 #: Kinect camera space (x left, y up, z forward) -> kinefuse sensor axes (x right, y down, z fwd).
-_KINECT_AXES = np.array([-1.0, -1.0, 1.0])
+_KINECT_AXES = KINECT_CAMERA_TO_SENSOR
 
 
 def _arrival_key(f: Frame) -> float:

@@ -35,6 +35,7 @@ def run_sensor(
     token: str | None,
     truth_out: Path | None,
     verbose: bool,
+    tracker: str | None = None,
 ) -> int:
     """Run one sensor client until it stops; return the exit code (0 a clean stop, 3 refused).
 
@@ -67,7 +68,7 @@ def run_sensor(
         serial=serial,
         software=f"kinefuse {__version__}",
     )
-    timeline = open_timeline(source)
+    timeline = open_timeline(source, tracker)
     if not serial and timeline.serial:
         options = replace(options, serial=timeline.serial)
     try:
@@ -75,7 +76,7 @@ def run_sensor(
         if timeline.live:
             if clock_offset_ms is not None or clock_drift_ppm is not None:
                 raise InputError(
-                    "a driver source stamps on this PC's clock: --clock-offset-ms and "
+                    "a live source stamps on this PC's clock: --clock-offset-ms and "
                     "--clock-drift-ppm are for simulated and recorded sources only"
                 )
             h0, drift = 0.0, 0.0
@@ -162,7 +163,29 @@ def run_sensor(
     if "m0" in side:
         write_sidecar(stats=vars(st))
     logging.getLogger("kinefuse.sensor").info(
-        "stopped: %d body frames sent, %d dropped, %d sightings, %d probes answered",
-        st.body_sent, st.body_dropped, st.sightings_sent, st.probes_answered,
+        "stopped: %d body frames sent, %d dropped, %d depth frames, %d sightings, "
+        "%d probes answered",
+        st.body_sent, st.body_dropped, st.depth_frames, st.sightings_sent, st.probes_answered,
     )  # fmt: skip
     return code
+
+
+def list_sources() -> str:
+    """``kinefuse sensor --list-sources``: every source kind and tracker, one per line, with
+    whether it is installed here and, where not, the command that installs it."""
+    from importlib.metadata import entry_points
+
+    from kinefuse.devices.sources import list_sources as rows
+    from kinefuse.net.client.playback import ENTRY_POINT_GROUP
+
+    table = rows()
+    for ep in entry_points(group=ENTRY_POINT_GROUP):  # drivers: FrameSources of their own
+        table.append((ep.name, f"{ep.name}:ARG", "installed", f"driver entry point {ep.value}"))
+    w0 = max(len(r[0]) for r in table)
+    lines = []
+    for kind, form, status, what in table:
+        state, _, how = status.partition(": ")
+        lines.append(f"{kind:<{w0}}  {state:<9}  {form}  ({what})")
+        if how:
+            lines.append(f"{'':<{w0}}  {'':<9}  install: {how}")
+    return "\n".join(lines)

@@ -11,6 +11,10 @@ reaches the client PC, in seconds of the timeline's own clock (``source_clock``)
 - ``multitrack:FILE.csv#KINECT_ID``, ``kinect2json:FILE``: recorded real logs through
   :func:`kinefuse.pipeline.sources.open_source`; a frame plays at its host time where the log has
   one, else at its device time (``source_clock`` ``"host"`` or ``"device"``).
+- ``KIND:ARG[?KEY=VALUE&...][#SENSOR_ID]`` of a camera kind (entry points of the group
+  ``kinefuse.cameras``: ``mkv``, ``k4a``, ``realsense``, ``realsense-file``, ``kinect2``;
+  :mod:`kinefuse.devices.sources`), with the body tracker ``tracker`` names: a device is live,
+  a recording plays on its device times like a log (in real time, or at ``--speed``).
 - ``driver:MODULE:FACTORY[?KEY=VALUE&...]`` or an entry point ``NAME:ARG`` of the group
   ``kinefuse.pipeline.sources``: a physical sensor's driver (docs/live.md, "A driver for a physical
   sensor"). It is *live*: its iterator blocks until the device delivers the next frame, which
@@ -31,6 +35,7 @@ from urllib.parse import parse_qsl
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
+from kinefuse.devices.sources import camera_kinds, open_camera_source
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
 from kinefuse.frames.source import FrameSource
@@ -229,9 +234,18 @@ def _check_source(src: object, what: str) -> FrameSource:
     return src
 
 
-def open_timeline(spec: str) -> Timeline:
-    """The timeline of a ``--source`` spec (see the module notes for the forms)."""
+def open_timeline(spec: str, tracker: str | None = None) -> Timeline:
+    """The timeline of a ``--source`` spec (see the module notes for the forms); ``tracker``
+    names the body tracker of a camera source (refused for the other sources)."""
     kind, _, rest = spec.partition(":")
+    if kind in camera_kinds():
+        camera = open_camera_source(spec, tracker)
+        return SourceTimeline(camera, None, live=camera.live)
+    if tracker:
+        raise InputError(
+            f"--tracker is for camera sources ({', '.join(sorted(camera_kinds()))}); "
+            f"{kind!r} delivers body frames already"
+        )
     if kind == "sim":
         target, _, sensor = rest.partition("#")
         if not target:
@@ -261,6 +275,8 @@ def open_timeline(spec: str) -> Timeline:
         return SourceTimeline(src, sensor or None, live=True)
     raise InputError(
         f"source {spec!r}: unknown kind {kind!r}; use sim:SESSION.sqlite#ID, "
-        "multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, driver:MODULE:FACTORY or an "
-        f"installed driver ({ENTRY_POINT_GROUP} entry points: {', '.join(sorted(eps)) or 'none'})"
+        "multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, a camera "
+        f"({', '.join(sorted(camera_kinds()))}), driver:MODULE:FACTORY or an installed driver "
+        f"({ENTRY_POINT_GROUP} entry points: {', '.join(sorted(eps)) or 'none'}); "
+        "kinefuse sensor --list-sources lists them"
     )
