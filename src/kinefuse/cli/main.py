@@ -19,6 +19,7 @@ from kinefuse.cli import (
     evaluate,
     fuse,
     inspect,
+    maps,
     proxy,
     realdata,
     realism,
@@ -42,6 +43,7 @@ COMMANDS = (
     realism,
     realdata,
     analyze,
+    maps,
     view,
     inspect,
 )
