@@ -13,7 +13,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p = sub.add_parser(
         "maps", help="marker maps: list the shipped sets, write one for a file, check one"
     )
-    verbs = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+    verbs = p.add_subparsers(
+        dest="verb", required=True, metavar="VERB", help="list, suggest or check"
+    )
     ls = verbs.add_parser("list", help="the marker sets that ship")
     ls.set_defaults(func=run_list)
     sg = verbs.add_parser(

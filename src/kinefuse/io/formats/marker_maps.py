@@ -470,8 +470,8 @@ def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> 
 def _no_fit_message(
     markers: MarkerData, near: tuple[int, int, MarkerMap, dict[str, list[str]]]
 ) -> str:
-    """The error of :func:`select_marker_map`: at most eleven lines (twelve with the CLI's
-    ``kinefuse: error:`` prefix on the first)."""
+    """The error of :func:`select_marker_map`: at most eleven lines (the CLI prints it after
+    one ``loading`` line)."""
     import shlex
 
     cover, built, m, missing = near
@@ -496,7 +496,7 @@ def _no_fit_message(
             item = f"{', '.join(joints)}: {lacks}"
             if packed and len(packed[-1]) + len(item) < 110:
                 packed[-1] += f"; {item}"
-            elif len(packed) < 6:
+            elif len(packed) < 5:
                 packed.append(f"  {item}")
             else:
                 break
@@ -504,6 +504,11 @@ def _no_fit_message(
         lines += packed
         if left:
             lines.append(f"  ... and {left} more joints")
+        if any("static trial" in w for why in missing.values() for w in why):
+            lines.append(
+                f"The {m.name} set takes those from the static trial: pass it with --static "
+                "(the trial with those markers), or:"
+            )
     f = shlex.quote(str(markers.path))
     lines.append(
         f"Write a map for it: kinefuse maps suggest {f} --out my_map.toml (fill the rules "

@@ -78,7 +78,8 @@ _UP = {"+x": 0, "+y": 1, "+z": 2, "-x": 0, "-y": 1, "-z": 2}
 #: LM, MM, CA, FM, SM, VM); OpenSim's example sets (Gait2354 ``Knee.Lat``, Rajagopal 2016
 #: ``Knee``/``MKnee``, its running trial's ``LFC``/``MFC``, ``LMAL``/``MMAL``, ``CAL``, ``LEL``/
 #: ``MEL``, ``FAradius``/``FAulna``, ``ACR``); Motion Analysis (``R.Thigh``, ``R.Shank``,
-#: ``V.Sacral``); BTS (``r thigh``/``r bar 1``, ``r shank``/``r bar 2``, ``r mall``, ``sacrum``).
+#: ``V.Sacral``); BTS (``r thigh``/``r bar 1``, ``r shank``/``r bar 2``, ``r mall``, ``r met``,
+#: ``sacrum``).
 MARKER_SYNONYMS: Final[dict[str, str]] = {
     name: key
     for key, names in {
@@ -93,7 +94,7 @@ MARKER_SYNONYMS: Final[dict[str, str]] = {
         "tam": ("mankle", "anklemed", "tam", "mmal", "mm", "mmall"),
         "fcc": ("hee", "heel", "fcc", "cal", "ca", "calc"),
         "fm1": ("fm1", "mt1", "fm", "fmh"),
-        "fm2": ("toe", "fm2", "mt2", "sm"),
+        "fm2": ("toe", "fm2", "mt2", "sm", "met"),
         "fm5": ("fm5", "mt5", "vm", "vmh"),
         "ac": ("sho", "acr", "acromion", "acromium", "shoulder", "saj", "sae", "ac"),
         "hle": ("elb", "elbow", "elbowlat", "hle", "lel", "el", "lee"),
