@@ -6,6 +6,8 @@ chosen by the names and gives back the clip's true joint centres."""
 from __future__ import annotations
 
 import json
+import re
+import shlex
 from collections.abc import Callable
 from pathlib import Path
 
@@ -217,7 +219,10 @@ def test_an_upper_limb_capture_gives_arm_and_trunk_angles_and_says_the_legs_were
 
 
 def test_a_file_of_an_unknown_set_gets_at_most_twelve_lines_and_exit_2(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    shared_data: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Markers no shipped set names (and some it does): the closest set, per joint what it
     lacks, and the commands that help, in twelve lines or fewer."""
@@ -233,6 +238,15 @@ def test_a_file_of_an_unknown_set_gets_at_most_twelve_lines_and_exit_2(
     assert "Closest: 'isb'" in err and "KneeLeft" in err and "LFLE" in err
     assert f"kinefuse maps suggest {walk} --out my_map.toml" in err
     assert not out.exists()
+    # the commands it names run as written (from the folder the user is in)
+    monkeypatch.chdir(tmp_path)
+    suggest = re.search(r"(kinefuse maps suggest .+? --out my_map\.toml)", err)
+    check = re.search(r"(kinefuse maps check .+? --map my_map\.toml)", err)
+    assert suggest and check, err
+    assert main(shlex.split(suggest.group(1))[1:]) == 0
+    assert (tmp_path / "my_map.toml").is_file()
+    assert main(shlex.split(check.group(1))[1:]) == 2  # its TODOs are not filled yet
+    assert "still TODO" in capsys.readouterr().err
     # nothing in common with any shipped set: says so, still short
     (tmp_path / "odd").mkdir()
     numbered = {n: f"M{i:02d}" for i, n in enumerate(tr.names)}

@@ -51,8 +51,8 @@ def list_maps() -> list[str]:
     for name, m in maps.items():
         some = ", ".join(map_marker_names(m)[:6])
         lines.append(f"  {name:<{width}}  {len(m.joints):2d} joints  {m.description} ({some}, ...)")
-    lines.append("A file's set is chosen by its marker names; `kinefuse maps check FILE --map "
-                 "NAME` shows how one applies.")  # fmt: skip
+    lines.append("A file's set is chosen by its marker names; `maps check` with --map and a "
+                 "set's name shows how one applies to a file.")  # fmt: skip
     return lines
 
 
