@@ -25,10 +25,10 @@ from kinefuse.errors import InputError
 from kinefuse.io.formats.marker_maps import (
     JointRule,
     MarkerMap,
-    _coverage,
-    _resolve,
     load_marker_map,
+    map_coverage,
     map_marker_names,
+    resolved_rules,
     rule_points,
     shipped_marker_maps,
 )
@@ -105,12 +105,11 @@ def suggest_map(path: Path, out: Path) -> tuple[Path, list[str], list[str]]:
     markers = read_markers(path)
     names = markers.names
     finder = MarkerResolver(names)
-    ranked = sorted(shipped_marker_maps().values(), key=lambda m: -_coverage(m, finder))
+    ranked = sorted(shipped_marker_maps().values(), key=lambda m: -map_coverage(m, finder))
     closest = ranked[0]
     data: dict[str, Any] = {"name": out.stem, "description": f"written for {path.name}"}
-    up = next((m.up for m in ranked if m.up is not None and _coverage(m, finder)), None)
-    if up is not None:
-        data["up"] = up
+    if closest.up is not None:  # else the up axis is inferred from the markers' spread
+        data["up"] = closest.up
     pelvis = next(
         (
             m.pelvis
@@ -207,7 +206,7 @@ def check_map(path: Path, map_path: Path | str, static: Path | None = None) -> M
             f"{shlex.quote(str(map_path))}"
         )
     markers, mmap, _notes, _st = resolve_marker_input(path, marker_map=mmap, static=static)
-    chosen, missing = _resolve(mmap, MarkerResolver(markers.names))
+    chosen, missing = resolved_rules(mmap, markers.names)
     if missing:
         raise InputError(
             f"{path}: the map {mmap.name!r} ({mmap.origin}) names markers the file does not "

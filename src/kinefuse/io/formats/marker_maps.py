@@ -31,8 +31,9 @@ are all in the file wins). Every joint of ``[joints]`` is required: when no alte
 built, :func:`apply_marker_map` fails naming the missing markers and the file's markers. A
 joint is missing in a frame when any marker of its rule is missing there. ``SpineBase`` must be
 mapped (it is the root of the Kinect tree); joints a map leaves out are absent from the
-sequence. Marker names match exactly, else ignoring case and any namespace prefix
-(``Derrick:LASI`` matches ``LASI``).
+sequence. Marker names match exactly, else by landmark
+(:class:`kinefuse.io.formats.markers.MarkerResolver`: ``Derrick:LASI``, ``L_ASIS``, ``ASIS_L``,
+``l asis`` and ``L_IAS`` all match ``LASI``).
 
 Hip joint centres (in the pelvis frame of the ISB recommendation, Wu et al. 2002: origin at the
 ASIS midpoint, x anterior within the plane of the ASIS and the PSIS midpoint (or sacrum), z from
@@ -54,7 +55,8 @@ into the limb's normalized frame by its constant offset at the default pose (B.1
 cluster's placement on the limb does not matter. It makes the twist of that limb observable.
 
 The shipped maps (package data ``kinefuse/data/markermaps/``) are listed by
-:func:`shipped_marker_maps`; ``docs/analysis.md`` explains how to write one.
+:func:`shipped_marker_maps`; ``docs/maps.md`` says which sets they read and how to write one
+(``kinefuse maps suggest``), ``docs/analysis.md`` gives the full format.
 """
 
 from __future__ import annotations
@@ -88,8 +90,10 @@ __all__ = [
     "cluster_orientations",
     "hip_joint_centres",
     "load_marker_map",
+    "map_coverage",
     "map_marker_names",
     "parse_marker_map",
+    "resolved_rules",
     "rule_points",
     "select_marker_map",
     "shipped_marker_maps",
@@ -432,9 +436,18 @@ def map_marker_names(mmap: MarkerMap) -> tuple[str, ...]:
     return tuple(dict.fromkeys(n for n in names if n not in mmap.landmarks))
 
 
-def _coverage(mmap: MarkerMap, finder: MarkerResolver) -> int:
-    """How many of the file's markers the map names."""
+def map_coverage(mmap: MarkerMap, names: MarkerResolver | tuple[str, ...]) -> int:
+    """How many of a file's markers (its names, or their resolver) the map names."""
+    finder = names if isinstance(names, MarkerResolver) else MarkerResolver(names)
     return len({c for n in map_marker_names(mmap) if (c := finder(n)) is not None})
+
+
+def resolved_rules(
+    mmap: MarkerMap, names: tuple[str, ...]
+) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
+    """(joint -> the first rule the markers ``names`` build, joint -> the missing markers of
+    each alternative where none is built)."""
+    return _resolve(mmap, MarkerResolver(names))
 
 
 def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> MarkerMap:
@@ -455,7 +468,7 @@ def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> 
     near: list[tuple[int, int, MarkerMap, dict[str, list[str]]]] = []
     for m in shipped_marker_maps().values():
         chosen, missing = _resolve(m, finder, sf)
-        cover = _coverage(m, finder)
+        cover = map_coverage(m, finder)
         if not missing:
             full.append((cover, len(chosen), m))
         elif _partial_ok(chosen, missing):
