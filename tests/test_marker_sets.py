@@ -254,3 +254,28 @@ def test_a_file_of_an_unknown_set_gets_at_most_twelve_lines_and_exit_2(
     assert main(["analyze", str(odd), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "No shipped set shares a marker name" in err and len(err.strip().splitlines()) <= 12
+
+
+@pytest.mark.parametrize(
+    ("marker_set", "rename", "up"),
+    [("helen-hayes", bts, "+y"), ("isb", underscore_prefix, "+z")],
+    ids=["bts-davis", "qualisys-isb"],
+)
+def test_analyze_reads_them_without_a_map(
+    marker_set: str,
+    rename: Callable[[str], str],
+    up: str,
+    shared_data: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The command itself: knee angles written, the set named in the report."""
+    tr = marker_trial(shared_data / WALK, marker_set)
+    walk, static = write_trial(tr, tmp_path, rename, up)
+    out = tmp_path / "out"
+    code = main(["analyze", str(walk), "--static", str(static), "--out", str(out), "--no-plots"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    report = json.loads((out / "analysis.json").read_text())
+    assert f"marker map {marker_set} " in report["source"]
+    assert "knee_flexion_left" in report["anatomical"]["angle_names"]
