@@ -60,27 +60,28 @@ def run(args: argparse.Namespace) -> int:
             f"--out exports one fused take: give one log (got {len(args.paths)}), or run "
             "kinefuse realdata once per log"
         )
+    fused: list = []
     results = [
         fuse_multitrack(
             p,
             registration=args.registration,
             other_offaxis_deg=args.other_offaxis_deg,
             motion_latency=not args.no_motion_latency,
+            fused=fused,
         )
         for p in args.paths
     ]
     written: list[Path] = []
     if args.out is not None:
-        out, notes = export_fused(results[0], args.out)
+        out, notes = export_fused(fused[0], args.out, results[0]["file"])
         for w in said_once([f"{out.name}: {n}" for n in notes]):
             print(f"kinefuse: warning: {w}", file=sys.stderr)
         written.append(out)
-    public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in results]
     if args.json:
-        print(json.dumps(public if len(public) > 1 else public[0], indent=1))
+        print(json.dumps(results if len(results) > 1 else results[0], indent=1))
     else:
-        print("\n".join(format_summary(r) for r in public))
-        print("\n" + "\n\n".join(format_report(r) for r in public))
+        print("\n".join(format_summary(r) for r in results))
+        print("\n" + "\n\n".join(format_report(r) for r in results))
         for f in written:
             print(f"\nwrote {f}")
     return 0

@@ -75,6 +75,7 @@ def fuse_multitrack(
     other_offaxis_deg: float = 0.0,
     motion_latency: bool = True,
     options: BestOptions | None = None,
+    fused: list[tuple[Array, Array]] | None = None,
 ) -> dict[str, Any]:
     """Read a two-Kinect KinectMultiTrack log, align its clocks, fuse it, and report.
 
@@ -97,6 +98,9 @@ def fuse_multitrack(
         the clock fit alone, one latency for both sensors.
     options : BestOptions, optional
         Fusion options (default: ``BestOptions()``).
+    fused : list, optional
+        Receives the fused take: ``(t_s (T,), positions (T, 25, 3))``, every scenario on one
+        uniform grid at ``grid_hz`` with NaN between them (for :func:`export_fused`).
 
     Returns
     -------
@@ -295,6 +299,8 @@ def fuse_multitrack(
     t_rx = {k: f.t_receive_s for k, f in frames.items()}
     lag_aligned = residual_lag_s(t_cap[ref_id], pw[ref_id], t_cap[oth_id], pw_refined_other)
     lag_receive = residual_lag_s(t_rx[ref_id], pw[ref_id], t_rx[oth_id], pw_refined_other)
+    if fused is not None:
+        fused.append(_joined(fused_parts, grid_hz))
     return {
         "file": str(rec.path),
         "layout": LAYOUT_NAMES.get(rec.kinect_config, f"config {rec.kinect_config}"),
@@ -349,7 +355,6 @@ def fuse_multitrack(
             oth_id: pose_summary(s2w[oth_id], ref2world),
         },
         "scenarios": scen_out,
-        "_fused": _joined(fused_parts, grid_hz),
     }
 
 
@@ -367,8 +372,8 @@ def _joined(parts: list[tuple[Array, Array]], hz: float) -> tuple[Array, Array]:
     return t0 + np.arange(n) / hz, pos
 
 
-def export_fused(d: dict[str, Any], out: Path) -> tuple[Path, list[str]]:
-    """Write :func:`fuse_multitrack`'s fused take (all its scenarios) to ``out`` (``.c3d``,
+def export_fused(take: tuple[Array, Array], out: Path, source: str) -> tuple[Path, list[str]]:
+    """Write a fused take of :func:`fuse_multitrack` (its ``fused``) to ``out`` (``.c3d``,
     ``.trc``, ``.csv`` or ``.bvh``, as ``kinefuse fuse --out``); returns the path and the
     export's notes."""
     from kinefuse.io.formats.export import check_export_path, export_skeleton
@@ -376,9 +381,9 @@ def export_fused(d: dict[str, Any], out: Path) -> tuple[Path, list[str]]:
 
     check_export_path(out)
     check_output_folder(out, "export")
-    t, pos = d["_fused"]
+    t, pos = take
     if t.size == 0:
-        raise InputError(f"{d['file']}: no scenario was fused, so there is nothing to export")
+        raise InputError(f"{source}: no scenario was fused, so there is nothing to export")
     notes: list[str] = []
     export_skeleton(out, t - t[0], pos, notes=notes)
     return out, notes
