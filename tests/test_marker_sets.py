@@ -88,6 +88,11 @@ def motion_analysis(n: str) -> str:
 
 #: ISB thorax as several labs name it: STER, XIPH, T1 and T10 (the map's second thorax).
 THORAX_2 = {"IJ": "STER", "PX": "XIPH", "C7": "T1", "T8": "T10"}
+#: An upper-limb take in Vicon's names (C7 with T10; SHO, LEL/MEL, wrist bar WRA/WRB, FIN).
+VICON_UPPER = {"IJ": "CLAV", "PX": "STRN", "T8": "T10", "RAC": "RSHO", "LAC": "LSHO",
+               "REL": "RLEL", "LEL": "LLEL", "REM": "RMEL", "LEM": "LMEL", "RRS": "RWRA",
+               "LRS": "LWRA", "RUS": "RWRB", "LUS": "LWRB", "RHM2": "RFIN",
+               "LHM2": "LFIN"}  # fmt: skip
 
 
 def same(n: str) -> str:
@@ -108,6 +113,7 @@ CASES: list[tuple[str, str, Callable[[str], str], str, tuple[str, ...]]] = [
     ("isb", "isb", lower_spaced, "+z", LEGS + ARMS),
     ("upper-limb-isb", "upper-limb-isb", prefixed("Name"), "+z", ARMS),
     ("upper-limb-isb", "upper-limb-isb", lambda n: THORAX_2.get(n, n), "+z", ARMS),
+    ("upper-limb-isb", "upper-limb-isb", lambda n: f"Pat:{VICON_UPPER.get(n, n)}", "+z", ARMS),
     ("cast", "cast", same, "+z", LEGS),
     ("cast", "cast", dotted, "+z", LEGS),
     ("rajagopal-run", "rajagopal-run", same, "+y", LEGS + ARMS),
