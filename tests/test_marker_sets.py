@@ -285,3 +285,24 @@ def test_analyze_reads_them_without_a_map(
     report = json.loads((out / "analysis.json").read_text())
     assert f"marker map {marker_set} " in report["source"]
     assert "knee_flexion_left" in report["anatomical"]["angle_names"]
+
+
+def test_a_cluster_the_file_lacks_leaves_only_its_segment_out(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """The ISB foot's first metatarsal head under a name no set knows: the map is still chosen
+    (every joint builds; the foot from FM2), the feet's anatomical frames are skipped naming
+    their cluster, the rest is analysed."""
+    tr = marker_trial(shared_data / WALK, "isb")
+    renamed = {"LFM1": "L_TOE_BIG", "RFM1": "R_TOE_BIG"}
+    walk, static = write_trial(tr, tmp_path, lambda n: renamed.get(n, n), "+z")
+    inp = load_input(walk, static=static)
+    assert "marker map isb " in inp.seq.source
+    status = inp.anatomical_status
+    assert status is not None
+    assert "RFM1" in status["foot_right"] and status["foot_right"].startswith("skipped")
+    assert status["shank_right"] == "ok" and status["thigh_left"] == "ok"
+    err = np.linalg.norm(
+        inp.seq.positions[:, inp.seq.index("FootLeft")] - tr.true_joints["FootLeft"], axis=-1
+    )
+    assert np.nanmax(err) < 1e-3

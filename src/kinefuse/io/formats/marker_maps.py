@@ -743,7 +743,9 @@ def cluster_orientations(
     Raises
     ------
     InputError
-        A cluster names markers the file lacks.
+        A cluster of a map the user gave names markers the file lacks (a shipped map chosen by
+        the file's names, or a partial body, leaves such a cluster out: its segment then has
+        no cluster orientation, and its status says so).
     """
     if not mmap.clusters:
         return (), None
@@ -751,7 +753,7 @@ def cluster_orientations(
     lack = {k: [n for n in v if finder(n) is None] for k, v in mmap.clusters.items()}
     lack = {k: v for k, v in lack.items() if v}
     clusters = dict(mmap.clusters)
-    if lack and partial:  # a partial body: the absent segments' clusters are left out
+    if lack and (partial or mmap.origin.startswith("built-in")):
         clusters = {k: v for k, v in clusters.items() if k not in lack}
         if not clusters:
             return (), None
