@@ -105,7 +105,8 @@ def test_walk_without_its_static_trial_names_the_missing_knee_markers(
 def test_static_trial_of_another_marker_set_names_the_rule_and_markers(
     shared_data: Path, tmp_path: Path
 ) -> None:
-    with pytest.raises(InputError, match=r"landmark rule 'R\.KJC' needs the markers R\.Knee\.Lat"):
+    # its knee markers match by landmark (R.Knee = R.Knee.Lat); the thigh cluster is missing
+    with pytest.raises(InputError, match=r"landmark 'R\.KJC' is carried by cluster thigh_right"):
         _analyse(shared_data, tmp_path, f"{GAIT}subject01_walk1.trc",
                  "markers/opensim/Pipelines_Rajagopal_ExpData_static_walk_1.trc",
                  marker_map="gait2354")  # fmt: skip

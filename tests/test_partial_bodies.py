@@ -200,7 +200,7 @@ def test_nothing_to_analyse_fails_clearly(
     assert code == 2
     assert "Traceback" not in err
     for joint, marker in (("SpineBase", "RASI"), ("KneeLeft", "LKNE"), ("ShoulderLeft", "LSHO")):
-        assert f"{joint}: " in err and marker in err, err
+        assert any(joint in ln and marker in ln for ln in err.splitlines()), err
     if use_map:
         assert "Nothing can be analysed" in err
     assert not out.exists()

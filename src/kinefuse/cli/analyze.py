@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -159,4 +160,33 @@ def run(args: argparse.Namespace) -> int:
         for w in r.get("warnings", []):
             print(f"kinefuse: warning: {r['input']}: {w}", file=sys.stderr)
     print(json_text(report) if args.json else format_analyze(report))
-    return 0
+    empty = [r for r in report.get("inputs", [report]) if _nothing_analysed(r)]
+    for r in empty:
+        print(f"kinefuse: nothing analysed in {r['input']}: {_why_nothing(r)}", file=sys.stderr)
+    return 3 if empty else 0
+
+
+def _nothing_analysed(r: dict[str, object]) -> bool:
+    """No angle of any limb (functional or anatomical) was written for this input."""
+    anat = r.get("anatomical")
+    return not r.get("angle_names") and not (isinstance(anat, dict) and anat.get("angle_names"))
+
+
+def _why_nothing(r: dict[str, object]) -> str:
+    """The limbs' reasons, one per distinct reason (skipped limbs of a partial body last)."""
+    status = r.get("limb_status")
+    groups: dict[str, list[str]] = {}
+    for limb, why in status.items() if isinstance(status, dict) else ():
+        if why != "ok":  # "missing: KneeLeft/AnkleLeft present in 1 of 181 ..." -> one reason
+            key = re.sub(r"\w+/\w+ present in \d+ of", "its joints present in too few of", str(why))
+            groups.setdefault(key, []).append(limb)
+    order = sorted(groups.items(), key=lambda g: g[0].startswith("skipped"))
+    parts = [f"{', '.join(limbs)}: {why}" for why, limbs in order[:4]]
+    more = f"; and {len(order) - 4} more reasons" if len(order) > 4 else ""
+    return (
+        "every limb was refused, so angles.csv holds its header only. "
+        + "; ".join(parts)
+        + more
+        + f". The report is {r.get('out', 'in the output folder')} (analysis.json); the limbs "
+        "need a calibration phase in which they are seen and move."
+    )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from pathlib import Path
 
@@ -41,6 +42,25 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     shared.add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
+
+
+def _where_it_went(args: argparse.Namespace, r: dict[str, object]) -> str:
+    """Where the calibration went, and the exact command of the next step."""
+    session = shlex.quote(str(args.session))
+    if r["stored_in_session"]:
+        return (
+            f"stored the calibration in {args.session} (as {r['method']!r}); next: "
+            f"kinefuse fuse {session} --method best --store"
+        )
+    if r["out"]:
+        return (
+            f"the session was only read (not stored in it); fuse with this file: kinefuse fuse "
+            f"{session} --calibration {shlex.quote(str(r['out']))} --method best --store"
+        )
+    return (
+        "the calibration was not stored anywhere (the session is only read); to keep it in the "
+        f"session: kinefuse calibrate {session} --method {args.method} --store"
+    )
 
 
 def _add_live_args(p: argparse.ArgumentParser) -> None:
@@ -90,13 +110,13 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(r, indent=2))
     else:
         print(format_calibrate(r))
-        if r["stored_in_session"]:
-            print(f"stored the calibration in {args.session} (as {r['method']!r})")
         for w in [r["out"], *r.get("written", [])]:
             if w:
                 print(f"wrote {w}")
         if r.get("report_note"):
             print(r["report_note"])
+        if r["grade"] != "failed" or r["accepted"]:
+            print(_where_it_went(args, r))
     if r["grade"] == "failed" and not r["accepted"]:
         print(
             f"kinefuse: error: calibration failed ({'; '.join(r['reasons'])}); nothing was "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from pathlib import Path
 
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
             end_s=args.end,
             progress=progress,
         )
-    for w in info["warnings"]:  # type: ignore[attr-defined]
+    for w in said_once(info["warnings"]):  # type: ignore[arg-type]
         print(f"kinefuse: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(info, indent=2))
@@ -69,7 +70,38 @@ def run(args: argparse.Namespace) -> int:
             f"{info['seconds']:.2f} s; joint status: {status}"
         )
         if info["stored_in_session"]:
-            print(f"stored the fused skeleton in {args.session} (method {info['method']})")
+            print(
+                f"stored the fused skeleton in {args.session} (method {info['method']}); "
+                f"replay it: kinefuse view {shlex.quote(str(args.session))}"
+            )
         if info["out"]:
             print(f"wrote {info['out']}")
     return 0
+
+
+def said_once(warnings: list[str]) -> list[str]:
+    """Each warning once, in order: repeats of one text with its count, and one text about
+    several things (``"out.bvh: Hips: rotation held on 30 of 359 frames"``, one per joint)
+    as one line naming them (``"out.bvh: rotation held on 30 of 359 frames (24 times: Hips,
+    Spine, ...)"``)."""
+    groups: dict[str, list[str]] = {}
+    first: dict[str, str] = {}
+    for w in warnings:
+        parts = w.split(": ", 2)
+        if len(parts) == 3 and " " not in parts[1]:  # FILE: THING: text
+            key = f"{parts[0]}: {parts[2]}"
+            groups.setdefault(key, []).append(parts[1])
+        else:
+            key = w
+            groups.setdefault(key, []).append("")
+        first.setdefault(key, w)
+    out = []
+    for key, things in groups.items():
+        named = [t for t in things if t]
+        if len(things) == 1:
+            out.append(first[key])
+        elif named:
+            out.append(f"{key} ({len(things)} times: {', '.join(named)})")
+        else:
+            out.append(f"{key} (said {len(things)} times)")
+    return out

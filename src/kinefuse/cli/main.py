@@ -19,6 +19,7 @@ from kinefuse.cli import (
     evaluate,
     fuse,
     inspect,
+    maps,
     proxy,
     realdata,
     sensor,
@@ -44,6 +45,7 @@ COMMANDS = (
     realdata,
     track,
     analyze,
+    maps,
     view,
     inspect,
 )

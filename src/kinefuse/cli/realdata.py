@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -34,23 +36,52 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="align by the clock fit alone (no relative latency from the motion)",
     )
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="export the fused take, all scenarios (.c3d, .trc, .csv or .bvh, as kinefuse fuse "
+        "--out); one log only",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from kinefuse.workflows.realdata import format_report, fuse_multitrack
+    from kinefuse.cli.fuse import said_once
+    from kinefuse.errors import InputError
+    from kinefuse.workflows.realdata import (
+        export_fused,
+        format_report,
+        format_summary,
+        fuse_multitrack,
+    )
 
+    if args.out is not None and len(args.paths) != 1:
+        raise InputError(
+            f"--out exports one fused take: give one log (got {len(args.paths)}), or run "
+            "kinefuse realdata once per log"
+        )
+    fused: list = []
     results = [
         fuse_multitrack(
             p,
             registration=args.registration,
             other_offaxis_deg=args.other_offaxis_deg,
             motion_latency=not args.no_motion_latency,
+            fused=fused,
         )
         for p in args.paths
     ]
+    written: list[Path] = []
+    if args.out is not None:
+        out, notes = export_fused(fused[0], args.out, results[0]["file"])
+        for w in said_once([f"{out.name}: {n}" for n in notes]):
+            print(f"kinefuse: warning: {w}", file=sys.stderr)
+        written.append(out)
     if args.json:
         print(json.dumps(results if len(results) > 1 else results[0], indent=1))
     else:
-        print("\n\n".join(format_report(r) for r in results))
+        print("\n".join(format_summary(r) for r in results))
+        print("\n" + "\n\n".join(format_report(r) for r in results))
+        for f in written:
+            print(f"\nwrote {f}")
     return 0

@@ -99,8 +99,11 @@ def _harrington_asis(hip_mid: Array, frame: Array, sep: Array, pd: float) -> tup
 
 _At = Callable[[Array, Array, tuple[float, float, float]], Array]
 
-#: The marker sets :func:`marker_trial` places (the shipped map of the same name reads them).
-MARKER_SETS = ("gait2354", "rajagopal", "plug-in-gait")
+#: The marker sets :func:`marker_trial` places (the shipped map of the same name reads them;
+#: ``hamner``: Gait2354's names with the Hamner 2010 model's joint-centre markers, read by the
+#: ``gait2354`` map).
+MARKER_SETS = ("gait2354", "rajagopal", "plug-in-gait", "helen-hayes", "isb", "upper-limb-isb",
+               "cast", "rajagopal-run", "hamner")  # fmt: skip
 
 #: The Plug-in Gait map's chord offsets (knee, ankle), metres: where KNE and ANK are placed.
 PIG_OFFSETS_M = (0.057, 0.042)
@@ -181,9 +184,155 @@ def _plug_in_gait(
         out[f"{x}WRA"] = at(j(f"Wrist{c}"), fr[f"forearm_{side}"], (0.0, 0.0, 0.025 * s))
         out[f"{x}WRB"] = at(j(f"Wrist{c}"), fr[f"forearm_{side}"], (0.0, 0.0, -0.025 * s))
         out[f"{x}FIN"] = j(f"Hand{c}")
+        out[f"{x}UPA"] = at(j(f"Elbow{c}"), fr[f"upper_arm_{side}"], (0.0, 0.14, 0.04 * s))
+        out[f"{x}FRM"] = at(j(f"Wrist{c}"), fr[f"forearm_{side}"], (0.0, 0.10, 0.04 * s))
         out[f"{x}FHD"] = at(j("Head"), tr, (0.07, 0.02, 0.06 * s))
         out[f"{x}BHD"] = at(j("Head"), tr, (-0.07, 0.02, 0.06 * s))
     return out
+
+
+def _helen_hayes(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """Helen Hayes / Davis: Plug-in Gait's lower-body markers, one sacral marker for the PSIS."""
+    pig = _plug_in_gait(m, fr, j, at)
+    out = {"RASI": pig["RASI"], "LASI": pig["LASI"], "SACR": m["V.Sacral"]}
+    for x in "RL":
+        for k in ("THI", "KNE", "TIB", "ANK", "HEE", "TOE"):
+            out[f"{x}{k}"] = pig[f"{x}{k}"]
+    return out
+
+
+def _isb(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """ISB / Van Sint Jan landmarks: epicondyles, malleoli and styloids either side of the true
+    joint centres, FM1 and FM5 either side of the Foot joint and FM2 on it, the thorax's
+    landmarks either side of SpineShoulder and SpineMid."""
+    tr = fr["trunk"]
+    out: dict[str, Array] = {"RIAS": m["R.ASIS"], "LIAS": m["L.ASIS"]}
+    z = fr["pelvis"][..., 2]
+    out["RIPS"], out["LIPS"] = m["V.Sacral"] + 0.045 * z, m["V.Sacral"] - 0.045 * z
+    out["SJN"] = at(j("SpineShoulder"), tr, (0.07, 0.0, 0.0))
+    out["CV7"] = at(j("SpineShoulder"), tr, (-0.07, 0.0, 0.0))
+    out["SXS"] = at(j("SpineMid"), tr, (0.11, 0.0, 0.0))
+    out["TV8"] = at(j("SpineMid"), tr, (-0.11, 0.0, 0.0))
+    for x, side, s in (("R", "right", 1.0), ("L", "left", -1.0)):
+        c = side.capitalize()
+        out[f"{x}FLE"], out[f"{x}FME"] = m[f"{x}.Knee.Lat"], m[f"{x}.Knee.Med"]
+        out[f"{x}FAL"], out[f"{x}TAM"] = m[f"{x}.Ankle.Lat"], m[f"{x}.Ankle.Med"]
+        out[f"{x}FCC"] = m[f"{x}.Heel"]
+        out[f"{x}FM1"], out[f"{x}FM5"] = m[f"{x}.Toe.Med"], m[f"{x}.Toe.Lat"]
+        out[f"{x}FM2"] = j(f"Foot{c}")
+        out[f"{x}SAJ"] = j(f"Shoulder{c}")
+        ua, fa = fr[f"upper_arm_{side}"], fr[f"forearm_{side}"]
+        out[f"{x}HLE"] = at(j(f"Elbow{c}"), ua, (0.0, 0.0, 0.03 * s))
+        out[f"{x}HME"] = at(j(f"Elbow{c}"), ua, (0.0, 0.0, -0.03 * s))
+        out[f"{x}RSP"] = m[f"{x}.Wrist.Lat"]
+        out[f"{x}USP"] = m[f"{x}.Wrist.Med"]
+        out[f"{x}HM2"] = j(f"Hand{c}")
+        out[f"{x}HM5"] = at(j(f"Hand{c}"), fa, (0.0, 0.0, -0.04 * s))
+    return out
+
+
+def _upper_limb_isb(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """ISB upper-limb landmarks only (no pelvis, no legs): thorax IJ, PX, C7, T8, clavicle SC,
+    scapula AA, TS, AI, the ISB set's epicondyles, styloids and second metacarpal head."""
+    isb = _isb(m, fr, j, at)
+    tr = fr["trunk"]
+    out = {"IJ": isb["SJN"], "C7": isb["CV7"], "PX": isb["SXS"], "T8": isb["TV8"]}
+    for x, s in (("R", 1.0), ("L", -1.0)):
+        sh = j("SpineShoulder")
+        out[f"{x}SC"] = at(sh, tr, (0.07, 0.0, 0.03 * s))
+        out[f"{x}AC"] = isb[f"{x}SAJ"]
+        out[f"{x}AA"] = at(sh, tr, (-0.08, 0.0, 0.16 * s))
+        out[f"{x}TS"] = at(sh, tr, (-0.10, -0.05, 0.08 * s))
+        out[f"{x}AI"] = at(sh, tr, (-0.10, -0.17, 0.10 * s))
+        out[f"{x}EL"], out[f"{x}EM"] = isb[f"{x}HLE"], isb[f"{x}HME"]
+        out[f"{x}RS"], out[f"{x}US"] = isb[f"{x}RSP"], isb[f"{x}USP"]
+        out[f"{x}HM2"] = isb[f"{x}HM2"]
+    return out
+
+
+def _cast(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """CAST lower body: the Gait2354 thigh and shank clusters under CAST's names, epicondyles
+    and malleoli (static trial only), GT, HF, TT, and the foot's CA, FM, SM, VM."""
+    out: dict[str, Array] = {"RASI": m["R.ASIS"], "LASI": m["L.ASIS"]}
+    z = fr["pelvis"][..., 2]
+    out["RPSI"], out["LPSI"] = m["V.Sacral"] + 0.045 * z, m["V.Sacral"] - 0.045 * z
+    for x, side, s in (("R", "right", 1.0), ("L", "left", -1.0)):
+        c = side.capitalize()
+        th, sh = fr[f"thigh_{side}"], fr[f"shank_{side}"]
+        for k, part in enumerate(("Upper", "Front", "Rear")):
+            out[f"{x}TH{k + 1}"] = m[f"{x}.Thigh.{part}"]
+            out[f"{x}SK{k + 1}"] = m[f"{x}.Shank.{part}"]
+        out[f"{x}GT"] = at(j(f"Knee{c}"), th, (0.0, 0.40, 0.08 * s))
+        out[f"{x}LE"], out[f"{x}ME"] = m[f"{x}.Knee.Lat"], m[f"{x}.Knee.Med"]
+        out[f"{x}HF"] = at(j(f"Ankle{c}"), sh, (0.0, 0.36, 0.045 * s))
+        out[f"{x}TT"] = at(j(f"Ankle{c}"), sh, (0.04, 0.34, 0.0))
+        out[f"{x}LM"], out[f"{x}MM"] = m[f"{x}.Ankle.Lat"], m[f"{x}.Ankle.Med"]
+        out[f"{x}CA"] = m[f"{x}.Heel"]
+        out[f"{x}FM"], out[f"{x}VM"] = m[f"{x}.Toe.Med"], m[f"{x}.Toe.Lat"]
+        out[f"{x}SM"] = j(f"Foot{c}")
+    return out
+
+
+def _rajagopal_run(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """The Rajagopal set under its running trial's names (opensim-models'
+    ``Pipelines/Rajagopal/IK/ik_setup_run.xml``), CLAV and C7 either side of SpineShoulder,
+    a three-marker upper-arm cluster, the forearm's radial and ulnar styloid markers."""
+    r = _rajagopal(m, fr, j, at)
+    tr = fr["trunk"]
+    out: dict[str, Array] = {
+        "CLAV": at(j("SpineShoulder"), tr, (0.06, 0.0, 0.0)),
+        "C7": at(j("SpineShoulder"), tr, (-0.06, 0.0, 0.0)),
+    }
+    names = {"ASIS": "ASI", "PSIS": "PSI", "TH1": "TH1", "TH2": "TH2", "TH3": "TH3",
+             "SH1": "TB1", "SH2": "TB2", "SH3": "TB3", "Knee": "LFC", "MKnee": "MFC",
+             "Ankle": "LMAL", "MAnkle": "MMAL", "Heel": "CAL", "Toe": "TOE", "MT5": "MT5",
+             "Shoulder": "ACR", "Elbow": "LEL", "MElbow": "MEL",
+             "Forearm": "FAsuperior"}  # fmt: skip
+    for x, side, s in (("R", "right", 1.0), ("L", "left", -1.0)):
+        c = side.capitalize()
+        for old, new in names.items():
+            out[f"{x}{new}"] = r[f"{x}.{old}"]
+        ua, fa = fr[f"upper_arm_{side}"], fr[f"forearm_{side}"]
+        out[f"{x}UA1"] = r[f"{x}.Biceps"]
+        out[f"{x}UA2"] = at(j(f"Elbow{c}"), ua, (-0.02, 0.20, 0.04 * s))
+        out[f"{x}UA3"] = at(j(f"Elbow{c}"), ua, (0.0, 0.10, 0.05 * s))
+        out[f"{x}FAradius"] = at(j(f"Wrist{c}"), fa, (0.0, 0.0, 0.025 * s))
+        out[f"{x}FAulna"] = at(j(f"Wrist{c}"), fa, (0.0, 0.0, -0.025 * s))
+    return out
+
+
+def _hamner(
+    m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
+) -> dict[str, Array]:
+    """Gait2354's markers with the Hamner 2010 model's knee and ankle joint-centre markers
+    (``LKJC``, ``LAJC``: opensim-models' ``FullBodyModel_Hamner2010_v2_0.osim``)."""
+    out = dict(m)
+    for x, c in (("R", "Right"), ("L", "Left")):
+        out[f"{x}KJC"], out[f"{x}AJC"] = j(f"Knee{c}"), j(f"Ankle{c}")
+    return out
+
+
+#: Each set's placement from the Gait2354 one, and the static trial's markers its motion lacks.
+_SETS: dict[str, tuple[Callable[..., dict[str, Array]], tuple[str, ...]]] = {
+    "rajagopal": (_rajagopal, RAJAGOPAL_STATIC_ONLY),
+    "plug-in-gait": (_plug_in_gait, ()),
+    "helen-hayes": (_helen_hayes, ()),
+    "isb": (_isb, ()),
+    "upper-limb-isb": (_upper_limb_isb, ()),
+    "cast": (_cast, ("RLE", "RME", "LLE", "LME", "RLM", "RMM", "LLM", "LMM")),
+    "rajagopal-run": (_rajagopal_run, ("RMFC", "LMFC", "RMMAL", "LMMAL", "RMEL", "LMEL")),
+    "hamner": (_hamner, STATIC_ONLY),
+}
 
 
 def marker_trial(
@@ -204,8 +353,9 @@ def marker_trial(
     static_s : float
         Length of the static trial (the reference pose held), seconds.
     marker_set : str
-        ``"gait2354"`` (OpenSim's Gait2354 example set), ``"rajagopal"`` (Rajagopal 2016) or
-        ``"plug-in-gait"`` (Vicon's, with the map's assumed knee and ankle widths).
+        ``"gait2354"`` (OpenSim's Gait2354 example set), ``"rajagopal"`` (Rajagopal 2016),
+        ``"plug-in-gait"`` (Vicon's, with the map's assumed knee and ankle widths), or another
+        of :data:`MARKER_SETS` (Vicon-style names: side letter, then the landmark).
     ref_frame : int, optional
         The reference (standing) pose's frame; default the clip's default-pose frame.
     pd_m : float
@@ -271,10 +421,9 @@ def marker_trial(
     m["Sternum"] = at(j("SpineShoulder"), fr["trunk"], (0.08, -0.15, 0.0))
     m["Top.Head"] = at(j("Head"), fr["trunk"], (0.0, 0.10, 0.0))
     static_only: tuple[str, ...] = STATIC_ONLY
-    if marker_set == "rajagopal":
-        m, static_only = _rajagopal(m, fr, j, at), RAJAGOPAL_STATIC_ONLY
-    elif marker_set == "plug-in-gait":
-        m, static_only = _plug_in_gait(m, fr, j, at), ()
+    if marker_set in _SETS:
+        place, static_only = _SETS[marker_set]
+        m = place(m, fr, j, at)
     names = tuple(m)
     allp = np.stack([m[n] for n in names], axis=1)
     static = allp[:ns]

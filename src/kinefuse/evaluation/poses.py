@@ -45,7 +45,10 @@ def resolve_poses(
             return loads_calibration(text, source=f"{store.path} [{name}]").sensor2world, (
                 f"session calibration ({name})"
             )
+    import shlex
+
     raise InputError(
-        f"{store.path} has no calibration: run `kinefuse calibrate {store.path} --method full` "
-        "first, or pass --calibration CALIB.toml (or --true-calibration for a simulated session)"
+        f"{store.path} has no calibration: run `kinefuse calibrate {shlex.quote(str(store.path))} "
+        "--method full --store` first (it stores the calibration in the session), or pass "
+        "--calibration CALIB.toml (or --true-calibration for a simulated session)"
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -109,6 +110,11 @@ def run_evaluate(
     return report
 
 
+def _cm(mae_m: float) -> str:
+    """An error in cm, or what it is when there is none (joints with no position: no_data)."""
+    return f"{100 * mae_m:.1f} cm" if math.isfinite(mae_m) else "no position to compare"
+
+
 def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
     """A short text table of an evaluation."""
     common = report.get("common")
@@ -138,7 +144,7 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
         r = report[m]
         assert isinstance(r, dict)
         if m == "best-live":
-            parts = [f"{k.lower()} {100 * v['fraction']:.1f} % ({100 * v['mae_m']:.1f} cm)"
+            parts = [f"{k.lower()} {100 * v['fraction']:.1f} % ({_cm(v['mae_m'])})"
                      for k, v in r["by_status"].items()]  # fmt: skip
             lines.append(f"{m} by joint status: " + ", ".join(parts))
     occ = report.get("occlusion")

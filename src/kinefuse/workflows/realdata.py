@@ -75,6 +75,7 @@ def fuse_multitrack(
     other_offaxis_deg: float = 0.0,
     motion_latency: bool = True,
     options: BestOptions | None = None,
+    fused: list[tuple[Array, Array]] | None = None,
 ) -> dict[str, Any]:
     """Read a two-Kinect KinectMultiTrack log, align its clocks, fuse it, and report.
 
@@ -97,6 +98,9 @@ def fuse_multitrack(
         the clock fit alone, one latency for both sensors.
     options : BestOptions, optional
         Fusion options (default: ``BestOptions()``).
+    fused : list, optional
+        Receives the fused take: ``(t_s (T,), positions (T, 25, 3))``, every scenario on one
+        uniform grid at ``grid_hz`` with NaN between them (for :func:`export_fused`).
 
     Returns
     -------
@@ -239,6 +243,7 @@ def fuse_multitrack(
     pw_refined_other = apply_transform(ref2world @ oth2ref_refined, joints_other_sensor)
 
     scen_out: dict[str, Any] = {}
+    fused_parts: list[tuple[Array, Array]] = []
     for sc in rec.scenarios:
         sel = {k: frames[k].scenario == sc for k in frames}
         if not all(v.any() for v in sel.values()):
@@ -277,6 +282,7 @@ def fuse_multitrack(
             "aligned": cons["disagreement"][key],
             "aligned_lr": cons["disagreement_lr"][key],
         }
+        fused_parts.append((cons["_fused"].t_server_s, cons["_fused"].positions))
         scen_out[str(sc)] = {
             "name": SCENARIO_NAMES.get(int(sc), f"scenario {sc}"),
             "duration_s": float(grid[-1] - grid[0]),
@@ -293,6 +299,8 @@ def fuse_multitrack(
     t_rx = {k: f.t_receive_s for k, f in frames.items()}
     lag_aligned = residual_lag_s(t_cap[ref_id], pw[ref_id], t_cap[oth_id], pw_refined_other)
     lag_receive = residual_lag_s(t_rx[ref_id], pw[ref_id], t_rx[oth_id], pw_refined_other)
+    if fused is not None:
+        fused.append(_joined(fused_parts, grid_hz))
     return {
         "file": str(rec.path),
         "layout": LAYOUT_NAMES.get(rec.kinect_config, f"config {rec.kinect_config}"),
@@ -348,6 +356,62 @@ def fuse_multitrack(
         },
         "scenarios": scen_out,
     }
+
+
+def _joined(parts: list[tuple[Array, Array]], hz: float) -> tuple[Array, Array]:
+    """The scenarios' fused skeletons as one take on one uniform grid at ``hz`` (the exports
+    have one frame rate): each frame at its nearest grid time, NaN between the scenarios."""
+    if not parts:
+        return np.zeros(0), np.zeros((0, len(JOINTS), 3))
+    t0 = min(float(p[0][0]) for p in parts)
+    t1 = max(float(p[0][-1]) for p in parts)
+    n = round((t1 - t0) * hz) + 1
+    pos = np.full((n, len(JOINTS), 3), np.nan)
+    for t, p in parts:
+        pos[np.clip(np.round((t - t0) * hz).astype(int), 0, n - 1)] = p
+    return t0 + np.arange(n) / hz, pos
+
+
+def export_fused(take: tuple[Array, Array], out: Path, source: str) -> tuple[Path, list[str]]:
+    """Write a fused take of :func:`fuse_multitrack` (its ``fused``) to ``out`` (``.c3d``,
+    ``.trc``, ``.csv`` or ``.bvh``, as ``kinefuse fuse --out``); returns the path and the
+    export's notes."""
+    from kinefuse.io.formats.export import check_export_path, export_skeleton
+    from kinefuse.io.outputs import check_output_folder
+
+    check_export_path(out)
+    check_output_folder(out, "export")
+    t, pos = take
+    if t.size == 0:
+        raise InputError(f"{source}: no scenario was fused, so there is nothing to export")
+    notes: list[str] = []
+    export_skeleton(out, t - t[0], pos, notes=notes)
+    return out, notes
+
+
+def format_summary(d: dict[str, Any]) -> str:
+    """The few lines that say how a log fused: layout, registration, per scenario the fused
+    frames and the sensors' median distance to the fused skeleton (mm)."""
+    ref, oth = d["sensors"]
+    reg = d["registration"]
+    lines = [
+        f"{Path(d['file']).name}: layout {d['layout']}, sensors {ref} (reference) and {oth}; "
+        f"registration corrected by {reg['correction_deg']:.1f} deg, trunk disagreement "
+        f"{1e3 * reg['trunk_median_before_m']:.0f} -> {1e3 * reg['trunk_median_after_m']:.0f} mm"
+    ]
+    for sc, s in d["scenarios"].items():
+        to = s["to_fused"]
+        med = [to[k]["all"][0] for k in (ref, oth)]
+        dist = ", ".join(
+            f"{k} {1e3 * m:.0f} mm" if m is not None else f"{k} -"
+            for k, m in zip((ref, oth), med, strict=True)
+        )
+        lines.append(
+            f"  scenario {sc} ({s['name']}): {s['duration_s']:.1f} s, fused on "
+            f"{s['fused_finite']} of {s['frames_with_body']} frames with a body; sensor to fused "
+            f"(median): {dist}"
+        )
+    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------------

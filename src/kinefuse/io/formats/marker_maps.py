@@ -31,8 +31,9 @@ are all in the file wins). Every joint of ``[joints]`` is required: when no alte
 built, :func:`apply_marker_map` fails naming the missing markers and the file's markers. A
 joint is missing in a frame when any marker of its rule is missing there. ``SpineBase`` must be
 mapped (it is the root of the Kinect tree); joints a map leaves out are absent from the
-sequence. Marker names match exactly, else ignoring case and any namespace prefix
-(``Derrick:LASI`` matches ``LASI``).
+sequence. Marker names match exactly, else by landmark
+(:class:`kinefuse.io.formats.markers.MarkerResolver`: ``Derrick:LASI``, ``L_ASIS``, ``ASIS_L``,
+``l asis`` and ``L_IAS`` all match ``LASI``).
 
 Hip joint centres (in the pelvis frame of the ISB recommendation, Wu et al. 2002: origin at the
 ASIS midpoint, x anterior within the plane of the ASIS and the PSIS midpoint (or sacrum), z from
@@ -54,7 +55,8 @@ into the limb's normalized frame by its constant offset at the default pose (B.1
 cluster's placement on the limb does not matter. It makes the twist of that limb observable.
 
 The shipped maps (package data ``kinefuse/data/markermaps/``) are listed by
-:func:`shipped_marker_maps`; ``docs/analysis.md`` explains how to write one.
+:func:`shipped_marker_maps`; ``docs/maps.md`` says which sets they read and how to write one
+(``kinefuse maps suggest``), ``docs/analysis.md`` gives the full format.
 """
 
 from __future__ import annotations
@@ -72,8 +74,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.formats.markers import MarkerData, up_rotation
-from kinefuse.motion.maps import NameResolver, alternatives, parse_term
+from kinefuse.io.formats.markers import MarkerData, MarkerResolver, up_rotation
+from kinefuse.motion.maps import alternatives, parse_term
 from kinefuse.skeleton import JOINTS
 
 Array = NDArray[np.float64]
@@ -88,7 +90,10 @@ __all__ = [
     "cluster_orientations",
     "hip_joint_centres",
     "load_marker_map",
+    "map_coverage",
+    "map_marker_names",
     "parse_marker_map",
+    "resolved_rules",
     "rule_points",
     "select_marker_map",
     "shipped_marker_maps",
@@ -359,7 +364,7 @@ def shipped_marker_maps() -> dict[str, MarkerMap]:
 
 
 def _resolve(
-    mmap: MarkerMap, finder: NameResolver, static: NameResolver | None = None
+    mmap: MarkerMap, finder: MarkerResolver, static: MarkerResolver | None = None
 ) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
     """(joint -> the first buildable rule, joint -> missing markers of each alternative).
 
@@ -413,42 +418,120 @@ def _partial_ok(chosen: Mapping[str, JointRule], missing: Mapping[str, list[str]
     return partial_body(tuple(chosen)) is not None
 
 
+def map_marker_names(mmap: MarkerMap) -> tuple[str, ...]:
+    """Every marker name a map mentions (joints' alternatives, pelvis, clusters, landmarks'
+    rules, anatomy), in order, without its own landmarks."""
+    names: list[str] = []
+    for rules in mmap.joints.values():
+        for r in rules:
+            names += r.marker_names(mmap.pelvis)
+    if mmap.pelvis is not None:
+        names += mmap.pelvis.marker_names()
+    for members in mmap.clusters.values():
+        names += members
+    for rule, _cluster in mmap.landmarks.values():
+        names += rule.marker_names(mmap.pelvis)
+    for pair in mmap.anatomy.values():
+        names += pair
+    return tuple(dict.fromkeys(n for n in names if n not in mmap.landmarks))
+
+
+def map_coverage(mmap: MarkerMap, names: MarkerResolver | tuple[str, ...]) -> int:
+    """How many of a file's markers (its names, or their resolver) the map names."""
+    finder = names if isinstance(names, MarkerResolver) else MarkerResolver(names)
+    return len({c for n in map_marker_names(mmap) if (c := finder(n)) is not None})
+
+
+def resolved_rules(
+    mmap: MarkerMap, names: tuple[str, ...]
+) -> tuple[dict[str, JointRule], dict[str, list[str]]]:
+    """(joint -> the first rule the markers ``names`` build, joint -> the missing markers of
+    each alternative where none is built)."""
+    return _resolve(mmap, MarkerResolver(names))
+
+
 def select_marker_map(markers: MarkerData, static: MarkerData | None = None) -> MarkerMap:
     """The shipped map whose every joint the file's markers (and the static trial's, for the
-    map's ``[landmarks]``) can build.
+    map's ``[landmarks]``) can build; of several, the one that names most of the file's markers
+    (then the one with most joints). Else the best partial body (upper or lower body only).
 
     Raises
     ------
     InputError
-        No shipped map fits; names the best candidate's missing markers and how to pass a map.
+        No shipped map fits: at most twelve lines with the closest set, per joint what it
+        lacks, and the ``kinefuse maps`` commands that write and check a map for the file.
     """
-    finder = NameResolver(markers.names)
-    sf = NameResolver(static.names) if static is not None else None
-    best: tuple[int, MarkerMap, dict[str, list[str]]] | None = None
-    part: tuple[int, MarkerMap] | None = None
+    finder = MarkerResolver(markers.names)
+    sf = MarkerResolver(static.names) if static is not None else None
+    full: list[tuple[int, int, MarkerMap]] = []
+    part: list[tuple[int, int, MarkerMap]] = []
+    near: list[tuple[int, int, MarkerMap, dict[str, list[str]]]] = []
     for m in shipped_marker_maps().values():
         chosen, missing = _resolve(m, finder, sf)
+        cover = map_coverage(m, finder)
         if not missing:
-            return m
-        if best is None or len(chosen) > best[0]:
-            best = (len(chosen), m, missing)
-        if _partial_ok(chosen, missing) and (part is None or len(chosen) > part[0]):
-            part = (len(chosen), m)
-    if part is not None:  # an upper- or lower-body-only capture of a shipped marker set
-        return part[1]
-    assert best is not None  # the package ships maps
-    raise InputError(
-        f"{markers.path}: no shipped marker map fits its {len(markers.names)} markers "
-        f"({', '.join(markers.names)}). The closest, {best[1].name!r}, lacks "
-        + "; ".join(f"{j}: {' | '.join(w)}" for j, w in best[2].items())
-        + ". Per map, the joints it cannot build: "
-        + "; ".join(
-            f"{m.name}: {', '.join(_resolve(m, finder, sf)[1]) or 'none'}"
-            for m in shipped_marker_maps().values()
+            full.append((cover, len(chosen), m))
+        elif _partial_ok(chosen, missing):
+            part.append((len(chosen), cover, m))
+        near.append((cover, len(chosen), m, missing))
+    for found in (full, part):  # an upper- or lower-body-only capture of a shipped marker set
+        if found:
+            return max(found, key=lambda f: f[:2])[2]
+    raise InputError(_no_fit_message(markers, max(near, key=lambda f: f[:2])))
+
+
+def _no_fit_message(
+    markers: MarkerData, near: tuple[int, int, MarkerMap, dict[str, list[str]]]
+) -> str:
+    """The error of :func:`select_marker_map`: at most eleven lines (the CLI prints it after
+    one ``loading`` line)."""
+    import shlex
+
+    cover, built, m, missing = near
+    names = markers.names
+    shown = ", ".join(names[:8]) + (f", ... ({len(names) - 8} more)" if len(names) > 8 else "")
+    lines = [f"{markers.path}: no shipped marker set fits its {len(names)} markers ({shown})."]
+    if cover == 0:
+        lines.append(
+            "No shipped set shares a marker name with it (`kinefuse maps list` shows the sets)."
         )
-        + ". Write a marker map for this marker set and pass it with --map MAP.toml "
-        "(docs/analysis.md, 'Marker maps')."
+    else:
+        lines.append(
+            f"Closest: {m.name!r} ({m.description or m.origin}), {cover} of its markers found; "
+            f"it builds {built} of {len(m.joints)} joints and lacks:"
+        )
+        groups: dict[str, list[str]] = {}
+        for joint, why in missing.items():
+            groups.setdefault(" | ".join(why), []).append(joint)
+        packed: list[str] = []
+        left = len(missing)
+        for lacks, joints in groups.items():
+            item = f"{', '.join(joints)}: {lacks}"
+            if packed and len(packed[-1]) + len(item) < 110:
+                packed[-1] += f"; {item}"
+            elif len(packed) < 5:
+                packed.append(f"  {item}")
+            else:
+                break
+            left -= len(joints)
+        lines += packed
+        if left:
+            lines.append(f"  ... and {left} more joints")
+        if any("static trial" in w for why in missing.values() for w in why):
+            lines.append(
+                f"The {m.name} set takes those from the static trial: pass it with --static "
+                "(the trial with those markers), or:"
+            )
+    f = shlex.quote(str(markers.path))
+    lines.append(
+        f"Write a map for it: kinefuse maps suggest {f} --out my_map.toml (fill the rules "
+        "marked TODO),"
     )
+    lines.append(
+        f"then kinefuse maps check {f} --map my_map.toml, and pass --map my_map.toml "
+        "(docs/maps.md)."
+    )
+    return "\n".join(lines)
 
 
 def hip_joint_centres(
@@ -491,9 +574,18 @@ def hip_joint_centres(
 
 def unbuilt_joints(markers: MarkerData, mmap: MarkerMap) -> dict[str, str]:
     """The map's joints the file's markers cannot build: joint -> the missing markers of each
-    alternative (``"LKNE"``, ``"L.Knee, L.MKnee | L.Knee"``), in the map's order."""
-    _, missing = _resolve(mmap, NameResolver(markers.names))
-    return {j: " | ".join(w) for j, w in missing.items()}
+    alternative (``"LKNE"``, ``"L.Knee, L.MKnee | L.Knee"``), in the map's order; for a map of
+    a partial body (an upper- or lower-body marker set), also the body joints it has no rule
+    for (``"none: the upper-limb-isb marker set has none"``)."""
+    from kinefuse.analysis.normalize import REQUIRED_JOINTS, partial_body
+
+    _, missing = _resolve(mmap, MarkerResolver(markers.names))
+    out = {j: " | ".join(w) for j, w in missing.items()}
+    if partial_body(tuple(mmap.joints)) is not None:
+        for j in REQUIRED_JOINTS:
+            if j not in mmap.joints:
+                out[j] = f"none: the {mmap.name} marker set has none"
+    return out
 
 
 def chord_point(centre: Array, marker: Array, wand: Array, offset_m: float) -> Array:
@@ -515,7 +607,7 @@ def chord_point(centre: Array, marker: Array, wand: Array, offset_m: float) -> A
 
 def rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array | None:
     """``(T, 3)`` of one rule on ``markers`` (metres), None when a name is not in the file."""
-    f = NameResolver(markers.names)
+    f = MarkerResolver(markers.names)
     p = markers.positions
     if rule.kind == "hjc":
         pv = mmap.pelvis
@@ -546,7 +638,7 @@ def _with_direct_landmarks(markers: MarkerData, mmap: MarkerMap) -> MarkerData:
 
     out = markers
     for lm, (rule, _cluster) in mmap.landmarks.items():  # in order: one may use an earlier one
-        if NameResolver(out.names)(lm) is not None:
+        if MarkerResolver(out.names)(lm) is not None:
             continue
         pts = rule_points(out, rule, mmap)
         if pts is None:
@@ -587,7 +679,7 @@ def apply_marker_map(
         alternative, the file's markers and close matches.
     """
     markers = _with_direct_landmarks(markers, mmap)
-    finder = NameResolver(markers.names)
+    finder = MarkerResolver(markers.names)
     chosen, missing = _resolve(mmap, finder)
     if missing and not (partial and _partial_ok(chosen, missing)):
         lines = [
@@ -651,15 +743,17 @@ def cluster_orientations(
     Raises
     ------
     InputError
-        A cluster names markers the file lacks.
+        A cluster of a map the user gave names markers the file lacks (a shipped map chosen by
+        the file's names, or a partial body, leaves such a cluster out: its segment then has
+        no cluster orientation, and its status says so).
     """
     if not mmap.clusters:
         return (), None
-    finder = NameResolver(markers.names)
+    finder = MarkerResolver(markers.names)
     lack = {k: [n for n in v if finder(n) is None] for k, v in mmap.clusters.items()}
     lack = {k: v for k, v in lack.items() if v}
     clusters = dict(mmap.clusters)
-    if lack and partial:  # a partial body: the absent segments' clusters are left out
+    if lack and (partial or mmap.origin.startswith("built-in")):
         clusters = {k: v for k, v in clusters.items() if k not in lack}
         if not clusters:
             return (), None

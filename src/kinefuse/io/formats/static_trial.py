@@ -44,8 +44,7 @@ from kinefuse.io.formats.marker_maps import (
     apply_marker_map,
     rule_points,
 )
-from kinefuse.io.formats.markers import MarkerData
-from kinefuse.motion.maps import NameResolver
+from kinefuse.io.formats.markers import MarkerData, MarkerResolver
 
 Array = NDArray[np.float64]
 
@@ -89,7 +88,7 @@ def _rule_points(markers: MarkerData, rule: JointRule, mmap: MarkerMap) -> Array
 
 
 def _cluster_points(markers: MarkerData, names: tuple[str, ...]) -> Array | None:
-    f = NameResolver(markers.names)
+    f = MarkerResolver(markers.names)
     idx = [f(n) for n in names]
     if any(i is None for i in idx):
         return None
@@ -119,7 +118,7 @@ def check_static(static: MarkerData, motion: MarkerData, mmap: MarkerMap) -> Non
     moves (rules in the module docstring)."""
     # the map's landmarks as the static trial gives them (the motion has them carried)
     static = with_landmarks(static, mmap, None)[0]
-    sf, mf = NameResolver(static.names), NameResolver(motion.names)
+    sf, mf = MarkerResolver(static.names), MarkerResolver(motion.names)
     wanted = {n for names in mmap.clusters.values() for n in names}
     lack = sorted(n for n in wanted if mf(n) is not None and sf(n) is None)
     if lack:
@@ -178,7 +177,7 @@ def with_landmarks(
                        positions=np.concatenate([m.positions, pts[:, None]], axis=1))  # fmt: skip
 
     for lm, (rule, cluster) in mmap.landmarks.items():
-        if NameResolver(cur.names)(lm) is not None:
+        if MarkerResolver(cur.names)(lm) is not None:
             continue
         if st is None:
             direct = _rule_points(cur, rule, mmap)
@@ -189,13 +188,15 @@ def with_landmarks(
         if ps is None and _cluster_points(cur, mmap.clusters[cluster]) is None:
             continue  # the motion lacks its segment too (a partial body): the joint is unbuilt
         if ps is None:
-            need = [n for n in rule.marker_names(mmap.pelvis) if NameResolver(st.names)(n) is None]
+            need = [
+                n for n in rule.marker_names(mmap.pelvis) if MarkerResolver(st.names)(n) is None
+            ]
             raise InputError(
                 f"{st.path}: the landmark rule {lm!r} needs the markers {', '.join(need)}, "
                 "which the static trial does not have. Give a static trial with them, or fix "
                 "the map's [landmarks]"
             )
-        if NameResolver(st.names)(lm) is None:
+        if MarkerResolver(st.names)(lm) is None:
             st = add(st, lm, ps)
         tmpl = _cluster_points(st, mmap.clusters[cluster])
         mov = _cluster_points(cur, mmap.clusters[cluster])
