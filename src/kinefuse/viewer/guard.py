@@ -11,7 +11,9 @@ Anyone who reaches the port may connect; no credential is needed to send HTTP he
 - **A request's headers have a deadline** (:attr:`PortLimits.header_timeout_s`) from the
   accept, or from the end of the previous response on a kept-alive connection, to the whole
   request line and headers, whatever trickles in meanwhile; the WebSocket upgrade is such a
-  request. A connection past it is closed.
+  request. A connection past it is closed. Until its first request head is whole, a
+  connection's bytes are only held (at most :data:`MAX_HEAD_BYTES`): the HTTP machinery
+  (parser, task) is made for a connection that has sent one.
 - **Refusals and failed accepts are logged once per interval** with their count
   (:class:`RateLog`), never a line (or a traceback) per event.
 - **The ``Host`` header must be a name the server answers to** (:class:`HostNames`): its bind
@@ -43,6 +45,9 @@ log = logging.getLogger("kinefuse.viewer")
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 #: bind addresses that mean "every interface": any IP literal is then a name of the server
 WILDCARD_HOSTS = ("", "0.0.0.0", "::")
+#: a request head (request line and headers) longer than this is refused (aiohttp's own limits
+#: are lower: this only bounds what a connection holds before the HTTP parser sees it)
+MAX_HEAD_BYTES = 64 * 1024
 #: what asyncio reports when an accept fails for want of descriptors or memory
 ACCEPT_FAILED = "socket.accept() out of system resource"
 
@@ -164,7 +169,7 @@ class Admission:
 
     def protocol_factory(self, inner: Callable[[], asyncio.Protocol]) -> Callable[[], Guarded]:
         """A factory for ``loop.create_server``: ``inner``'s protocols behind this admission."""
-        return lambda: Guarded(inner(), self)
+        return lambda: Guarded(inner, self)
 
     def flush(self) -> None:
         self.refused.flush()
@@ -172,14 +177,18 @@ class Admission:
 
 
 class Guarded(asyncio.Protocol):
-    """One connection: refused at once above a cap, else handed to the HTTP protocol with its
-    header deadline armed."""
+    """One connection: refused at once above a cap; else its bytes are held until they hold a
+    whole request head (the request line and headers, up to :data:`MAX_HEAD_BYTES`), and only
+    then handed to the HTTP protocol (``make_inner``): a connection that never completes one
+    costs the server this object and its deadline, not an HTTP parser and a task."""
 
-    def __init__(self, inner: asyncio.Protocol, admission: Admission) -> None:
-        self.inner = inner
+    def __init__(self, make_inner: Callable[[], asyncio.Protocol], admission: Admission) -> None:
+        self.make_inner = make_inner
+        self.inner: asyncio.Protocol | None = None
         self.admission = admission
         self.address: str | None = None  # set while admitted
         self.transport: asyncio.Transport | None = None
+        self._head = bytearray()
         self._deadline: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -195,7 +204,6 @@ class Guarded(asyncio.Protocol):
         self.address = address
         self.transport = transport  # type: ignore[assignment]
         self.arm()
-        self.inner.connection_made(transport)
 
     def arm(self) -> None:
         """Start the header deadline (again: the next request on a kept-alive connection)."""
@@ -216,18 +224,31 @@ class Guarded(asyncio.Protocol):
             self.transport.abort()
 
     def data_received(self, data: bytes) -> None:
-        if self.address is not None:
+        if self.inner is not None:
             self.inner.data_received(data)
+            return
+        if self.address is None or self.transport is None:
+            return
+        seen = max(0, len(self._head) - 3)
+        self._head += data
+        if self._head.find(b"\n\n", seen) >= 0 or self._head.find(b"\n\r\n", seen) >= 0:
+            self.inner = self.make_inner()
+            self.inner.connection_made(self.transport)
+            head, self._head = bytes(self._head), bytearray()
+            self.inner.data_received(head)
+        elif len(self._head) > MAX_HEAD_BYTES:
+            self.admission.expired.add()
+            reset(self.transport)
 
     def eof_received(self) -> bool | None:
-        return self.inner.eof_received() if self.address is not None else None
+        return self.inner.eof_received() if self.inner is not None else None
 
     def pause_writing(self) -> None:
-        if self.address is not None:
+        if self.inner is not None:
             self.inner.pause_writing()
 
     def resume_writing(self) -> None:
-        if self.address is not None:
+        if self.inner is not None:
             self.inner.resume_writing()
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -241,7 +262,8 @@ class Guarded(asyncio.Protocol):
         adm.by_address[address] -= 1
         if adm.by_address[address] <= 0:
             del adm.by_address[address]
-        self.inner.connection_lost(exc)
+        if self.inner is not None:
+            self.inner.connection_lost(exc)
 
 
 def host_name(text: str) -> str:

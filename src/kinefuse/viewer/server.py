@@ -41,6 +41,9 @@ from kinefuse.viewer.wire import fused_frame_bytes, hello_message, status_messag
 DEFAULT_HOST = "127.0.0.1"
 #: the port's default caps and header deadline (``docs/security.md``)
 DEFAULT_LIMITS = PortLimits()
+#: the listen backlog, which is also how many connections asyncio accepts in one turn of the
+#: loop: a flood of connections is taken in small bites between the fusion's own callbacks
+ACCEPT_BATCH = 16
 
 _STATIC = ("index.html", "viewer.css", "viewer.js")
 _TYPES = {".html": "text/html", ".css": "text/css", ".js": "text/javascript"}
@@ -271,7 +274,11 @@ async def serve(
         assert runner.server is not None
         with quiet_accept_failures(loop, limits.log_every_s):
             listener = await loop.create_server(
-                admission.protocol_factory(runner.server), host, port, reuse_address=True
+                admission.protocol_factory(runner.server),
+                host,
+                port,
+                reuse_address=True,
+                backlog=ACCEPT_BATCH,
             )
             if not listener.sockets:
                 raise OSError(f"the viewer could not bind {host}:{port}")
