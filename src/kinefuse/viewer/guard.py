@@ -163,7 +163,8 @@ class Admission:
             limits.log_every_s,
         )
         self.expired = RateLog(
-            f"viewer port: connections closed at the {limits.header_timeout_s:g} s header deadline",
+            f"viewer port: connections closed without a whole request head within "
+            f"{limits.header_timeout_s:g} s (or over {MAX_HEAD_BYTES // 1024} KiB)",
             limits.log_every_s,
         )
 
