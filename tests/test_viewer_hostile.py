@@ -99,10 +99,11 @@ async def _closed_within(reader: asyncio.StreamReader, seconds: float) -> float 
 
 
 async def _half_sent(port: int, source: str = "127.0.0.1"):
-    """A connection with a request that never ends; None if it was reset as it was made."""
+    """A connection with a request that never ends; None if it was reset as it was made (or
+    its SYN dropped all along: the listen queue is short on purpose)."""
     try:
         r, w = await _open(port, source)
-    except ConnectionError:
+    except (ConnectionError, TimeoutError):
         return None
     w.write(HALF_SENT.format(port=port).encode())
     return r, w
@@ -155,13 +156,14 @@ def test_a_flood_under_a_low_descriptor_limit_leaves_sensors_and_new_pages_serve
 
     async def body():
         flood = []
-        for k in range(600):
-            flood.append(await _half_sent(viewer_port, f"127.0.0.{2 + k % 10}"))
+        for k in range(0, 600, 50):
+            more = (_half_sent(viewer_port, f"127.0.0.{2 + j % 10}") for j in range(k, k + 50))
+            flood += await asyncio.gather(*more)
         t_flood = time.monotonic()
         sensor = safety.Peer(*await _open(port))
         welcome = await asyncio.wait_for(sensor.hello("k0", token=None), 5.0)
         sensor.w.close()
-        closed = await _all_closed_within(flood, 9.0)
+        closed = await _all_closed_within(flood, 12.0)
         after = time.monotonic() - t_flood
         page = await _request(viewer_port)
         return welcome, closed, after, page
@@ -175,7 +177,7 @@ def test_a_flood_under_a_low_descriptor_limit_leaves_sensors_and_new_pages_serve
     assert all(c is not None for c in closed), f"{closed.count(None)} of 600 still open"
     early = sum(1 for c in closed if c is not None and c < 1.0)
     assert early >= 600 - 128 - 20  # above the cap (256 - a reserve of 128): reset at once
-    assert after < 9.0  # and the others at the deadline
+    assert after < 12.0  # and the others at the deadline
     assert page[0] == 200 and "/static/viewer.js" in page[1]
     log = err.read_text()
     assert len(log) < 4000, log[:2000]

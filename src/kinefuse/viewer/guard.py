@@ -15,7 +15,9 @@ Anyone who reaches the port may connect; no credential is needed to send HTTP he
   connection's bytes are only held (at most :data:`MAX_HEAD_BYTES`): the HTTP machinery
   (parser, task) is made for a connection that has sent one.
 - **Refusals and failed accepts are logged once per interval** with their count
-  (:class:`RateLog`), never a line (or a traceback) per event.
+  (:class:`RateLog`), never a line (or a traceback) per event: the port accepts its
+  connections itself (:class:`Admission`), so a refusal costs an accept and a close, no
+  transport.
 - **The ``Host`` header must be a name the server answers to** (:class:`HostNames`): its bind
   address, the loopback names and the names it was given, so that a web page on another site
   whose name was re-pointed at this machine (DNS rebinding) is refused; and a browser's
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import ipaddress
 import logging
 import re
@@ -34,7 +37,7 @@ import socket
 import struct
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit
@@ -48,8 +51,9 @@ WILDCARD_HOSTS = ("", "0.0.0.0", "::")
 #: a request head (request line and headers) longer than this is refused (aiohttp's own limits
 #: are lower: this only bounds what a connection holds before the HTTP parser sees it)
 MAX_HEAD_BYTES = 64 * 1024
-#: what asyncio reports when an accept fails for want of descriptors or memory
-ACCEPT_FAILED = "socket.accept() out of system resource"
+#: the listen backlog, which is also how many connections are accepted in one turn of the
+#: loop: a flood of connections is taken in small bites between the fusion's own callbacks
+ACCEPT_BATCH = 16
 
 _NAME = re.compile(r"[a-z0-9_]([a-z0-9_-]*[a-z0-9_])?(\.[a-z0-9_]([a-z0-9_-]*[a-z0-9_])?)*")
 
@@ -149,14 +153,23 @@ def reset(transport: Any, sock: Any = None) -> None:
 
 
 class Admission:
-    """The connections of one port: counted in total and per address, each with its header
-    deadline until :meth:`Guarded.disarm` (the app's middleware, once a request has come)."""
+    """The listening sockets of one port and what they accept: each connection counted in total
+    and per address as it is accepted, and reset there, before asyncio makes a transport for
+    it, when it is above a cap; an admitted one gets its header deadline, until
+    :meth:`Guarded.disarm` (the app's middleware, once a request has come). Failed accepts (no
+    descriptor left) are counted, and the socket rests a second before it accepts again."""
 
-    def __init__(self, limits: PortLimits, capacity: int) -> None:
+    def __init__(
+        self, limits: PortLimits, capacity: int, make_inner: Callable[[], asyncio.Protocol]
+    ) -> None:
         self.limits = limits
         self.capacity = capacity
+        self.make_inner = make_inner
         self.total = 0
         self.by_address: Counter[str] = Counter()
+        self.sockets: list[socket.socket] = []
+        #: the admitted connections that are open
+        self.connections: set[Guarded] = set()
         self.refused = RateLog(
             f"viewer port: connections refused at accept (caps: {capacity} in total, "
             f"{limits.max_per_address} per address)",
@@ -167,43 +180,124 @@ class Admission:
             f"{limits.header_timeout_s:g} s (or over {MAX_HEAD_BYTES // 1024} KiB)",
             limits.log_every_s,
         )
+        self.failed = RateLog(
+            "viewer port: accepts failed for want of descriptors (the port rests 1 s each time)",
+            limits.log_every_s,
+        )
+        self._tasks: set[asyncio.Task[Any]] = set()
 
-    def protocol_factory(self, inner: Callable[[], asyncio.Protocol]) -> Callable[[], Guarded]:
-        """A factory for ``loop.create_server``: ``inner``'s protocols behind this admission."""
-        return lambda: Guarded(inner, self)
+    async def listen(self, host: str, port: int) -> int:
+        """Bind ``host:port`` (every address it resolves to), listen, and accept on the running
+        loop; the bound port (OSError if nothing could be bound)."""
+        loop = asyncio.get_running_loop()
+        infos = await loop.getaddrinfo(
+            host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )
+        error: OSError | None = None
+        for family, kind, proto, _name, address in dict.fromkeys(infos):
+            sock = socket.socket(family, kind, proto)
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6:
+                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                sock.bind(address)
+                sock.listen(ACCEPT_BATCH)
+                sock.setblocking(False)
+            except OSError as e:
+                sock.close()
+                error = e
+                continue
+            self.sockets.append(sock)
+            loop.add_reader(sock.fileno(), self._accept, sock)
+        if not self.sockets:
+            raise error or OSError(f"{host!r} resolves to no address")
+        return int(self.sockets[0].getsockname()[1])
 
-    def flush(self) -> None:
+    def _accept(self, sock: socket.socket) -> None:
+        loop = asyncio.get_running_loop()
+        for _ in range(ACCEPT_BATCH):
+            try:
+                conn, peer = sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as e:
+                if e.errno not in (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM):
+                    continue  # (the peer gave up before the accept: ECONNABORTED and the like)
+                self.failed.add()
+                loop.remove_reader(sock.fileno())
+                loop.call_later(1.0, self._resume, sock)
+                return
+            address = str(peer[0]) if isinstance(peer, tuple) and peer else ""
+            if (
+                self.total >= self.capacity
+                or self.by_address[address] >= self.limits.max_per_address
+            ):
+                self.refused.add()
+                with contextlib.suppress(OSError):  # a reset: nothing lingers
+                    conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                conn.close()
+                continue
+            self.total += 1
+            self.by_address[address] += 1
+            conn.setblocking(False)
+            task = loop.create_task(self._connect(conn, Guarded(self, address)))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    async def _connect(self, conn: socket.socket, guarded: Guarded) -> None:
+        loop = asyncio.get_running_loop()
+        try:
+            await loop.connect_accepted_socket(lambda: guarded, conn)
+        except OSError:
+            conn.close()
+            guarded.connection_lost(None)  # (its count released, once)
+
+    def _resume(self, sock: socket.socket) -> None:
+        if sock in self.sockets:
+            asyncio.get_running_loop().add_reader(sock.fileno(), self._accept, sock)
+
+    def release(self, address: str) -> None:
+        """A connection from ``address`` is gone."""
+        self.total -= 1
+        self.by_address[address] -= 1
+        if self.by_address[address] <= 0:
+            del self.by_address[address]
+
+    def close(self) -> None:
+        """Stop listening, close the connections the HTTP server does not know yet (those that
+        have not sent a whole request head), and log what is counted."""
+        loop = asyncio.get_running_loop()
+        for sock in self.sockets:
+            loop.remove_reader(sock.fileno())
+            sock.close()
+        self.sockets = []
+        for task in list(self._tasks):
+            task.cancel()
+        for conn in list(self.connections):
+            if conn.inner is None and conn.transport is not None:
+                conn.transport.abort()
         self.refused.flush()
         self.expired.flush()
+        self.failed.flush()
 
 
 class Guarded(asyncio.Protocol):
-    """One connection: refused at once above a cap; else its bytes are held until they hold a
-    whole request head (the request line and headers, up to :data:`MAX_HEAD_BYTES`), and only
-    then handed to the HTTP protocol (``make_inner``): a connection that never completes one
-    costs the server this object and its deadline, not an HTTP parser and a task."""
+    """One admitted connection: its bytes are held until they hold a whole request head (the
+    request line and headers, up to :data:`MAX_HEAD_BYTES`), and only then handed to the HTTP
+    protocol (``admission.make_inner``): a connection that never completes one costs the server
+    this object and its deadline, not an HTTP parser and a task."""
 
-    def __init__(self, make_inner: Callable[[], asyncio.Protocol], admission: Admission) -> None:
-        self.make_inner = make_inner
+    def __init__(self, admission: Admission, address: str) -> None:
         self.inner: asyncio.Protocol | None = None
         self.admission = admission
-        self.address: str | None = None  # set while admitted
+        self.address: str | None = address  # None once the connection is gone
         self.transport: asyncio.Transport | None = None
         self._head = bytearray()
         self._deadline: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        adm = self.admission
-        peer = transport.get_extra_info("peername")
-        address = str(peer[0]) if isinstance(peer, tuple) and peer else ""
-        if adm.total >= adm.capacity or adm.by_address[address] >= adm.limits.max_per_address:
-            adm.refused.add()
-            reset(transport)
-            return
-        adm.total += 1
-        adm.by_address[address] += 1
-        self.address = address
         self.transport = transport  # type: ignore[assignment]
+        self.admission.connections.add(self)
         self.arm()
 
     def arm(self) -> None:
@@ -233,7 +327,7 @@ class Guarded(asyncio.Protocol):
         seen = max(0, len(self._head) - 3)
         self._head += data
         if self._head.find(b"\n\n", seen) >= 0 or self._head.find(b"\n\r\n", seen) >= 0:
-            self.inner = self.make_inner()
+            self.inner = self.admission.make_inner()
             self.inner.connection_made(self.transport)
             head, self._head = bytes(self._head), bytearray()
             self.inner.data_received(head)
@@ -258,11 +352,8 @@ class Guarded(asyncio.Protocol):
             return
         self.disarm()
         self.address = None
-        adm = self.admission
-        adm.total -= 1
-        adm.by_address[address] -= 1
-        if adm.by_address[address] <= 0:
-            del adm.by_address[address]
+        self.admission.connections.discard(self)
+        self.admission.release(address)
         if self.inner is not None:
             self.inner.connection_lost(exc)
 
@@ -367,29 +458,3 @@ class HostNames:
                 f"(http://{(host or '')[:80]})"
             )
         return None
-
-
-@contextlib.contextmanager
-def quiet_accept_failures(loop: asyncio.AbstractEventLoop, every_s: float) -> Iterator[RateLog]:
-    """While inside, a failed accept (asyncio's "out of system resource", one traceback each)
-    is counted and logged once per ``every_s``; every other loop error goes where it went."""
-    failures = RateLog(
-        "accepts failed for want of descriptors (the server retries each second)", every_s
-    )
-    previous = loop.get_exception_handler()
-
-    def handler(lp: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-        if context.get("message") == ACCEPT_FAILED:
-            failures.add()
-        elif previous is not None:
-            previous(lp, context)
-        else:
-            lp.default_exception_handler(context)
-
-    loop.set_exception_handler(handler)
-    try:
-        yield failures
-    finally:
-        failures.flush()
-        if loop.get_exception_handler() is handler:
-            loop.set_exception_handler(previous)

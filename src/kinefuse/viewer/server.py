@@ -31,7 +31,6 @@ from kinefuse.viewer.guard import (
     HostNames,
     PortLimits,
     capacity,
-    quiet_accept_failures,
     raise_descriptor_limit,
     reset,
 )
@@ -41,9 +40,6 @@ from kinefuse.viewer.wire import fused_frame_bytes, hello_message, status_messag
 DEFAULT_HOST = "127.0.0.1"
 #: the port's default caps and header deadline (``docs/security.md``)
 DEFAULT_LIMITS = PortLimits()
-#: the listen backlog, which is also how many connections asyncio accepts in one turn of the
-#: loop: a flood of connections is taken in small bites between the fusion's own callbacks
-ACCEPT_BATCH = 16
 
 _STATIC = ("index.html", "viewer.css", "viewer.js")
 _TYPES = {".html": "text/html", ".css": "text/css", ".js": "text/javascript"}
@@ -264,30 +260,20 @@ async def serve(
     requests must name the server by its bind address, a loopback name or one of
     ``allowed_hosts`` (ValueError if one is not a host name)."""
     names = HostNames.of(host, allowed_hosts)
-    admission = Admission(limits, capacity(limits, raise_descriptor_limit()))
     app = make_app(source, token=token, publisher=publisher, names=names)
     runner = web.AppRunner(app, handle_signals=False, access_log=None)
     await runner.setup()
-    loop = asyncio.get_running_loop()
-    listener: asyncio.Server | None = None
+    assert runner.server is not None
+    admission = Admission(limits, capacity(limits, raise_descriptor_limit()), runner.server)
     try:
-        assert runner.server is not None
-        with quiet_accept_failures(loop, limits.log_every_s):
-            listener = await loop.create_server(
-                admission.protocol_factory(runner.server),
-                host,
-                port,
-                reuse_address=True,
-                backlog=ACCEPT_BATCH,
-            )
-            if not listener.sockets:
-                raise OSError(f"the viewer could not bind {host}:{port}")
-            yield int(listener.sockets[0].getsockname()[1])
+        try:
+            bound = await admission.listen(host, port)
+        except OSError as e:
+            raise OSError(f"the viewer cannot listen on {host}:{port}: {e.strerror or e}") from None
+        yield bound
     finally:
-        if listener is not None:
-            listener.close()
+        admission.close()
         await runner.cleanup()
-        admission.flush()
 
 
 @contextlib.asynccontextmanager
