@@ -230,7 +230,8 @@ asyncio.run(main())
 
 def test_headers_have_a_deadline_however_slowly_they_trickle_in() -> None:
     """A request sent a byte every 0.3 s (each well within any idle timeout) is closed at the
-    5 s header deadline; so is an idle kept-alive connection; a whole request is served."""
+    5 s header deadline; so are a WebSocket upgrade left unfinished and an idle kept-alive
+    connection; a whole request is served."""
 
     async def run():
         async with live_viewer(Publisher(), port=0) as port:
@@ -245,17 +246,23 @@ def test_headers_have_a_deadline_however_slowly_they_trickle_in() -> None:
                     await asyncio.sleep(0.3)
 
             task = asyncio.ensure_future(dribble())
-            slow = await _closed_within(r, 9.0)
+            # and a WebSocket upgrade (the API's handshake) whose last header never ends
+            r1, w1 = await _open(port)
+            upgrade = f"GET {API_PATH} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n" + _upgrade()
+            w1.write(upgrade.encode() + b"X-Never: ends")
+            both = _closed_within(r, 9.0), _closed_within(r1, 9.0)
+            slow, upgrade_cut = await asyncio.gather(*both)
             task.cancel()
             # a served request, then nothing more on the kept-alive connection
             r2, w2 = await _open(port)
             w2.write(f"GET /static/viewer.css HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
             head = await asyncio.wait_for(r2.readuntil(b"\r\n"), 5.0)
             idle = await _closed_within(r2, 9.0)
-            return slow, head, idle
+            return slow, upgrade_cut, head, idle
 
-    slow, head, idle = asyncio.run(run())
+    slow, upgrade_cut, head, idle = asyncio.run(run())
     assert slow is not None and 4.5 < slow < 7.0, slow  # used to stay open for an hour
+    assert upgrade_cut is not None and 4.5 < upgrade_cut < 7.0, upgrade_cut
     assert b" 200 " in head
     assert idle is not None and 4.5 < idle < 7.0, idle
 
