@@ -41,13 +41,14 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _start_serve(tmp_path: Path, *args: str, nofile: int | None = None):
+def _start_serve(tmp_path: Path, *args: str, nofile: int | tuple[int, int] | None = None):
     """``kinefuse serve --port 0 --viewer-port 0 ARGS`` (under a descriptor limit of ``nofile``,
-    soft and hard); (process, sensor port, viewer port, stderr file)."""
+    soft and hard, or ``(soft, hard)``); (process, sensor port, viewer port, stderr file)."""
 
     def lower() -> None:
         if nofile is not None:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+            limit = nofile if isinstance(nofile, tuple) else (nofile, nofile)
+            resource.setrlimit(resource.RLIMIT_NOFILE, limit)
 
     err = tmp_path / "serve.stderr"
     p = subprocess.Popen(
@@ -182,6 +183,16 @@ def test_a_flood_under_a_low_descriptor_limit_leaves_sensors_and_new_pages_serve
     log = err.read_text()
     assert len(log) < 4000, log[:2000]
     assert "Traceback" not in log and "refused at accept" in log, log
+
+
+def test_the_server_raises_its_descriptor_limit_to_the_hard_limit(tmp_path) -> None:
+    p, _port, _viewer_port, _err = _start_serve(tmp_path, nofile=(256, 2048))
+    try:
+        limits = Path(f"/proc/{p.pid}/limits").read_text()
+    finally:
+        _stop(p)
+    line = next(x for x in limits.splitlines() if x.startswith("Max open files"))
+    assert line.split()[3:5] == ["2048", "2048"], line
 
 
 def test_accept_failures_are_counted_in_one_line_not_a_traceback_each(tmp_path) -> None:
