@@ -1,18 +1,21 @@
 """Hostile peers against a live server: is fusion still 30 Hz and on time? (issue 23)
 
-Run: ``python benchmarks/bench_hostile.py [--phase-s 6] [--smoke]`` (``--smoke``: 2 s phases,
-a tenth of the unknown-message flood: checks that it runs). Starts ``kinefuse serve`` (a
-token, a calibration of two sensors, a recording) on 127.0.0.1 and two well-behaved sensors in
-a process of their own (30 Hz body frames, probes answered; an attacker's own work in this
-process does not delay them, as on a LAN where it would run on another machine). Then each
-attack after a quiet phase of the same length: 20 slowloris handshakes (a byte every 0.5 s), 5
-slow 1 MiB frames from an authenticated sensor, a control peer that asks for status at its
-allowed rate and never reads, a control-request flood, 200 idle connections, and 400,000
-unknown messages from a peer that announces a newer minor version. Per phase it prints the
-fused rate and the latency p50/p99 of the published frames (from the recording, server clock),
-the p99 change against the quiet phase just before (the machine is shared: its load drifts
-over a run by more than the 5 ms an attack may cost, so a fixed baseline at the start
-measured the drift), the server's peak RSS against the first quiet phase, and how the
+Run: ``python benchmarks/bench_hostile.py [--phase-s 6] [--smoke]`` (``--smoke``: 2 s phases, a
+tenth of the unknown-message flood, 600 half-sent requests: checks that it runs). Starts
+``kinefuse serve`` (a token, a calibration of two sensors, a recording, the viewer; a descriptor
+limit of 1024, soft and hard) on 127.0.0.1 and two well-behaved sensors in a process of their
+own (30 Hz body frames, probes answered; an attacker's own work in this process does not delay
+them, as on a LAN where it would run on another machine). Then each attack after a quiet phase
+of the same length: 20 slowloris handshakes (a byte every 0.5 s), 5 slow 1 MiB frames from an
+authenticated sensor, a control peer that asks for status at its allowed rate and never reads, a
+control-request flood, 200 idle connections, 400,000 unknown messages from a peer that announces
+a newer minor version, and 1,100 half-sent HTTP requests on the viewer port from 20 addresses (a
+child process at nice 19), each opened again 0.5 s after the server ends it, while a sensor is
+killed and restarted (the time to its welcome is printed). Per phase it prints the fused rate
+and the latency p50/p99 of the published frames (from the recording, server clock), the p99
+change against the quiet phase just before (the machine is shared: its load drifts over a run by
+more than the 5 ms an attack may cost, so a fixed baseline at the start measured the drift), the
+server's peak RSS against the first quiet phase, its CPU (percent of one core), and how the
 attackers were closed (error codes, and the latest close after the phase began). Every
 connection is to 127.0.0.1, every wait bounded.
 
@@ -28,7 +31,9 @@ import argparse
 import asyncio
 import contextlib
 import datetime as _dt
+import json
 import os
+import resource
 import struct
 import subprocess
 import sys
@@ -298,6 +303,100 @@ def lockout_report() -> str:
     return f"handshake lockout: the restarted sensor was refused ({LOCKOUT.get('refused')})"
 
 
+# -- the viewer/API port flood (issue 45): its own functions ----------------------------------
+
+#: the descriptor limit (soft and hard) the server runs under: the common default of 1024
+SERVER_NOFILE = 1024
+#: the start of a request whose headers never end
+HALF_SENT = b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Unfinished: a"
+
+
+async def half_sent_request(viewer_port: int, source: str, t_end: float) -> tuple[str, float]:
+    """One half-sent request from ``source``: how the server ended it (a reset: refused at
+    accept; a close: cut at the header deadline) and how long it took."""
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    try:
+        r, w = await asyncio.wait_for(
+            asyncio.open_connection("127.0.0.1", viewer_port, local_addr=(source, 0)), 5
+        )
+    except (OSError, TimeoutError):
+        return "refused (reset)", loop.time() - t0
+    w.write(HALF_SENT)
+    code = "open at the phase end"
+    try:
+        while loop.time() < t_end:
+            if not await asyncio.wait_for(r.read(4096), max(0.01, t_end - loop.time())):
+                code = "cut (closed)"
+                break
+    except TimeoutError:
+        pass
+    except OSError:
+        code = "refused (reset)"
+    finally:
+        w.close()
+    return code, loop.time() - t0
+
+
+async def rejoin(port: int, sid: str) -> float:
+    """Seconds from a sensor's restart (its old connection just dropped) to its Welcome."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30:
+        try:
+            peer = await Peer.open(port)
+            await peer.auth("sensor", sid)
+            peer.w.close()
+            return time.monotonic() - t0
+        except (AttributeError, AssertionError, OSError, TimeoutError):
+            await asyncio.sleep(0.05)  # refused (its old connection not yet gone): again
+    return float("inf")
+
+
+async def half_sent_flood(viewer_port: int, seconds: float, n: int) -> list[tuple[str, float]]:
+    """``n`` half-sent requests from 20 addresses held for ``seconds``, each one the server ends
+    opened again 0.5 s later (run in a child process: see :func:`viewer_flood`)."""
+    loop = asyncio.get_running_loop()
+    t_end = loop.time() + seconds
+
+    async def attacker(k: int) -> list[tuple[str, float]]:
+        out: list[tuple[str, float]] = []
+        await asyncio.sleep(k / 1000)  # 1,000 new connections a second at the start
+        while loop.time() < t_end - 0.5:
+            out.append(await half_sent_request(viewer_port, f"127.0.0.{2 + k % 20}", t_end))
+            await asyncio.sleep(0.5)
+        return out
+
+    return [c for done in await asyncio.gather(*(attacker(k) for k in range(n))) for c in done]
+
+
+async def viewer_flood(
+    port: int, viewer_port: int, seconds: float, notes: list[str], n: int = 1100
+) -> list[tuple[str, float]]:
+    """:func:`half_sent_flood` on the viewer port, in a child process at the lowest priority
+    (on a LAN the attacker's own work runs on its own machine; here it must not take the CPU
+    the server needs: what the server spends on it is what is measured); a sensor connected
+    at the start is killed in the middle of it and restarted."""
+    victim = await Peer.open(port)
+    await victim.auth("sensor", "restarted")
+    here = Path(__file__).resolve()
+    child = await asyncio.create_subprocess_exec(
+        sys.executable, str(here), "--flood-for", str(viewer_port), f"{seconds:g}", str(n),
+        stdout=subprocess.PIPE,
+    )  # fmt: skip
+    await asyncio.sleep(seconds / 2)
+    victim.w.transport.abort()  # the sensor's process killed: its connection drops
+    back = await rejoin(port, "restarted")
+    notes.append(f"a sensor killed {seconds / 2:g} s into the flood was back in {back:.2f} s")
+    out, _ = await child.communicate()
+    return [(str(code), float(t)) for code, t in json.loads(out)]
+
+
+def cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) the process has used so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def rss_kib(pid: int) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -325,10 +424,11 @@ ATTACKS = (
     ("200 idle connections", idle),
     ("unknown messages", unknown_flood),
     ("handshake lockout x32", handshake_lockout),
+    ("viewer-port flood x1100", viewer_flood),
 )
 
 
-async def run(port: int, pid: int, phase_s: float, smoke: bool) -> list[dict]:
+async def run(port: int, pid: int, phase_s: float, smoke: bool, viewer_port: int) -> list[dict]:
     flood_bytes()
     await asyncio.sleep(4.0)  # the sensors (another process) started, synchronized, fusing
     phases: list[dict] = []
@@ -347,9 +447,14 @@ async def run(port: int, pid: int, phase_s: float, smoke: bool) -> list[dict]:
 
         w = asyncio.ensure_future(watch())
         t0 = time.monotonic()
+        notes: list[str] = []
+        cpu0 = cpu_s(pid)
         if attack is None:
             await asyncio.sleep(phase_s)
             closed: list[tuple[str, float]] = []
+        elif attack is viewer_flood:
+            flood = viewer_flood(port, viewer_port, phase_s, notes, 600 if smoke else 1100)
+            closed = await asyncio.wait_for(flood, phase_s + 30)
         elif attack is unknown_flood and smoke:
             closed = await unknown_flood(port, phase_s, 40_000)
         else:
@@ -358,7 +463,8 @@ async def run(port: int, pid: int, phase_s: float, smoke: bool) -> list[dict]:
         await asyncio.sleep(max(0.0, phase_s - (time.monotonic() - t0)))
         t1 = time.monotonic()
         w.cancel()
-        phases.append({"name": name, "t0": t0, "t1": t1, "rss_peak": max(peak), "closed": closed})
+        phases.append({"name": name, "t0": t0, "t1": t1, "rss_peak": max(peak), "closed": closed,
+                       "notes": notes, "cpu_s": cpu_s(pid) - cpu0})  # fmt: skip
         await asyncio.sleep(0.5)
     return phases
 
@@ -369,9 +475,17 @@ def main() -> None:
     ap.add_argument("--smoke", action="store_true", help="2 s phases, a smaller flood")
     ap.add_argument("--keep", type=Path, help="copy the server's recording to this new file")
     ap.add_argument("--sensors-for", nargs=2, metavar=("PORT", "SECONDS"), help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--flood-for", nargs=3, metavar=("PORT", "SECONDS", "N"), help=argparse.SUPPRESS
+    )
     a = ap.parse_args()
     if a.sensors_for is not None:  # the child process of the real sensors
         asyncio.run(run_sensors(int(a.sensors_for[0]), float(a.sensors_for[1])))
+        return
+    if a.flood_for is not None:  # the child process of the viewer-port flood
+        os.nice(19)
+        port_s, seconds_s, n_s = a.flood_for
+        print(json.dumps(asyncio.run(half_sent_flood(int(port_s), float(seconds_s), int(n_s)))))
         return
     if a.smoke:
         a.phase_s = 2.0
@@ -389,16 +503,20 @@ def main() -> None:
         env = {**os.environ, "KINEFUSE_TOKEN": TOKEN}
         cmd = [sys.executable, "-m", "kinefuse", "serve", "--port", "0", "--record", str(rec)]
         server = subprocess.Popen(
-            [*cmd, "--calibration", str(cal_path)],
+            [*cmd, "--calibration", str(cal_path), "--viewer-port", "0"],
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
             env=env,
+            preexec_fn=lambda: resource.setrlimit(
+                resource.RLIMIT_NOFILE, (SERVER_NOFILE, SERVER_NOFILE)
+            ),
         )
         try:
             assert server.stdout is not None
             line = server.stdout.readline()
             port = int(line.rsplit(":", 1)[1])
+            viewer_port = int(server.stdout.readline().rsplit(":", 1)[1].strip("/\n"))
             # the real sensors in a process of their own: an attacker's own work (it builds
             # 400,000 frames, opens 200 connections) must not delay their frames, as on a LAN
             # where it runs on another machine; the server shares the CPU with both as it would
@@ -409,7 +527,7 @@ def main() -> None:
                 stderr=subprocess.DEVNULL,
             )
             try:
-                phases = asyncio.run(run(port, server.pid, a.phase_s, a.smoke))
+                phases = asyncio.run(run(port, server.pid, a.phase_s, a.smoke, viewer_port))
             finally:
                 sensors.terminate()
                 sensors.wait(15)
@@ -433,7 +551,7 @@ def main() -> None:
     quiet_p99 = float("nan")
     print(f"load average (1 min) at the end: {os.getloadavg()[0]:.1f} (2 cores, shared)")
     print(f"{'phase':<24} {'fused Hz':>8} {'p50 ms':>7} {'p99 ms':>7} {'p99 change':>10} "
-          f"{'RSS %':>6}  closed")  # fmt: skip
+          f"{'RSS %':>6} {'CPU %':>6}  closed")  # fmt: skip
     for ph in phases:
         sel = (lf.t_server_s >= ph["t0"] + offset) & (lf.t_server_s < ph["t1"] + offset)
         n = int(sel.sum())
@@ -450,10 +568,14 @@ def main() -> None:
         latest = max((t for _, t in ph["closed"]), default=0.0)
         print(
             f"{ph['name']:<24} {n / (ph['t1'] - ph['t0']):8.1f} {p50:7.1f} {p99:7.1f} "
-            f"{change:>10} {100 * (ph['rss_peak'] / base_rss - 1):+6.1f}  "
+            f"{change:>10} {100 * (ph['rss_peak'] / base_rss - 1):+6.1f} "
+            f"{100 * ph['cpu_s'] / (ph['t1'] - ph['t0']):6.1f}  "
             f"{codes} latest {latest:.1f} s"
         )
-    print("(p99 change: against the quiet phase just before; RSS: against the first quiet one)")
+        for note in ph["notes"]:
+            print(f"{'':<24} {note}")
+    print("(p99 change: against the quiet phase just before; RSS: against the first quiet one; "
+          "CPU: the server's, of one core)")  # fmt: skip
     if LOCKOUT:
         print(lockout_report())
 

@@ -60,6 +60,14 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="serve the live web viewer on this port (0: a free one; on --host)",
     )
     p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name the viewer answers to besides --host and the loopback names (repeatable; "
+        "a request naming any other host is refused: docs/security.md)",
+    )
+    p.add_argument(
         "--lsl",
         nargs="?",
         const="kinefuse",
@@ -94,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         calibration_method=args.calibration_method,
         wand_axis_m=args.wand_axis_m,
         viewer_port=args.viewer_port,
+        allow_hosts=tuple(args.allow_host),
         lsl=args.lsl,
         lsl_xml=args.lsl_xml,
         verbose=args.verbose,

@@ -10,7 +10,8 @@ one skips frames and fusion never waits. One whose socket accepts nothing for
 :data:`STALL_LIMIT_S` (its send buffer is capped at :data:`SEND_BUFFER_BYTES`) is disconnected
 with a TCP reset, so that neither its buffers nor an orphaned socket outlive it.
 Cross-origin WebSockets are refused (the ``Origin`` header, when a browser sends one, must be
-the server's own host), here and on the viewer's ``/ws``.
+this server: :meth:`~kinefuse.viewer.guard.HostNames.origin_error`), here and on the viewer's
+``/ws``.
 """
 
 from __future__ import annotations
@@ -28,12 +29,12 @@ import struct
 import termios
 import time
 from typing import Any
-from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
 from kinefuse.net.bus import FusedFrame, Publisher, Status
 from kinefuse.skeleton import JOINTS
+from kinefuse.viewer.guard import HostNames, reset
 from kinefuse.viewer.wire import fused_frame_bytes, status_message
 
 API_NAME = "kinefuse-live"
@@ -59,16 +60,6 @@ def api_mac(token: str, nonce: str) -> str:
     ``"kinefuse-live/1|" + nonce`` (the token itself never crosses the wire)."""
     msg = f"{API_NAME}/{API_VERSION}|{nonce}".encode()
     return hmac.new(token.encode(), msg, hashlib.sha256).hexdigest()
-
-
-def same_origin(request: web.Request) -> bool:
-    """False for a browser's cross-origin request: an ``Origin`` whose host:port is not the
-    ``Host`` the request was sent to. Programs that send no ``Origin`` pass."""
-    origin = request.headers.get("Origin")
-    if origin is None:
-        return True
-    parts = urlsplit(origin)
-    return parts.scheme in ("http", "https") and parts.netloc.lower() == request.host.lower()
 
 
 async def check_token(ws: web.WebSocketResponse, token: str | None, nonce: str) -> str | None:
@@ -131,16 +122,6 @@ def unsent_bytes(sock: Any) -> int:
     return int(struct.unpack("i", buf)[0])
 
 
-def reset(transport: Any, sock: Any) -> None:
-    """Drop the connection now with a TCP reset: what is queued for it is discarded (a plain
-    close would leave the kernel trying to deliver it to a peer that never reads)."""
-    if sock is not None:
-        with contextlib.suppress(OSError, ValueError):
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-    if transport is not None:
-        transport.abort()
-
-
 class Stalled(Exception):
     """The subscriber's socket accepted nothing for :data:`STALL_LIMIT_S`."""
 
@@ -164,8 +145,9 @@ def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) ->
     """The aiohttp handler of :data:`API_PATH` on ``publisher``."""
 
     async def handler(request: web.Request) -> web.StreamResponse:
-        if not same_origin(request):
-            raise web.HTTPForbidden(text="cross-origin WebSocket refused")
+        refusal = HostNames.origin_error(request.headers.get("Origin"), request.headers.get("Host"))
+        if refusal is not None:
+            raise web.HTTPForbidden(text=refusal)
         fmt = request.query.get("format", "json")
         if fmt not in FORMATS or set(request.query) - {"format"}:
             raise web.HTTPBadRequest(text=f"format must be one of {', '.join(FORMATS)}")

@@ -18,17 +18,28 @@ import json
 import secrets
 import socket
 import weakref
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterable
 from importlib import resources
 from typing import Any, Protocol
 
 from aiohttp import WSMsgType, web
 
 from kinefuse.net.bus import FusedFrame, Publisher, Status
+from kinefuse.viewer.guard import (
+    Admission,
+    Guarded,
+    HostNames,
+    PortLimits,
+    capacity,
+    raise_descriptor_limit,
+    reset,
+)
 from kinefuse.viewer.wire import fused_frame_bytes, hello_message, status_message
 
 #: Default host: loopback only (a viewer shows a lab's capture; exposing it is a choice).
 DEFAULT_HOST = "127.0.0.1"
+#: the port's default caps and header deadline (``docs/security.md``)
+DEFAULT_LIMITS = PortLimits()
 
 _STATIC = ("index.html", "viewer.css", "viewer.js")
 _TYPES = {".html": "text/html", ".css": "text/css", ".js": "text/javascript"}
@@ -106,12 +117,18 @@ class LiveSource:
 
 
 def make_app(
-    source: Source, *, token: str | None = None, publisher: Publisher | None = None
+    source: Source,
+    *,
+    token: str | None = None,
+    publisher: Publisher | None = None,
+    names: HostNames | None = None,
 ) -> web.Application:
     """The aiohttp application: ``/`` (the page), ``/static/*``, ``/ws``, and with a live
-    ``publisher`` the subscription API (:mod:`kinefuse.viewer.api`). WebSockets from another
-    origin are refused; with a ``token`` the page's ``/ws`` asks for it first (``auth_required``
-    with a nonce; the page answers with the HMAC or the token itself, ``docs/api.md``)."""
+    ``publisher`` the subscription API (:mod:`kinefuse.viewer.api`). A request whose ``Host`` is
+    not one of ``names`` (default: those of a loopback server) is refused with 403, and so is a
+    WebSocket from another origin; with a ``token`` the page's ``/ws`` asks for it first
+    (``auth_required`` with a nonce; the page answers with the HMAC or the token itself,
+    ``docs/api.md``)."""
     from kinefuse.viewer.api import (
         API_PATH,
         SEND_BUFFER_BYTES,
@@ -119,13 +136,11 @@ def make_app(
         api_handler,
         check_token,
         refuse,
-        reset,
-        same_origin,
         unsent_bytes,
         watch_stall,
     )
 
-    app = web.Application()
+    app = web.Application(middlewares=[_guard(names or HostNames.of(DEFAULT_HOST))])
     sockets: weakref.WeakSet[web.WebSocketResponse] = weakref.WeakSet()
     files = {name: (resources.files("kinefuse.viewer") / "static" / name) for name in _STATIC}
 
@@ -139,8 +154,9 @@ def make_app(
         return _file_response(files[name].read_bytes(), name)
 
     async def websocket(request: web.Request) -> web.WebSocketResponse:
-        if not same_origin(request):
-            raise web.HTTPForbidden(text="cross-origin WebSocket refused")
+        refusal = HostNames.origin_error(request.headers.get("Origin"), request.headers.get("Host"))
+        if refusal is not None:
+            raise web.HTTPForbidden(text=refusal)
         # the heartbeat finds a page whose peer vanished while nothing is sent (a paused
         # replay); a page that stops reading while frames flow is cut by the API's stall rule
         # first (docs/api.md): a reset, so no orphaned socket keeps its queued frames
@@ -196,6 +212,29 @@ def make_app(
     return app
 
 
+def _guard(names: HostNames) -> Any:
+    """The middleware every request passes: its connection's header deadline is stopped while
+    it is answered (and started again for the next request on the connection), and a ``Host``
+    the server does not answer to is refused (DNS rebinding)."""
+
+    @web.middleware
+    async def guard(request: web.Request, handler: Any) -> web.StreamResponse:
+        transport = request.transport
+        conn = transport.get_protocol() if transport is not None else None
+        if isinstance(conn, Guarded):
+            conn.disarm()
+        try:
+            refusal = names.host_error(request.headers.get("Host"))
+            if refusal is not None:
+                raise web.HTTPForbidden(text=refusal)
+            return await handler(request)
+        finally:
+            if isinstance(conn, Guarded):
+                conn.arm()
+
+    return guard
+
+
 def _file_response(body: bytes, name: str) -> web.Response:
     ext = name[name.rfind(".") :]
     return web.Response(body=body, content_type=_TYPES[ext], headers={"Cache-Control": "no-store"})
@@ -209,20 +248,31 @@ async def serve(
     port: int = 0,
     token: str | None = None,
     publisher: Publisher | None = None,
+    allowed_hosts: Iterable[str] = (),
+    limits: PortLimits = DEFAULT_LIMITS,
 ) -> AsyncIterator[int]:
     """Serve ``source`` on the running loop; yields the bound port; stops on exit (no access
-    log: nothing a client sends is logged)."""
-    app = make_app(source, token=token, publisher=publisher)
+    log: nothing a client sends is logged).
+
+    The port is guarded (:mod:`kinefuse.viewer.guard`, ``docs/security.md``): the process's
+    descriptor limit is raised to its hard limit, connections are capped (``limits``, and what
+    the limit leaves after a reserve for the rest of the server), headers have a deadline, and
+    requests must name the server by its bind address, a loopback name or one of
+    ``allowed_hosts`` (ValueError if one is not a host name)."""
+    names = HostNames.of(host, allowed_hosts)
+    app = make_app(source, token=token, publisher=publisher, names=names)
     runner = web.AppRunner(app, handle_signals=False, access_log=None)
     await runner.setup()
+    assert runner.server is not None
+    admission = Admission(limits, capacity(limits, raise_descriptor_limit()), runner.server)
     try:
-        site = web.TCPSite(runner, host, port, reuse_address=True)
-        await site.start()
-        addresses = runner.addresses
-        if not addresses:
-            raise OSError(f"the viewer could not bind {host}:{port}")
-        yield int(addresses[0][1])
+        try:
+            bound = await admission.listen(host, port)
+        except OSError as e:
+            raise OSError(f"the viewer cannot listen on {host}:{port}: {e.strerror or e}") from None
+        yield bound
     finally:
+        admission.close()
         await runner.cleanup()
 
 
@@ -234,6 +284,8 @@ async def live_viewer(
     *,
     maxsize: int = 2,
     token: str | None = None,
+    allowed_hosts: Iterable[str] = (),
+    limits: PortLimits = DEFAULT_LIMITS,
 ) -> AsyncIterator[int]:
     """Serve the live viewer of ``publisher`` on the running loop.
 
@@ -254,13 +306,26 @@ async def live_viewer(
         Items a page keeps queued while it is busy; older ones are skipped.
     token : str, optional
         The server's token: the page and the subscription API ask for it.
+    allowed_hosts : iterable of str
+        Names the server answers to beside its bind address and the loopback names (the
+        ``Host`` of every request must be one of them).
+    limits : PortLimits
+        The port's connection caps and header deadline (:mod:`kinefuse.viewer.guard`).
 
     Yields
     ------
     bound_port : int
     """
     source = LiveSource(publisher, maxsize=maxsize)
-    async with serve(source, host=host, port=port, token=token, publisher=publisher) as p:
+    async with serve(
+        source,
+        host=host,
+        port=port,
+        token=token,
+        publisher=publisher,
+        allowed_hosts=allowed_hosts,
+        limits=limits,
+    ) as p:
         yield p
 
 

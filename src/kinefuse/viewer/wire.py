@@ -33,6 +33,7 @@ import math
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import PurePath
 from typing import Any
 
 import numpy as np
@@ -143,7 +144,8 @@ def status_message(status: Status) -> dict[str, Any]:
         "calibration_grade": status.calibration_grade,
         "fused_fps": _num(status.fused_fps),
         "method": status.method,
-        "recording": status.recording,
+        # the file's name: where it lies on the server's disk is nobody's business on the wire
+        "recording": PurePath(status.recording).name if status.recording else status.recording,
         "sensors": [
             {
                 "id": s.sensor_id,

@@ -128,6 +128,7 @@ def run_serve(
     calibration_method: str = "full",
     wand_axis_m: float | None = None,
     viewer_port: int | None = None,
+    allow_hosts: tuple[str, ...] = (),
     lsl: str | None = None,
     lsl_xml: Path | None = None,
     verbose: bool = False,
@@ -172,10 +173,23 @@ def run_serve(
         raise InputError("--lsl-xml writes the LSL stream's description: give --lsl too")
     if viewer_port is not None:  # the live web viewer, on the server's publisher
         from kinefuse.viewer import live_viewer
+        from kinefuse.viewer.guard import host_name
 
+        for name in allow_hosts:
+            try:
+                host_name(name)
+            except ValueError as e:
+                raise InputError(f"--allow-host: {e}; give a DNS name or an IP address") from None
         services["viewer"] = functools.partial(
-            live_viewer, host=host, port=viewer_port, token=token
+            live_viewer, host=host, port=viewer_port, token=token, allowed_hosts=allow_hosts
         )
+    elif allow_hosts:
+        raise InputError("--allow-host names the viewer's host: give --viewer-port too")
+    # every descriptor the hard limit allows: the viewer's share of them is capped, the rest
+    # is the sensors' (kinefuse.viewer.guard)
+    from kinefuse.viewer.guard import raise_descriptor_limit
+
+    raise_descriptor_limit()
     server = Server(options, services=services)
     the_server.append(server)
     if calibration is not None:
