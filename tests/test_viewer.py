@@ -324,3 +324,15 @@ def test_view_prints_its_url_and_stops_cleanly_on_ctrl_c(session) -> None:
             proc.wait()
     assert proc.returncode == 0, err
     assert "viewer stopped" in out and "Traceback" not in err
+
+
+def test_the_status_message_shows_stale_frames_and_floor_errors() -> None:
+    """What the operator must act on reaches the page and the API, not only the log."""
+    from kinefuse.protocol.messages import SensorInfo, Status
+    from kinefuse.viewer.wire import status_message
+
+    info = SensorInfo("k0", True, 1.0, 0.1, 0.01, 30.0, 5.0, 0.9, None, "no plane", 7)
+    msg = status_message(Status(sensors=(info,), recording="/srv/data/take.sqlite"))
+    (row,) = msg["sensors"]
+    assert row["stale_frames"] == 7 and row["floor_error"] == "no plane"
+    assert msg["recording"] == "take.sqlite"

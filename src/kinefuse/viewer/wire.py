@@ -156,6 +156,10 @@ def status_message(status: Status) -> dict[str, Any]:
                 "fps": _num(s.fps),
                 "latency_ms": _num(s.latency_ms),
                 "tracked_fraction": _num(s.tracked_fraction),
+                # frames refused because their seq did not increase on their connection, and
+                # why the sensor's floor fit failed: what the operator must see, not only the log
+                "stale_frames": s.stale_frames,
+                "floor_error": s.floor_error,
                 "pose": None  # row-major 4x4, sensor -> world
                 if s.sensor2world is None or not np.isfinite(s.sensor2world).all()
                 else [float(v) for v in np.asarray(s.sensor2world).ravel()],

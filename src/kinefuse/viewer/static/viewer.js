@@ -190,11 +190,16 @@ function renderStatus() {
   cal.innerHTML = html;
   $("fused-fps").textContent = fmt(st.fused_fps, 1);
   const body = $("sensors").tBodies[0];
+  const esc = (t) => String(t).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
   const rows = st.sensors.map((s) => {
+    // what the operator must act on: frames refused as stale, a floor the sensor cannot fit
+    const warn = (s.stale_frames ? `<span class="note"> · ${s.stale_frames} stale</span>` : "") +
+      (s.floor_error ? `<span class="note" title="${esc(s.floor_error)}"> · no floor</span>` : "");
     const off = s.clock_offset_ms == null ? "–" :
       `${s.clock_offset_ms.toFixed(2)}<span class="note"> ±${fmt(s.clock_offset_sd_ms, 2)}</span>`;
     return `<tr class="sensor-row" data-sensor="${s.id}">` +
-      `<td><span class="swatch" style="background:${sensorColour(s.id)}"></span>${s.id}</td>` +
+      `<td><span class="swatch" style="background:${sensorColour(s.id)}"></span>${esc(s.id)}` +
+      `${warn}</td>` +
       `<td class="${s.connected ? "on" : "off"}">${s.connected ? "●" : "○"}</td>` +
       `<td>${fmt(s.rtt_ms, 2)}</td><td>${off}</td><td>${fmt(s.fps, 1)}</td>` +
       `<td>${fmt(s.latency_ms, 1)}</td>` +
