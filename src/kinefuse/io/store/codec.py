@@ -257,6 +257,37 @@ def _json_dumps(value: object, what: str) -> str:
         ) from None
 
 
+def _json_loads(text: object, what: str, path: Path, expect: type | None = None) -> Any:
+    """The JSON value stored in a session as ``what`` (its intrinsics, a meta entry, ...).
+
+    Every JSON text read back from a session goes through here: a damaged or forged session
+    gives one :class:`StoreError` naming the file and the entry, never a ``JSONDecodeError``.
+
+    Raises
+    ------
+    StoreError
+        ``text`` is not JSON (or nested too deeply to read), or not of type ``expect``.
+    """
+    try:
+        if not isinstance(text, str | bytes):
+            raise ValueError(f"a {type(text).__name__} where a JSON text belongs")
+        value = json.loads(text)
+    except (ValueError, RecursionError) as e:
+        why = "nested too deeply" if isinstance(e, RecursionError) else str(e)
+        raise StoreError(
+            f"{path}: {what} is not valid JSON ({why}); the session is damaged or was not "
+            "written by kinefuse: restore it from a copy, or make it again"
+        ) from None
+    if expect is not None and not isinstance(value, expect):
+        names: dict[type, str] = {dict: "an object", list: "an array", str: "a string"}
+        raise StoreError(
+            f"{path}: {what} is not {names.get(expect, expect.__name__)} but {value!r:.40}; the "
+            "session is damaged or was not written by kinefuse: restore it from a copy, or make "
+            "it again"
+        )
+    return value
+
+
 # --------------------------------------------------------------------------------------------
 # The store
 

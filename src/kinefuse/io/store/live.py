@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.register import Sightings
+from kinefuse.io.store.codec import _json_loads
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
@@ -423,4 +424,12 @@ def events(store: SessionStore) -> list[tuple[float, str, str | None, dict[str, 
     rows = store._db.execute(
         "SELECT t_server_s, kind, sensor_id, detail FROM live_events ORDER BY idx"
     ).fetchall()
-    return [(float(t), str(k), s, json.loads(d)) for t, k, s, d in rows]
+    return [
+        (
+            float(t),
+            str(k),
+            s,
+            _json_loads(d, f"the detail of recorded event {k!r}", store.path, dict),
+        )
+        for t, k, s, d in rows
+    ]

@@ -57,6 +57,7 @@ from kinefuse.io.store.codec import (
     _float_array,
     _int_array,
     _json_dumps,
+    _json_loads,
     _require_finite,
     _require_no_inf,
     _require_same_length,
@@ -406,8 +407,8 @@ class SessionStore(SensorStreams, TruthTables):
         row = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         version: object = None
         if row is not None:
-            with contextlib.suppress(ValueError):
-                version = json.loads(row[0])
+            with contextlib.suppress(StoreError):
+                version = _json_loads(row[0], "the schema version", p)
         if version != SCHEMA_VERSION:
             raise StoreError(
                 f"{p} has session-store schema version {version!r}, but this kinefuse reads "
@@ -542,7 +543,7 @@ class SessionStore(SensorStreams, TruthTables):
         """True once the writer called :meth:`mark_complete`; False for a session that was
         interrupted (or written by a kinefuse that did not record completion)."""
         row = self._db.execute("SELECT value FROM meta WHERE key = 'complete'").fetchone()
-        return row is not None and json.loads(row[0]) is True
+        return row is not None and _json_loads(row[0], "meta entry 'complete'", self.path) is True
 
     def require_complete(self, *, allow_incomplete: bool = False, flag: str = "--partial") -> None:
         """Raise :class:`IncompleteSessionError` for an incomplete session unless allowed."""
@@ -558,7 +559,7 @@ class SessionStore(SensorStreams, TruthTables):
     def meta(self) -> dict[str, object]:
         """All metadata, including ``schema_version`` and ``created`` (ISO 8601, UTC)."""
         rows = self._db.execute("SELECT key, value FROM meta ORDER BY key").fetchall()
-        return {str(k): json.loads(v) for k, v in rows}
+        return {str(k): _json_loads(v, f"meta entry {k!r}", self.path) for k, v in rows}
 
     # -- sensors ------------------------------------------------------------------------------
 
@@ -593,9 +594,22 @@ class SessionStore(SensorStreams, TruthTables):
             "SELECT id, serial, intrinsics, rate_hz FROM sensors ORDER BY key"
         ).fetchall()
         return [
-            SensorInfo(str(i), str(s), Intrinsics.from_dict(json.loads(k)), float(r))
-            for i, s, k, r in rows
+            SensorInfo(str(i), str(s), self._intrinsics(str(i), k), float(r)) for i, s, k, r in rows
         ]
+
+    def _intrinsics(self, sensor_id: str, text: object) -> Intrinsics:
+        """The stored intrinsics of one sensor; a :class:`StoreError` naming the session and the
+        sensor when they are not what :meth:`add_sensor` writes."""
+        what = f"the intrinsics record of sensor {sensor_id!r}"
+        d = _json_loads(text, what, self.path, dict)
+        try:
+            return Intrinsics.from_dict(d)
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
+            why = f"no {e}" if isinstance(e, KeyError) else str(e)
+            raise StoreError(
+                f"{self.path}: {what} is malformed ({why}); the session is damaged or was not "
+                "written by kinefuse: restore it from a copy, or make it again"
+            ) from None
 
     def sensor(self, sensor_id: str) -> SensorInfo:
         """One registered sensor by id."""
