@@ -3,6 +3,7 @@ correctly; none costs more than a glance before it is refused (issue 45, items 7
 
 from __future__ import annotations
 
+import gzip
 import shutil
 import sqlite3
 from pathlib import Path
@@ -11,6 +12,9 @@ import numpy as np
 import pytest
 
 from kinefuse.cli import main
+from kinefuse.errors import InputError, MotionFormatError
+from kinefuse.io.formats.markers import read_markers
+from kinefuse.io.inputs import read_text
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion.bvh import read_bvh
 
@@ -22,15 +26,25 @@ def run(capsys, *argv: object) -> tuple[int, str, str]:
 
 
 def one_line_error(code: int, err: str, *needles: str) -> None:
-    """Exit 2 and a single ``kinefuse: error:`` line holding every needle; no traceback."""
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    """Exit 2 and one line, ``kinefuse: error: ...`` holding every needle, after the progress
+    lines (``loading ...``); no traceback."""
+    lines = [ln for ln in err.splitlines() if not ln.startswith("loading ")]
     assert code == 2, err
     assert "Traceback" not in err, err
-    assert lines and lines[-1].startswith("kinefuse: error:"), err
-    assert sum(ln.startswith("kinefuse: error:") for ln in lines) == 1, err
-    assert err.count("\n") == 1, err  # the message is one line
+    assert len(lines) == 1 and lines[0].startswith("kinefuse: error:"), err
     for n in needles:
-        assert n in lines[-1], (n, err)
+        assert n in lines[0], (n, err)
+
+
+def clean_error(code: int, err: str, *needles: str) -> None:
+    """Exit 2, no traceback, and the message's first line ``kinefuse: error: ...`` holding every
+    needle (some messages go on with an example of what to write)."""
+    lines = [ln for ln in err.splitlines() if not ln.startswith("loading ")]
+    assert code == 2 and "Traceback" not in err, err
+    assert lines and lines[0].startswith("kinefuse: error:"), err
+    assert sum(ln.startswith("kinefuse: error:") for ln in lines) == 1, err
+    for n in needles:
+        assert n in lines[0], (n, err)
 
 
 @pytest.fixture(scope="module")
@@ -165,3 +179,126 @@ def test_malformed_meta_is_one_line(session, tmp_path, capsys, key) -> None:
     bad = forge(session, tmp_path, "UPDATE meta SET value = '{oops' WHERE key = ?", key)
     code, _, err = run(capsys, "inspect", bad)
     one_line_error(code, err, str(bad), f"meta entry {key!r} is not valid JSON")
+
+
+# -- a marker file is looked at before it is read whole ---------------------------------------
+
+
+def bytes_read() -> int:
+    """Bytes this process has read so far (Linux ``/proc/self/io`` ``rchar``)."""
+    io = Path("/proc/self/io")
+    if not io.is_file():
+        pytest.skip("needs /proc/self/io (Linux) to count the bytes read")
+    return next(int(ln.split()[1]) for ln in io.read_text().splitlines() if ln.startswith("rchar"))
+
+
+def sparse(path: Path, size: int) -> Path:
+    """A file of ``size`` bytes that takes no disk space (a hole: all zeros)."""
+    with path.open("wb") as f:
+        f.truncate(size)
+    return path
+
+
+def test_a_sparse_2gb_trc_is_refused_by_its_size(tmp_path, capsys) -> None:
+    big = sparse(tmp_path / "take.trc", 2 * 2**30)
+    import kinefuse.workflows.analyze  # noqa: F401  (its imports are not the file's bytes)
+
+    before = bytes_read()
+    code, _, err = run(capsys, "analyze", big, "--out", tmp_path / "a")
+    assert bytes_read() - before < 16 * 2**20  # not the 2 GiB
+    one_line_error(code, err, str(big), "the file is 2 GiB", "TRC marker file")
+    assert not (tmp_path / "a").exists()
+
+
+def test_a_trc_under_the_size_limit_is_refused_by_its_first_bytes(tmp_path) -> None:
+    """A 100 MiB hole is under the size limit: its first bytes refuse it, the rest is not read."""
+    holed = sparse(tmp_path / "holed.trc", 100 * 2**20)
+    before = bytes_read()
+    with pytest.raises(MotionFormatError, match=r"not a text file \(byte 1 is a NUL byte\)"):
+        read_markers(holed)
+    assert bytes_read() - before < 2**20
+    text = tmp_path / "notes.trc"
+    text.write_text("These are my notes\n" + "x" * 10**6 + "\n", encoding="utf-8")
+    with pytest.raises(
+        MotionFormatError, match=r"notes.trc:1: not a TRC file.*'These are my notes'"
+    ):
+        read_markers(text)
+
+
+def test_a_gzip_bomb_is_read_no_further_than_the_limit(tmp_path) -> None:
+    bomb = tmp_path / "clip.bvh.gz"
+    with gzip.open(bomb, "wb") as f:
+        f.write(b"HIERARCHY\n" + b"a" * 20_000)
+    with pytest.raises(InputError, match="expands to more than the 10 KiB"):
+        read_text(bomb, what="BVH file", max_bytes=10 * 1024)
+    assert read_text(bomb, what="BVH file").startswith("HIERARCHY\naaa")
+
+
+def test_a_sparse_c3d_is_refused_by_its_first_bytes(tmp_path, capsys) -> None:
+    """ezc3d spends minutes on a large file of zeros: its header is checked first."""
+    big = sparse(tmp_path / "take.c3d", 2 * 2**30)
+    code, _, err = run(capsys, "analyze", big, "--out", tmp_path / "a")
+    one_line_error(code, err, str(big), "not a C3D file")
+
+
+# -- every malformed input of every command: one line, exit 2 ---------------------------------
+
+#: Contents no reader should take: empty, zeros, text of another kind, binaries with and
+#: without NUL bytes, UTF-16, a first line of 200 kB, and a 2 GiB hole.
+MALFORMED: dict[str, bytes | int] = {
+    "empty": b"",
+    "zeros": bytes(100),
+    "prose": b"hello world\n",
+    "binary": bytes(range(256)) * 12,
+    "binary-no-nul": bytes(range(1, 256)) * 12,
+    "utf16": "PathFileType\t4\n[x]\n".encode("utf-16"),
+    "latin1": "PathFileType\xe9\n[x]\n".encode("latin-1"),
+    "one-long-line": b"x" * 200_000,
+    "hole": 2 * 2**30,
+}
+
+
+def _commands(data: Path, session: Path, out: Path) -> dict[str, tuple[str, list[str]]]:
+    """``kind -> (suffix of the bad file, argv with {bad} for it)``."""
+    walk = str(data / "motion" / "cmu" / "02_walk_a.amc")
+    trc = str(data / "markers" / "opensim" / "Pipelines_Rajagopal_ExpData_motion_capture_walk.trc")
+    sim = ["simulate", "--clip", walk, "--seconds", "0.5", "--calibration-seconds", "0"]
+    return {
+        "analyze trc": (".trc", ["analyze", "{bad}", "--out", f"{out}/a"]),
+        "analyze c3d": (".c3d", ["analyze", "{bad}", "--out", f"{out}/a"]),
+        "analyze bvh": (".bvh", ["analyze", "{bad}", "--out", f"{out}/a"]),
+        "analyze --static": (".trc", ["analyze", trc, "--static", "{bad}", "--out", f"{out}/a"]),
+        "analyze --map": (".toml", ["analyze", trc, "--map", "{bad}", "--out", f"{out}/a"]),
+        "simulate bvh": (".bvh", ["simulate", "--clip", "{bad}", "--out", f"{out}/s.sqlite"]),
+        "simulate amc": (".amc", ["simulate", "--clip", "{bad}", "--out", f"{out}/s.sqlite"]),
+        "simulate --skeleton": (".asf", [*sim, "--skeleton", "{bad}", "--out", f"{out}/s.sqlite"]),
+        "simulate --rig": (".toml", [*sim, "--rig", "{bad}", "--out", f"{out}/s.sqlite"]),
+        "simulate --name-map": (".toml", [*sim, "--name-map", "{bad}", "--out", f"{out}/s.sqlite"]),
+        "fuse --calibration": (
+            ".toml",
+            ["fuse", str(session), "--calibration", "{bad}", "--out", f"{out}/f.csv"],
+        ),
+        "fuse session": (".sqlite", ["fuse", "{bad}", "--true-calibration"]),
+        "inspect session": (".sqlite", ["inspect", "{bad}"]),
+        "realdata csv": (".csv", ["realdata", "{bad}"]),
+    }
+
+
+@pytest.mark.parametrize("content", list(MALFORMED))
+def test_every_malformed_input_is_one_line(session, shared_data, tmp_path, capsys, content) -> None:
+    """Each command, each kind of file it reads, each malformed content: exit 2, an error naming
+    the file, no traceback, and no output left behind."""
+    for kind, (suffix, argv) in _commands(shared_data, session, tmp_path).items():
+        bad = tmp_path / f"{content}{suffix}"
+        value = MALFORMED[content]
+        if isinstance(value, int):
+            sparse(bad, value)
+        else:
+            bad.write_bytes(value)
+        code, _, err = run(capsys, *(str(bad) if a == "{bad}" else a for a in argv))
+        try:
+            clean_error(code, err, bad.name)
+        except AssertionError as e:
+            raise AssertionError(f"{kind} of {content}: {e}") from None
+        assert sorted(p.name for p in tmp_path.iterdir()) == [bad.name], kind
+        bad.unlink()

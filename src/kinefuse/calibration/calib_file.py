@@ -51,6 +51,7 @@ from kinefuse.calibration.register import Registration
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import check_rigid
+from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
 from kinefuse.io.toml import toml_str
 
 Array = NDArray[np.float64]
@@ -333,6 +334,7 @@ def read_calibration(path: str | Path) -> CalibrationFile:
     """Read a calibration TOML file; clear :class:`~kinefuse.errors.InputError` if malformed."""
     p = Path(path)
     try:
+        check_text_file(p, what="calibration file", max_bytes=MAX_SMALL_TEXT_BYTES)
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{p}: calibration file not found") from None
