@@ -3,20 +3,25 @@ correctly; none costs more than a glance before it is refused (issue 45, items 7
 
 from __future__ import annotations
 
+import asyncio
 import gzip
+import os
 import shutil
 import sqlite3
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.cli import main
 from kinefuse.errors import InputError, MotionFormatError
 from kinefuse.io.formats.markers import read_markers
 from kinefuse.io.inputs import read_text
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion.bvh import read_bvh
+from kinefuse.net.server.recorder import Recorder
 
 
 def run(capsys, *argv: object) -> tuple[int, str, str]:
@@ -302,3 +307,57 @@ def test_every_malformed_input_is_one_line(session, shared_data, tmp_path, capsy
             raise AssertionError(f"{kind} of {content}: {e}") from None
         assert sorted(p.name for p in tmp_path.iterdir()) == [bad.name], kind
         bad.unlink()
+
+
+# -- what kinefuse writes is the user's only --------------------------------------------------
+
+
+def mode(path: Path) -> int:
+    return path.stat().st_mode & 0o777
+
+
+@pytest.fixture
+def open_umask():
+    """The common umask 022, under which a plain ``open(path, "w")`` makes a file world-readable."""
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def test_a_recording_is_private(tmp_path, open_umask) -> None:
+    """The live recorder's store, and the -wal/-shm files beside it while it records."""
+    path = tmp_path / "rec.sqlite"
+    seen: dict[str, int] = {}
+
+    async def record() -> None:
+        rec = Recorder(path, {"recorded_by": "test"}, clock=time.monotonic)
+        await rec.open()
+        rec.add_sensor("k0", "S0", Intrinsics())
+        await rec.flush()
+        seen.update({p.name: mode(p) for p in tmp_path.iterdir()})
+        await rec.close(clean=True)
+
+    asyncio.run(record())
+    assert {"rec.sqlite", "rec.sqlite-wal"} <= set(seen), seen
+    assert set(seen.values()) == {0o600}, seen
+    assert mode(path) == 0o600
+
+
+def test_sessions_exports_and_analyses_are_private(
+    session, shared_data, tmp_path, capsys, open_umask
+) -> None:
+    out = tmp_path / "s.sqlite"
+    argv = ["simulate", "--clip", shared_data / "motion" / "cmu" / "02_walk_a.amc",
+            "--seconds", "0.5", "--calibration-seconds", "0", "--out", out]  # fmt: skip
+    assert run(capsys, *argv)[0] == 0
+    assert mode(out) == 0o600
+    for suffix in (".csv", ".trc", ".c3d", ".bvh"):
+        export = tmp_path / f"f{suffix}"
+        assert run(capsys, "fuse", session, "--true-calibration", "--out", export)[0] == 0
+        assert mode(export) == 0o600, suffix
+    trc = (
+        shared_data / "markers" / "opensim" / "Pipelines_Rajagopal_ExpData_motion_capture_walk.trc"
+    )
+    assert run(capsys, "analyze", trc, "--no-plots", "--out", tmp_path / "a")[0] == 0
+    assert mode(tmp_path / "a") == 0o700
+    assert mode(tmp_path / "a" / "analysis.json") == 0o600

@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, KinefuseError, StoreError
 from kinefuse.frames.observations import BodyFrames
-from kinefuse.io.outputs import APPLICATION_ID, is_kinefuse_session
+from kinefuse.io.outputs import APPLICATION_ID, PRIVATE_FILE_MODE, is_kinefuse_session
 from kinefuse.io.store.codec import (
     _F8,
     _I1,
@@ -282,6 +282,15 @@ class SessionStore(SensorStreams, TruthTables):
             refuse_unless_ours(p, is_simulated_session, "session")
             for q in (p, *(p.with_name(p.name + s) for s in ("-wal", "-shm", "-journal"))):
                 q.unlink(missing_ok=True)
+        # made private before SQLite opens it (its -wal and -shm companions take its mode)
+        try:
+            os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, PRIVATE_FILE_MODE))
+        except FileExistsError:
+            raise StoreError(
+                f"{p} already exists; pass overwrite=True to replace it, or choose another path"
+            ) from None
+        except OSError as e:
+            raise StoreError(f"cannot create a session store at {p}: {e.strerror or e}") from None
         conn = sqlite3.connect(p, isolation_level=None)
         try:
             cls._configure_writer(conn)
