@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import gzip
+import json
 import os
 import shutil
 import sqlite3
@@ -361,3 +362,38 @@ def test_sessions_exports_and_analyses_are_private(
     assert run(capsys, "analyze", trc, "--no-plots", "--out", tmp_path / "a")[0] == 0
     assert mode(tmp_path / "a") == 0o700
     assert mode(tmp_path / "a" / "analysis.json") == 0o600
+
+
+# -- inspect's duration: from plausible time stamps -------------------------------------------
+
+
+def test_inspect_counts_the_bulk_of_the_stamps(session, tmp_path, capsys) -> None:
+    """One frame stamped 2,176 s after the take, through the store's own writer, as a peer could
+    send it: the duration stays the take's, and inspect says one stamp was not counted."""
+    code, out, _ = run(capsys, "inspect", session, "--json")
+    honest = json.loads(out)
+    assert code == 0 and honest["stamps_ignored"] == 0
+    with SessionStore.open(session) as st:
+        obs = st.observations("k1")
+        spans = [np.ptp(st.observations(s.id).t_sensor_s) for s in st.sensors()]
+    assert honest["duration_s"] == pytest.approx(max(spans))  # no honest stamp is dropped
+    forged = tmp_path / "forged.sqlite"
+    shutil.copy(session, forged)
+    with SessionStore.open(forged, writable=True) as st:
+        st.append_observations(
+            "k1",
+            [int(obs.seq.max()) + 1],
+            [float(obs.t_sensor_s.max()) + 2176.0],
+            obs.joints_m[-1:],
+            obs.states[-1:],
+        )
+    code, out, _ = run(capsys, "inspect", forged, "--json")
+    info = json.loads(out)
+    assert code == 0 and info["duration_s"] == pytest.approx(honest["duration_s"])
+    assert info["stamps_ignored"] == 1
+    assert {s["id"]: s["stamps_ignored"] for s in info["sensors"]} == {
+        "k0": 0, "k1": 1, "k2": 0, "k3": 0
+    }  # fmt: skip
+    code, out, _ = run(capsys, "inspect", forged)
+    assert code == 0 and f"duration {honest['duration_s']:.2f} s" in out
+    assert "1 frame(s) stamped far outside it not counted (k1: 1;" in out
