@@ -397,3 +397,71 @@ def test_inspect_counts_the_bulk_of_the_stamps(session, tmp_path, capsys) -> Non
     code, out, _ = run(capsys, "inspect", forged)
     assert code == 0 and f"duration {honest['duration_s']:.2f} s" in out
     assert "1 frame(s) stamped far outside it not counted (k1: 1;" in out
+
+
+# -- a session edited by hand or by an attacker -----------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cal_session(tmp_path_factory, walk) -> Path:
+    """A short simulated session with a calibration phase (8 s of wand, depth at 5 Hz)."""
+    out = tmp_path_factory.mktemp("cal") / "c.sqlite"
+    argv = ["simulate", "--clip", walk, "--seconds", "1", "--calibration-seconds", "8",
+            "--depth-rate", "5", "--seed", "1", "--out", out]  # fmt: skip
+    assert main([str(a) for a in argv]) == 0
+    return out
+
+
+#: ``name -> (SQL, parameters, what the error says)``: damage SQLite itself lets through.
+FORGED: dict[str, tuple[str, tuple[object, ...], str]] = {
+    "a table dropped": ("DROP TABLE observations", (), "no such table: observations"),
+    "text in a time column": (
+        "UPDATE observations SET t_sensor_s = 'soon' WHERE seq = 6",
+        (),
+        "is not a number",
+    ),
+    "text in a clock probe": (
+        "UPDATE clock_probes SET t2_client_s = 'abc' WHERE idx = 1",
+        (),
+        "clock probes of sensor",
+    ),
+    "text as a sensor's rate": (
+        "UPDATE sensors SET rate_hz = 'fast' WHERE key = 1",
+        (),
+        "the rate of sensor 'k0'",
+    ),
+    "a wand out of range": (
+        "UPDATE meta SET value = ? WHERE key = 'wand'",
+        ('{"radius_m": -1, "stick_length_m": 0.4, "stick_radius_m": 0.01}',),
+        "wand or calibration phase is malformed",
+    ),
+    "a huge depth frame": (
+        "UPDATE depth_frames SET height = 100000, width = 100000",
+        (),
+        "frames of 100000x100000 pixels",
+    ),
+    "a depth frame that inflates": (
+        "UPDATE depth_frames SET depth_mm = ? WHERE seq = 0",
+        (b"KFD1" + __import__("zlib").compress(bytes(10**7)),),
+        "expands past the",
+    ),
+}
+
+
+@pytest.mark.parametrize("damage", list(FORGED))
+def test_a_damaged_session_is_one_line(cal_session, tmp_path, capsys, damage) -> None:
+    """calibrate (which reads everything, depth frames included), then fuse and inspect on what
+    they read: exit 2 and one line naming the file, or a clean run."""
+    sql, params, needle = FORGED[damage]
+    bad = forge(cal_session, tmp_path, sql, *params)
+    code, _, err = run(capsys, "calibrate", bad, "--out", tmp_path / "c.toml")
+    one_line_error(code, err, str(bad), needle)
+    assert not (tmp_path / "c.toml").exists()
+    for argv in (
+        ["inspect", bad],
+        ["fuse", bad, "--true-calibration", "--out", tmp_path / "f.csv"],
+    ):
+        code, _, err = run(capsys, *argv)
+        assert code in (0, 2) and "Traceback" not in err and "Exception ignored" not in err, err
+        if code == 2:
+            one_line_error(code, err, str(bad))

@@ -52,12 +52,14 @@ from kinefuse.io.store.codec import (
     _STATES_BYTES,
     DEPTH_CODEC_MAGIC,
     DEPTH_ZLIB_LEVEL,
+    ReadConnection,
     _blobs,
     _column,
     _float_array,
     _int_array,
     _json_dumps,
     _json_loads,
+    _numbers,
     _require_finite,
     _require_no_inf,
     _require_same_length,
@@ -384,7 +386,13 @@ class SessionStore(SensorStreams, TruthTables):
         for uri in uris:
             conn: sqlite3.Connection | None = None
             try:
-                conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+                if writable:
+                    conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+                else:  # a query that fails names the file (ReadConnection)
+                    conn = sqlite3.connect(
+                        uri, uri=True, isolation_level=None, factory=ReadConnection
+                    )
+                    conn.path = str(p)
                 conn.execute("SELECT count(*) FROM sqlite_master").fetchone()
                 return conn
             except sqlite3.DatabaseError as e:
@@ -602,9 +610,11 @@ class SessionStore(SensorStreams, TruthTables):
         rows = self._db.execute(
             "SELECT id, serial, intrinsics, rate_hz FROM sensors ORDER BY key"
         ).fetchall()
-        return [
-            SensorInfo(str(i), str(s), self._intrinsics(str(i), k), float(r)) for i, s, k, r in rows
-        ]
+        out = []
+        for i, s, k, r in rows:
+            rate = _numbers(r, np.float64, f"the rate of sensor {i!r}", self.path)
+            out.append(SensorInfo(str(i), str(s), self._intrinsics(str(i), k), float(rate)))
+        return out
 
     def _intrinsics(self, sensor_id: str, text: object) -> Intrinsics:
         """The stored intrinsics of one sensor; a :class:`StoreError` naming the session and the
@@ -702,7 +712,7 @@ class SessionStore(SensorStreams, TruthTables):
             (method,),
         ).fetchall()
         return (
-            _column(rows, 0),
+            _column(rows, 0, what, self.path),
             _unblob([r[1] for r in rows], _F8, (N_JOINTS, 3), what),
             _unblob([r[2] for r in rows], _I1, (N_JOINTS,), what),
         )
