@@ -15,14 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.calibration.floor import FloorPlane
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.cli import main
 from kinefuse.errors import InputError, MotionFormatError
 from kinefuse.io.formats.markers import read_markers
 from kinefuse.io.inputs import read_text
+from kinefuse.io.store.live import SightingRow
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion.bvh import read_bvh
 from kinefuse.net.server.recorder import Recorder
+from kinefuse.skeleton import N_JOINTS
 
 
 def run(capsys, *argv: object) -> tuple[int, str, str]:
@@ -465,3 +468,42 @@ def test_a_damaged_session_is_one_line(cal_session, tmp_path, capsys, damage) ->
         assert code in (0, 2) and "Traceback" not in err and "Exception ignored" not in err, err
         if code == 2:
             one_line_error(code, err, str(bad))
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """A small live recording, written by the server's recorder: one sensor, 30 frames, clock
+    probes, a wand sighting and a floor."""
+    path = tmp_path_factory.mktemp("rec") / "rec.sqlite"
+    joints = np.tile([0.1, 0.2, 2.5], (N_JOINTS, 1))
+    states = np.full(N_JOINTS, 2, np.int8)
+
+    async def record() -> None:
+        rec = Recorder(path, {"recorded_by": "test"}, clock=time.monotonic)
+        await rec.open()
+        rec.add_sensor("k0", "S0", Intrinsics())
+        for seq in range(30):
+            t = seq / 30
+            rec.add_observation("k0", seq, t, t, t, t, joints, states, None, None)
+            rec.add_probe("k0", t, t, t, t)
+        rec.add_sighting(SightingRow("k0", 0, 0.5, 0.5, 0.5, (0.1, 0.2, 2.0), 0.9, 400, 0.003))
+        rec.add_floor("k0", 0.5, FloorPlane(np.array([0.0, 0.0, 1.0]), 0.8, 5000, 0.004))
+        await rec.flush()
+        await rec.close(clean=True)
+
+    asyncio.run(record())
+    return path
+
+
+@pytest.mark.parametrize(
+    ("sql", "needle"),
+    [
+        ("UPDATE live_sightings SET x_m = 'left'", "the wand sightings of sensor 'k0'"),
+        ("UPDATE live_floors SET nx = 'up'", "the floor of sensor 'k0'"),
+        ("DROP TABLE live_floors", "no such table: live_floors"),
+    ],
+)
+def test_a_damaged_recording_is_one_line(recording, tmp_path, capsys, sql, needle) -> None:
+    bad = forge(recording, tmp_path, sql)
+    code, _, err = run(capsys, "calibrate", bad, "--out", tmp_path / "c.toml")
+    one_line_error(code, err, str(bad), needle)

@@ -121,10 +121,16 @@ def _unblob(
     """Stack BLOBs into ``(len(blobs), *shape)``; a :class:`StoreError` on a size mismatch
     (naming the row, counted from ``first_row``)."""
     n_bytes = int(np.prod(shape)) * dtype.itemsize
-    if blobs and any(len(b) != n_bytes for b in blobs):
-        i = next(i for i, b in enumerate(blobs) if len(b) != n_bytes)
+    bad = [i for i, b in enumerate(blobs) if not isinstance(b, bytes) or len(b) != n_bytes]
+    if bad:
+        i = bad[0]
+        held = (
+            f"{len(blobs[i])} bytes"
+            if isinstance(blobs[i], bytes)
+            else f"a {type(blobs[i]).__name__}"
+        )
         raise StoreError(
-            f"{what}: row {first_row + i} holds {len(blobs[i])} bytes where {n_bytes} were "
+            f"{what}: row {first_row + i} holds {held} where {n_bytes} bytes were "
             f"expected (shape {shape}, {dtype}); the store is corrupt"
         )
     buf = b"".join(blobs)
