@@ -7,6 +7,7 @@ import asyncio
 import gzip
 import json
 import os
+import re
 import shutil
 import sqlite3
 import time
@@ -25,6 +26,7 @@ from kinefuse.io.store.live import SightingRow
 from kinefuse.io.store.session import SessionStore
 from kinefuse.motion.bvh import read_bvh
 from kinefuse.net.server.recorder import Recorder
+from kinefuse.pipeline.sources import open_source
 from kinefuse.skeleton import N_JOINTS
 
 
@@ -507,3 +509,23 @@ def test_a_damaged_recording_is_one_line(recording, tmp_path, capsys, sql, needl
     bad = forge(recording, tmp_path, sql)
     code, _, err = run(capsys, "calibrate", bad, "--out", tmp_path / "c.toml")
     one_line_error(code, err, str(bad), needle)
+
+
+@pytest.mark.parametrize(
+    ("content", "needle"),
+    [
+        ("[" * 100_000, "not a kinect2-tracking JSON file (maximum recursion depth"),
+        (2 * 2**30, "the file is 2 GiB"),
+        ('{"bodyFrame": ', "not a kinect2-tracking JSON file (Expecting value"),
+    ],
+)
+def test_a_bad_kinect2_json_source_is_one_error(tmp_path, content, needle) -> None:
+    """``kinefuse sensor --source kinect2json:FILE``: a JSON nested 100,000 deep, a 2 GiB hole,
+    a cut file."""
+    bad = tmp_path / "walk.json"
+    if isinstance(content, int):
+        sparse(bad, content)
+    else:
+        bad.write_text(content, encoding="utf-8")
+    with pytest.raises(InputError, match=re.escape(needle)):
+        open_source(f"kinect2json:{bad}")
