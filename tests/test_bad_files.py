@@ -255,7 +255,8 @@ def test_a_sparse_c3d_is_refused_by_its_first_bytes(tmp_path, capsys) -> None:
 # -- every malformed input of every command: one line, exit 2 ---------------------------------
 
 #: Contents no reader should take: empty, zeros, text of another kind, binaries with and
-#: without NUL bytes, UTF-16, a first line of 200 kB, and a 2 GiB hole.
+#: without NUL bytes, UTF-16, Latin-1, a first line of 200 kB, arrays nested 50,000 deep (TOML's
+#: parser recurses), and a 2 GiB hole.
 MALFORMED: dict[str, bytes | int] = {
     "empty": b"",
     "zeros": bytes(100),
@@ -265,6 +266,7 @@ MALFORMED: dict[str, bytes | int] = {
     "utf16": "PathFileType\t4\n[x]\n".encode("utf-16"),
     "latin1": "PathFileType\xe9\n[x]\n".encode("latin-1"),
     "one-long-line": b"x" * 200_000,
+    "nested": b"x = " + b"[" * 50_000 + b"]" * 50_000 + b"\n",
     "hole": 2 * 2**30,
 }
 

@@ -52,7 +52,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import check_rigid
 from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
-from kinefuse.io.toml import toml_str
+from kinefuse.io.toml import toml_error, toml_str
 
 Array = NDArray[np.float64]
 
@@ -204,7 +204,7 @@ def is_calibration_file(path: Path) -> bool:
     """True if ``path`` is a calibration file kinefuse wrote (its ``format`` key says so)."""
     try:
         return tomllib.loads(Path(path).read_text(encoding="utf-8")).get("format") == FORMAT
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
 
 
@@ -247,8 +247,8 @@ def loads_calibration(text: str, *, source: str = "<string>") -> CalibrationFile
     """Parse calibration TOML text; ``source`` names the file in error messages."""
     try:
         doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{source}: not valid TOML ({e})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as e:
+        raise InputError(f"{source}: not valid TOML ({toml_error(e)})") from None
     fmt = doc.get("format")
     if fmt != FORMAT:
         raise InputError(f"{source}: not a kinefuse calibration file (format = {fmt!r})")

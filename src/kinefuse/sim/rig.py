@@ -40,7 +40,7 @@ from kinefuse.skeleton import JOINT_INDEX
 if TYPE_CHECKING:
     from kinefuse.motion.types import Motion
 from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
-from kinefuse.io.toml import toml_str
+from kinefuse.io.toml import toml_error, toml_str
 
 Array = NDArray[np.float64]
 
@@ -179,8 +179,8 @@ def parse_rig(text: str, *, source: str = "<rig>", room: Room | None = None) -> 
     """
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise RigError(f"{source}: not valid TOML ({exc})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
+        raise RigError(f"{source}: not valid TOML ({toml_error(exc)})") from None
     tables = data.get("sensor")
     if not isinstance(tables, list) or not tables:
         raise RigError(
