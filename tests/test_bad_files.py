@@ -531,3 +531,29 @@ def test_a_bad_kinect2_json_source_is_one_error(tmp_path, content, needle) -> No
         bad.write_text(content, encoding="utf-8")
     with pytest.raises(InputError, match=re.escape(needle)):
         open_source(f"kinect2json:{bad}")
+
+
+def test_inspect_of_a_recording_with_a_forged_stamp(tmp_path, capsys) -> None:
+    """A 2-minute recording (the server's recorder, 30 Hz) in which a peer stamped one frame
+    2,176 s on its device clock; the server stamped its arrival honestly."""
+    path = tmp_path / "rec.sqlite"
+    joints = np.tile([0.1, 0.2, 2.5], (N_JOINTS, 1))
+    states = np.full(N_JOINTS, 2, np.int8)
+
+    async def record() -> None:
+        rec = Recorder(path, {"recorded_by": "test"}, clock=time.monotonic)
+        await rec.open()
+        rec.add_sensor("k0", "S0", Intrinsics())
+        for seq in range(3600):
+            t = seq / 30
+            rec.add_observation("k0", seq, t, t, t + 0.01, t, joints, states, None, None)
+        rec.add_observation("k0", 3600, 2176.0, 120.0, 120.01, 120.0, joints, states, None, None)
+        await rec.close(clean=True)
+
+    asyncio.run(record())
+    code, out, _ = run(capsys, "inspect", path, "--json")
+    info = json.loads(out)
+    assert code == 0 and info["duration_s"] == pytest.approx(3599 / 30)
+    assert info["stamps_ignored"] == 1 and info["sensors"][0]["stamps_ignored"] == 1
+    code, out, _ = run(capsys, "inspect", path)
+    assert code == 0 and "duration 119.97 s" in out and "(k0: 1;" in out
