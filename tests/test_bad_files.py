@@ -557,3 +557,17 @@ def test_inspect_of_a_recording_with_a_forged_stamp(tmp_path, capsys) -> None:
     assert info["stamps_ignored"] == 1 and info["sensors"][0]["stamps_ignored"] == 1
     code, out, _ = run(capsys, "inspect", path)
     assert code == 0 and "duration 119.97 s" in out and "(k0: 1;" in out
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".trc", ".c3d", ".bvh"])
+def test_a_huge_file_at_an_output_path_is_refused_unread(session, tmp_path, capsys, suffix) -> None:
+    """Whether kinefuse wrote the file it would replace is told from its first bytes: a 2 GiB
+    hole is refused without being read (ezc3d alone spent a minute on one)."""
+    out = sparse(tmp_path / f"take{suffix}", 2 * 2**30)
+    import kinefuse.io.formats.export  # noqa: F401  (its imports are not the file's bytes)
+
+    before = bytes_read()
+    code, _, err = run(capsys, "fuse", session, "--true-calibration", "--out", out)
+    assert bytes_read() - before < 64 * 2**20
+    one_line_error(code, err, "refusing to replace", str(out))
+    assert out.stat().st_size == 2 * 2**30

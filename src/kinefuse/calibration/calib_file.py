@@ -202,7 +202,8 @@ def dumps_calibration(cal: CalibrationFile) -> str:
 
 def is_calibration_file(path: Path) -> bool:
     """True if ``path`` is a calibration file kinefuse wrote (its ``format`` key says so)."""
-    try:
+    try:  # check_text_file: a file too large to be a calibration is not read whole
+        check_text_file(path, what="calibration file", max_bytes=MAX_SMALL_TEXT_BYTES)
         return tomllib.loads(Path(path).read_text(encoding="utf-8")).get("format") == FORMAT
     except (OSError, ValueError, RecursionError):
         return False

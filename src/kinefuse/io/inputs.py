@@ -26,7 +26,14 @@ from typing import Final
 
 from kinefuse.errors import InputError
 
-__all__ = ["HEAD_BYTES", "MAX_SMALL_TEXT_BYTES", "MAX_TEXT_BYTES", "check_text_file", "read_text"]
+__all__ = [
+    "HEAD_BYTES",
+    "LINE_LIMIT",
+    "MAX_SMALL_TEXT_BYTES",
+    "MAX_TEXT_BYTES",
+    "check_text_file",
+    "read_text",
+]
 
 #: The largest motion or marker text file read (BVH, ASF/AMC, TRC, .mot, CSV logs): 256 MiB is
 #: about 40 minutes of 40 markers at 100 Hz in TRC; reading it takes a few GB of memory.
@@ -35,6 +42,9 @@ MAX_TEXT_BYTES: Final = 256 * 2**20
 MAX_SMALL_TEXT_BYTES: Final = 16 * 2**20
 #: Bytes read to check a file's first bytes and first line before it is read whole.
 HEAD_BYTES: Final = 64 * 2**10
+#: The longest line a recognizer of kinefuse's own outputs reads (``readline(LINE_LIMIT)``): a
+#: file of one 2 GB line is not read whole to learn that kinefuse did not write it.
+LINE_LIMIT: Final = 1 << 16
 
 #: ``fail(message, line) -> error``: the error to raise (a reader's own kind of InputError).
 Fail = Callable[[str, int | None], InputError]

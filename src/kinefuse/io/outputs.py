@@ -215,13 +215,19 @@ def atomic_write_lines(
     return Path(path)
 
 
+#: The largest JSON file :func:`json_recognizer` reads to see whether kinefuse wrote it.
+RECOGNIZED_JSON_BYTES = 64 * 2**20
+
+
 def json_recognizer(key: str, value: object) -> Recognizer:
     """A recognizer for JSON files kinefuse writes: a top-level object with ``key == value``."""
 
     def recognize(p: Path) -> bool:
         try:
+            if p.stat().st_size > RECOGNIZED_JSON_BYTES:
+                return False  # not read whole: a large file is no JSON kinefuse wrote
             d = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             return False
         return isinstance(d, dict) and d.get(key) == value
 

@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse import __version__
 from kinefuse.analysis.gaps import MAX_GAP_S, fill_short_gaps, missing_runs
 from kinefuse.errors import InputError
-from kinefuse.io.inputs import read_text
+from kinefuse.io.inputs import LINE_LIMIT, read_text
 from kinefuse.io.outputs import atomic_write_lines, atomic_write_text
 
 #: what each writer's file is, for messages
@@ -60,7 +60,7 @@ def is_angles_csv(path: Path) -> bool:
     """True if ``path`` is an ``angles.csv`` kinefuse wrote (by its header line)."""
     try:
         with Path(path).open(encoding="utf-8") as f:
-            return f.readline().rstrip("\r\n") in _CSV_HEADERS_OURS
+            return f.readline(LINE_LIMIT).rstrip("\r\n") in _CSV_HEADERS_OURS
     except (OSError, UnicodeDecodeError):
         return False
 

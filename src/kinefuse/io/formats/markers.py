@@ -366,7 +366,7 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
     p = Path(path)
     if not p.is_file():
         raise MotionFormatError("no such file", path=str(p))
-    _check_c3d_header(p)
+    check_c3d_header(p)
     try:
         c3d = ezc3d.c3d(str(p))
     except (RuntimeError, OSError, ValueError) as e:
@@ -424,7 +424,7 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
     )
 
 
-def _check_c3d_header(path: Path) -> None:
+def check_c3d_header(path: Path) -> None:
     """Refuse a file that is not C3D by its first bytes, before ezc3d reads it (ezc3d spends
     minutes on a large file of zeros): every C3D file starts with the number of its parameter
     block (2 or more, inside the file) and the byte 0x50."""
