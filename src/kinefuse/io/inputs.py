@@ -144,7 +144,8 @@ def _check_size(p: Path, what: str, max_bytes: int, fail: Fail) -> None:
     if size > max_bytes:
         raise fail(
             f"the file is {_size_text(size)}, more than the {_size_text(max_bytes)} kinefuse "
-            f"reads from a {what}; check that this is the file you meant",
+            f"reads from a {what}; check that this is the file you meant (a longer take: cut "
+            "it into parts)",
             None,
         )
 
@@ -164,7 +165,7 @@ def _check_head(head: bytes, what: str, first_line: FirstLineCheck | None, fail:
     end = head.find(b"\n")
     if end < 0 and len(head) == HEAD_BYTES:
         raise fail(
-            f"the first line is longer than {HEAD_BYTES // 1024} kB: not a {what}",
+            f"the first line is longer than {HEAD_BYTES // 1024} KiB: not a {what}",
             1,
         )
     text = head[: end if end >= 0 else len(head)].decode("utf-8", errors="replace")

@@ -433,6 +433,7 @@ def events(store: SessionStore) -> list[tuple[float, str, str | None, dict[str, 
     rows = store._db.execute(
         "SELECT t_server_s, kind, sensor_id, detail FROM live_events ORDER BY idx"
     ).fetchall()
+    times = _numbers([r[0] for r in rows], np.float64, "the recorded events", store.path)
     return [
         (
             float(t),
@@ -440,5 +441,5 @@ def events(store: SessionStore) -> list[tuple[float, str, str | None, dict[str, 
             s,
             _json_loads(d, f"the detail of recorded event {k!r}", store.path, dict),
         )
-        for t, k, s, d in rows
+        for t, (_, k, s, d) in zip(times, rows, strict=True)
     ]
