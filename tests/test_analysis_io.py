@@ -137,6 +137,9 @@ def test_truncated_and_garbage_c3d_fail_clearly(shared_data: Path, tmp_path: Pat
         read_c3d(cut)
     junk = tmp_path / "junk.c3d"
     junk.write_bytes(bytes(range(256)) * 20)
+    with pytest.raises(MotionFormatError, match=r"junk\.c3d: not a C3D file: it starts with"):
+        read_c3d(junk)
+    junk.write_bytes(b"\x02P" + bytes(range(256)) * 20)  # a C3D's first bytes, then junk
     with pytest.raises(MotionFormatError, match=r"junk\.c3d: ezc3d cannot read it"):
         read_c3d(junk)
 

@@ -256,7 +256,7 @@ def test_atomic_file_keeps_the_old_file_when_the_writer_fails(tmp_path) -> None:
     assert f.read_text() == "mine"
 
 
-def test_outputs_get_the_usual_file_mode(tmp_path) -> None:
+def test_outputs_are_private_whatever_the_umask(tmp_path) -> None:
     old = os.umask(0o022)
     try:
         with atomic_file(tmp_path / "f.txt", what="x", recognizer=lambda p: True) as tmp:
@@ -265,8 +265,8 @@ def test_outputs_get_the_usual_file_mode(tmp_path) -> None:
             (tmp / "a.txt").write_text("1")
     finally:
         os.umask(old)
-    assert (tmp_path / "f.txt").stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
-    assert (tmp_path / "d").stat().st_mode & 0o777 == 0o755  # not mkdtemp's 0700
+    assert (tmp_path / "f.txt").stat().st_mode & 0o777 == 0o600  # captured data: the user's
+    assert (tmp_path / "d").stat().st_mode & 0o777 == 0o700
 
 
 def test_atomic_dir_swaps_only_when_complete(tmp_path) -> None:

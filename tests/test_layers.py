@@ -18,7 +18,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "src" / "kinefuse"
 LAYERS: tuple[str, ...] = (
     "",  # the package itself (kinefuse/__init__.py: the version, nothing imported)
     "errors",
-    "io",  # io/ itself: safe writes and TOML (io/outputs.py, io/toml.py), nothing else
+    "io",  # io/ itself: safe writes, checked reads, TOML (outputs.py, inputs.py, toml.py)
     "skeleton",
     "geometry",
     "camera",

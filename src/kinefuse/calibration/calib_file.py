@@ -51,7 +51,8 @@ from kinefuse.calibration.register import Registration
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import check_rigid
-from kinefuse.io.toml import toml_str
+from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
+from kinefuse.io.toml import toml_error, toml_str
 
 Array = NDArray[np.float64]
 
@@ -201,9 +202,10 @@ def dumps_calibration(cal: CalibrationFile) -> str:
 
 def is_calibration_file(path: Path) -> bool:
     """True if ``path`` is a calibration file kinefuse wrote (its ``format`` key says so)."""
-    try:
+    try:  # check_text_file: a file too large to be a calibration is not read whole
+        check_text_file(path, what="calibration file", max_bytes=MAX_SMALL_TEXT_BYTES)
         return tomllib.loads(Path(path).read_text(encoding="utf-8")).get("format") == FORMAT
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
 
 
@@ -246,8 +248,8 @@ def loads_calibration(text: str, *, source: str = "<string>") -> CalibrationFile
     """Parse calibration TOML text; ``source`` names the file in error messages."""
     try:
         doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{source}: not valid TOML ({e})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as e:
+        raise InputError(f"{source}: not valid TOML ({toml_error(e)})") from None
     fmt = doc.get("format")
     if fmt != FORMAT:
         raise InputError(f"{source}: not a kinefuse calibration file (format = {fmt!r})")
@@ -333,6 +335,7 @@ def read_calibration(path: str | Path) -> CalibrationFile:
     """Read a calibration TOML file; clear :class:`~kinefuse.errors.InputError` if malformed."""
     p = Path(path)
     try:
+        check_text_file(p, what="calibration file", max_bytes=MAX_SMALL_TEXT_BYTES)
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{p}: calibration file not found") from None

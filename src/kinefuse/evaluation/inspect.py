@@ -43,6 +43,30 @@ def _sensor_rate_hz(t_sensor_s: NDArray[np.float64]) -> float | None:
     return _num(1.0 / np.median(dt)) if dt.size else None
 
 
+#: The bulk of a sensor's time stamps: the central 90 % of them (quantiles 5 % and 95 %).
+BULK_QUANTILES = (0.05, 0.95)
+#: Stamps further outside the bulk than this share of its length (plus :data:`BULK_PAD_S`) are
+#: not counted in a duration: a recording's frames are spread evenly, a forged or corrupt stamp
+#: lies far off (a 2-minute take with one frame stamped 2,000 s later is not 35 minutes long).
+BULK_REACH = 0.5
+BULK_PAD_S = 1.0
+
+
+def plausible_span(t_s: NDArray[np.float64]) -> tuple[float, int]:
+    """``(span_s, ignored)``: the span of the stamps ``t_s`` (seconds) that lie within reach of
+    their bulk (:data:`BULK_QUANTILES`, :data:`BULK_REACH`, :data:`BULK_PAD_S`), and how many
+    stamps lie beyond it (or are not finite) and were ignored."""
+    t = np.asarray(t_s, dtype=np.float64)
+    ok = np.isfinite(t)
+    if not ok.any():
+        return 0.0, int(t.size)
+    lo, hi = np.quantile(t[ok], BULK_QUANTILES)
+    reach = BULK_REACH * float(hi - lo) + BULK_PAD_S
+    ok &= (t >= lo - reach) & (t <= hi + reach)
+    kept = t[ok]
+    return float(kept.max() - kept.min()), int(t.size - kept.size)
+
+
 def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]:
     """Summarize a session store as a JSON-able dict.
 
@@ -56,10 +80,12 @@ def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]
     dict
         ``schema_version``, ``path``, ``meta``; ``sensors``: a list of per-sensor dicts
         (``id``, ``serial``, ``frames``, ``frames_with_body``, ``rate_hz`` measured from the
-        sensor-clock timestamps, ``nominal_rate_hz``, ``duration_s``, ``depth_frames``,
-        ``clock_probes``, ``observation_error_m`` median or None, ``intrinsics`` of its depth
-        camera as stored); ``duration_s`` (longest
-        per-sensor span of capture times, seconds); ``joints`` (25); ``has_truth``;
+        sensor-clock timestamps, ``nominal_rate_hz``, ``duration_s``, ``stamps_ignored``,
+        ``depth_frames``, ``clock_probes``, ``observation_error_m`` median or None,
+        ``intrinsics`` of its depth camera as stored); ``duration_s`` (longest per-sensor span
+        of capture times, seconds, counting only the stamps near the bulk of each sensor's,
+        :func:`plausible_span`; ``stamps_ignored`` per sensor and in all: the others);
+        ``joints`` (25); ``has_truth``;
         ``tracking_state_fraction`` (``tracked``, ``inferred``, ``not_tracked`` over all
         frames x joints of all sensors); ``observation_error_m`` (``median``, ``p95``,
         ``by_joint`` {name: median}, ``by_state`` {``tracked``, ``inferred``}, ``samples``), or
@@ -101,7 +127,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
         n = obs.n_frames
         has_body = obs.has_body
         state_counts += np.bincount(obs.states.ravel().astype(np.intp), minlength=3)[:3]
-        span = float(obs.t_sensor_s.max() - obs.t_sensor_s.min()) if n else 0.0
+        span, ignored = plausible_span(obs.t_sensor_s) if n else (0.0, 0)
         spans.append(span)
         entry: dict[str, Any] = {
             "id": info.id,
@@ -111,6 +137,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
             "rate_hz": _sensor_rate_hz(obs.t_sensor_s),
             "nominal_rate_hz": info.rate_hz,
             "duration_s": span,
+            "stamps_ignored": ignored,
             "depth_frames": store.depth_frame_count(info.id),
             "clock_probes": int(store.clock_probes(info.id).shape[0]),
             "observation_error_m": None,
@@ -178,6 +205,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
         "meta": meta,
         "sensors": sensors,
         "duration_s": max(spans) if spans else 0.0,
+        "stamps_ignored": sum(e["stamps_ignored"] for e in sensors if e["left_out"] is None),
         "joints": N_JOINTS,
         "has_truth": has_truth,
         "tracking_state_fraction": fractions,
@@ -210,6 +238,18 @@ def format_inspect(d: dict[str, Any]) -> str:
         f"size {d['storage_bytes']['file'] / 1e6:.1f} MB "
         f"(depth frames {d['storage_bytes']['depth_frames'] / 1e6:.1f} MB)",
     ]
+    ignored = {
+        s["id"]: s["stamps_ignored"]
+        for s in d["sensors"]
+        if s.get("stamps_ignored") and s.get("left_out") is None
+    }
+    if ignored:
+        lines.append(
+            f"duration from the bulk of the time stamps: {sum(ignored.values())} frame(s) stamped "
+            "far outside it not counted ("
+            + ", ".join(f"{k}: {v}" for k, v in ignored.items())
+            + "; a clock jump or forged stamps)"
+        )
     if not d["complete"]:
         lines.append(
             "INCOMPLETE: the run that wrote this session did not finish; sensors or frames may "

@@ -11,6 +11,10 @@ Three rules hold for everything kinefuse writes:
    failed run leaves the old file intact. Folders are built beside the target and swapped in.
 3. **Fail loudly.** A write that fails, or that leaves no file behind, raises
    :class:`~kinefuse.errors.OutputError` naming the path and the reason.
+
+What kinefuse writes holds captured motion (sessions, exports, analyses and their figures), so
+it is private to the user: files are made with mode 0600 and folders 0700, whatever the umask
+(``chmod`` one to share it).
 """
 
 from __future__ import annotations
@@ -121,20 +125,15 @@ def refuse_unless_ours(path: Path, recognizer: Recognizer, what: str) -> None:
         )
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+#: The mode of every file kinefuse writes (and of a session store it creates): the user's only.
+PRIVATE_FILE_MODE = 0o600
 
 
 def _temp_beside(path: Path, suffix: str = ".partial") -> Path:
-    """A new empty file beside ``path``, with the mode a plain ``open(path, "w")`` would give
-    (``mkstemp`` makes it 0600, which the renamed output would keep)."""
+    """A new empty file beside ``path`` with mode :data:`PRIVATE_FILE_MODE` (as ``mkstemp``
+    makes it; the renamed output keeps it)."""
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent or ".")
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())
-    finally:
-        os.close(fd)
+    os.close(fd)
     return Path(name)
 
 
@@ -216,13 +215,19 @@ def atomic_write_lines(
     return Path(path)
 
 
+#: The largest JSON file :func:`json_recognizer` reads to see whether kinefuse wrote it.
+RECOGNIZED_JSON_BYTES = 64 * 2**20
+
+
 def json_recognizer(key: str, value: object) -> Recognizer:
     """A recognizer for JSON files kinefuse writes: a top-level object with ``key == value``."""
 
     def recognize(p: Path) -> bool:
         try:
+            if p.stat().st_size > RECOGNIZED_JSON_BYTES:
+                return False  # not read whole: a large file is no JSON kinefuse wrote
             d = json.loads(p.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             return False
         return isinstance(d, dict) and d.get(key) == value
 
@@ -249,8 +254,8 @@ def atomic_dir(path: str | os.PathLike[str], *, what: str) -> Iterator[Path]:
             )
     parent = target.parent
     try:
+        # mkdtemp makes it 0700: private, as the files in it
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
-        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700
     except OSError as e:
         raise OutputError(f"cannot write {what} {target}: {e.strerror or e}") from None
     old: Path | None = None

@@ -50,14 +50,25 @@ def toml_str(text: str) -> str:
     return "".join(out)
 
 
+def toml_error(e: Exception) -> str:
+    """What is wrong with a TOML text, from the error ``tomllib`` raised: its message, or, for
+    the ``RecursionError`` of tables or arrays nested deeper than the parser goes, that."""
+    return "tables or arrays nested too deeply" if isinstance(e, RecursionError) else str(e)
+
+
 def read_toml(path: str | Path, what: str) -> dict[str, Any]:
     """The parsed TOML of ``path``; :class:`InputError` naming the file and ``what`` it should
     be (e.g. "marker map") when it cannot be read or is not valid TOML."""
+    from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
+
     p = Path(path)
     try:
+        check_text_file(p, what=what, max_bytes=MAX_SMALL_TEXT_BYTES)
         with p.open("rb") as fh:
             return tomllib.load(fh)
     except OSError as e:
         raise InputError(f"{p}: cannot read the {what}: {e.strerror or e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: not valid TOML: {e}") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as e:
+        raise InputError(f"{p}: not valid TOML: {toml_error(e)}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{p}: not a text (UTF-8) file; a {what} is TOML") from None

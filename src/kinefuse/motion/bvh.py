@@ -110,13 +110,21 @@ class _Tokens:
         return v
 
 
-def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int, name: str, line: int) -> None:
-    """Parse ``{ OFFSET ... CHANNELS ... children }`` of one joint (its name already read)."""
-    me = len(joints)
-    joint = _Joint(name=name, parent=parent, line=line)
-    joints.append(joint)
-    open_line = tk.expect("{")
-    while True:
+def _parse_root(tk: _Tokens, joints: list[_Joint], name: str, line: int) -> None:
+    """Parse a ROOT's ``{ OFFSET ... CHANNELS ... children }`` (its name already read) and every
+    joint under it. An explicit stack of the open joints, not recursion: a hierarchy of any
+    depth is read (a file 1,000 levels deep would exhaust Python's call stack)."""
+    open_joints: list[tuple[int, int]] = []  # (index in joints, line of its '{')
+
+    def open_joint(name: str, parent: int, line: int) -> None:
+        joints.append(_Joint(name=name, parent=parent, line=line))
+        open_joints.append((len(joints) - 1, tk.expect("{")))
+
+    open_joint(name, -1, line)
+    while open_joints:
+        me, open_line = open_joints[-1]
+        joint = joints[me]
+        name = joint.name
         if tk.peek() is None:
             where = "the MOTION section" if tk.motion_line else "the end of the file"
             raise tk.fail(
@@ -126,8 +134,8 @@ def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int, name: str, line
         tok, tline = tk.next("'}'")
         key = tok.upper()
         if key == "}":
-            return
-        if key == "OFFSET":
+            open_joints.pop()
+        elif key == "OFFSET":
             joint.offset = np.array([tk.number(f"OFFSET {c} of {name!r}") for c in "xyz"])
         elif key == "CHANNELS":
             n = tk.number(f"the channel count of {name!r}")
@@ -147,7 +155,7 @@ def _parse_joint(tk: _Tokens, joints: list[_Joint], parent: int, name: str, line
             child, cline = tk.next("a joint name after JOINT")
             if child in ("{", "}"):
                 raise tk.fail(f"JOINT needs a name, got {child!r}", cline)
-            _parse_joint(tk, joints, me, child, cline)
+            open_joint(child, me, cline)
         elif key == "END":
             tk.expect("Site")
             site = _Joint(name=name + END_SITE_SUFFIX, parent=me, line=tline, end_site=True)
@@ -172,7 +180,7 @@ def _parse_hierarchy(tk: _Tokens) -> list[_Joint]:
         if tok.upper() != "ROOT":
             raise tk.fail(f"expected ROOT, got {tok!r}", line)
         name, nline = tk.next("a root name")
-        _parse_joint(tk, joints, -1, name, nline)
+        _parse_root(tk, joints, name, nline)
     if not joints:
         raise tk.fail("the hierarchy has no ROOT joint")
     if not tk.motion_line:

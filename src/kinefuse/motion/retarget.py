@@ -172,6 +172,10 @@ def select_map(names: Sequence[str]) -> tuple[NameMap, Resolved]:
     return best[1], best[2]
 
 
+#: The source joints a mapping error lists by name (a skeleton of 1,000 joints is not listed whole).
+_LISTED = 80
+
+
 def _unmappable(
     src: SourceMotion, name_map: NameMap, resolved: Resolved, chosen: bool
 ) -> RetargetError:
@@ -188,7 +192,8 @@ def _unmappable(
         )
         + f" finds {len(resolved)} of {N_JOINTS} Kinect joints.",
         f"Kinect joints it could not map (no rule can synthesize them): {', '.join(missing)}.",
-        f"Source joints seen ({len(real)}): {', '.join(real)}.",
+        f"Source joints seen ({len(real)}): {', '.join(real[:_LISTED])}"
+        + (f", ... and {len(real) - _LISTED} more." if len(real) > _LISTED else "."),
         "Write a name map (TOML: Kinect joint = source joint) and pass it with "
         "--name-map MAP.toml; docs/motion.md ('Name maps') explains the format. A minimal map:",
         "",

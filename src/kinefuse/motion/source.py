@@ -9,7 +9,6 @@ where its rotation pivots (BVH ``JOINT X``: the point ``X``'s channels rotate ab
 
 from __future__ import annotations
 
-import gzip
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,24 +19,23 @@ Array = NDArray[np.float64]
 
 
 def read_motion_text(path: str | Path) -> str:
-    """The text of a motion file; ``.gz`` files are decompressed on the fly.
+    """The text of a motion file; ``.gz`` files are decompressed on the fly. Its size and first
+    bytes are checked before it is read whole (:func:`kinefuse.io.inputs.read_text`).
 
     Raises
     ------
     MotionFormatError
-        The file cannot be read or is a corrupt gzip file.
+        The file cannot be read, is too large, is binary or is a corrupt gzip file.
     """
     from kinefuse.errors import MotionFormatError
+    from kinefuse.io.inputs import read_text
 
     p = Path(path)
-    try:
-        if p.suffix.lower() == ".gz":
-            with gzip.open(p, "rb") as f:
-                return f.read().decode("utf-8", errors="replace")
-        return p.read_text(encoding="utf-8", errors="replace")
-    except (OSError, EOFError) as e:
-        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
-        raise MotionFormatError(f"cannot read the file: {why}", path=str(p)) from None
+    return read_text(
+        p,
+        what=f"{motion_suffix(p).lstrip('.').upper() or 'motion'} file",
+        fail=lambda message, line: MotionFormatError(message, path=str(p), line=line),
+    )
 
 
 def motion_suffix(path: str | Path) -> str:

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.session import CalibrationInput, LiveSightings
-from kinefuse.errors import CalibrationError, FusionError
+from kinefuse.errors import CalibrationError, FusionError, StoreError
 from kinefuse.fusion.session import CalibratedSensor, MethodResult, clip_grid, frame_grid
 from kinefuse.fusion.session import run_method as _run_method
 from kinefuse.io.store import live as store_live
@@ -210,13 +210,20 @@ def gather_calibration(
         depth = ((t, frames) for _seq, t, frames in store.iter_depth_frames(s.id))
         sensors.append(CalibrationSensor(s.id, s.intrinsics, clock, depth))
     try:
+        wand = Wand(**wand_meta) if isinstance(wand_meta, dict) else Wand()
+        if isinstance(phase, list):
+            phase = (float(phase[0]), float(phase[1]))
+    except (TypeError, ValueError, IndexError) as e:
+        raise StoreError(
+            f"{store.path}: the stored wand or calibration phase is malformed ({e}); the session "
+            "is damaged or was not written by kinefuse: restore it from a copy, or make it again"
+        ) from None
+    try:
         return gather(
             sensors,
-            wand=Wand(**wand_meta) if isinstance(wand_meta, dict) else Wand(),
+            wand=wand,
             protocol=protocol if isinstance(protocol, dict) else {},
-            phase_server_s=(float(phase[0]), float(phase[1]))
-            if isinstance(phase, list)
-            else (0, 0),
+            phase_server_s=phase if isinstance(phase, tuple) else (0, 0),
             floor_frames=floor_frames,
             detector=detector,
         )

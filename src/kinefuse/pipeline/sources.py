@@ -32,6 +32,7 @@ from kinefuse.devices.kinect2 import KINECT_CAMERA_TO_SENSOR
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
 from kinefuse.frames.source import FrameSource
+from kinefuse.io.inputs import read_text
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
@@ -176,9 +177,11 @@ class Kinect2TrackingReplay:
     def __init__(self, path: str | Path, *, sensor_id: str = "kinect", rate_hz: float = 30.0):
         p = Path(path)
         try:
-            data = json.loads(p.read_text(encoding="utf-8"))
+            data = json.loads(read_text(p, what="kinect2-tracking JSON file"))
             frames = data["bodyFrame"]
-        except (OSError, ValueError, KeyError, TypeError) as e:
+        except InputError:
+            raise  # too large, or not text: read_text said so
+        except (ValueError, KeyError, TypeError, RecursionError) as e:
             raise InputError(
                 f"{p}: not a kinect2-tracking JSON file ({e}); expected an object with a "
                 "'bodyFrame' list"

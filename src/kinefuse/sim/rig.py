@@ -39,7 +39,8 @@ from kinefuse.skeleton import JOINT_INDEX
 
 if TYPE_CHECKING:
     from kinefuse.motion.types import Motion
-from kinefuse.io.toml import toml_str
+from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
+from kinefuse.io.toml import toml_error, toml_str
 
 Array = NDArray[np.float64]
 
@@ -178,8 +179,8 @@ def parse_rig(text: str, *, source: str = "<rig>", room: Room | None = None) -> 
     """
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise RigError(f"{source}: not valid TOML ({exc})") from None
+    except (tomllib.TOMLDecodeError, RecursionError) as exc:
+        raise RigError(f"{source}: not valid TOML ({toml_error(exc)})") from None
     tables = data.get("sensor")
     if not isinstance(tables, list) or not tables:
         raise RigError(
@@ -251,6 +252,8 @@ def load_rig(path: str | Path, *, room: Room | None = None) -> Rig:
     """Read a rig file (TOML, see the module docstring); ``room`` overrides its ``[room]``."""
     p = Path(path)
     try:
+        check_text_file(p, what="rig file", max_bytes=MAX_SMALL_TEXT_BYTES,
+                        fail=lambda message, _line: RigError(f"{p}: {message}"))  # fmt: skip
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise RigError(f"rig file not found: {p}") from None

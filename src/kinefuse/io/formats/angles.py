@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse import __version__
 from kinefuse.analysis.gaps import MAX_GAP_S, fill_short_gaps, missing_runs
 from kinefuse.errors import InputError
+from kinefuse.io.inputs import LINE_LIMIT, read_text
 from kinefuse.io.outputs import atomic_write_lines, atomic_write_text
 
 #: what each writer's file is, for messages
@@ -64,7 +65,7 @@ def is_angles_csv(path: Path) -> bool:
     """True if ``path`` is an ``angles.csv`` kinefuse wrote (by its header line)."""
     try:
         with Path(path).open(encoding="utf-8") as f:
-            return f.readline().rstrip("\r\n") in _CSV_HEADERS_OURS
+            return f.readline(LINE_LIMIT).rstrip("\r\n") in _CSV_HEADERS_OURS
     except (OSError, UnicodeDecodeError):
         return False
 
@@ -347,7 +348,7 @@ def read_angles_mot(path: str | Path) -> tuple[Array, dict[str, Array], dict[str
         The ``key=value`` lines of the header.
     """
     p = Path(path)
-    lines = p.read_text(encoding="utf-8").splitlines()
+    lines = read_text(p, what="OpenSim .mot file").splitlines()
     try:
         end = next(i for i, ln in enumerate(lines) if ln.strip().lower() == "endheader")
     except StopIteration:
@@ -355,9 +356,17 @@ def read_angles_mot(path: str | Path) -> tuple[Array, dict[str, Array], dict[str
     header = {
         k.strip(): v.strip() for k, _, v in (ln.partition("=") for ln in lines[1:end]) if _ == "="
     }
+    if end + 1 >= len(lines):
+        raise InputError(f"{p}: no column names after 'endheader': the file is truncated")
     cols = lines[end + 1].split("\t")
-    data = np.array(
-        [[float(x) for x in ln.split("\t")] for ln in lines[end + 2 :] if ln.strip()],
-        dtype=np.float64,
-    ).reshape(-1, len(cols))
+    try:
+        data = np.array(
+            [[float(x) for x in ln.split("\t")] for ln in lines[end + 2 :] if ln.strip()],
+            dtype=np.float64,
+        ).reshape(-1, len(cols))
+    except ValueError:
+        raise InputError(
+            f"{p}: the rows after line {end + 2} are not {len(cols)} tab-separated numbers each "
+            "(one per column name): not an OpenSim .mot file, or a damaged one"
+        ) from None
     return data[:, 0].copy(), {c: data[:, i].copy() for i, c in enumerate(cols) if i}, header

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kinefuse.io.inputs import LINE_LIMIT
 from kinefuse.motion.bvh_pose import BVH_NAMES, BVH_PARENTS, BvhPose, channel_order
 
 _IND = "  "
@@ -73,10 +74,10 @@ def is_bvh_export(path: Path) -> bool:
     """True for a BVH whose hierarchy is kinefuse's rig (its joint names, in its order)."""
     try:
         with path.open(encoding="utf-8") as f:
-            if f.readline().strip() != "HIERARCHY":
+            if f.readline(LINE_LIMIT).strip() != "HIERARCHY":
                 return False
             names: list[str] = []
-            for line in f:
+            for line in iter(lambda: f.readline(LINE_LIMIT), ""):
                 words = line.split()
                 if words and words[0] in ("ROOT", "JOINT"):
                     names.append(words[1] if len(words) > 1 else "")

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from kinefuse import __version__
 from kinefuse.errors import InputError
+from kinefuse.io.inputs import LINE_LIMIT
 from kinefuse.io.outputs import atomic_file
 from kinefuse.skeleton import JOINTS, N_JOINTS
 
@@ -76,7 +77,7 @@ def _write_csv(path: Path, t_s: Array, positions: Array, **_: object) -> None:
 def is_csv_export(path: Path) -> bool:
     try:
         with path.open(encoding="utf-8") as f:
-            return f.readline().rstrip("\r\n") == _CSV_HEADER
+            return f.readline(LINE_LIMIT).rstrip("\r\n") == _CSV_HEADER
     except (OSError, UnicodeDecodeError):
         return False
 
@@ -120,7 +121,7 @@ def _write_trc(
 def is_trc_export(path: Path) -> bool:
     try:
         with path.open(encoding="utf-8") as f:
-            head = [f.readline().rstrip("\r\n") for _ in range(4)]
+            head = [f.readline(LINE_LIMIT).rstrip("\r\n") for _ in range(4)]
     except (OSError, UnicodeDecodeError):
         return False
     return head[0].startswith("PathFileType\t4\t(X/Y/Z)") and head[3] == _trc_header("", 1, 1)[3]
@@ -171,6 +172,9 @@ def is_c3d_export(path: Path) -> bool:
     try:
         import ezc3d
 
+        from kinefuse.io.formats.markers import check_c3d_header
+
+        check_c3d_header(path)  # ezc3d spends minutes on a large file that is no C3D
         c = ezc3d.c3d(str(path))
         soft = c["parameters"]["MANUFACTURER"]["SOFTWARE"]["value"]
         return bool(soft) and str(soft[0]).startswith("kinefuse")

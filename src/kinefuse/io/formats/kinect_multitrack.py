@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrames
 from kinefuse.geometry.transforms import make_transform
+from kinefuse.io.inputs import check_text_file
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
@@ -239,7 +240,8 @@ def read_kinect_multitrack(path: str | Path) -> MultitrackRecording:
     name = str(p)
     if not p.is_file():
         raise InputError(f"{name}: no such file; give the path of a KinectMultiTrack CSV log")
-    with p.open(newline="", encoding="utf-8-sig") as fh:
+    check_text_file(p, what="KinectMultiTrack CSV log")
+    with p.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
         reader = csv.reader(fh)
         try:
             header = [c.strip() for c in next(reader)]
@@ -457,7 +459,7 @@ def sensor_poses(
 def _skeleton_ids(path: Path) -> dict[str, set[int]]:
     """``Kinect_Id -> {Skeleton_Id}`` from the log (empty if the column is absent)."""
     out: dict[str, set[int]] = {}
-    with path.open(newline="", encoding="utf-8-sig") as fh:
+    with path.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
         reader = csv.reader(fh)
         header = [c.strip() for c in next(reader)]
         if "Skeleton_Id" not in header or "Kinect_Id" not in header:

@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError, MotionFormatError
+from kinefuse.io.inputs import read_text
 
 Array = NDArray[np.float64]
 
@@ -418,13 +419,26 @@ def parse_trc(text: str, *, path: str = "<string>", up: str | None = None) -> Ma
     )
 
 
+def _trc_first_line(line: str) -> str | None:
+    if line.strip().lower().startswith("pathfiletype"):
+        return None
+    return (
+        f"not a TRC file: the first line must start with 'PathFileType', got {line[:40]!r}; "
+        "the header has five lines (PathFileType, the header keys, their values, marker names, "
+        "X1 Y1 Z1...)"
+    )
+
+
 def read_trc(path: str | Path, *, up: str | None = None) -> MarkerData:
-    """Read a TRC file (opened read-only); see :func:`parse_trc`."""
+    """Read a TRC file (opened read-only); see :func:`parse_trc`. Its size and first line are
+    checked before it is read whole (:func:`kinefuse.io.inputs.read_text`)."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8", errors="replace")
-    except OSError as e:
-        raise MotionFormatError(f"cannot read the file: {e.strerror or e}", path=str(p)) from None
+    text = read_text(
+        p,
+        what="TRC marker file",
+        first_line=_trc_first_line,
+        fail=lambda message, line: MotionFormatError(message, path=str(p), line=line),
+    )
     return parse_trc(text, path=str(p), up=up)
 
 
@@ -456,6 +470,7 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
     p = Path(path)
     if not p.is_file():
         raise MotionFormatError("no such file", path=str(p))
+    check_c3d_header(p)
     try:
         c3d = ezc3d.c3d(str(p))
     except (RuntimeError, OSError, ValueError) as e:
@@ -511,6 +526,25 @@ def read_c3d(path: str | Path, *, up: str | None = None) -> MarkerData:
         fmt="c3d",
         notes=tuple(notes + more),
     )
+
+
+def check_c3d_header(path: Path) -> None:
+    """Refuse a file that is not C3D by its first bytes, before ezc3d reads it (ezc3d spends
+    minutes on a large file of zeros): every C3D file starts with the number of its parameter
+    block (2 or more, inside the file) and the byte 0x50."""
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as f:
+            head = f.read(2)
+    except OSError as e:
+        why = e.strerror or str(e)
+        raise MotionFormatError(f"cannot read the file: {why}", path=str(path)) from None
+    if len(head) < 2 or head[1] != 0x50 or head[0] < 2 or (head[0] - 1) * 512 >= size:
+        raise MotionFormatError(
+            f"not a C3D file: it starts with {head!r}, where every C3D file starts with its "
+            "parameter block's number and the byte 0x50 ('P')",
+            path=str(path),
+        )
 
 
 def _c3d_header_frames(path: Path) -> int | None:

@@ -121,10 +121,16 @@ def _unblob(
     """Stack BLOBs into ``(len(blobs), *shape)``; a :class:`StoreError` on a size mismatch
     (naming the row, counted from ``first_row``)."""
     n_bytes = int(np.prod(shape)) * dtype.itemsize
-    if blobs and any(len(b) != n_bytes for b in blobs):
-        i = next(i for i, b in enumerate(blobs) if len(b) != n_bytes)
+    bad = [i for i, b in enumerate(blobs) if not isinstance(b, bytes) or len(b) != n_bytes]
+    if bad:
+        i = bad[0]
+        held = (
+            f"{len(blobs[i])} bytes"
+            if isinstance(blobs[i], bytes)
+            else f"a {type(blobs[i]).__name__}"
+        )
         raise StoreError(
-            f"{what}: row {first_row + i} holds {len(blobs[i])} bytes where {n_bytes} were "
+            f"{what}: row {first_row + i} holds {held} where {n_bytes} bytes were "
             f"expected (shape {shape}, {dtype}); the store is corrupt"
         )
     buf = b"".join(blobs)
@@ -151,6 +157,19 @@ def encode_depth(depth_mm: NDArray[np.uint16]) -> bytes:
     return DEPTH_CODEC_MAGIC + zlib.compress(payload, DEPTH_ZLIB_LEVEL)
 
 
+#: The largest side of a stored depth image, pixels (the Kinect v2's is 512, Azure's 1024): a
+#: frame said to be larger is a damaged session, not an image to allocate.
+MAX_DEPTH_SIDE = 4096
+
+
+def _inflate(data: bytes, limit: int) -> bytes:
+    """zlib-decompress ``data``, no further than ``limit`` bytes (a forged frame is no bomb)."""
+    out = zlib.decompressobj().decompress(data, limit + 1)
+    if len(out) > limit:
+        raise ValueError(f"it expands past the {limit} bytes its image can hold")
+    return out
+
+
 def decode_depth(blob: bytes, height: int, width: int) -> NDArray[np.uint16]:
     """Inverse of :func:`encode_depth` (also reads the older plain-zlib frames).
 
@@ -159,14 +178,14 @@ def decode_depth(blob: bytes, height: int, width: int) -> NDArray[np.uint16]:
     zlib.error, ValueError
         The blob is corrupt.
     """
-    if not blob.startswith(DEPTH_CODEC_MAGIC):
-        raw = zlib.decompress(blob)
-        if len(raw) != 2 * height * width:
-            raise ValueError(f"{len(raw)} bytes for a {height}x{width} uint16 image")
-        return np.frombuffer(raw, dtype=_U2).reshape(height, width).astype(np.uint16)
-    payload = zlib.decompress(blob[len(DEPTH_CODEC_MAGIC) :])
     n = height * width
     n_mask = (n + 7) // 8
+    if not blob.startswith(DEPTH_CODEC_MAGIC):
+        raw = _inflate(blob, 2 * n)
+        if len(raw) != 2 * n:
+            raise ValueError(f"{len(raw)} bytes for a {height}x{width} uint16 image")
+        return np.frombuffer(raw, dtype=_U2).reshape(height, width).astype(np.uint16)
+    payload = _inflate(blob[len(DEPTH_CODEC_MAGIC) :], n_mask + 2 * n)
     if len(payload) < n_mask:
         raise ValueError("truncated pixel mask")
     valid = np.unpackbits(np.frombuffer(payload[:n_mask], np.uint8), count=n).astype(bool)
@@ -221,9 +240,10 @@ def read_columns(
                     masks[i].append(have)
                 parts[i].append(_unblob(c, kind.dtype, kind.shape, what, first_row=n))
             elif kind == "f8":
-                parts[i].append(np.array(c, dtype=np.float64).reshape(len(c)))
+                parts[i].append(_numbers(c, np.float64, what, _path_of(cursor)).reshape(len(c)))
             elif kind == "i8":
-                parts[i].append(np.array([v or 0 for v in c], dtype=np.int64).reshape(len(c)))
+                ints = _numbers([v or 0 for v in c], np.int64, what, _path_of(cursor))
+                parts[i].append(ints.reshape(len(c)))
             else:
                 raise ValueError(f"unknown column kind {kind!r}")
         n += len(rows)
@@ -243,9 +263,13 @@ def read_columns(
     return out, have_out
 
 
-def _column(rows: list[tuple[Any, ...]], i: int) -> Array:
+def _path_of(cursor: sqlite3.Cursor) -> str:
+    return str(getattr(cursor.connection, "path", "<session>"))
+
+
+def _column(rows: list[tuple[Any, ...]], i: int, what: str = "", path: Path | str = "") -> Array:
     """Float column ``i`` of ``rows``; SQL NULL becomes NaN."""
-    return np.array([r[i] for r in rows], dtype=np.float64).reshape(len(rows))
+    return _numbers([r[i] for r in rows], np.float64, what, path).reshape(len(rows))
 
 
 def _json_dumps(value: object, what: str) -> str:
@@ -254,6 +278,72 @@ def _json_dumps(value: object, what: str) -> str:
     except (TypeError, ValueError) as e:
         raise InputError(
             f"{what}: value must be JSON-able (dict, list, str, finite numbers, bool, None); {e}"
+        ) from None
+
+
+def _json_loads(text: object, what: str, path: Path, expect: type | None = None) -> Any:
+    """The JSON value stored in a session as ``what`` (its intrinsics, a meta entry, ...).
+
+    Every JSON text read back from a session goes through here: a damaged or forged session
+    gives one :class:`StoreError` naming the file and the entry, never a ``JSONDecodeError``.
+
+    Raises
+    ------
+    StoreError
+        ``text`` is not JSON (or nested too deeply to read), or not of type ``expect``.
+    """
+    try:
+        if not isinstance(text, str | bytes):
+            raise ValueError(f"a {type(text).__name__} where a JSON text belongs")
+        value = json.loads(text)
+    except (ValueError, RecursionError) as e:
+        why = "nested too deeply" if isinstance(e, RecursionError) else str(e)
+        raise StoreError(
+            f"{path}: {what} is not valid JSON ({why}); the session is damaged or was not "
+            "written by kinefuse: restore it from a copy, or make it again"
+        ) from None
+    if expect is not None and not isinstance(value, expect):
+        names: dict[type, str] = {dict: "an object", list: "an array", str: "a string"}
+        raise StoreError(
+            f"{path}: {what} is not {names.get(expect, expect.__name__)} but {value!r:.40}; the "
+            "session is damaged or was not written by kinefuse: restore it from a copy, or make "
+            "it again"
+        )
+    return value
+
+
+class DamagedStoreError(StoreError, sqlite3.DatabaseError):
+    """A session SQLite opens but cannot be read as kinefuse writes it (a table or a column
+    missing, a damaged page): a :class:`StoreError` for the commands (one line, exit 2), and
+    still a ``sqlite3.DatabaseError`` for code that handles those."""
+
+
+class ReadConnection(sqlite3.Connection):
+    """The connection of a session opened for reading: an SQLite error of a query becomes a
+    :class:`DamagedStoreError` naming the file (``path``, set by the store)."""
+
+    path = "<session>"
+
+    def execute(self, sql: str, parameters: Any = (), /) -> sqlite3.Cursor:
+        try:
+            return super().execute(sql, parameters)
+        except sqlite3.DatabaseError as e:
+            raise DamagedStoreError(
+                f"{self.path}: the session cannot be read ({e}); it is damaged or was not "
+                "written by this kinefuse: restore it from a copy, or make it again"
+            ) from None
+
+
+def _numbers(values: Any, dtype: type, what: str, path: Path | str) -> NDArray[Any]:
+    """``np.array(values, dtype)`` of values read from a session; a :class:`StoreError` naming
+    the file when one is not a number (SQLite keeps text in a REAL column)."""
+    try:
+        return np.array(values, dtype=dtype)
+    except (TypeError, ValueError) as e:
+        raise StoreError(
+            f"{path}: {what or 'a stored column'} holds a value that is not a number ({e}); the "
+            "session is damaged or was not written by kinefuse: restore it from a copy, or make "
+            "it again"
         ) from None
 
 

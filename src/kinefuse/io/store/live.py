@@ -44,6 +44,8 @@ from numpy.typing import NDArray
 
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.register import Sightings
+from kinefuse.errors import StoreError
+from kinefuse.io.store.codec import _json_loads, _numbers, _unblob
 from kinefuse.io.store.session import SessionStore
 from kinefuse.skeleton import N_JOINTS
 
@@ -116,8 +118,9 @@ def _none_if_nan(x: float) -> float | None:
     return None if not math.isfinite(x) else float(x)
 
 
-def _nan_if_none(x: object) -> float:
-    return float("nan") if x is None else float(x)  # type: ignore[arg-type]
+def _nan_for_null(x: object) -> object:
+    """SQL NULL as NaN, any other value as read (checked by ``_numbers``)."""
+    return np.nan if x is None else x
 
 
 def has_live_tables(store: SessionStore) -> bool:
@@ -212,16 +215,18 @@ def sightings(store: SessionStore, sensor_id: str) -> StoredSightings:
         if has_live_tables(store)
         else []
     )
-    col = [[_nan_if_none(r[i]) for r in rows] for i in range(9)]
+    what = f"the wand sightings of sensor {sensor_id!r}"
     n = len(rows)
+    col = _numbers([[_nan_for_null(r[i]) for i in range(9)] for r in rows], np.float64, what,
+                   store.path).reshape(n, 9)  # fmt: skip
     return StoredSightings(
-        seq=np.array(col[0], dtype=np.int64).reshape(n),
-        t_device_s=np.array(col[1]).reshape(n),
-        t_host_s=np.array(col[2]).reshape(n),
-        t_server_s=np.array(col[3]).reshape(n),
-        centre_sensor_m=np.array([col[4], col[5], col[6]]).T.reshape(n, 3),
-        score=np.array(col[7]).reshape(n),
-        n_points=np.array(col[8], dtype=np.int64).reshape(n),
+        seq=_numbers(col[:, 0], np.int64, what, store.path),
+        t_device_s=col[:, 1].copy(),
+        t_host_s=col[:, 2].copy(),
+        t_server_s=col[:, 3].copy(),
+        centre_sensor_m=col[:, 4:7].copy(),
+        score=col[:, 7].copy(),
+        n_points=_numbers(col[:, 8], np.int64, what, store.path),
     )
 
 
@@ -252,13 +257,17 @@ def floors(store: SessionStore) -> dict[str, FloorPlane]:
     rows = store._db.execute(
         "SELECT sensor_key, nx, ny, nz, offset_m, n_inliers, residual_m FROM live_floors"
     ).fetchall()
-    return {
-        ids[int(r[0])]: FloorPlane(
-            np.array(r[1:4], dtype=np.float64), float(r[4]), int(r[5]), _nan_if_none(r[6])
-        )
-        for r in rows
-        if int(r[0]) in ids
-    }
+    out: dict[str, FloorPlane] = {}
+    for r in rows:
+        if r[0] not in ids:
+            continue
+        what = f"the floor of sensor {ids[r[0]]!r}"
+        v = _numbers([_nan_for_null(x) for x in r[1:7]], np.float64, what, store.path)
+        try:
+            out[ids[r[0]]] = FloorPlane(v[:3], float(v[3]), int(v[4]), float(v[5]))
+        except (ValueError, OverflowError) as e:
+            raise StoreError(f"{store.path}: {what} is malformed ({e})") from None
+    return out
 
 
 def append_obs_times(
@@ -283,7 +292,11 @@ def obs_times(store: SessionStore, sensor_id: str) -> tuple[NDArray[np.int64], A
         "SELECT seq, t_capture_server_s FROM live_obs_times WHERE sensor_key = ? ORDER BY seq",
         (key,),
     ).fetchall()
-    return (np.array([r[0] for r in rows], dtype=np.int64), np.array([r[1] for r in rows]))
+    what = f"the live capture times of sensor {sensor_id!r}"
+    return (
+        _numbers([r[0] for r in rows], np.int64, what, store.path),
+        _numbers([r[1] for r in rows], np.float64, what, store.path),
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -351,19 +364,15 @@ def live_fused(store: SessionStore) -> LiveFused:
         if has_live_tables(store)
         else []
     )
-    n = len(rows)
+    what, path = "the live fused frames", store.path
     return LiveFused(
-        frame=np.array([r[0] for r in rows], dtype=np.int64),
-        t_server_s=np.array([r[1] for r in rows], dtype=np.float64),
-        positions_m=np.frombuffer(b"".join(r[2] for r in rows), dtype=_F8)
-        .reshape(n, N_JOINTS, 3)
-        .copy(),
-        status=np.frombuffer(b"".join(r[3] for r in rows), dtype=_I1).reshape(n, N_JOINTS).copy(),
-        variance_m2=np.frombuffer(b"".join(r[4] for r in rows), dtype=_F8)
-        .reshape(n, N_JOINTS)
-        .copy(),
-        latency_s=np.array([_nan_if_none(r[5]) for r in rows], dtype=np.float64),
-        t_recorded_s=np.array([r[6] for r in rows], dtype=np.float64),
+        frame=_numbers([r[0] for r in rows], np.int64, what, path),
+        t_server_s=_numbers([r[1] for r in rows], np.float64, what, path),
+        positions_m=_unblob([r[2] for r in rows], _F8, (N_JOINTS, 3), f"{path}: {what}"),
+        status=_unblob([r[3] for r in rows], _I1, (N_JOINTS,), f"{path}: {what}"),
+        variance_m2=_unblob([r[4] for r in rows], _F8, (N_JOINTS,), f"{path}: {what}"),
+        latency_s=_numbers([_nan_for_null(r[5]) for r in rows], np.float64, what, path),
+        t_recorded_s=_numbers([r[6] for r in rows], np.float64, what, path),
     )
 
 
@@ -400,7 +409,8 @@ def clock_estimates(store: SessionStore, sensor_id: str) -> Array:
         "WHERE sensor_key = ? ORDER BY idx",
         (key,),
     ).fetchall()
-    return np.array(rows, dtype=np.float64).reshape(len(rows), 5)
+    what = f"the clock estimates of sensor {sensor_id!r}"
+    return _numbers(rows, np.float64, what, store.path).reshape(len(rows), 5)
 
 
 def append_events(
@@ -423,4 +433,13 @@ def events(store: SessionStore) -> list[tuple[float, str, str | None, dict[str, 
     rows = store._db.execute(
         "SELECT t_server_s, kind, sensor_id, detail FROM live_events ORDER BY idx"
     ).fetchall()
-    return [(float(t), str(k), s, json.loads(d)) for t, k, s, d in rows]
+    times = _numbers([r[0] for r in rows], np.float64, "the recorded events", store.path)
+    return [
+        (
+            float(t),
+            str(k),
+            s,
+            _json_loads(d, f"the detail of recorded event {k!r}", store.path, dict),
+        )
+        for t, (_, k, s, d) in zip(times, rows, strict=True)
+    ]

@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import IncompleteSessionError, InputError, KinefuseError, StoreError
 from kinefuse.frames.observations import BodyFrames
-from kinefuse.io.outputs import APPLICATION_ID, is_kinefuse_session
+from kinefuse.io.outputs import APPLICATION_ID, PRIVATE_FILE_MODE, is_kinefuse_session
 from kinefuse.io.store.codec import (
     _F8,
     _I1,
@@ -52,11 +52,14 @@ from kinefuse.io.store.codec import (
     _STATES_BYTES,
     DEPTH_CODEC_MAGIC,
     DEPTH_ZLIB_LEVEL,
+    ReadConnection,
     _blobs,
     _column,
     _float_array,
     _int_array,
     _json_dumps,
+    _json_loads,
+    _numbers,
     _require_finite,
     _require_no_inf,
     _require_same_length,
@@ -281,6 +284,15 @@ class SessionStore(SensorStreams, TruthTables):
             refuse_unless_ours(p, is_simulated_session, "session")
             for q in (p, *(p.with_name(p.name + s) for s in ("-wal", "-shm", "-journal"))):
                 q.unlink(missing_ok=True)
+        # made private before SQLite opens it (its -wal and -shm companions take its mode)
+        try:
+            os.close(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, PRIVATE_FILE_MODE))
+        except FileExistsError:
+            raise StoreError(
+                f"{p} already exists; pass overwrite=True to replace it, or choose another path"
+            ) from None
+        except OSError as e:
+            raise StoreError(f"cannot create a session store at {p}: {e.strerror or e}") from None
         conn = sqlite3.connect(p, isolation_level=None)
         try:
             cls._configure_writer(conn)
@@ -374,7 +386,13 @@ class SessionStore(SensorStreams, TruthTables):
         for uri in uris:
             conn: sqlite3.Connection | None = None
             try:
-                conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+                if writable:
+                    conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+                else:  # a query that fails names the file (ReadConnection)
+                    conn = sqlite3.connect(
+                        uri, uri=True, isolation_level=None, factory=ReadConnection
+                    )
+                    conn.path = str(p)
                 conn.execute("SELECT count(*) FROM sqlite_master").fetchone()
                 return conn
             except sqlite3.DatabaseError as e:
@@ -406,8 +424,8 @@ class SessionStore(SensorStreams, TruthTables):
         row = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         version: object = None
         if row is not None:
-            with contextlib.suppress(ValueError):
-                version = json.loads(row[0])
+            with contextlib.suppress(StoreError):
+                version = _json_loads(row[0], "the schema version", p)
         if version != SCHEMA_VERSION:
             raise StoreError(
                 f"{p} has session-store schema version {version!r}, but this kinefuse reads "
@@ -542,7 +560,7 @@ class SessionStore(SensorStreams, TruthTables):
         """True once the writer called :meth:`mark_complete`; False for a session that was
         interrupted (or written by a kinefuse that did not record completion)."""
         row = self._db.execute("SELECT value FROM meta WHERE key = 'complete'").fetchone()
-        return row is not None and json.loads(row[0]) is True
+        return row is not None and _json_loads(row[0], "meta entry 'complete'", self.path) is True
 
     def require_complete(self, *, allow_incomplete: bool = False, flag: str = "--partial") -> None:
         """Raise :class:`IncompleteSessionError` for an incomplete session unless allowed."""
@@ -558,7 +576,7 @@ class SessionStore(SensorStreams, TruthTables):
     def meta(self) -> dict[str, object]:
         """All metadata, including ``schema_version`` and ``created`` (ISO 8601, UTC)."""
         rows = self._db.execute("SELECT key, value FROM meta ORDER BY key").fetchall()
-        return {str(k): json.loads(v) for k, v in rows}
+        return {str(k): _json_loads(v, f"meta entry {k!r}", self.path) for k, v in rows}
 
     # -- sensors ------------------------------------------------------------------------------
 
@@ -592,10 +610,25 @@ class SessionStore(SensorStreams, TruthTables):
         rows = self._db.execute(
             "SELECT id, serial, intrinsics, rate_hz FROM sensors ORDER BY key"
         ).fetchall()
-        return [
-            SensorInfo(str(i), str(s), Intrinsics.from_dict(json.loads(k)), float(r))
-            for i, s, k, r in rows
-        ]
+        out = []
+        for i, s, k, r in rows:
+            rate = _numbers(r, np.float64, f"the rate of sensor {i!r}", self.path)
+            out.append(SensorInfo(str(i), str(s), self._intrinsics(str(i), k), float(rate)))
+        return out
+
+    def _intrinsics(self, sensor_id: str, text: object) -> Intrinsics:
+        """The stored intrinsics of one sensor; a :class:`StoreError` naming the session and the
+        sensor when they are not what :meth:`add_sensor` writes."""
+        what = f"the intrinsics record of sensor {sensor_id!r}"
+        d = _json_loads(text, what, self.path, dict)
+        try:
+            return Intrinsics.from_dict(d)
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
+            why = f"no {e}" if isinstance(e, KeyError) else str(e)
+            raise StoreError(
+                f"{self.path}: {what} is malformed ({why}); the session is damaged or was not "
+                "written by kinefuse: restore it from a copy, or make it again"
+            ) from None
 
     def sensor(self, sensor_id: str) -> SensorInfo:
         """One registered sensor by id."""
@@ -679,7 +712,7 @@ class SessionStore(SensorStreams, TruthTables):
             (method,),
         ).fetchall()
         return (
-            _column(rows, 0),
+            _column(rows, 0, what, self.path),
             _unblob([r[1] for r in rows], _F8, (N_JOINTS, 3), what),
             _unblob([r[2] for r in rows], _I1, (N_JOINTS,), what),
         )

@@ -5,8 +5,10 @@ inherits :class:`SensorStreams`; split from :mod:`kinefuse.io.store.session` by 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
+import sqlite3
 import zlib
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
@@ -21,6 +23,7 @@ from kinefuse.io.store.codec import (
     _I1,
     _U1,
     _U2,
+    MAX_DEPTH_SIDE,
     Blob,
     StorePart,
     _blobs,
@@ -28,6 +31,7 @@ from kinefuse.io.store.codec import (
     _column,
     _float_array,
     _int_array,
+    _numbers,
     _require_finite,
     _require_no_inf,
     _require_same_length,
@@ -379,21 +383,33 @@ class SensorStreams(StorePart):
             while rows := cur.fetchmany(batch):
                 shapes = {(int(r[2]), int(r[3])) for r in rows}
                 if len(shapes) != 1:
-                    raise StoreError(f"{what}: frames of different sizes {sorted(shapes)}")
+                    raise StoreError(
+                        f"{self.path}: {what}: frames of different sizes {sorted(shapes)}"
+                    )
                 (h, w) = shapes.pop()
+                if not (0 < h <= MAX_DEPTH_SIDE and 0 < w <= MAX_DEPTH_SIDE):
+                    raise StoreError(
+                        f"{self.path}: {what}: frames of {h}x{w} pixels; a depth image is 1 to "
+                        f"{MAX_DEPTH_SIDE} pixels a side: the session is damaged"
+                    )
                 frames = np.empty((len(rows), h, w), dtype=np.uint16)
                 for i, r in enumerate(rows):
                     try:
                         frames[i] = decode_depth(r[4], h, w)
                     except (zlib.error, ValueError) as e:
-                        raise StoreError(f"{what}: frame seq {r[0]} is corrupt ({e})") from None
+                        raise StoreError(
+                            f"{self.path}: {what}: frame seq {r[0]} is corrupt ({e})"
+                        ) from None
                 yield (
-                    np.array([r[0] for r in rows], dtype=np.int64),
-                    _column(rows, 1),
+                    _numbers([r[0] for r in rows], np.int64, what, self.path),
+                    _column(rows, 1, what, self.path),
                     frames,
                 )
         finally:
-            cur.close()
+            # a generator left unfinished is closed when it is collected, possibly after the
+            # store it read from: its cursor is gone with the connection then
+            with contextlib.suppress(sqlite3.ProgrammingError):
+                cur.close()
 
     # -- clock probes -------------------------------------------------------------------------
 
@@ -456,4 +472,5 @@ class SensorStreams(StorePart):
             "WHERE sensor_key = ? ORDER BY idx",
             (key,),
         ).fetchall()
-        return np.array(rows, dtype=np.float64).reshape(len(rows), 4)
+        what = f"clock probes of sensor {sensor_id!r}"
+        return _numbers(rows, np.float64, what, self.path).reshape(len(rows), 4)

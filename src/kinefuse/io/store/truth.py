@@ -27,6 +27,7 @@ from kinefuse.io.store.codec import (
     _float_array,
     _int_array,
     _json_dumps,
+    _json_loads,
     _require_finite,
     _require_increasing,
     _require_same_length,
@@ -263,7 +264,9 @@ class Truth:
         info = db.execute("SELECT value FROM truth_info WHERE key = 'synthesized'").fetchone()
         if not t.size or info is None:
             raise StoreError(f"{self._store.path.name} holds no true motion")
-        syn = np.array(json.loads(info[0]), dtype=bool)
+        syn = np.array(
+            _json_loads(info[0], "the true synthesized joints", self._store.path, list), dtype=bool
+        )
         return t, joints, syn
 
     def info(self, key: str) -> object | None:
@@ -271,7 +274,9 @@ class Truth:
         row = self._store._db.execute(
             "SELECT value FROM truth_info WHERE key = ?", (key,)
         ).fetchone()
-        return None if row is None else json.loads(row[0])
+        return (
+            None if row is None else _json_loads(row[0], f"truth entry {key!r}", self._store.path)
+        )
 
     def sensor(self, sensor_id: str) -> tuple[Array, dict[str, float]]:
         """``(sensor2world (4, 4), clock dict)`` of one sensor."""
@@ -282,7 +287,14 @@ class Truth:
         if row is None:
             raise StoreError(f"no true pose stored for sensor {sensor_id!r}")
         m = _unblob([row[0]], _F8, (4, 4), f"true pose of sensor {sensor_id!r}")[0]
-        return m, {str(k): float(v) for k, v in json.loads(row[1]).items()}
+        what = f"the true clock of sensor {sensor_id!r}"
+        clock = _json_loads(row[1], what, self._store.path, dict)
+        try:
+            return m, {str(k): float(v) for k, v in clock.items()}
+        except (TypeError, ValueError):
+            raise StoreError(
+                f"{self._store.path}: {what} holds a value that is not a number"
+            ) from None
 
     def observations(
         self, sensor_id: str
