@@ -571,3 +571,26 @@ def test_a_huge_file_at_an_output_path_is_refused_unread(session, tmp_path, caps
     assert bytes_read() - before < 64 * 2**20
     one_line_error(code, err, "refusing to replace", str(out))
     assert out.stat().st_size == 2 * 2**30
+
+
+def test_a_forged_stored_wand_is_one_line_for_the_sensor(tmp_path: Path, shared_data: Path) -> None:
+    """``kinefuse sensor --source sim:`` of a simulated session whose stored wand was forged:
+    exit 2, one line, no traceback (the client reads the wand from the session's metadata)."""
+    import subprocess
+    import sys
+
+    from kinefuse.cli import main
+    from kinefuse.io.store.session import SessionStore
+
+    session = tmp_path / "s.sqlite"
+    clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"
+    assert main(["simulate", "--clip", str(clip), "--sensors", "2", "--out", str(session)]) == 0
+    with SessionStore.open(session, writable=True) as st:
+        st.set_meta("wand", {"radius_m": -1, "bogus": 3})
+    run = subprocess.run(
+        [sys.executable, "-m", "kinefuse", "sensor", "--server", "127.0.0.1:9",
+         "--source", f"sim:{session}#k0"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr and "stored wand is malformed" in run.stderr

@@ -116,7 +116,13 @@ class SimTimeline(Timeline):
                 )
             self.truth = SimClockTruth.from_store(store, sensor_id)
             wand = store.meta().get("wand")
-            self.wand = Wand(**wand) if isinstance(wand, dict) else Wand()
+            try:
+                self.wand = Wand(**wand) if isinstance(wand, dict) else Wand()
+            except (TypeError, ValueError) as e:  # a damaged or forged session
+                raise InputError(
+                    f"source sim:{path}: the session's stored wand is malformed ({e}); "
+                    "simulate the session again"
+                ) from None
             info = store.sensor(sensor_id)
             self.intrinsics = info.intrinsics
             self.serial = str(info.serial)
