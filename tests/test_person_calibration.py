@@ -137,16 +137,40 @@ def test_sensors_that_never_see_the_person_together_are_not_registered(take45) -
 # -- the live server's person path, fed the log's frames ----------------------------------------
 
 
-def _feed(p: PersonCalibration, tracks: Tracks, t_from: float, t_to: float) -> None:
-    events = sorted(
-        (float(t[k]), sid, k) for sid, (t, _) in tracks.items() for k in range(len(t))
-        if t_from <= t[k] < t_to
-    )  # fmt: skip
-    for t, sid, k in events:
-        p.add_body(sid, t, tracks[sid][1][k])
+Rows = list[tuple[float, str, float, np.ndarray]]
 
 
-def test_the_person_path_starts_without_a_wand_and_refines_until_good(take45) -> None:
+def _rows(path: Path) -> Rows:
+    """Every logged row of both sensors as a client sends it: ``(receive time, sensor, device
+    time, joints)`` in receive order, from 0 s (a row repeats a sensor's latest skeleton when
+    the other sensor's frame triggered it, and rows come out of capture order)."""
+    from kinefuse.frames.observations import BodyFrame
+    from kinefuse.pipeline.sources import MultitrackReplay
+
+    rows = []
+    for s in read_kinect_multitrack(path).streams:
+        for f in MultitrackReplay(path, s.sensor_id):
+            if isinstance(f, BodyFrame):
+                rows.append((f.t_host_s, s.sensor_id, f.t_device_s, f.joints_m))
+    rows.sort(key=lambda r: r[0])
+    t0 = rows[0][0]
+    return [(t - t0, sid, td, p) for t, sid, td, p in rows]
+
+
+def _feed(p: PersonCalibration, rows: Rows, t_from: float, t_to: float) -> None:
+    for t, sid, td, joints in rows:
+        if t_from <= t < t_to:
+            p.add_body(sid, td, t, joints)
+
+
+@pytest.fixture(scope="module")
+def rows45(take45) -> Rows:
+    return _rows(take45[0])
+
+
+def test_the_person_path_starts_without_a_wand_and_refines_until_good(take45, rows45) -> None:
+    """Fed the log's rows as the clients send them (repeats, rows out of order, the receive
+    times' jitter), on the receive clock."""
     _, tracks = take45
     ids = sorted(tracks)
     cal = LiveCalibration()
@@ -158,7 +182,7 @@ def test_the_person_path_starts_without_a_wand_and_refines_until_good(take45) ->
     started = both = None
     track_from = None
     while t < 80.0 and p.grade != "good":
-        _feed(p, tracks, t, t + 0.5)
+        _feed(p, rows45, t, t + 0.5)
         t += 0.5
         if len(p.tracking(t, ids)) < 2:
             both = None  # (the log has a gap between its first two scenarios)
@@ -180,21 +204,30 @@ def test_the_person_path_starts_without_a_wand_and_refines_until_good(take45) ->
     assert set(cal.poses) == set(ids) and cal.grade == "good"
     assert p.message == "calibrated from the person: good"
     assert not p.due(t + 10.0, ids, cal)  # good: it stops
+    # the rows' repeats and receive-time jitter cost nothing: the same relative pose as from the
+    # distinct frames at realdata's capture times up to then
+    clean = calibrate_from_body(_upto(tracks, t)).sensor2world
+
+    def rel(poses: dict[str, np.ndarray]) -> np.ndarray:
+        return invert_transform(poses[ids[0]]) @ poses[ids[1]]
+
+    d = invert_transform(rel(clean)) @ rel(cal.poses)
+    assert np.linalg.norm(rotation_vector_deg(d[:3, :3])) < 0.5 and np.linalg.norm(d[:3, 3]) < 0.02
 
 
-def test_a_wand_sighting_keeps_the_person_path_from_starting(take45) -> None:
+def test_a_wand_sighting_keeps_the_person_path_from_starting(take45, rows45) -> None:
     _, tracks = take45
     ids = sorted(tracks)
     cal = LiveCalibration()
     p = PersonCalibration()
-    _feed(p, tracks, 0.0, 28.0)
+    _feed(p, rows45, 0.0, 28.0)
     cal.add_sighting(ids[0], 17.0, np.zeros(3), 1.0)  # a wand seen 3 s ago
     assert not p.due(20.0, ids, cal)
     assert p.due(22.5, ids, cal) is False  # 5.5 s since the wand: the wait starts now
     assert p.due(27.6, ids, cal)
 
 
-def test_no_pose_is_said_every_few_seconds_with_the_reason(take45) -> None:
+def test_no_pose_is_said_every_few_seconds_with_the_reason(take45, rows45) -> None:
     _, tracks = take45
     ids = sorted(tracks)
     cal = LiveCalibration()
@@ -205,7 +238,7 @@ def test_no_pose_is_said_every_few_seconds_with_the_reason(take45) -> None:
     assert all(f"only sensor {ids[0]} is connected" in s for _, s in texts)
     assert p.message is not None and p.message.startswith("no pose yet")
     assert "no sensor is connected" in (p.say(20.0, [], cal) or "")
-    _feed(p, tracks, 25.0, 28.0)  # both connected and tracking: waiting for a wand
+    _feed(p, rows45, 25.0, 28.0)  # both connected and tracking: waiting for a wand
     assert "calibrating from the person in" in (p.say(28.0, ids, cal) or "")
     assert p.say(28.5, ids, cal) is None  # not again within say_s
     assert WALK.startswith("calibrating from the person")

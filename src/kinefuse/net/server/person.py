@@ -52,6 +52,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import KinefuseError
 from kinefuse.net.server.calibration import CalibrationOutcome, LiveCalibration, _merge
 from kinefuse.skeleton import JOINT_INDEX, TRUNK_JOINTS
+from kinefuse.sync.envelope import fit_clock_lower_envelope
 
 if TYPE_CHECKING:
     from kinefuse.net.server.server import Server
@@ -87,7 +88,8 @@ class PersonOptions:
 
 @dataclass
 class _Frames:
-    t: deque[float] = field(default_factory=deque)
+    td: deque[float] = field(default_factory=deque)
+    tr: deque[float] = field(default_factory=deque)
     p: deque[Array] = field(default_factory=deque)
 
 
@@ -96,7 +98,8 @@ class PersonJob:
     """What one solve works on, taken on the event loop (nothing shared with the live state)."""
 
     calibration_id: int
-    tracks: dict[str, tuple[Array, Array]]
+    #: per sensor: device stamps (N,), server receive times (N,), joints (N, 25, 3)
+    tracks: dict[str, tuple[Array, Array, Array]]
     fixed: dict[str, Array]
     previous: CalibrationFile | None
     intrinsics: dict[str, Intrinsics]
@@ -120,25 +123,30 @@ class PersonCalibration:
         self._last_solve = -math.inf
         self._last_said = -math.inf
 
-    def add_body(self, sensor_id: str, t_capture_s: float, joints_m: Array) -> None:
-        """Keep a body frame whose trunk is seen (a repeat or an out-of-order frame is not)."""
-        if not math.isfinite(t_capture_s) or not np.isfinite(joints_m[_TRUNK]).all():
+    def add_body(
+        self, sensor_id: str, t_device_s: float, t_receive_s: float, joints_m: Array
+    ) -> None:
+        """Keep a body frame whose trunk is seen: its device stamp and the server time it reached
+        the sensor's PC (a repeated or out-of-order frame is not kept)."""
+        if not (math.isfinite(t_device_s) and math.isfinite(t_receive_s)):
+            return
+        if not np.isfinite(joints_m[_TRUNK]).all():
             return
         f = self._frames.setdefault(sensor_id, _Frames())
-        if f.t and t_capture_s <= f.t[-1] + 1e-4:
+        if f.td and t_device_s <= f.td[-1]:
             return
-        f.t.append(t_capture_s)
+        f.td.append(t_device_s)
+        f.tr.append(t_receive_s)
         f.p.append(np.array(joints_m, dtype=np.float64))
-        while f.t[0] < t_capture_s - self.options.keep_s:
-            f.t.popleft()
+        while f.tr[0] < t_receive_s - self.options.keep_s:
+            f.td.popleft()
+            f.tr.popleft()
             f.p.popleft()
 
     def tracking(self, now: float, connected: list[str]) -> list[str]:
         """The connected sensors that track a person now."""
-        o = self.options
-        return [
-            s for s in connected if s in self._frames and now - self._frames[s].t[-1] < o.tracking_s
-        ]
+        f, o = self._frames, self.options
+        return [s for s in connected if s in f and now - f[s].tr[-1] < o.tracking_s]
 
     def due(self, now: float, connected: list[str], cal: LiveCalibration) -> bool:
         """Whether to solve now (and start the path if it should)."""
@@ -174,9 +182,9 @@ class PersonCalibration:
         prev = cal.calibration
         keep = prev is not None and (prev.method != METHOD or self.grade == "good")
         tracks = {
-            s: (np.array(f.t), np.stack(list(f.p)))
+            s: (np.array(f.td), np.array(f.tr), np.stack(list(f.p)))
             for s, f in self._frames.items()
-            if len(f.t) >= 10 and s in intrinsics
+            if len(f.td) >= 10 and s in intrinsics
         }
         cal.calibration_id += 1
         return PersonJob(
@@ -234,12 +242,26 @@ class PersonCalibration:
         return text
 
 
+def capture_times(t_device_s: Array, t_receive_s: Array) -> Array:
+    """Capture times on the server clock from a sensor's device stamps and receive times: the
+    lower envelope of the receive times (:func:`kinefuse.sync.envelope.fit_clock_lower_envelope`,
+    as ``kinefuse realdata`` aligns the logs), which a receive-time jitter of hundreds of
+    milliseconds leaves alone; the receive times themselves when there are too few frames."""
+    try:
+        return fit_clock_lower_envelope(t_device_s, t_receive_s).to_receiver(t_device_s)
+    except KinefuseError:
+        return t_receive_s
+
+
 def solve_person(job: PersonJob) -> CalibrationOutcome:
     """Register the sensors from the person (a pure function of ``job``, safe in a thread)."""
     cid = job.calibration_id
     targets = tuple(sorted(s for s in job.tracks if s not in job.fixed))
     try:
-        bc = calibrate_from_body(job.tracks, fixed=job.fixed)
+        bc = calibrate_from_body(
+            {s: (capture_times(td, tr), p) for s, (td, tr, p) in job.tracks.items()},
+            fixed=job.fixed,
+        )
     except KinefuseError as e:
         return CalibrationOutcome(
             cid, False, METHOD, Grade("failed", (str(e),)), f"calibration failed: {e}", targets

@@ -571,7 +571,7 @@ class Server:
         joints, states = sanitize_joints(msg.joints_m, msg.states)
         t_cap = client.capture_to_server(msg.t_device_s)
         t_host = client.host_to_server(msg.t_host_s)
-        self.person.add_body(client.sensor_id, t_cap, joints)
+        self.person.add_body(client.sensor_id, msg.t_device_s, t_host, joints)
         if self.recorder is not None:
             self.recorder.add_observation(
                 client.sensor_id,
