@@ -242,3 +242,41 @@ def test_no_pose_is_said_every_few_seconds_with_the_reason(take45, rows45) -> No
     assert "calibrating from the person in" in (p.say(28.0, ids, cal) or "")
     assert p.say(28.5, ids, cal) is None  # not again within say_s
     assert WALK.startswith("calibrating from the person")
+
+
+def test_a_sensor_that_joins_later_is_registered_onto_the_poses_in_force(take45, rows45) -> None:
+    """After a good calibration a third sensor joins; the first two keep their poses and the new
+    one is registered onto them. It is the second sensor's stream seen from a frame moved by a
+    known rigid transform (30 deg, 0.5 m), so its pose must come out as that sensor's pose times
+    the inverse."""
+    from kinefuse.geometry.rotations import rot_z
+
+    _, tracks = take45
+    ids = sorted(tracks)
+    cal = LiveCalibration()
+    p = PersonCalibration()
+    intr = dict.fromkeys([*ids, "k2"], Intrinsics())
+    serials = dict.fromkeys([*ids, "k2"], "")
+    moved = make_transform(rot_z(np.radians(30.0)), np.array([0.5, -0.2, 0.1]))
+    t = 0.0
+    while p.grade != "good" and t < 80.0:
+        _feed(p, rows45, t, t + 0.5)
+        t += 0.5
+        if p.due(t, ids, cal):
+            p.finish(solve_person(p.begin(t, cal, intr, serials)), cal)
+    assert p.grade == "good"
+    before = {s: cal.poses[s].copy() for s in ids}
+    _feed(p, rows45, t, t + 5.0)
+    for tr, sid, td, joints in rows45:  # the new sensor's frames, from the start
+        if sid == ids[1] and tr < t + 5.0:
+            p.add_body("k2", td, tr, joints @ moved[:3, :3].T + moved[:3, 3])
+    assert p.due(t + 5.0, [*ids, "k2"], cal)  # a sensor without a pose
+    job = p.begin(t + 5.0, cal, intr, serials)
+    assert set(job.fixed) == set(ids)
+    out = solve_person(job)
+    assert p.finish(out, cal)
+    for s in ids:
+        assert np.array_equal(cal.poses[s], before[s])
+    # (within what 5 s more frames change: the second sensor's pose rests on fewer)
+    d = invert_transform(before[ids[1]] @ invert_transform(moved)) @ cal.poses["k2"]
+    assert np.linalg.norm(rotation_vector_deg(d[:3, :3])) < 0.5 and np.linalg.norm(d[:3, 3]) < 0.01

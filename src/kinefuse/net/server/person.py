@@ -122,6 +122,7 @@ class PersonCalibration:
         self._since: float | None = None
         self._last_solve = -math.inf
         self._last_said = -math.inf
+        self._refining = True
 
     def add_body(
         self, sensor_id: str, t_device_s: float, t_receive_s: float, joints_m: Array
@@ -187,6 +188,7 @@ class PersonCalibration:
             if len(f.td) >= 10 and s in intrinsics
         }
         cal.calibration_id += 1
+        self._refining = not keep  # every sensor solved anew (else new ones onto kept poses)
         return PersonJob(
             calibration_id=cal.calibration_id,
             tracks=tracks,
@@ -200,7 +202,9 @@ class PersonCalibration:
         """Take a solve's outcome (on the event loop); True if it is to be put in force."""
         self.solving = False
         first = out.grade.reasons[0].split(": ", 1)[-1] if out.grade.reasons else ""
-        use = out.ok and (self.grade is None or _RANK[out.grade.grade] >= _RANK[self.grade])
+        # a solve of every sensor anew replaces one of the same sensors only if it is no worse
+        better = self.grade is None or _RANK[out.grade.grade] >= _RANK[self.grade]
+        use = out.ok and (better or not self._refining)
         if use:
             cal.adopt(out)
             self.grade = out.grade.grade
