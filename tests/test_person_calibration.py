@@ -280,3 +280,14 @@ def test_a_sensor_that_joins_later_is_registered_onto_the_poses_in_force(take45,
     # (within what 5 s more frames change: the second sensor's pose rests on fewer)
     d = invert_transform(before[ids[1]] @ invert_transform(moved)) @ cal.poses["k2"]
     assert np.linalg.norm(rotation_vector_deg(d[:3, :3])) < 0.5 and np.linalg.norm(d[:3, 3]) < 0.01
+
+
+def test_the_calibration_message_crosses_the_wire_and_reaches_the_viewer() -> None:
+    from kinefuse.protocol import Status, codec
+    from kinefuse.viewer.wire import status_message
+
+    st = Status(calibration_message=f"{WALK} (sensors a and b saw the person over 3 cm)")
+    (back,) = codec.Decoder().feed(codec.encode(st))
+    assert isinstance(back, Status) and back.calibration_message == st.calibration_message
+    assert status_message(back)["calibration_message"] == st.calibration_message
+    assert status_message(Status())["calibration_message"] is None
