@@ -291,3 +291,19 @@ def test_the_calibration_message_crosses_the_wire_and_reaches_the_viewer() -> No
     assert isinstance(back, Status) and back.calibration_message == st.calibration_message
     assert status_message(back)["calibration_message"] == st.calibration_message
     assert status_message(Status())["calibration_message"] is None
+
+
+def test_a_wand_calibration_without_sightings_gives_way_to_the_person(take45, rows45) -> None:
+    """``serve --auto-calibrate`` starts the wand's collection when a sensor joins; with no
+    depth no sighting ever comes, and the person path starts anyway (the server then gives the
+    wand's collection up); once the wand is seen it does not."""
+    _, tracks = take45
+    ids = sorted(tracks)
+    cal = LiveCalibration()
+    cal.start(0.0, ids)
+    assert cal.collecting
+    p = PersonCalibration()
+    _feed(p, rows45, 0.0, 28.0)
+    assert not p.due(20.0, ids, cal) and p.due(25.5, ids, cal)  # 5 s after 20 s
+    cal.add_sighting(ids[0], 25.6, np.zeros(3), 1.0)
+    assert not p.due(31.0, ids, cal)  # the wand path is under way
