@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from kinefuse.calibration.body import calibrate_from_body
+from kinefuse.calibration.grade import Grade
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.geometry.rotations import rotation_vector_deg
 from kinefuse.geometry.transforms import invert_transform, make_transform
@@ -307,3 +308,33 @@ def test_a_wand_calibration_without_sightings_gives_way_to_the_person(take45, ro
     assert not p.due(20.0, ids, cal) and p.due(25.5, ids, cal)  # 5 s after 20 s
     cal.add_sighting(ids[0], 25.6, np.zeros(3), 1.0)
     assert not p.due(31.0, ids, cal)  # the wand path is under way
+
+
+def test_a_wand_calibration_in_force_stops_the_person_path(take45, rows45) -> None:
+    """The person path runs (doubtful), then the operator calibrates with the wand: the person
+    path stops refining over it and the status no longer asks to walk."""
+    from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
+    from kinefuse.net.server.calibration import CalibrationOutcome
+
+    _, tracks = take45
+    ids = sorted(tracks)
+    cal = LiveCalibration()
+    p = PersonCalibration()
+    intr = dict.fromkeys(ids, Intrinsics())
+    _feed(p, rows45, 0.0, 30.0)
+    assert not p.due(25.0, ids, cal) and p.due(30.0, ids, cal)
+    p.finish(solve_person(p.begin(30.0, cal, intr, dict.fromkeys(ids, ""))), cal)
+    assert p.active and p.grade == "doubtful" and p.message is not None
+    wand = CalibrationFile(
+        method="full",
+        created=cal.calibration.created,  # type: ignore[union-attr]
+        sensors=tuple(
+            SensorCalibration(s, "", np.eye(4), Intrinsics(), 0.001, 100) for s in ids
+        ),
+        world="the wand's",
+        rms_m=0.001,
+    )
+    cal.adopt(CalibrationOutcome(99, True, "full", Grade("good", ()), "wand", tuple(ids), wand))
+    _feed(p, rows45, 30.0, 50.0)
+    assert not p.due(50.0, ids, cal)
+    assert p.say(50.0, ids, cal) is None and p.message is None and not p.active

@@ -149,9 +149,18 @@ class PersonCalibration:
         f, o = self._frames, self.options
         return [s for s in connected if s in f and now - f[s].tr[-1] < o.tracking_s]
 
+    def _wand_took_over(self, cal: LiveCalibration) -> None:
+        """A wand calibration is in force: the person path stops refining and says nothing (it
+        may start again for a sensor that joins without a pose)."""
+        if cal.calibration is not None and cal.calibration.method != METHOD and self.active:
+            self.active = False
+            self.grade = None
+            self.message = None
+
     def due(self, now: float, connected: list[str], cal: LiveCalibration) -> bool:
         """Whether to solve now (and start the path if it should)."""
         o = self.options
+        self._wand_took_over(cal)
         if self.solving or cal.solving:
             return False
         unposed = [s for s in connected if s not in cal.poses]
@@ -216,7 +225,10 @@ class PersonCalibration:
 
     def say(self, now: float, connected: list[str], cal: LiveCalibration) -> str | None:
         """Why there is no pose (every ``say_s`` while no sensor has one), else None."""
+        self._wand_took_over(cal)
         if cal.poses:
+            if not self.active:
+                self.message = None  # (a wand calibration, or one from a file)
             return None
         o = self.options
         tracking = self.tracking(now, connected)
