@@ -328,9 +328,7 @@ def test_a_wand_calibration_in_force_stops_the_person_path(take45, rows45) -> No
     wand = CalibrationFile(
         method="full",
         created=cal.calibration.created,  # type: ignore[union-attr]
-        sensors=tuple(
-            SensorCalibration(s, "", np.eye(4), Intrinsics(), 0.001, 100) for s in ids
-        ),
+        sensors=tuple(SensorCalibration(s, "", np.eye(4), Intrinsics(), 0.001, 100) for s in ids),
         world="the wand's",
         rms_m=0.001,
     )
