@@ -98,8 +98,9 @@ class PersonJob:
     """What one solve works on, taken on the event loop (nothing shared with the live state)."""
 
     calibration_id: int
-    #: per sensor: device stamps (N,), server receive times (N,), joints (N, 25, 3)
-    tracks: dict[str, tuple[Array, Array, Array]]
+    #: per sensor: device stamps, server receive times, joints (25, 3) per frame (lists, made
+    #: arrays in the worker thread; the frames' arrays are never changed once kept)
+    tracks: dict[str, tuple[list[float], list[float], list[Array]]]
     fixed: dict[str, Array]
     previous: CalibrationFile | None
     intrinsics: dict[str, Intrinsics]
@@ -192,7 +193,7 @@ class PersonCalibration:
         prev = cal.calibration
         keep = prev is not None and (prev.method != METHOD or self.grade == "good")
         tracks = {
-            s: (np.array(f.td), np.array(f.tr), np.stack(list(f.p)))
+            s: (list(f.td), list(f.tr), list(f.p))
             for s, f in self._frames.items()
             if len(f.td) >= 10 and s in intrinsics
         }
@@ -275,7 +276,10 @@ def solve_person(job: PersonJob) -> CalibrationOutcome:
     targets = tuple(sorted(s for s in job.tracks if s not in job.fixed))
     try:
         bc = calibrate_from_body(
-            {s: (capture_times(td, tr), p) for s, (td, tr, p) in job.tracks.items()},
+            {
+                s: (capture_times(np.array(td), np.array(tr)), np.stack(p))
+                for s, (td, tr, p) in job.tracks.items()
+            },
             fixed=job.fixed,
         )
     except KinefuseError as e:
