@@ -3,13 +3,17 @@
 Where no calibration object was recorded (the real KinectMultiTrack logs, ``docs/real_data.md``),
 the tracked body calibrates the sensors: the plane of the standing feet gives each sensor's up
 and height (:func:`fit_foot_plane`, :func:`world_from_floor`), and the trunk joints that two
-sensors see at the same instants give their relative pose (:func:`refine_registration`). Pure:
-arrays in, frozen dataclasses out.
+sensors see at the same instants give their relative pose (:func:`refine_registration`).
+:func:`calibrate_from_body` does both for any number of sensors and grades the result from its
+own evidence (the trunk residual, two halves of the frames, how far the person walked): the live
+server's calibration without a wand (:mod:`kinefuse.net.server.person`). Pure: arrays in, frozen
+dataclasses out.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,12 +46,17 @@ class FloorFit:
         RMS distance of the samples used to the plane, metres.
     n_samples : int
         Foot samples used (0: the fallback from the logged tilt and height was used).
+    spread_m : float
+        How far those samples spread over the plane: the standard deviation along its narrower
+        axis, metres (NaN for the fallback). Feet that only stood in one place leave the tilt
+        about the line between them undetermined.
     """
 
     up: Array
     height_m: float
     rms_m: float
     n_samples: int
+    spread_m: float = float("nan")
 
 
 def fit_foot_plane(
@@ -102,8 +111,14 @@ def fit_foot_plane(
             normal = -normal
         rms = float(np.sqrt(np.mean(((pts - centre) @ normal) ** 2)))
         if rms <= max_rms_m:
+            flat = pts - np.outer((pts - centre) @ normal, normal)
+            ev = np.linalg.eigvalsh(np.cov(flat.T))
             return FloorFit(
-                up=normal, height_m=float(-(centre @ normal)), rms_m=rms, n_samples=len(pts)
+                up=normal,
+                height_m=float(-(centre @ normal)),
+                rms_m=rms,
+                n_samples=len(pts),
+                spread_m=float(np.sqrt(max(ev[1], 0.0))),
             )
     tilt = math.radians(fallback_tilt_deg)
     up = np.array([0.0, -math.cos(tilt), math.sin(tilt)])
@@ -206,4 +221,265 @@ def refine_registration(
         trunk_median_before_m=float(np.median(before)),
         trunk_median_after_m=float(np.median(d)),
         n_pairs=int(w.sum()),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# every sensor from the body, graded (the live server's calibration without a wand)
+# --------------------------------------------------------------------------------------------
+
+#: Median trunk-joint distance between a sensor and the reference after the fit above which the
+#: calibration is doubtful / failed, metres. Two Kinects that see the same person disagree by
+#: 1-2 cm side by side and 4-6 cm at 90 degrees even when registered on the whole take
+#: (``docs/calibration.md``, "Calibration from the person"); a body that fits no rigid pose (a
+#: sensor that sees the back and swaps left and right, another person) is 15 cm and more off.
+BODY_RESIDUAL_DOUBTFUL_M = 0.065
+BODY_RESIDUAL_FAILED_M = 0.150
+#: How far the middle of the person's path moves between the poses fitted on two halves of the
+#: frames (alternate ``BODY_HALVES_BLOCK_S`` blocks) above which the calibration is doubtful /
+#: failed, metres.
+BODY_HALVES_DOUBTFUL_M = 0.030
+BODY_HALVES_FAILED_M = 0.100
+BODY_HALVES_BLOCK_S = 2.0
+#: The spread of the person's path across the floor (the standard deviation of the trunk's
+#: position along the path's narrower horizontal axis, frames both sensors see): below the first
+#: the trunk alone leaves the rotation between two sensors loose by several degrees and the
+#: calibration is failed (not used); below the second it is doubtful. A person standing still
+#: spreads a few millimetres, walking a 2 m square about 0.3 m.
+BODY_SPREAD_FAILED_M = 0.10
+BODY_SPREAD_GOOD_M = 0.25
+#: The spread of the reference's standing feet over the floor below which the floor's tilt is
+#: doubtful (:attr:`FloorFit.spread_m`): a person who only stood in one place gives two patches.
+BODY_FLOOR_SPREAD_M = 0.15
+
+
+@dataclass(frozen=True)
+class BodySensorFit:
+    """How one sensor was registered from the body (see :class:`BodyCalibration`).
+
+    Attributes
+    ----------
+    residual_m : float
+        Median trunk-joint distance to the reference after the fit, metres (0 for the reference).
+    n_frames : int
+        Frames paired with the reference (0 for the reference).
+    spread_m : float
+        Spread of the trunk across the floor over those frames, metres (NaN for the reference).
+    halves_m : float
+        How far the middle of the path moves between the fits on two halves, metres (NaN:
+        unchecked).
+    halves_deg : float
+        The rotation between those two fits, degrees.
+    """
+
+    residual_m: float
+    n_frames: int
+    spread_m: float
+    halves_m: float
+    halves_deg: float
+
+
+@dataclass(frozen=True)
+class BodyCalibration:
+    """Every sensor's pose from the tracked person (:func:`calibrate_from_body`).
+
+    Attributes
+    ----------
+    reference : str
+        The sensor the others are registered onto.
+    sensor2world : dict of str to (4, 4) float
+        The registered sensors' poses (the reference's too unless it was given as fixed).
+    fits : dict of str to BodySensorFit
+        Per registered sensor other than the reference.
+    floor : FloorFit or None
+        The reference's floor (None: the reference's pose was given).
+    grade : str
+        ``"good"``, ``"doubtful"`` or ``"failed"``.
+    reasons : tuple of str
+        One line per thing that makes it worse than good.
+    unregistered : dict of str to str
+        Sensors that could not be registered, and why.
+    """
+
+    reference: str
+    sensor2world: dict[str, Array]
+    fits: dict[str, BodySensorFit]
+    floor: FloorFit | None
+    grade: str
+    reasons: tuple[str, ...]
+    unregistered: dict[str, str]
+
+
+def _level(x: float, doubtful: float, failed: float) -> int:
+    """0 (good), 1 (doubtful: above ``doubtful``) or 2 (failed: above ``failed``)."""
+    return 2 if x > failed else 1 if x > doubtful else 0
+
+
+def _trunk_seen(p: Array) -> NDArray[np.bool_]:
+    return np.asarray(np.isfinite(p[:, _TRUNK]).all((-1, -2)))
+
+
+def _spread_m(p_ref: Array, up: Array) -> float:
+    """Standard deviation of the trunk centre along the narrower horizontal axis of its path."""
+    c = np.nanmean(p_ref[:, _TRUNK], axis=1)
+    c = c[np.isfinite(c).all(1)]
+    if len(c) < 3:
+        return 0.0
+    u = up / np.linalg.norm(up)
+    flat = c - np.outer(c @ u, u)
+    ev = np.linalg.eigvalsh(np.cov(flat.T))
+    return float(np.sqrt(max(ev[1], 0.0)))  # ev[0] ~ 0: the axis along ``up``
+
+
+def calibrate_from_body(
+    tracks: Mapping[str, tuple[ArrayLike, ArrayLike]],
+    *,
+    fixed: Mapping[str, ArrayLike] | None = None,
+    t0_s: float | None = None,
+    max_gap_s: float = 0.1,
+) -> BodyCalibration:
+    """Register sensors from the person they all track, and grade the result.
+
+    The reference is the first sensor (by id) that saw the trunk in at least half as many frames
+    as the one that saw it most (among the ``fixed`` ones when some are). Without fixed poses the
+    world comes from the reference's standing feet (:func:`fit_foot_plane`,
+    :func:`world_from_floor`: z up, origin on the foot plane below the reference). Every other
+    sensor is registered rigidly onto the reference from the trunk joints at the same instants
+    (:func:`refine_registration`), and again on two halves of the frames (alternate
+    ``BODY_HALVES_BLOCK_S`` blocks from ``t0_s``).
+
+    The grade (thresholds ``BODY_*`` above): failed when a sensor's trunk fits no rigid pose
+    (residual), its pose moves a lot between the halves, or the person has not moved across the
+    floor (the spread); doubtful for the milder cases, when a sensor could not be registered, or
+    when the reference saw no standing feet (the floor is then a guess: a level sensor 1 m up).
+
+    Parameters
+    ----------
+    tracks : mapping sensor id -> (t_s (N,), joints (N, 25, 3))
+        Each sensor's frames in its own frame, capture times on one clock (strictly increasing).
+    fixed : mapping sensor id -> (4, 4), optional
+        Sensors whose pose is known (and stays); the others are registered against them.
+    t0_s : float, optional
+        Start of the halves' blocks (default: the first frame).
+
+    Returns
+    -------
+    BodyCalibration
+
+    Raises
+    ------
+    InputError
+        No sensor saw the trunk, or (with ``fixed``) no fixed sensor did.
+    """
+    data = {
+        s: (np.asarray(t, dtype=np.float64), np.asarray(p, dtype=np.float64))
+        for s, (t, p) in tracks.items()
+    }
+    seen = {s: int(_trunk_seen(p).sum()) for s, (_, p) in data.items() if len(p)}
+    fx = {s: np.asarray(v, dtype=np.float64) for s, v in (fixed or {}).items()}
+    pool = [s for s in seen if s in fx] if fx else list(seen)
+    pool = [s for s in pool if seen[s] > 0]
+    if not pool:
+        raise InputError(
+            "no " + ("calibrated " if fx else "")
+            + "sensor saw the person's trunk; step into the sensors' view"
+        )  # fmt: skip
+    # the first by id of those that saw it in at least half as many frames as the most (so that
+    # the reference, hence the world, stays put as frames come in)
+    ref = min(s for s in pool if seen[s] >= 0.5 * max(seen[x] for x in pool))
+    t_ref, p_ref = data[ref]
+    floor: FloorFit | None = None
+    if ref in fx:
+        ref2world = fx[ref]
+        up: Array = np.asarray(ref2world[2, :3], dtype=np.float64)  # world z in the sensor frame
+    else:
+        floor = fit_foot_plane(t_ref, p_ref)
+        ref2world = world_from_floor(floor)
+        up = floor.up
+    poses = {} if ref in fx else {ref: ref2world}
+    starts = [float(t[0]) for t, _ in data.values() if len(t)]
+    t0 = min(starts) if t0_s is None else float(t0_s)
+    fits: dict[str, BodySensorFit] = {}
+    unregistered: dict[str, str] = {}
+    worst = 0
+    reasons: list[str] = []
+
+    def flag(level: int, text: str) -> None:
+        nonlocal worst
+        worst = max(worst, level)
+        reasons.append(f"{('good', 'doubtful', 'failed')[level]}: {text}")
+
+    for sid in sorted(data):
+        if sid == ref or sid in fx:
+            continue
+        t_o, p_o = data[sid]
+        try:
+            reg = refine_registration(t_ref, p_ref, t_o, p_o, max_gap_s=max_gap_s)
+        except InputError as e:
+            unregistered[sid] = str(e)
+            flag(1, f"sensor {sid} was not registered: {e}")
+            continue
+        po = interpolate(t_o, p_o, t_ref, max_gap_s=max_gap_s)
+        both = _trunk_seen(p_ref) & _trunk_seen(po)
+        spread = _spread_m(p_ref[both], up)
+        centre = np.append(np.nanmedian(p_ref[both][:, _TRUNK].reshape(-1, 3), axis=0), 1.0)
+        halves = []
+        for h in (0, 1):
+            kr = np.floor((t_ref - t0) / BODY_HALVES_BLOCK_S).astype(np.int64) % 2 == h
+            ko = np.floor((t_o - t0) / BODY_HALVES_BLOCK_S).astype(np.int64) % 2 == h
+            try:
+                halves.append(
+                    refine_registration(
+                        t_ref[kr], p_ref[kr], t_o[ko], p_o[ko], max_gap_s=max_gap_s
+                    ).other2ref
+                )
+            except InputError:
+                break
+        if len(halves) == 2:
+            moved = float(np.linalg.norm((halves[0] - halves[1]) @ centre))
+            turn = float(
+                np.linalg.norm(rotation_vector_deg(halves[0][:3, :3].T @ halves[1][:3, :3]))
+            )
+        else:
+            moved = turn = float("nan")
+        fits[sid] = BodySensorFit(reg.trunk_median_after_m, reg.n_pairs // len(_TRUNK), spread,
+                                  moved, turn)  # fmt: skip
+        poses[sid] = ref2world @ reg.other2ref
+        res = reg.trunk_median_after_m
+        lv = _level(res, BODY_RESIDUAL_DOUBTFUL_M, BODY_RESIDUAL_FAILED_M)
+        if lv:
+            limit = (BODY_RESIDUAL_DOUBTFUL_M, BODY_RESIDUAL_FAILED_M)[lv - 1]
+            why = ": does it see the person's back, or another person?" if lv == 2 else ""
+            flag(lv, f"sensor {sid}: its trunk is {1e3 * res:.0f} mm from {ref}'s after the "
+                 f"fit (over {1e3 * limit:.0f} mm){why}")  # fmt: skip
+        lv = _level(-spread, -BODY_SPREAD_GOOD_M, -BODY_SPREAD_FAILED_M)
+        if lv:
+            flag(lv, f"sensors {ref} and {sid} saw the person together over {1e2 * spread:.0f} "
+                 f"cm of floor (need {1e2 * BODY_SPREAD_GOOD_M:.0f} cm): walk through the "
+                 "volume")  # fmt: skip
+        lv = _level(moved, BODY_HALVES_DOUBTFUL_M, BODY_HALVES_FAILED_M)
+        if not np.isfinite(moved):
+            flag(1, f"sensor {sid}: its pose could not be checked on two halves of the frames")
+        elif lv:
+            limit = (BODY_HALVES_DOUBTFUL_M, BODY_HALVES_FAILED_M)[lv - 1]
+            flag(lv, f"sensor {sid}: the middle of the path moves {1e3 * moved:.0f} mm between "
+                 f"fits on two halves of the frames (over {1e3 * limit:.0f} mm)")  # fmt: skip
+    if not fits:
+        flag(2, f"no sensor was registered onto {ref} (need two sensors that see the person at "
+             "the same time)")  # fmt: skip
+    if floor is not None and floor.n_samples == 0:
+        flag(1, f"sensor {ref} saw no standing feet, so the floor is a guess (a level sensor 1 m "
+             "up): stand still for a few seconds in its view")  # fmt: skip
+    elif floor is not None and not floor.spread_m >= BODY_FLOOR_SPREAD_M:
+        flag(1, f"the feet stood on {1e2 * floor.spread_m:.0f} cm of floor in sensor {ref}'s "
+             f"view (need {1e2 * BODY_FLOOR_SPREAD_M:.0f} cm), so the floor's tilt is loose: "
+             "walk through the volume")  # fmt: skip
+    return BodyCalibration(
+        reference=ref,
+        sensor2world=poses,
+        fits=fits,
+        floor=floor,
+        grade=("good", "doubtful", "failed")[worst],
+        reasons=tuple(reasons),
+        unregistered=unregistered,
     )

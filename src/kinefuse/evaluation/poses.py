@@ -18,7 +18,8 @@ def resolve_poses(
     store: SessionStore, calibration: Path | None, true_calibration: bool
 ) -> tuple[dict[str, Array], str]:
     """Sensor poses for fusion: a calibration file, the truth (evaluation only), or the
-    calibration stored in the session by ``kinefuse calibrate`` (full preferred over paper)."""
+    calibration stored in the session (``kinefuse calibrate``'s full preferred over paper, then the
+    live server's calibration from the person, ``body``)."""
     from kinefuse.calibration.calib_file import loads_calibration, read_calibration
 
     if calibration is not None and true_calibration:
@@ -39,7 +40,7 @@ def resolve_poses(
         return poses, "true poses (simulator)"
     if calibration is not None:
         return read_calibration(calibration).sensor2world, str(calibration)
-    for name in ("full", "paper"):
+    for name in ("full", "paper", "body"):
         text = store.calibration(name)
         if text is not None:
             return loads_calibration(text, source=f"{store.path} [{name}]").sensor2world, (

@@ -85,7 +85,9 @@ def _calibration_rows(
     from kinefuse.calibration.evaluate import pose_errors
 
     # ``source`` is how kinefuse.evaluation.poses.resolve_poses named the poses it used
-    name = next((n for n in ("full", "paper") if source == f"session calibration ({n})"), None)
+    name = next(
+        (n for n in ("full", "paper", "body") if source == f"session calibration ({n})"), None
+    )
     text = store.calibration(name) if name else None
     if text is not None:
         cal = loads_calibration(text, source=f"{store.path} [{name}]")

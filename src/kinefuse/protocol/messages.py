@@ -1,4 +1,4 @@
-"""The wire messages: one frozen dataclass per message type (protocol version 1.1).
+"""The wire messages: one frozen dataclass per message type (protocol version 1.2).
 
 Each class names its wire ``TYPE`` (the ``type`` field of the msgpack map), the roles that may
 send it (``SENDERS``: ``"sensor"``, ``"control"``, ``"server"``) and, in its fields' metadata,
@@ -431,7 +431,9 @@ class Status(Message):
     ``calibration_state``: "none", "collecting" (also while the collected phase is solved: the
     server's ``CalibrationState.SOLVING``), "calibrated" or "failed";
     ``calibration_grade``: "good", "doubtful", "failed" or nil; ``fused_fps`` Hz;
-    ``frames_fused``: fused frames published so far; ``recording``: the store path or nil.
+    ``frames_fused``: fused frames published so far; ``recording``: the store path or nil;
+    ``calibration_message`` (since 1.2): what the operator has to know or do about the
+    calibration (e.g. "calibrating from the person: walk through the volume"), or nil.
     """
 
     TYPE: ClassVar[str] = "status"
@@ -446,6 +448,7 @@ class Status(Message):
     frames_fused: int = _f(_SEQ, 0)
     method: str = _f(Str(max_len=32), "")
     recording: str | None = _f(Optional(Str(max_len=4096)), None)
+    calibration_message: str | None = _f(Optional(_TEXT), None)
 
 
 @dataclass(frozen=True, eq=False)

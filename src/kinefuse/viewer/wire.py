@@ -142,6 +142,7 @@ def status_message(status: Status) -> dict[str, Any]:
         "t_server_s": _num(status.t_server_s),
         "calibration_state": status.calibration_state,
         "calibration_grade": status.calibration_grade,
+        "calibration_message": status.calibration_message,
         "fused_fps": _num(status.fused_fps),
         "method": status.method,
         # the file's name: where it lies on the server's disk is nobody's business on the wire

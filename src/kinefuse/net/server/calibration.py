@@ -173,6 +173,8 @@ class LiveCalibration:
         self._t_start = 0.0
         self._seconds: float | None = None
         self._state_before = CalibrationState.NONE
+        #: server time of the last wand sighting (collecting or not; -inf: none yet)
+        self.last_sighting_s = -np.inf
 
     # -- poses -----------------------------------------------------------------------------------
 
@@ -247,7 +249,10 @@ class LiveCalibration:
     ) -> bool:
         """Keep one sighting (True) if collecting (from every sensor: the calibrated ones' give
         the world track a target is registered against)."""
-        if not self.collecting or not np.isfinite(t_server_s):
+        if not np.isfinite(t_server_s):
+            return False
+        self.last_sighting_s = max(self.last_sighting_s, float(t_server_s))
+        if not self.collecting:
             return False
         tr = self._tracks.setdefault(sensor_id, _Track())
         tr.t.append(float(t_server_s))
@@ -321,6 +326,16 @@ class LiveCalibration:
             self.state = (
                 CalibrationState.FAILED if self.calibration is None else CalibrationState.CALIBRATED
             )
+
+    def adopt(self, outcome: CalibrationOutcome) -> None:
+        """Put a calibration from elsewhere in force (the person path,
+        :mod:`kinefuse.net.server.person`; on the event loop)."""
+        if not (outcome.ok and outcome.calibration is not None) or self.solving:
+            return
+        self.calibration = outcome.calibration
+        self.calibration_id = max(self.calibration_id, outcome.calibration_id)
+        self.state = CalibrationState.CALIBRATED
+        self.grade = outcome.grade.grade
 
     def solve(
         self, intrinsics: Mapping[str, Intrinsics], serials: Mapping[str, str]

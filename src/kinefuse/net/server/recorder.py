@@ -437,6 +437,7 @@ def _status_detail(s: Status) -> dict[str, Any]:
     return {
         "calibration_state": s.calibration_state,
         "calibration_grade": s.calibration_grade,
+        "calibration_message": s.calibration_message,
         "fused_fps": s.fused_fps,
         "sensors": [
             {

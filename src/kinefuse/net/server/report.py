@@ -50,6 +50,7 @@ def server_status(srv: Server) -> Status:
         fused_fps=srv.loop.fps(),
         method=srv.options.method,
         recording=str(srv.options.record) if srv.options.record else None,
+        calibration_message=srv.person.message,
     )
 
 

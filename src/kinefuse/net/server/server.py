@@ -69,6 +69,7 @@ from kinefuse.net.server.conn import Connection, ConnectionClosed, DuplicateSens
 from kinefuse.net.server.control import serve_control
 from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
 from kinefuse.net.server.guard import HandshakeSlots, RefusalLog, StampGate
+from kinefuse.net.server.person import PersonCalibration, person_step
 from kinefuse.net.server.recorder import Recorder
 from kinefuse.net.server.report import outcome_meta, result_message, run_stats, server_status
 from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_joints
@@ -182,6 +183,7 @@ class Server:
         self.clock = clock or (lambda: time.monotonic() - self.t0_monotonic)
         self.clients: dict[str, SensorState] = {}
         self.calibration = LiveCalibration(options.calibration)
+        self.person = PersonCalibration()  # calibration from the person when there is no wand
         self.publisher = Publisher()
         live = LiveOptions()
         self.fusion = FrameFusion(options.method, live)
@@ -650,6 +652,7 @@ class Server:
         joints, states = sanitize_joints(msg.joints_m, msg.states)
         t_cap = client.capture_to_server(msg.t_device_s)
         t_host = client.host_to_server(msg.t_host_s)
+        self.person.add_body(client.sensor_id, msg.t_device_s, t_host, joints)
         if self.recorder is not None:
             self.recorder.add_observation(
                 client.sensor_id,
@@ -764,6 +767,10 @@ class Server:
     async def _solve(self, job: SolveInput) -> None:
         out = await asyncio.to_thread(solve_calibration, job)
         self.calibration.apply(out)
+        self.announce_calibration(out)
+
+    def announce_calibration(self, out: CalibrationOutcome) -> None:
+        """Log, record and send a calibration's outcome; its poses to the fusion if it is used."""
         self.last_outcome = out
         log.info("calibration %d: %s", out.calibration_id, out.message)
         for r in out.grade.reasons:
@@ -810,6 +817,7 @@ class Server:
             why = self.calibration.should_stop(now)
             if why is not None:
                 self._finish_calibration(abort=False, why=why)
+            person_step(self, now)
             if self._status_dirty or now - self._last_status >= self.options.status_interval_s:
                 self._status_dirty = False
                 self._last_status = now

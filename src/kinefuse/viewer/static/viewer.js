@@ -188,6 +188,10 @@ function renderStatus() {
   }
   html += ` · method <b>${st.method}</b>` + (st.recording ? ` · ${st.recording}` : "");
   cal.innerHTML = html;
+  // what the operator has to do about the calibration (text from the server: not HTML)
+  const say = $("calibration-message");
+  say.textContent = st.calibration_message || "";
+  say.hidden = !st.calibration_message;
   $("fused-fps").textContent = fmt(st.fused_fps, 1);
   const body = $("sensors").tBodies[0];
   const esc = (t) => String(t).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
