@@ -45,6 +45,7 @@ _FROM_JOINT: Final = {
     "left_foot_index": "FootLeft", "right_foot_index": "FootRight",
 }  # fmt: skip
 _EAR_HALF_M: Final = 0.075
+_FACE_FORWARD_M: Final = 0.09
 
 
 @dataclass(frozen=True)
@@ -73,9 +74,10 @@ def true_landmarks(
     rng: np.random.Generator | None = None,
     noise: DetectorNoise | None = None,
 ) -> Landmarks2D:
-    """The 33 landmarks a detector would give for true joints ``(25, 3)`` (depth camera
-    frame), projected into that camera, with ``noise`` (None: exact). Visibility is 1 for all:
-    the lifting must find hidden joints by itself."""
+    """The 33 landmarks a detector would give for true joints ``(25, 3)`` (in the camera's
+    frame), projected into that camera, with ``noise`` (None: exact). The face is 9 cm in front
+    of the head's centre, the ears 7.5 cm to its sides. Visibility is 1 for all: the lifting
+    must find hidden joints by itself."""
     j = np.asarray(joints_sensor_m, dtype=np.float64)
     pts = np.full((N_LANDMARKS, 3), np.nan)
     for lm, joint in _FROM_JOINT.items():
@@ -83,8 +85,11 @@ def true_landmarks(
     head = j[JOINT_INDEX["Head"]]
     lat = j[JOINT_INDEX["ShoulderLeft"]] - j[JOINT_INDEX["ShoulderRight"]]
     lat = lat / max(float(np.linalg.norm(lat)), 1e-9)
-    for k in range(11):  # the face: the head's centre, the ears beside it
-        pts[k] = head
+    up = head - 0.5 * (j[JOINT_INDEX["HipLeft"]] + j[JOINT_INDEX["HipRight"]])
+    fwd = np.cross(lat, up)  # body frame: x forward, y left, z up
+    fwd = fwd / max(float(np.linalg.norm(fwd)), 1e-9)
+    for k in range(11):  # the face: in front of the head's centre, the ears beside it
+        pts[k] = head + _FACE_FORWARD_M * fwd
     pts[LM["left_ear"]] = head + _EAR_HALF_M * lat
     pts[LM["right_ear"]] = head - _EAR_HALF_M * lat
     uv = intrinsics.project(pts)

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.devices.pose.landmarks import LM, N_LIFTED
-from kinefuse.skeleton import CAPSULE_RADII_M, TrackingState
+from kinefuse.skeleton import CAPSULE_RADII_M, JOINT_INDEX, TrackingState, standing_pose
 
 __all__ = ["LiftParams", "LiftResult", "lift_landmarks"]
 
@@ -98,6 +98,44 @@ _OCCLUDERS: Final = tuple(
 )
 
 
+_BONE_OF: Final = {
+    "elbow": ("ShoulderLeft", "ElbowLeft"), "wrist": ("ElbowLeft", "WristLeft"),
+    "hand_centre": ("WristLeft", "HandLeft"), "index": ("WristLeft", "HandTipLeft"),
+    "pinky": ("WristLeft", "HandTipLeft"), "thumb": ("WristLeft", "ThumbLeft"),
+    "knee": ("HipLeft", "KneeLeft"), "ankle": ("KneeLeft", "AnkleLeft"),
+    "heel": ("AnkleLeft", "AnkleLeft"), "foot_index": ("AnkleLeft", "FootLeft"),
+}  # fmt: skip
+
+
+def _bones() -> tuple[float, ...]:
+    pose = standing_pose()
+    out = [0.0] * N_LIFTED
+    for side in ("left", "right"):
+        for part, (a, b) in _BONE_OF.items():
+            length = float(np.linalg.norm(pose[JOINT_INDEX[a]] - pose[JOINT_INDEX[b]]))
+            out[LM[f"{side}_{part}"]] = max(length, 0.07)  # the heel: 7 cm behind the ankle
+    return tuple(out)
+
+
+#: each limb landmark's distance to its parent on the 1.75 m reference body, metres
+BONE_TO_PARENT_M: Final[tuple[float, ...]] = _bones()
+#: shoulder and hip widths of the reference body, metres
+_WIDTH_M: Final = {
+    (LM["left_shoulder"], LM["right_shoulder"]): float(
+        np.linalg.norm(np.subtract(*standing_pose()[[JOINT_INDEX["ShoulderLeft"],
+                                                     JOINT_INDEX["ShoulderRight"]]]))
+    ),
+    (LM["left_hip"], LM["right_hip"]): float(
+        np.linalg.norm(np.subtract(*standing_pose()[[JOINT_INDEX["HipLeft"],
+                                                     JOINT_INDEX["HipRight"]]]))
+    ),
+}  # fmt: skip
+
+
+#: the trunk's radius as an occluder (the chest's, :data:`CAPSULE_RADII_M`), metres
+_TRUNK_R: Final = CAPSULE_RADII_M["SpineShoulder"]
+
+
 @dataclass(frozen=True)
 class LiftParams:
     """How landmarks are lifted (lengths in metres).
@@ -112,8 +150,13 @@ class LiftParams:
     min_layer_fraction : float
         A layer needs this share of the window's readings (flying pixels are not a layer).
     reach_m : float
-        The farthest a limb landmark's depth may be from its parent's (a forearm's length and
-        then some); farther layers are the background.
+        How far in front of the trunk a landmark may be (an arm stretched at the camera); the
+        depth search of the limbs' windows spans this around the trunk.
+    bone_scale_max : float
+        A limb landmark is at most its reference bone times this from its parent (1.2: a
+        person 2.1 m tall); with the 2D distance to the parent this bounds its depth.
+    depth_slack_m : float
+        Added to that depth bound (landmark and depth noise).
     hidden_margin_m : float
         A landmark whose surface is this much in front of its parent and inside another limb's
         silhouette, at that limb's depth, is hidden behind it.
@@ -125,6 +168,8 @@ class LiftParams:
     layer_gap_m: float = 0.06
     min_layer_fraction: float = 0.15
     reach_m: float = 0.7
+    bone_scale_max: float = 1.2
+    depth_slack_m: float = 0.08
     hidden_margin_m: float = 0.10
     min_visibility: float = 0.5
 
@@ -163,16 +208,18 @@ class _Registration:
         self.r_inv = self.r.T
         self.t_inv = -self.r.T @ self.t
 
-    def samples(self, u: float, v: float, radius_px: float) -> tuple[Array, Array]:
+    def samples(
+        self, u: float, v: float, radius_px: float, z_range: tuple[float, float]
+    ) -> tuple[Array, Array]:
         """Depths (in the image camera's z, metres) around pixel ``(u, v)`` and their pixel
-        distance to it, within ``radius_px``."""
+        distance to it, within ``radius_px``; searched for between depths ``z_range``."""
         kd, ki, h, w = self.kd, self.ki, *self.z.shape
         if self.same:
             u0, u1 = int(np.floor(u - radius_px)), int(np.ceil(u + radius_px))
             v0, v1 = int(np.floor(v - radius_px)), int(np.ceil(v + radius_px))
         else:  # the box around the landmark's epipolar segment in the depth image
             ray = np.array([(u - ki.cx) / ki.fx, (v - ki.cy) / ki.fy, 1.0])
-            ends = np.array([ray * kd.min_range_m, ray * kd.max_range_m])
+            ends = np.array([ray * z_range[0], ray * z_range[1]])
             pd = ends @ self.r_inv.T + self.t_inv
             ud = kd.fx * pd[:, 0] / pd[:, 2] + kd.cx
             vd = kd.fy * pd[:, 1] / pd[:, 2] + kd.cy
@@ -214,16 +261,25 @@ def _layers(z: Array, d: Array, params: LiftParams) -> list[tuple[float, int, in
     return out
 
 
-def _choose(layers: list[tuple[float, int, int]], ref: float | None, params: LiftParams) -> float:
-    """The body's layer: nearest for the trunk, within reach of the parent for a limb."""
+def _choose(
+    layers: list[tuple[float, int, int]], ref: float | None, dz_max: float
+) -> tuple[float, str]:
+    """The body's layer and why: ``ok``; ``hidden`` (only layers nearer than the landmark can
+    be: something in front of it); ``none`` (no reading, or only the background behind).
+
+    The trunk (``ref`` None): the nearest layer. A limb: among the layers within ``dz_max`` of
+    its parent's depth ``ref``, the one under the window's centre.
+    """
     if not layers:
-        return float("nan")
+        return float("nan"), "none"
     if ref is None or not np.isfinite(ref):
-        return min(lay[0] for lay in layers)
-    near = [lay for lay in layers if abs(lay[0] - ref) <= params.reach_m]
-    if not near:
-        return float("nan")
-    return max(near, key=lambda lay: (lay[2], lay[1], -abs(lay[0] - ref)))[0]
+        return min(lay[0] for lay in layers), "ok"
+    near = [lay for lay in layers if abs(lay[0] - ref) <= dz_max]
+    if near:
+        return max(near, key=lambda lay: (lay[2], lay[1], -abs(lay[0] - ref)))[0], "ok"
+    if min(lay[0] for lay in layers) < ref - dz_max:
+        return float("nan"), "hidden"
+    return float("nan"), "none"
 
 
 def _seg_dist(p: Array, a: Array, b: Array) -> tuple[float, float]:
@@ -278,36 +334,55 @@ def lift_landmarks(
         & (uv[:, 1] <= ki.height - 0.5)
     )
 
-    # the trunk's depth first, with a window sized for 2 m; then every window at the body's size
+    # the trunk's depth first, with a window sized for 2 m, searched over the camera's range;
+    # then every window at the body's size, searched within reach of the trunk
     def window(z_body: float) -> float:
-        return max(2.0, ki.fx * params.window_m / z_body)
+        return float(np.clip(ki.fx * params.window_m / z_body, 2.0, 0.02 * ki.width))
 
+    valid = depth_mm[depth_mm > 0]  # what the camera read, not its specified range
+    if valid.size == 0:
+        nan3 = np.full((N_LIFTED, 3), np.nan)
+        none = np.zeros(N_LIFTED, dtype=np.int8)
+        return LiftResult(points_m=nan3, states=none, hidden=np.zeros(N_LIFTED, dtype=bool))
+    full = (float(valid.min()) * 1e-3, float(valid.max()) * 1e-3 + 0.01)
     samples: dict[int, tuple[Array, Array]] = {}
     torso_z = []
     for i in _TORSO:
         if inside[i]:
-            samples[i] = reg.samples(uv[i, 0], uv[i, 1], window(2.0))
-            zt = _choose(_layers(*samples[i], params), None, params)
+            samples[i] = reg.samples(uv[i, 0], uv[i, 1], window(2.0), full)
+            zt, _ = _choose(_layers(*samples[i], params), None, 0.0)
             if np.isfinite(zt):
                 torso_z.append(zt)
     trunk = float(np.median(torso_z)) if torso_z else float("nan")
     radius = window(trunk if np.isfinite(trunk) else 2.0)
+    near = full
+    if np.isfinite(trunk):  # a hand stretched forward is a reach in front of the trunk
+        span = params.reach_m + 0.3
+        near = (max(full[0], trunk - span), min(full[1], trunk + span))
     for i in range(N_LIFTED):
         if inside[i]:
-            samples[i] = reg.samples(uv[i, 0], uv[i, 1], radius)
+            samples[i] = reg.samples(uv[i, 0], uv[i, 1], radius, near)
     layers = {i: _layers(*s, params) for i, s in samples.items()}
 
     z = np.full(N_LIFTED, np.nan)
     state = np.full(N_LIFTED, TrackingState.NOT_TRACKED, dtype=np.int8)
     hidden = np.zeros(N_LIFTED, dtype=bool)
+    first_limb = next(k for k, i in enumerate(ORDER) if PARENT[i] >= 0)
     for sweep in range(2):  # the second sweep knows where every limb is
-        for i in ORDER:
+        for k, i in enumerate(ORDER):
+            if k == first_limb:
+                _trunk_sides(uv, z, state, hidden, ki)
             if not inside[i]:
                 continue
             ref = trunk if PARENT[i] < 0 else z[PARENT[i]]
-            zi = _choose(layers[i], ref, params)
-            hidden[i] = False
-            if sweep == 1 and np.isfinite(zi) and np.isfinite(ref):
+            dz_max = params.reach_m
+            if PARENT[i] >= 0 and np.isfinite(ref):
+                gap = np.linalg.norm(uv[i] - uv[PARENT[i]]) * ref / ki.fx  # metres, 2D
+                bone = params.bone_scale_max * BONE_TO_PARENT_M[i]
+                dz_max = float(np.sqrt(max(bone * bone - gap * gap, 0.0))) + params.depth_slack_m
+            zi, why = _choose(layers[i], ref if PARENT[i] >= 0 else None, dz_max)
+            hidden[i] = why == "hidden"
+            if sweep == 1 and why == "ok" and np.isfinite(ref):
                 hz = _hidden_depth(i, zi, ref, uv, z, ki, params)
                 if hz is not None:
                     zi, hidden[i] = hz, True
@@ -333,17 +408,61 @@ def lift_landmarks(
 def _hidden_depth(
     i: int, zi: float, ref: float, uv: Array, z: Array, ki: Intrinsics, params: LiftParams
 ) -> float | None:
-    """Where landmark ``i`` is if another limb hides it (its window shows that limb), else None."""
-    if not zi < ref - params.hidden_margin_m:
+    """Where landmark ``i`` is if another limb or the trunk hides it (its window shows that
+    limb's or the trunk's near surface, well in front of its parent), else None."""
+    if PARENT[i] < 0 or not zi < ref - params.hidden_margin_m:
         return None
     near = {i, PARENT[i]} | {k for k in range(N_LIFTED) if PARENT[k] == i}
-    for a, b, r in _OCCLUDERS:
-        if a in near or b in near or not (np.isfinite(z[a]) and np.isfinite(z[b])):
+    segments = [
+        (uv[a], uv[b], z[a], z[b], r) for a, b, r in _OCCLUDERS if a not in near and b not in near
+    ]
+    sh = (LM["left_shoulder"], LM["right_shoulder"])
+    hp = (LM["left_hip"], LM["right_hip"])
+    # the trunk: hips' to shoulders' midpoint, at its nearer side's depth
+    segments.append((uv[list(hp)].mean(axis=0), uv[list(sh)].mean(axis=0),
+                     float(np.min(z[list(hp)])), float(np.min(z[list(sh)])), _TRUNK_R))  # fmt: skip
+    for ua, ub, za, zb, r in segments:
+        if not (np.isfinite(za) and np.isfinite(zb) and np.isfinite(ua).all()
+                and np.isfinite(ub).all()):  # fmt: skip
             continue
-        dist, s = _seg_dist(uv[i], uv[a], uv[b])
-        z_axis = (1.0 - s) * z[a] + s * z[b] + r  # the limb's axis behind its surface
+        dist, s = _seg_dist(uv[i], ua, ub)
+        z_axis = (1.0 - s) * za + s * zb + r  # the limb's axis behind its surface
         if dist > ki.fx * r / z_axis:
-            continue  # outside that limb's silhouette
+            continue  # outside its silhouette
         if abs(zi - (z_axis - r)) <= max(0.05, r):
             return max(ref, z_axis + r)
     return None
+
+
+_FACE: Final = tuple(i for i in range(11) if i not in (LM["left_ear"], LM["right_ear"]))
+
+
+def _trunk_sides(
+    uv: Array, z: Array, state: NDArray[np.int8], hidden: NDArray[np.bool_], ki: Intrinsics
+) -> None:
+    """A body seen from the side hides its far shoulder and hip behind the trunk: both
+    windows then show the near side's surface. When a left/right pair is much closer in depth
+    than its 2D gap and the body's width allow, the far one (the side the face turns away
+    from) is put behind the near one by what the width requires, and flagged hidden."""
+    face = uv[list(_FACE)].mean(axis=0)  # the face's nine points: the facing is their mean's
+    ears = 0.5 * (uv[LM["left_ear"]] + uv[LM["right_ear"]])
+    hips = 0.5 * (uv[LM["left_hip"]] + uv[LM["right_hip"]])
+    shoulders = 0.5 * (uv[LM["left_shoulder"]] + uv[LM["right_shoulder"]])
+    up, fwd = shoulders - hips, face - ears
+    if not (np.isfinite(up).all() and np.isfinite(fwd).all()):
+        return  # no face to say which side is away
+    left_far = float(up[0] * fwd[1] - up[1] * fwd[0]) > 0.0  # image y points down
+    for (a, b), width in _WIDTH_M.items():
+        if not (np.isfinite(z[a]) and np.isfinite(z[b])):
+            continue
+        zm = 0.5 * (z[a] + z[b])
+        if float(np.linalg.norm(fwd)) * zm / ki.fx < 0.04:
+            return  # the face looks at (or away from) the camera: no side is hidden
+        gap = float(np.linalg.norm(uv[a] - uv[b])) * zm / ki.fx
+        need = float(np.sqrt(max(width * width - gap * gap, 0.0)))
+        if need < 0.6 * width or abs(z[a] - z[b]) > need - 0.1:
+            continue  # turned less than about 40 degrees, or already apart in depth
+        far, near = (a, b) if left_far else (b, a)
+        z[far] = z[near] + need
+        state[far] = TrackingState.INFERRED
+        hidden[far] = True

@@ -2,10 +2,9 @@
 
 Shoulders, elbows, wrists, hips, knees and ankles are the model's own landmarks; the head and
 hands are the virtual centres (:mod:`.landmarks`); the foot is the foot-index landmark. What the
-model lacks is derived and flagged inferred: the spine's three points and the neck from the
-shoulders, hips and head (fractions of the reference body
-:func:`kinefuse.skeleton.standing_pose`), the hand tip beyond the hand along the wrist-hand
-line, the thumb from the thumb landmark.
+model lacks is derived and flagged inferred: the spine's points and the neck on the line from
+the hips to the shoulders, where a real Kinect v2 puts them; the hand tip beyond the hand along
+the wrist-hand line; the thumb from the thumb landmark.
 """
 
 from __future__ import annotations
@@ -41,15 +40,15 @@ DERIVED: Final[tuple[str, ...]] = (
     "HandTipRight", "ThumbRight",
 )  # fmt: skip
 
-# fractions of the reference standing body (kinefuse.skeleton.standing_pose): SpineBase 5 cm and
-# SpineShoulder 50 cm above the hips' midpoint, whose shoulders' midpoint is 47 cm above it;
-# SpineMid 25 of 42 cm from SpineBase to the shoulders; the neck 7 of 20 cm from SpineShoulder
-# to the head; the hand tip 7 cm beyond an 8 cm wrist-hand span
-_BASE_UP: Final = 0.05 / 0.47
-_TOP_UP: Final = 0.03 / 0.47
-_MID_UP: Final = 0.25 / 0.42
-_NECK_UP: Final = 0.07 / 0.20
-_TIP_OUT: Final = 0.07 / 0.08
+# Where a Kinect v2 puts the joints the model lacks, measured on real Kinect v2 output
+# (../shared/data/kinect/kinect2_tracking/walker.json, the 65 frames with every trunk and arm
+# joint tracked; medians): along the line from the hips' midpoint (0) to the shoulders'
+# midpoint (1), SpineBase at 0.00, SpineMid at 0.655, SpineShoulder at 1.138, Neck at 1.295; the
+# hand tip 0.986 wrist-hand spans beyond the hand
+_SPINE_MID: Final = 0.655
+_SPINE_SHOULDER: Final = 1.138
+_NECK: Final = 1.295
+_TIP_OUT: Final = 0.986
 
 
 def to_kinect(lifted: LiftResult) -> tuple[Array, NDArray[np.int8]]:
@@ -79,12 +78,15 @@ def to_kinect(lifted: LiftResult) -> tuple[Array, NDArray[np.int8]]:
     inferred = int(TrackingState.INFERRED)
     hips = 0.5 * (j("HipLeft") + j("HipRight"))
     shoulders = 0.5 * (j("ShoulderLeft") + j("ShoulderRight"))
-    up = shoulders - hips if np.isfinite(hips).all() else np.zeros(3)  # no hips: no offset
-    put("SpineShoulder", shoulders + _TOP_UP * up, inferred)
+    up = shoulders - hips
     hip_state = min(int(states[JOINT_INDEX["HipLeft"]]), int(states[JOINT_INDEX["HipRight"]]))
-    put("SpineBase", hips + _BASE_UP * (shoulders - hips), hip_state)
-    put("SpineMid", j("SpineBase") + _MID_UP * (shoulders - j("SpineBase")), inferred)
-    put("Neck", j("SpineShoulder") + _NECK_UP * (j("Head") - j("SpineShoulder")), inferred)
+    put("SpineBase", hips, hip_state)
+    put("SpineMid", hips + _SPINE_MID * up, inferred)
+    put("SpineShoulder", hips + _SPINE_SHOULDER * up, inferred)
+    put("Neck", hips + _NECK * up, inferred)
+    if not np.isfinite(hips).all():  # no hips in view: the neck between shoulders and head
+        put("SpineShoulder", shoulders, inferred)
+        put("Neck", shoulders + 0.35 * (j("Head") - shoulders), inferred)
     for side in ("Left", "Right"):
         hand, wrist = j(f"Hand{side}"), j(f"Wrist{side}")
         put(f"HandTip{side}", hand + _TIP_OUT * (hand - wrist), inferred)
