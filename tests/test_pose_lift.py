@@ -112,8 +112,13 @@ def test_gates_refuse_tiny_twisted_and_underground_bodies() -> None:
         ia, ib = JOINT_INDEX[a], JOINT_INDEX[b]
         twisted[[ia, ib]] = twisted[[ib, ia]]
     assert "left and right disagree" in str(check_body(twisted, states).refused)
-    sunk = check_body(pose - np.array([0.0, 0.0, 0.6]), states, floor_z_up).refused
-    assert sunk is not None and "under the floor" in sunk
+    sunk = check_body(pose - np.array([0.0, 0.0, 1.3]), states, floor_z_up).refused
+    assert sunk is not None and sunk.startswith("hips") and "under the floor" in sunk
+    through = pose.copy()
+    through[JOINT_INDEX["FootLeft"], 2] = -0.4  # one landmark lifted through the floor
+    gate = check_body(through, states, floor_z_up)
+    assert gate.refused is None and gate.states[JOINT_INDEX["FootLeft"]] == 0
+    assert gate.states[JOINT_INDEX["FootRight"]] == TrackingState.TRACKED
     floating = check_body(pose + np.array([0.0, 0.0, 1.5]), states, floor_z_up).refused
     assert floating is not None and "above the floor" in floating
 

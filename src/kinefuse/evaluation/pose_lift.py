@@ -129,6 +129,16 @@ class LiftScore:
     hidden: NDArray[np.bool_]
     refused: tuple[str, ...]
 
+    @classmethod
+    def concat(cls, scores: list[LiftScore]) -> LiftScore:
+        """Several sensors' (or takes') scores as one."""
+        return cls(
+            np.concatenate([s.error_m for s in scores]),
+            np.concatenate([s.states for s in scores]),
+            np.concatenate([s.hidden for s in scores]),
+            tuple(r for s in scores for r in s.refused),
+        )
+
     def table(self) -> list[dict[str, object]]:
         """Per joint: median and 95th percentile of the error where visible and where hidden,
         and how often a hidden joint was not tracked as tracked."""

@@ -9,8 +9,9 @@ apart. Checked on the 25 joints, in this order, each refusal one short reason:
    ``min_scale``..``max_scale`` (a person 0.9 to 2.3 m tall) the detection is refused;
 2. **consistent left/right**: the shoulders' left-to-right direction and the hips' agree (a body
    whose hips face the other way is two half-detections), and the two sides' bones agree;
-3. **on or over the floor** (where a floor is known): no joint under it, and a body with its
-   legs in view has its lowest joint near it (standing, walking, jumping; not floating);
+3. **on or over the floor** (where a floor is known): the hips not under it, and a body with
+   its legs in view has its lowest joint near it (standing, walking, jumping; not floating); a
+   joint lifted through the floor (a foot's landmark on the floor behind it) is dropped;
 4. **limbs no longer than their bones**: shoulder to wrist and hip to ankle no longer than the
    body's scaled bones allow; a limb that is (a landmark on the wall behind) loses its end
    joints, the body is kept.
@@ -27,7 +28,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.skeleton import JOINT_INDEX, TrackingState, standing_pose
+from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState, standing_pose
 
 __all__ = ["GateParams", "GateResult", "check_body"]
 
@@ -178,10 +179,13 @@ def check_body(
     j = {n: joints[i] for n, i in JOINT_INDEX.items()}
     lat_s = j["ShoulderLeft"] - j["ShoulderRight"]
     lat_h = j["HipLeft"] - j["HipRight"]
+    # across the image (x, y of the camera): the depth of a far side is the least sure part,
+    # and a body turned to the side has short, meaningless left-to-right directions
+    lat_s, lat_h = lat_s[:2], lat_h[:2]
     ns, nh = float(np.linalg.norm(lat_s)), float(np.linalg.norm(lat_h))
-    wide = ns > 0.5 * scale * NOMINAL_BONES_M["shoulder width"] and (
-        nh > 0.5 * scale * NOMINAL_BONES_M["hip width"]
-    )  # seen from the side both are short and their directions mean little
+    wide = ns > 0.6 * scale * NOMINAL_BONES_M["shoulder width"] and (
+        nh > 0.6 * scale * NOMINAL_BONES_M["hip width"]
+    )
     if wide and float(lat_s @ lat_h) < params.twist_cos_min * ns * nh:
         return GateResult(joints, st, "left and right disagree: the shoulders face one way "
                           "and the hips the other", scale)  # fmt: skip
@@ -189,16 +193,20 @@ def check_body(
     if floor is not None:
         f = np.asarray(floor, dtype=np.float64)
         heights = joints @ f[:3] + f[3]
+        trunk = [JOINT_INDEX[n] for n in ("SpineBase", "HipLeft", "HipRight")]
+        low_trunk = np.nanmin(heights[trunk]) if np.isfinite(heights[trunk]).any() else np.nan
+        if low_trunk < -params.below_floor_m:
+            return GateResult(joints, st, f"hips {100 * -low_trunk:.0f} cm under the floor: "
+                              "not a person in the room", scale)  # fmt: skip
+        sunk = np.isfinite(heights) & (heights < -params.below_floor_m)
+        _drop(joints, st, tuple(JOINTS[k] for k in np.flatnonzero(sunk)))  # through the floor
+        heights[sunk] = np.nan
         ok = np.isfinite(heights)
-        if ok.any():
+        legs = [JOINT_INDEX[n] for n in ("AnkleLeft", "AnkleRight", "FootLeft", "FootRight")]
+        if ok[legs].any() and float(np.min(heights[ok])) > params.above_floor_m:
             low = float(np.min(heights[ok]))
-            if low < -params.below_floor_m:
-                return GateResult(joints, st, f"{100 * -low:.0f} cm under the floor: not a "
-                                  "person in the room", scale)  # fmt: skip
-            legs = [JOINT_INDEX[n] for n in ("AnkleLeft", "AnkleRight", "FootLeft", "FootRight")]
-            if ok[legs].any() and low > params.above_floor_m:
-                return GateResult(joints, st, f"feet {low:.2f} m above the floor: not a person "
-                                  "standing or moving over it", scale)  # fmt: skip
+            return GateResult(joints, st, f"feet {low:.2f} m above the floor: not a person "
+                              "standing or moving over it", scale)  # fmt: skip
 
     for kind in ("upper arm", "forearm", "thigh", "shank"):
         left, right = measured.get(f"left {kind}"), measured.get(f"right {kind}")
