@@ -20,6 +20,7 @@ limb's radius (:data:`kinefuse.skeleton.CAPSULE_RADII_M`, the project's nominal 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Final
 
 import numpy as np
@@ -132,6 +133,8 @@ _WIDTH_M: Final = {
 }  # fmt: skip
 
 
+#: the nearest any depth camera reads, metres (no search starts nearer)
+_NEAREST_M: Final = 0.1
 #: the trunk's radius as an occluder (the chest's, :data:`CAPSULE_RADII_M`), metres
 _TRUNK_R: Final = CAPSULE_RADII_M["SpineShoulder"]
 
@@ -197,9 +200,9 @@ class LiftResult:
 class _Registration:
     """Depth pixels seen from the landmarks' image: ``image = R @ depth + t``."""
 
-    def __init__(self, depth_m: NDArray[np.float32], kd: Intrinsics, ki: Intrinsics,
+    def __init__(self, depth_mm: NDArray[np.uint16], kd: Intrinsics, ki: Intrinsics,
                  image_from_depth: Array | None) -> None:  # fmt: skip
-        self.z, self.kd, self.ki = depth_m, kd, ki
+        self.z, self.kd, self.ki = depth_mm, kd, ki
         t = np.eye(4) if image_from_depth is None else np.asarray(image_from_depth, float)
         self.r, self.t = t[:3, :3], t[:3, 3]
         self.same = image_from_depth is None or (
@@ -230,8 +233,8 @@ class _Registration:
         if u1 < u0 or v1 < v0:
             return np.zeros(0), np.zeros(0)
         crop = self.z[v0 : v1 + 1, u0 : u1 + 1]
-        vv, uu = np.nonzero(np.isfinite(crop))
-        z = crop[vv, uu].astype(np.float64)
+        vv, uu = np.nonzero(crop)
+        z = crop[vv, uu] * 1e-3
         uu, vv = uu + u0, vv + v0
         if self.same:
             d = np.hypot(uu - u, vv - v)
@@ -254,10 +257,13 @@ def _layers(z: Array, d: Array, params: LiftParams) -> list[tuple[float, int, in
     cuts = np.flatnonzero(np.diff(zs) > params.layer_gap_m) + 1
     inner = float(np.max(ds)) / 2.0 if ds.size else 0.0
     need = max(2, int(np.ceil(params.min_layer_fraction * zs.size)))
+    is_inner = ds <= inner
     out = []
-    for part_z, part_d in zip(np.split(zs, cuts), np.split(ds, cuts), strict=True):
-        if part_z.size >= need:
-            out.append((float(np.median(part_z)), int(part_z.size), int((part_d <= inner).sum())))
+    bounds = [0, *cuts.tolist(), zs.size]
+    for a, b in pairwise(bounds):
+        if b - a >= need:  # sorted: the median is the middle
+            mid = 0.5 * (zs[a + (b - a - 1) // 2] + zs[a + (b - a) // 2])
+            out.append((float(mid), b - a, int(np.count_nonzero(is_inner[a:b]))))
     return out
 
 
@@ -322,9 +328,7 @@ def lift_landmarks(
     """
     uv = np.asarray(uv_px, dtype=np.float64).reshape(N_LIFTED, 2)
     vis = np.asarray(visibility, dtype=np.float64).reshape(N_LIFTED)
-    depth_m = depth_mm.astype(np.float32) * np.float32(0.001)
-    depth_m[depth_mm == 0] = np.nan
-    reg = _Registration(depth_m, depth_intrinsics, image_intrinsics, image_from_depth)
+    reg = _Registration(depth_mm, depth_intrinsics, image_intrinsics, image_from_depth)
     ki = image_intrinsics
     inside = (
         np.isfinite(uv).all(axis=1)
@@ -339,12 +343,14 @@ def lift_landmarks(
     def window(z_body: float) -> float:
         return float(np.clip(ki.fx * params.window_m / z_body, 2.0, 0.02 * ki.width))
 
-    valid = depth_mm[depth_mm > 0]  # what the camera read, not its specified range
-    if valid.size == 0:
+    # the depths the camera read (not its specified range), from every 4th pixel: cheap
+    coarse = depth_mm[::4, ::4]
+    coarse = coarse[coarse > 0]
+    if coarse.size == 0:
         nan3 = np.full((N_LIFTED, 3), np.nan)
         none = np.zeros(N_LIFTED, dtype=np.int8)
         return LiftResult(points_m=nan3, states=none, hidden=np.zeros(N_LIFTED, dtype=bool))
-    full = (float(valid.min()) * 1e-3, float(valid.max()) * 1e-3 + 0.01)
+    full = (max(_NEAREST_M, 0.9e-3 * float(coarse.min())), 1.1e-3 * float(coarse.max()))
     samples: dict[int, tuple[Array, Array]] = {}
     torso_z = []
     for i in _TORSO:
