@@ -133,3 +133,29 @@ def test_a_limb_longer_than_its_bones_loses_its_end_not_the_body() -> None:
         assert gate.states[JOINT_INDEX[name]] == TrackingState.NOT_TRACKED
         assert np.isnan(gate.joints_m[JOINT_INDEX[name]]).all()
     assert gate.states[JOINT_INDEX["WristRight"]] == TrackingState.TRACKED
+
+
+def test_a_session_tracked_by_the_pose_tracker_fuses_and_evaluates(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    """The whole chain on a simulated session: every sensor's body observations made by the
+    pose tracker on its rendered body depth, fused by `best`, scored against the truth."""
+    from kinefuse.evaluation.pose_lift import pose_observations
+    from kinefuse.io.store.session import SessionStore
+    from kinefuse.sim.lab import simulate_session
+    from kinefuse.workflows.evaluate import run_evaluate
+
+    rig = default_rig(2)
+    motion = place_actor(load_motion(shared_data / "motion" / "cmu" / "131_01_scaled_metres.bvh"),
+                         rig, 1.0)  # fmt: skip
+    path = tmp_path / "pose.sqlite"
+    cfg = LabConfig(seed=0, calibration_s=0.0, motion_s=1.0)
+    simulate_session(motion, rig, path, cfg, observe=pose_observations(DetectorNoise(), 0))
+    with SessionStore.open(path, writable=True) as store:
+        store.mark_complete()
+        assert len(store.sensors()) == 2
+    report = run_evaluate(session=path, methods=("best",), out_dir=None, calibration=None,
+                          true_calibration=True)  # fmt: skip
+    best = report["best"]
+    assert isinstance(best, dict)
+    assert best["coverage"] > 0.9 and best["mae_m"] < 0.08

@@ -14,6 +14,8 @@ not); its error enters as the detector noise, from the model's published accurac
 
 from __future__ import annotations
 
+import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -24,10 +26,19 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.devices.pose.landmarks import LM, N_LANDMARKS, Landmarks2D
 from kinefuse.devices.pose.tracker import body_from_landmarks
 from kinefuse.errors import InputError
+from kinefuse.sim.clock import CaptureTimes
 from kinefuse.sim.lab import SensorSimulation
+from kinefuse.sim.tracker import TrackerOutput
 from kinefuse.skeleton import CAPSULE_RADII_M, JOINT_INDEX, JOINTS, N_JOINTS, TrackingState
 
-__all__ = ["DetectorNoise", "LiftScore", "floor_in_sensor", "score_lifting", "true_landmarks"]
+__all__ = [
+    "DetectorNoise",
+    "LiftScore",
+    "floor_in_sensor",
+    "pose_observations",
+    "score_lifting",
+    "true_landmarks",
+]
 
 Array = NDArray[np.float64]
 
@@ -221,3 +232,53 @@ def score_lifting(
     if not errs:
         raise InputError("no body depth frames to score: the motion phase is empty")
     return LiftScore(np.array(errs), np.array(states), np.array(hidden), tuple(refused))
+
+
+def pose_observations(
+    noise: DetectorNoise | None = None, seed: int = 0, depth_noise: bool = True
+) -> Callable[[SensorSimulation], tuple[CaptureTimes, TrackerOutput, Array]]:
+    """An ``observe`` for :func:`kinefuse.sim.lab.simulate_session`: each sensor's body
+    observations made by the pose tracker's stages after its 2D model, on the sensor's rendered
+    body depth at its frame rate, from landmarks projected from the true joints (with
+    ``noise``). A frame the gates refuse is a dropout (no joints)."""
+
+    def observe(sim: SensorSimulation) -> tuple[CaptureTimes, TrackerOutput, Array]:
+        rng = np.random.default_rng([seed, zlib.crc32(sim.spec.id.encode())])
+        floor = floor_in_sensor(sim.spec.sensor2world)
+        frames, joints, states, visible, refused, truth = [], [], [], [], [], []
+        for f in sim.body_depth_frames(noise=depth_noise):
+            lm = true_landmarks(f.joints_sensor_m, sim.intrinsics, rng, noise)
+            gate = body_from_landmarks(lm, f.depth_mm, sim.intrinsics, sim.intrinsics,
+                                       floor=floor).gate  # fmt: skip
+            frames.append(f)
+            truth.append(f.joints_world_m)
+            seen = sim.intrinsics.in_view(f.joints_sensor_m)
+            visible.append(seen & ~_hidden(f.depth_mm, f.joints_sensor_m, sim.intrinsics))
+            refused.append(gate.refused is not None)
+            if gate.refused is not None:
+                joints.append(np.full((N_JOINTS, 3), np.nan))
+                states.append(np.zeros(N_JOINTS, dtype=np.int8))
+            else:
+                joints.append(gate.joints_m)
+                states.append(gate.states)
+        if not frames:
+            raise InputError(f"{sim.spec.id}: no body depth frames in the motion phase")
+        cap = CaptureTimes(
+            seq=np.array([f.seq for f in frames], dtype=np.int64),
+            t_true_s=np.array([f.t_true_s for f in frames]),
+            t_sensor_s=np.array([f.t_device_s for f in frames]),
+            t_receive_server_s=np.array([f.t_receive_server_s for f in frames]),
+            t_receive_host_s=np.array([f.t_host_s for f in frames]),
+        )
+        n = len(frames)
+        out = TrackerOutput(
+            joints_sensor=np.array(joints),
+            states=np.array(states, dtype=np.int8),
+            visible=np.array(visible),
+            swapped=np.zeros(n, dtype=bool),
+            dropout=np.array(refused),
+            facing_angle_rad=np.full(n, np.nan),
+        )
+        return cap, out, np.array(truth)
+
+    return observe

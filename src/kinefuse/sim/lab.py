@@ -177,6 +177,8 @@ class BodyDepthFrame:
     seq : int
     t_device_s, t_host_s : float
         Device timestamp and arrival on the client PC's clock, seconds.
+    t_true_s, t_receive_server_s : float
+        True (server) time of the capture, and when a body found in it would reach the server.
     depth_mm : (H, W) uint16
         The sensor's depth image (0: no reading).
     joints_world_m, joints_sensor_m : (25, 3) float
@@ -186,6 +188,8 @@ class BodyDepthFrame:
     seq: int
     t_device_s: float
     t_host_s: float
+    t_true_s: float
+    t_receive_server_s: float
     depth_mm: NDArray[np.uint16]
     joints_world_m: Array
     joints_sensor_m: Array
@@ -289,7 +293,8 @@ class SensorSimulation:
             depth = render_depth(scene, self.spec.sensor2world, self.intrinsics, rng, errs.depth,
                                  noise=noise)  # fmt: skip
             yield BodyDepthFrame(int(cap.seq[k]), float(cap.t_sensor_s[k]),
-                                 float(cap.t_receive_host_s[k]), depth, truth,
+                                 float(cap.t_receive_host_s[k]), float(cap.t_true_s[k]),
+                                 float(cap.t_receive_server_s[k]), depth, truth,
                                  apply_transform(world2sensor, truth))  # fmt: skip
 
     def body(self) -> tuple[CaptureTimes, TrackerOutput, Array]:
@@ -309,6 +314,10 @@ class SensorSimulation:
         return cap, out, truth_world
 
 
+#: makes one sensor's body observations (:func:`simulate_session`'s ``observe``)
+Observe = Callable[["SensorSimulation"], tuple[CaptureTimes, TrackerOutput, Array]]
+
+
 def simulate_session(
     motion: Motion,
     rig: Rig,
@@ -317,8 +326,14 @@ def simulate_session(
     *,
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
+    observe: Observe | None = None,
 ) -> Path:
     """Simulate a capture session of ``motion`` (already placed in the lab) seen by ``rig``.
+
+    ``observe(sensor)`` makes each sensor's body observations of the motion phase: capture
+    times, what the tracker reported, the true joints (world) at those times. Default: the
+    simulated Kinect tracker (:meth:`SensorSimulation.body`); another tracker working on the
+    sensor's body depth (:meth:`SensorSimulation.body_depth_frames`) is scored this way.
 
     Writes one SQLite session store at ``out`` and returns its path. The store is built in a
     temporary file beside ``out`` and renamed into place only when it is whole
@@ -351,7 +366,8 @@ def simulate_session(
         out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
     ) as tmp:
         tmp.unlink()  # the store creates its own file
-        _simulate_into(SessionStore.create(tmp), motion, rig, config, t_cal, motion_s, say)
+        _simulate_into(SessionStore.create(tmp), motion, rig, config, t_cal, motion_s, say,
+                       observe or SensorSimulation.body)  # fmt: skip
     return Path(out)
 
 
@@ -363,6 +379,7 @@ def _simulate_into(
     t_cal: float,
     motion_s: float,
     say: Callable[[str], None],
+    observe: Observe,
 ) -> None:
     """Fill a new session store with the simulation (:func:`simulate_session`); closes it."""
     t_end = t_cal + motion_s
@@ -408,7 +425,7 @@ def _simulate_into(
                         np.stack([d[3] for d in depth]),
                     )
             say(f"{spec.id}: simulating the body tracker")
-            cap, out_, truth_world = sim.body()
+            cap, out_, truth_world = observe(sim)
             store.append_observations(
                 spec.id,
                 cap.seq,
