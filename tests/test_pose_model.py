@@ -112,3 +112,19 @@ def test_the_model_runs_with_the_network_off(tmp_path: Path) -> None:
     assert out["found"] and len(out["shoulders"]) == 2
     calls = [ln for ln in trace.read_text().splitlines() if re.search(r"AF_INET6?\b", ln)]
     assert calls == [], calls[:5]
+
+
+def test_ir_serves_where_there_is_no_colour_and_no_depth_is_refused(  # type: ignore[no-untyped-def]
+    tracker, shared_data: Path
+) -> None:
+    pytest.importorskip("av", reason="PyAV reads the Azure Kinect MKV")
+    from dataclasses import replace
+
+    depth = shared_data / "depth"
+    cal = k4a_calibration(depth / "pyk4a_calibration.json")
+    cap = k4a_first_capture(depth / "pyk4a_recording.mkv")
+    ir_only = tracker.track(replace(cap, color=None), replace(cal, color=None))
+    assert "model" in ir_only.timings_s  # the 2D model ran, on the IR image
+    assert ir_only.bodies == ()  # no person in the mug scene's IR either
+    no_depth = tracker.track(replace(cap, depth_mm=None), cal)
+    assert no_depth.bodies == () and "no depth" in no_depth.refused[0]
