@@ -7,10 +7,13 @@ background, and a limb in front of a joint hides it. So each landmark gathers th
 of a small window around it (depth pixels projected into the landmark's image through the
 device's ``color_from_depth`` and both intrinsics, searched only along the landmark's epipolar
 line), splits them into depth layers, and takes the *body's* layer: the nearest one for the
-trunk, for a limb one within reach of its parent joint (never the wall behind), preferring the
-layer under the window's centre. A landmark whose window shows only another limb in front of
-its parent (its pixel inside that limb's silhouette, its depth that limb's surface) is hidden:
-it is flagged (inferred) and placed behind the limb at its parent's depth, not on the limb.
+trunk; for a limb, among the layers its bone allows (a landmark is within its bone of its
+parent, so its 2D distance to the parent bounds its depth), the one under the window's centre.
+
+Hidden landmarks are flagged (inferred), never placed on what hides them: a landmark whose
+window shows only something well in front of its parent, inside another limb's or the trunk's
+silhouette, goes behind it at its parent's depth; a body turned to the side hides its far
+shoulder and hip behind the trunk (:func:`_trunk_sides`).
 
 The surface seen is the skin; the joint is inside. Each point is pushed along its ray by the
 limb's radius (:data:`kinefuse.skeleton.CAPSULE_RADII_M`, the project's nominal radii of a
@@ -120,19 +123,18 @@ def _bones() -> tuple[float, ...]:
 
 #: each limb landmark's distance to its parent on the 1.75 m reference body, metres
 BONE_TO_PARENT_M: Final[tuple[float, ...]] = _bones()
+
+
+def _width(left: str, right: str) -> float:
+    pose = standing_pose()
+    return float(np.linalg.norm(pose[JOINT_INDEX[left]] - pose[JOINT_INDEX[right]]))
+
+
 #: shoulder and hip widths of the reference body, metres
 _WIDTH_M: Final = {
-    (LM["left_shoulder"], LM["right_shoulder"]): float(
-        np.linalg.norm(np.subtract(*standing_pose()[[JOINT_INDEX["ShoulderLeft"],
-                                                     JOINT_INDEX["ShoulderRight"]]]))
-    ),
-    (LM["left_hip"], LM["right_hip"]): float(
-        np.linalg.norm(np.subtract(*standing_pose()[[JOINT_INDEX["HipLeft"],
-                                                     JOINT_INDEX["HipRight"]]]))
-    ),
-}  # fmt: skip
-
-
+    (LM["left_shoulder"], LM["right_shoulder"]): _width("ShoulderLeft", "ShoulderRight"),
+    (LM["left_hip"], LM["right_hip"]): _width("HipLeft", "HipRight"),
+}
 #: the nearest any depth camera reads, metres (no search starts nearer)
 _NEAREST_M: Final = 0.1
 #: the trunk's radius as an occluder (the chest's, :data:`CAPSULE_RADII_M`), metres
