@@ -128,3 +128,20 @@ def test_ir_serves_where_there_is_no_colour_and_no_depth_is_refused(  # type: ig
     assert ir_only.bodies == ()  # no person in the mug scene's IR either
     no_depth = tracker.track(replace(cap, depth_mm=None), cal)
     assert no_depth.bodies == () and "no depth" in no_depth.refused[0]
+
+
+def test_options_are_checked_and_the_detector_can_run_every_k_frames() -> None:
+    from kinefuse.errors import InputError
+
+    with pytest.raises(InputError, match="unknown pose tracker option"):
+        load_tracker("pose", {"colour": "yes"})
+    with pytest.raises(InputError, match="detect_every"):
+        load_tracker("pose", {"detect_every": "-1"})
+    with pytest.raises(InputError, match="input_width is whole pixels"):
+        load_tracker("pose", {"input_width": "wide"})
+    t = load_tracker("pose", {"detect_every": "2"})
+    try:
+        found = [t.model.detect(skimage_data.astronaut()) is not None for _ in range(5)]
+    finally:
+        t.close()
+    assert all(found)  # tracked, re-detected every other frame, tracked again

@@ -25,6 +25,8 @@ __all__ = ["OPTIONS", "PoseTracker", "make"]
 OPTIONS = {
     "input_width": "px the colour image is scaled down to for the 2D model (default 640)",
     "mode": "video (the detector only when the person is lost; default) or image (every frame)",
+    "detect_every": "in video mode, also run the detector every this many frames (default 0: "
+    "only when the person is lost)",
     "floor": "nx,ny,nz,d: the floor plane in the depth camera's frame (n up, metres)",
     "min_visibility": "the model's visibility under which a joint is inferred (default 0.5)",
 }
@@ -42,6 +44,7 @@ def make(options: Mapping[str, str]) -> PoseTracker:
         )
     try:
         width = int(options.get("input_width", "640"))
+        detect_every = int(options.get("detect_every", "0"))
         min_vis = float(options.get("min_visibility", "0.5"))
         floor = None
         if "floor" in options:
@@ -51,7 +54,8 @@ def make(options: Mapping[str, str]) -> PoseTracker:
             floor[:3] /= np.linalg.norm(floor[:3])
     except ValueError:
         raise InputError(
-            "pose tracker options: input_width is whole pixels (e.g. 640), min_visibility a "
+            "pose tracker options: input_width is whole pixels (e.g. 640), detect_every whole "
+            "frames (e.g. 10), min_visibility a "
             "number in [0, 1], floor four numbers nx,ny,nz,d (e.g. 0,-1,0,1.2)"
         ) from None
     mode = options.get("mode", "video")
@@ -59,5 +63,7 @@ def make(options: Mapping[str, str]) -> PoseTracker:
         raise InputError(f"pose tracker option mode must be video or image, got {mode!r}")
     if width < 64:
         raise InputError(f"pose tracker option input_width must be at least 64 px, got {width}")
-    model = BlazePoseModel(input_width=width, video=mode == "video")
+    if detect_every < 0:
+        raise InputError(f"pose tracker option detect_every must be 0 or more, got {detect_every}")
+    model = BlazePoseModel(input_width=width, video=mode == "video", detect_every=detect_every)
     return PoseTracker(model, lift=LiftParams(min_visibility=min_vis), floor=floor)

@@ -38,6 +38,10 @@ class BlazePoseModel:
     video : bool
         True: track the region of interest from frame to frame (the detector only when lost);
         False: the detector on every frame.
+    detect_every : int
+        In video mode, also run the detector every this many frames (the graph is reset, so the
+        next frame starts from a detection: a track that drifted onto something else is
+        dropped); 0: only when the person is lost.
     min_detection, min_tracking : float
         MediaPipe's confidences for a detection and for keeping a track.
     """
@@ -47,6 +51,7 @@ class BlazePoseModel:
         *,
         input_width: int = 640,
         video: bool = True,
+        detect_every: int = 0,
         min_detection: float = 0.5,
         min_tracking: float = 0.5,
     ) -> None:
@@ -58,7 +63,11 @@ class BlazePoseModel:
             ) from None
         if input_width < 64:
             raise ValueError(f"input_width must be at least 64 px, got {input_width}")
+        if detect_every < 0:
+            raise ValueError(f"detect_every must be 0 or more frames, got {detect_every}")
         self.input_width = int(input_width)
+        self.detect_every = int(detect_every) if video else 0
+        self._frames = 0
         self._pose: Any = mp_pose.Pose(
             static_image_mode=not video,
             model_complexity=1,  # the full model: the one inside the wheel
@@ -76,6 +85,9 @@ class BlazePoseModel:
 
             size = (self.input_width, max(1, round(h * self.input_width / w)))
             image = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+        if self.detect_every and self._frames and self._frames % self.detect_every == 0:
+            self._pose.reset()  # the next frame starts from the detector
+        self._frames += 1
         result = self._pose.process(np.ascontiguousarray(image))
         if result.pose_landmarks is None:
             return None
