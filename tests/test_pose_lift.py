@@ -62,8 +62,8 @@ def test_a_landmark_hidden_behind_a_limb_is_flagged_not_placed_on_the_limb() -> 
     j = {n: pose[JOINT_INDEX[n]].copy() for n in JOINTS}
     # the right arm reaches across the chest, its forearm 30 cm in front of the left elbow
     left_elbow = j["ElbowLeft"]
-    j["ElbowRight"] = np.array([0.30, -0.05, left_elbow[2] + 0.05])
-    j["WristRight"] = np.array([0.32, left_elbow[1] + 0.12, left_elbow[2]])
+    j["ElbowRight"] = np.array([0.22, -0.05, left_elbow[2] + 0.07])
+    j["WristRight"] = np.array([0.30, left_elbow[1] + 0.02, left_elbow[2] + 0.01])
     j["HandRight"] = j["WristRight"] + [0.0, 0.08, 0.0]
     j["HandTipRight"] = j["WristRight"] + [0.0, 0.15, 0.0]
     j["ThumbRight"] = j["WristRight"] + [0.03, 0.08, 0.02]

@@ -223,11 +223,12 @@ def check_body(
     for name, chain in _LIMBS:
         side, kind = name.split()
         upper, lower = ("upper arm", "forearm") if kind == "arm" else ("thigh", "shank")
-        bones_m = NOMINAL_BONES_M[f"{side} {upper}"] + NOMINAL_BONES_M[f"{side} {lower}"]
-        allowed = (1.0 + params.limb_slack) * scale * bones_m
+        slack = (1.0 + params.limb_slack) * scale
+        up_m = slack * NOMINAL_BONES_M[f"{side} {upper}"]
+        low_m = slack * NOMINAL_BONES_M[f"{side} {lower}"]
         root, mid, end = (joints[JOINT_INDEX[n]] for n in chain)
-        if np.linalg.norm(mid - root) > allowed:
+        if np.linalg.norm(mid - root) > up_m:
             _drop(joints, st, (chain[1],))
-        elif np.linalg.norm(end - root) > allowed or np.linalg.norm(end - mid) > allowed:
+        elif np.linalg.norm(end - mid) > low_m or np.linalg.norm(end - root) > up_m + low_m:
             _drop(joints, st, (chain[2],))
     return GateResult(joints, st, None, scale)
