@@ -159,3 +159,21 @@ def test_a_session_tracked_by_the_pose_tracker_fuses_and_evaluates(
     best = report["best"]
     assert isinstance(best, dict)
     assert best["coverage"] > 0.9 and best["mae_m"] < 0.08
+
+
+def test_without_mediapipe_the_tracker_says_what_to_install() -> None:
+    """A Python in which MediaPipe cannot be imported (as without the extra): one line naming
+    the extra, from the factory, no traceback."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['mediapipe'] = None\n"
+        "from kinefuse.devices.trackers import TrackerUnavailable, load_tracker\n"
+        "try:\n    load_tracker('pose')\nexcept TrackerUnavailable as e:\n    print(e)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    line = run.stdout.strip()
+    assert "\n" not in line and "pip install 'kinefuse[tracker]'" in line, line
