@@ -156,7 +156,7 @@ class LiftParams:
         A layer needs this share of the window's readings (flying pixels are not a layer).
     reach_m : float
         How far in front of the trunk a landmark may be (an arm stretched at the camera); the
-        depth search of the limbs' windows spans this around the trunk.
+        depth search of the limbs' windows spans this and 30 cm more around the trunk.
     bone_scale_max : float
         A limb landmark is at most its reference bone times this from its parent (1.2: a
         person 2.1 m tall); with the 2D distance to the parent this bounds its depth.
