@@ -145,3 +145,21 @@ def test_options_are_checked_and_the_detector_can_run_every_k_frames() -> None:
     finally:
         t.close()
     assert all(found)  # tracked, re-detected every other frame, tracked again
+
+
+def test_images_that_do_not_fit_the_calibration_are_one_line_errors(  # type: ignore[no-untyped-def]
+    tracker, shared_data: Path
+) -> None:
+    from dataclasses import replace
+
+    from kinefuse.errors import InputError
+
+    depth = shared_data / "depth"
+    cal = k4a_calibration(depth / "pyk4a_calibration.json")
+    cap = k4a_first_capture(depth / "pyk4a_recording.mkv")
+    with pytest.raises(InputError, match=r"depth image is uint16 \(288, 320\)"):
+        tracker.track(replace(cap, depth_mm=cap.depth_mm[::2, ::2]), cal)  # a binned mode
+    with pytest.raises(InputError, match="colour image is 640x360"):
+        tracker.track(replace(cap, color=cap.color[::2, ::2]), cal)
+    with pytest.raises(InputError, match="uint8 RGB"):
+        tracker.track(replace(cap, color=cap.color[:, :, 0]), cal)

@@ -110,7 +110,22 @@ class PoseTracker:
         self._had_body = False
 
     def _view(self, capture: Capture, calibration: CameraCalibration) -> _View | None:
+        d, kd = np.asarray(capture.depth_mm), calibration.depth
+        if d.ndim != 2 or d.dtype != np.uint16 or d.shape != (kd.height, kd.width):
+            raise InputError(
+                f"the depth image is {d.dtype} {d.shape} but the calibration's depth camera is "
+                f"uint16 ({kd.height}, {kd.width}); pass this depth mode's calibration"
+            )
         if capture.color is not None and calibration.color is not None:
+            if (
+                capture.color.ndim != 3
+                or capture.color.shape[2] != 3
+                or (capture.color.dtype != np.uint8)
+            ):
+                raise InputError(
+                    f"the colour image must be (h, w, 3) uint8 RGB, got {capture.color.dtype} "
+                    f"{capture.color.shape}"
+                )
             h, w = capture.color.shape[:2]
             c = calibration.color
             if (w, h) != (c.width, c.height):
