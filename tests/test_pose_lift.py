@@ -177,3 +177,27 @@ def test_without_mediapipe_the_tracker_says_what_to_install() -> None:
     assert run.returncode == 0, run.stderr
     line = run.stdout.strip()
     assert "\n" not in line and "pip install 'kinefuse[tracker]'" in line, line
+
+
+def test_a_body_turned_sideways_has_its_far_shoulder_behind_the_trunk() -> None:
+    """Seen from the side, the far shoulder's window shows the near side; it is put behind by
+    the body's width and flagged, whether the face or (no face) the model's visibility says
+    which side is away."""
+    pose = standing_pose()
+    turned = pose.copy()
+    turned[:, 0], turned[:, 1] = -pose[:, 1], pose[:, 0]  # facing +y: its left side is away
+    s2w, intr = _camera()
+    depth = render_depth(Scene.from_pose(turned), s2w, intr, np.random.default_rng(0), noise=False)
+    truth = apply_transform(invert_transform(s2w), turned)
+    far, near = JOINT_INDEX["ShoulderLeft"], JOINT_INDEX["ShoulderRight"]
+    assert truth[far, 2] > truth[near, 2] + 0.3
+    with_face = true_landmarks(truth, intr)
+    no_face = true_landmarks(truth, intr)
+    no_face.uv_px[:11] = np.nan
+    no_face.visibility[[LM["left_shoulder"], LM["left_hip"]]] = 0.2  # the model sees less of it
+    for lm in (with_face, no_face):
+        stages = body_from_landmarks(lm, depth, intr, intr)
+        assert stages.lifted.hidden[LM["left_shoulder"]]
+        assert stages.gate.states[far] == TrackingState.INFERRED
+        assert abs(stages.gate.joints_m[far, 2] - truth[far, 2]) < 0.08
+        assert stages.gate.states[near] == TrackingState.TRACKED

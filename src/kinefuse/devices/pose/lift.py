@@ -379,7 +379,7 @@ def lift_landmarks(
     for sweep in range(2):  # the second sweep knows where every limb is
         for k, i in enumerate(ORDER):
             if k == first_limb:
-                _trunk_sides(uv, z, state, hidden, ki)
+                _trunk_sides(uv, vis, z, state, hidden, ki)
             if not inside[i]:
                 continue
             ref = trunk if PARENT[i] < 0 else z[PARENT[i]]
@@ -446,31 +446,41 @@ _FACE: Final = tuple(i for i in range(11) if i not in (LM["left_ear"], LM["right
 
 
 def _trunk_sides(
-    uv: Array, z: Array, state: NDArray[np.int8], hidden: NDArray[np.bool_], ki: Intrinsics
+    uv: Array,
+    vis: Array,
+    z: Array,
+    state: NDArray[np.int8],
+    hidden: NDArray[np.bool_],
+    ki: Intrinsics,
 ) -> None:
     """A body seen from the side hides its far shoulder and hip behind the trunk: both
     windows then show the near side's surface. When a left/right pair is much closer in depth
-    than its 2D gap and the body's width allow, the far one (the side the face turns away
-    from) is put behind the near one by what the width requires, and flagged hidden."""
+    than its 2D gap and the body's width allow, the far one is put behind the near one by what
+    the width requires, and flagged hidden. Which one is far: the side the face turns away
+    from, or (no face turned enough) the side the model sees less of (visibility lower by 0.3
+    or more); when the two disagree, neither is moved."""
     face = uv[list(_FACE)].mean(axis=0)  # the face's nine points: the facing is their mean's
     ears = 0.5 * (uv[LM["left_ear"]] + uv[LM["right_ear"]])
     hips = 0.5 * (uv[LM["left_hip"]] + uv[LM["right_hip"]])
     shoulders = 0.5 * (uv[LM["left_shoulder"]] + uv[LM["right_shoulder"]])
     up, fwd = shoulders - hips, face - ears
-    if not (np.isfinite(up).all() and np.isfinite(fwd).all()):
-        return  # no face to say which side is away
-    left_far = float(up[0] * fwd[1] - up[1] * fwd[0]) > 0.0  # image y points down
+    facing = np.isfinite(up).all() and np.isfinite(fwd).all()
     for (a, b), width in _WIDTH_M.items():
         if not (np.isfinite(z[a]) and np.isfinite(z[b])):
             continue
         zm = 0.5 * (z[a] + z[b])
-        if float(np.linalg.norm(fwd)) * zm / ki.fx < 0.04:
-            return  # the face looks at (or away from) the camera: no side is hidden
         gap = float(np.linalg.norm(uv[a] - uv[b])) * zm / ki.fx
         need = float(np.sqrt(max(width * width - gap * gap, 0.0)))
         if need < 0.6 * width or abs(z[a] - z[b]) > need - 0.1:
             continue  # turned less than about 40 degrees, or already apart in depth
-        far, near = (a, b) if left_far else (b, a)
+        cues = []
+        if facing and float(np.linalg.norm(fwd)) * zm / ki.fx >= 0.04:
+            cues.append(float(up[0] * fwd[1] - up[1] * fwd[0]) > 0.0)  # image y points down
+        if abs(vis[a] - vis[b]) >= 0.3:
+            cues.append(bool(vis[a] < vis[b]))  # the left one (a) is seen less
+        if not cues or len(set(cues)) > 1:
+            continue  # nothing says which side is away, or the cues disagree
+        far, near = (a, b) if cues[0] else (b, a)
         z[far] = z[near] + need
         state[far] = TrackingState.INFERRED
         hidden[far] = True
