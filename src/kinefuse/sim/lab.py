@@ -168,6 +168,33 @@ def _seeds(seed: int, n_sensors: int, config: LabConfig) -> _Seeds:
     return _Seeds(subject, wand, tuple(seq_sensors))
 
 
+@dataclass(frozen=True, eq=False)
+class BodyDepthFrame:
+    """One depth frame of the motion phase with the truth it shows.
+
+    Attributes
+    ----------
+    seq : int
+    t_device_s, t_host_s : float
+        Device timestamp and arrival on the client PC's clock, seconds.
+    t_true_s, t_receive_server_s : float
+        True (server) time of the capture, and when a body found in it would reach the server.
+    depth_mm : (H, W) uint16
+        The sensor's depth image (0: no reading).
+    joints_world_m, joints_sensor_m : (25, 3) float
+        The true joints in the world frame and in the depth camera's frame, metres.
+    """
+
+    seq: int
+    t_device_s: float
+    t_host_s: float
+    t_true_s: float
+    t_receive_server_s: float
+    depth_mm: NDArray[np.uint16]
+    joints_world_m: Array
+    joints_sensor_m: Array
+
+
 class SensorSimulation:
     """One simulated sensor of a session, frame by frame: what :func:`simulate_session` writes
     for it, and what a live simulated sensor
@@ -203,6 +230,8 @@ class SensorSimulation:
         rng_clock, rng_intr, self._rng_track, self._rng_depth, rng_probe = (
             np.random.default_rng(s) for s in seeds.sensors[index].spawn(5)
         )
+        # a sixth stream, spawned after the others so that they are what they always were
+        self._seed_body_depth = seeds.sensors[index].spawn(1)[0]
         # the device clock stamps frames; the client PC's clock answers the probes
         self.clocks = draw_sensor_clocks(rng_clock, errs.clock)
         self.intrinsics = draw_intrinsics(rng_intr, errs.intrinsics)
@@ -237,6 +266,37 @@ class SensorSimulation:
             yield (int(cap.seq[k]), float(cap.t_sensor_s[k]), float(cap.t_receive_host_s[k]),
                    frame)  # fmt: skip
 
+    def body_depth_frames(self, *, every: int = 1, noise: bool = True) -> Iterator[BodyDepthFrame]:
+        """The motion phase as a depth camera sees it: the actor's capsule body rendered in the
+        room, frame by frame, with the true joints (what a body tracker working on depth is
+        scored against). Its own random stream: the session's other outputs do not change.
+
+        Parameters
+        ----------
+        every : int
+            Render every ``every``-th capture (1: all, at the sensor's frame rate).
+        noise : bool
+            The depth error model (:func:`kinefuse.sim.depth.render_depth`); False: exact.
+        """
+        if every < 1:
+            raise InputError(f"every must be a whole number >= 1, got {every}")
+        errs = self.config.errors
+        rng = np.random.default_rng(self._seed_body_depth)
+        cap = capture_times(self.clocks.device, self.t_cal_s, self.t_end_s, rng, errs.clock,
+                            host=self.clocks.host,
+                            latency_offset_s=self.clocks.latency_offset_s)  # fmt: skip
+        world2sensor = invert_transform(self.spec.sensor2world)
+        for k in range(0, cap.seq.size, every):
+            truth = self.motion.at(np.array([cap.t_true_s[k] - self.t_cal_s]))[0]
+            scene = Scene.from_pose(truth, self.height_m, room_min_xy_m=self.rig.room_min_xy_m,
+                                    room_max_xy_m=self.rig.room_max_xy_m)  # fmt: skip
+            depth = render_depth(scene, self.spec.sensor2world, self.intrinsics, rng, errs.depth,
+                                 noise=noise)  # fmt: skip
+            yield BodyDepthFrame(int(cap.seq[k]), float(cap.t_sensor_s[k]),
+                                 float(cap.t_receive_host_s[k]), float(cap.t_true_s[k]),
+                                 float(cap.t_receive_server_s[k]), depth, truth,
+                                 apply_transform(world2sensor, truth))  # fmt: skip
+
     def body(self) -> tuple[CaptureTimes, TrackerOutput, Array]:
         """The motion phase: capture times, the body tracker's output, and the true joints at
         the capture instants ``(N, 25, 3)`` world. The tracker's error processes are smooth
@@ -254,6 +314,10 @@ class SensorSimulation:
         return cap, out, truth_world
 
 
+#: makes one sensor's body observations (:func:`simulate_session`'s ``observe``)
+Observe = Callable[["SensorSimulation"], tuple[CaptureTimes, TrackerOutput, Array]]
+
+
 def simulate_session(
     motion: Motion,
     rig: Rig,
@@ -262,8 +326,14 @@ def simulate_session(
     *,
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
+    observe: Observe | None = None,
 ) -> Path:
     """Simulate a capture session of ``motion`` (already placed in the lab) seen by ``rig``.
+
+    ``observe(sensor)`` makes each sensor's body observations of the motion phase: capture
+    times, what the tracker reported, the true joints (world) at those times. Default: the
+    simulated Kinect tracker (:meth:`SensorSimulation.body`); another tracker working on the
+    sensor's body depth (:meth:`SensorSimulation.body_depth_frames`) is scored this way.
 
     Writes one SQLite session store at ``out`` and returns its path. The store is built in a
     temporary file beside ``out`` and renamed into place only when it is whole
@@ -296,7 +366,8 @@ def simulate_session(
         out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
     ) as tmp:
         tmp.unlink()  # the store creates its own file
-        _simulate_into(SessionStore.create(tmp), motion, rig, config, t_cal, motion_s, say)
+        _simulate_into(SessionStore.create(tmp), motion, rig, config, t_cal, motion_s, say,
+                       observe or SensorSimulation.body)  # fmt: skip
     return Path(out)
 
 
@@ -308,6 +379,7 @@ def _simulate_into(
     t_cal: float,
     motion_s: float,
     say: Callable[[str], None],
+    observe: Observe,
 ) -> None:
     """Fill a new session store with the simulation (:func:`simulate_session`); closes it."""
     t_end = t_cal + motion_s
@@ -353,7 +425,7 @@ def _simulate_into(
                         np.stack([d[3] for d in depth]),
                     )
             say(f"{spec.id}: simulating the body tracker")
-            cap, out_, truth_world = sim.body()
+            cap, out_, truth_world = observe(sim)
             store.append_observations(
                 spec.id,
                 cap.seq,
