@@ -1,7 +1,7 @@
 """A simulated session tracked by the pose tracker, fused and evaluated, beside the simulated
 Kinect tracker's.
 
-Run: ``python benchmarks/pose_session.py [--smoke] [--seconds S] [--seed K]`` (``--smoke``: 1 s
+Run: ``python studies/pose_session.py [--smoke] [--seconds S] [--seed K]`` (``--smoke``: 1 s
 of motion, two sensors, to check that it runs; too short to quote). The same clip (a real CMU
 walk, ``../shared/data/motion/cmu/131_01_scaled_metres.bvh``), rig (the default 4 sensors) and
 seed, simulated three times: with the simulated Kinect v2 tracker (``kinefuse simulate``'s), and

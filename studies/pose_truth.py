@@ -1,6 +1,6 @@
 """The pose tracker's lifting and mapping against the truth, per joint, on rendered body depth.
 
-Run: ``python benchmarks/pose_truth.py [--smoke] [--every N] [--sensors N]`` (``--smoke``: one
+Run: ``python studies/pose_truth.py [--smoke] [--every N] [--sensors N]`` (``--smoke``: one
 sensor, a few frames, to check that it runs; too few to quote). A real CMU walk
 (``../shared/data/motion/cmu/131_01_scaled_metres.bvh``) in the simulated lab's default rig;
 each sensor renders the actor's capsule body with the Kinect v2 depth error model
