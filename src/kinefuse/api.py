@@ -19,22 +19,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse import _API
 from kinefuse.errors import InputError
 from kinefuse.io.formats.markers import MarkerData
 from kinefuse.skeleton import JOINTS
 
-__all__ = [
-    "Analysis",
-    "Angles",
-    "MarkerData",
-    "Session",
-    "Skeleton",
-    "analyze",
-    "fuse",
-    "load_clip",
-    "load_markers",
-    "open_session",
-]
+__all__ = [*_API]  # the names the package re-exports, listed once there
 
 Array = NDArray[np.float64]
 
