@@ -22,7 +22,7 @@ import math
 import sys
 import time
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib.metadata import entry_points
 from typing import Protocol, runtime_checkable
 from urllib.parse import parse_qsl
@@ -305,14 +305,29 @@ class CameraFrameSource:
         #: resamples the device's depth to the pinhole camera kinefuse works with (None: the
         #: device gives undistorted images)
         self._pinhole = DepthUndistorter(cal) if any(cal.distortion_depth) else None
+        self._tracker_calibration = replace(cal, distortion_depth=())
 
     def depth_of(self, capture: Capture) -> NDArray[np.uint16] | None:
-        """A capture's depth image in the pinhole camera :meth:`intrinsics` describes (the
-        tracker gets the device's own images and calibration)."""
+        """A capture's depth image in the pinhole camera :meth:`intrinsics` describes."""
         d = capture.depth_mm
         if d is None or self._pinhole is None:
             return d
         return self._pinhole(d)
+
+    def for_tracker(self, capture: Capture) -> tuple[Capture, CameraCalibration]:
+        """What the tracker gets (the :class:`~kinefuse.devices.trackers.Tracker` contract):
+        the depth and IR images in the pinhole camera, with the calibration that says so (no
+        depth distortion); the device's own images and calibration for a tracker that sets
+        ``device_images`` (Microsoft's, which undistorts itself from the device's JSON)."""
+        cal = self.camera.calibration
+        if self._pinhole is None or getattr(self.tracker, "device_images", False):
+            return capture, cal
+        ir = capture.ir
+        pinhole_ir = None if ir is None else self._pinhole(ir)
+        return (
+            replace(capture, depth_mm=self.depth_of(capture), ir=pinhole_ir),
+            self._tracker_calibration,
+        )
 
     @property
     def sensor_ids(self) -> tuple[str, ...]:
@@ -327,17 +342,18 @@ class CameraFrameSource:
         if self.threaded and self.tracker is not None:
             yield from self._threaded()
             return
-        cal = self.camera.calibration
         for cap in self.camera.captures():
             self.captures += 1
             yield from self._depth_frame(cap)
             if self.tracker is None:
                 continue
-            yield self._body_frame(cap, self.tracker.track(cap, cal))
+            yield self._body_frame(cap, self.tracker.track(*self.for_tracker(cap)))
 
-    def _depth_frame(self, cap: Capture) -> Iterator[DepthFrame]:
+    def _depth_frame(self, cap: Capture, pinhole: Capture | None = None) -> Iterator[DepthFrame]:
+        """The depth frame of ``cap`` (``pinhole``: the tracker's copy, its depth already
+        resampled)."""
         if self.depth and cap.depth_mm is not None:
-            depth = self.depth_of(cap)
+            depth = pinhole.depth_mm if pinhole is not None else self.depth_of(cap)
             assert depth is not None
             yield DepthFrame(self._id, cap.seq, cap.t_device_s, cap.t_host_s, depth)
 
@@ -351,8 +367,9 @@ class CameraFrameSource:
         """Depth frames at the camera's rate; body frames as the worker finishes them, stamped
         with their capture's times (a recording is paced on its device clock at ``speed``)."""
         assert self.tracker is not None
-        worker = TrackerWorker(self.tracker, self.camera.calibration,
-                               max_pending=self.max_pending)  # fmt: skip
+        raw = self._pinhole is None or getattr(self.tracker, "device_images", False)
+        cal = self.camera.calibration if raw else self._tracker_calibration
+        worker = TrackerWorker(self.tracker, cal, max_pending=self.max_pending)
         self.worker = worker.start()
         t0: tuple[float, float] | None = None
         try:
@@ -364,8 +381,9 @@ class CameraFrameSource:
                     if due > now:
                         time.sleep(due - now)
                 self.captures += 1
-                yield from self._depth_frame(cap)
-                worker.submit(cap)
+                tcap = self.for_tracker(cap)[0]
+                yield from self._depth_frame(cap, None if raw else tcap)
+                worker.submit(tcap)
                 while (done := worker.get(0)) is not None:
                     yield self._body_frame(*done)
             worker.drain()
