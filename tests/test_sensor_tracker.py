@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import re
 import signal
 import subprocess
@@ -38,17 +37,11 @@ sys.path.insert(0, str(ROOT / "tests"))
 from kinefuse_test_trackers import SLOW_S  # noqa: E402
 
 from test_client_floor_error import control_status  # noqa: E402
+from test_devices_mkv import _env  # noqa: E402  (this checkout and the test trackers)
 
 PASSES = 120  # captures: the recording's one capture played 120 times
 SPEED = 6.0  # recorded at 5 Hz: 30 captures a second
 LINE = re.compile(r"tracker ([0-9.]+) Hz, (\d+) tracked, (\d+) dropped \(behind\)")
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    paths = [str(ROOT / "src"), str(ROOT / "tests" / "plugins"), env.get("PYTHONPATH", "")]
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    return env
 
 
 def test_the_recording_plays_on_with_repeat(shared_data: Path) -> None:
