@@ -6,7 +6,8 @@ adapter); put ``tests/plugins`` on ``PYTHONPATH`` to install them.
 - ``standing``: one person standing upright 2.5 m in front of the camera, every joint tracked
   (kinefuse's reference standing pose turned into the camera frame);
 - ``slow``: ``standing`` taking :data:`SLOW_S` per capture (a tracker far slower than the
-  camera, for the client's bounded queue).
+  camera, for the client's bounded queue), which also refuses a second detection with
+  :data:`SLOW_REFUSAL` (text with HTML's special characters, for the viewer's escaping).
 """
 
 from __future__ import annotations
@@ -52,12 +53,17 @@ class Standing:
 SLOW_S = 0.25
 
 
+#: what ``slow`` says of the detection it refuses
+SLOW_REFUSAL = "a <b>mug</b> & its cartoon: not a person"
+
+
 class Slow(Standing):
     name = "slow"
 
     def track(self, capture: Capture, calibration: CameraCalibration) -> TrackerResult:
         time.sleep(SLOW_S)
-        return super().track(capture, calibration)
+        bodies = super().track(capture, calibration).bodies
+        return TrackerResult(bodies=bodies, refused=(SLOW_REFUSAL,))
 
 
 def make_slow(options: Mapping[str, str]) -> Slow:
