@@ -10,9 +10,12 @@ when its library, runtime or device is missing. :data:`KNOWN_SOURCES` says, for 
 which library each kind needs and the command that installs it.
 
 :class:`CameraFrameSource` turns each capture into a :class:`DepthFrame` (the wand is found in
-it) and, with a tracker, a :class:`BodyFrame` of the nearest body the tracker kept (every frame,
-empty when it kept none). A camera that delivers bodies itself (the Kinect v2's SDK) gives them
-as ``Capture``-side results through its own tracker (:attr:`Camera.tracker`).
+it) and, with a tracker, a :class:`BodyFrame` of the nearest body the tracker kept (empty when
+it kept none): for every capture when the tracker runs inline (``kinefuse track``), for the
+captures it kept up with when it runs on its own thread (``kinefuse sensor``). The tracker is
+handed the pinhole depth and IR (:meth:`CameraFrameSource.for_tracker`). A camera that delivers
+bodies itself (the Kinect v2's SDK) gives them as ``Capture``-side results through its own
+tracker (:attr:`Camera.tracker`).
 """
 
 from __future__ import annotations
