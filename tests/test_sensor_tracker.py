@@ -152,3 +152,17 @@ def test_a_slow_tracker_in_a_live_sensor_keeps_depth_flowing_and_says_its_rate(
     seq = np.asarray(obs.seq)
     assert seq[-1] == PASSES - 1 and (np.diff(seq) >= 1).all()
     np.testing.assert_allclose(obs.t_device_s, 0.800222 + 0.2 * seq, atol=1e-6)
+
+
+def test_closing_the_source_mid_play_stops_the_worker_before_the_tracker(
+    shared_data: Path,
+) -> None:
+    """A sensor stopped while its tracker works: the worker ends before the tracker closes."""
+    mkv = shared_data / "depth" / "pyk4a_recording.mkv"
+    src = open_camera_source(f"mkv:{mkv}?repeat=30#k1", "slow", threaded=True, speed=SPEED)
+    frames = iter(src)
+    for _ in range(5):  # a few depth frames in: the worker is tracking
+        next(frames)
+    assert src.worker is not None and src.worker._thread.is_alive()
+    src.close()  # the generator is still suspended, as when the client stops
+    assert not src.worker._thread.is_alive()

@@ -400,6 +400,9 @@ class CameraFrameSource:
         return None if self.worker is None else self.worker.status().line()
 
     def close(self) -> None:
+        """Close the camera and the tracker (its worker stopped first: never closed mid-call)."""
+        if self.worker is not None:
+            self.worker.stop()
         try:
             self.camera.close()
         finally:
