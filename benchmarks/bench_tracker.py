@@ -23,16 +23,17 @@ a while (drops counted), each option's rate against the default's in the same ru
 from __future__ import annotations
 
 import argparse
-import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration, Capture
+from kinefuse.devices.k4a_calibration import calibration_from_k4a_json
 from kinefuse.devices.pose.model import BlazePoseModel
 from kinefuse.devices.pose.tracker import PoseTracker, body_from_landmarks
+from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.devices.worker import TrackerWorker
 from kinefuse.evaluation.pose_lift import DetectorNoise, true_landmarks
 from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
@@ -45,21 +46,9 @@ WALK = ROOT.parent / "shared" / "data" / "motion" / "cmu" / "131_01_scaled_metre
 
 
 def recording_calibration() -> CameraCalibration:
-    """NFOV-unbinned depth and 720p colour of the recording's Azure Kinect (pinhole)."""
-    cal = json.loads((DEPTH_DIR / "pyk4a_calibration.json").read_text())
-    cams = {c["Purpose"]: c for c in cal["CalibrationInformation"]["Cameras"]}
-    d = cams["CALIBRATION_CameraPurposeDepth"]
-    cx, cy, fx, fy = d["Intrinsics"]["ModelParameters"][:4]
-    depth = Intrinsics(640, 576, fx * 1024, fy * 1024, cx * 1024 - 192.5, cy * 1024 - 180.5,
-                       0.25, 5.46)  # fmt: skip
-    c = cams["CALIBRATION_CameraPurposePhotoVideo"]
-    cx, cy, fx, fy = c["Intrinsics"]["ModelParameters"][:4]
-    color = Intrinsics(1280, 720, fx * 1280, fy * 960, cx * 1280 - 0.5, cy * 960 - 120.5,
-                       0.25, 5.46)  # fmt: skip
-    t = np.eye(4)
-    t[:3, :3] = np.reshape(c["Rt"]["Rotation"], (3, 3))
-    t[:3, 3] = c["Rt"]["Translation"]
-    return CameraCalibration(depth=depth, color=color, color_from_depth=t)
+    """The recording's Azure Kinect as kinefuse reads it (NFOV-unbinned depth, 720p colour)."""
+    text = (DEPTH_DIR / "pyk4a_calibration.json").read_text()
+    return calibration_from_k4a_json(text, "NFOV_UNBINNED", "720P", what="pyk4a_calibration.json")
 
 
 def recording_packets() -> dict[str, object]:
@@ -136,13 +125,17 @@ def main() -> None:
     args = ap.parse_args()
     n = 3 if args.smoke else 30
     seconds = 2.0 if args.smoke else args.seconds
-    cal = recording_calibration()
+    device = recording_calibration()
+    cal = replace(device, distortion_depth=())  # what a tracker is handed: the pinhole depth
 
     print("pose tracker, per stage (median ms per frame)")
     packets = recording_packets()
     ms = median_ms(lambda: decode_capture(packets), n)
-    mug, _ = decode_capture(packets)
+    mug, raw_depth = decode_capture(packets)
     print(f"  decode  MKV capture (MJPG 1280x720 colour + 640x576 depth)  {ms:7.1f}")
+    pinhole = DepthUndistorter(device)
+    ms = median_ms(lambda: pinhole(raw_depth), n)
+    print(f"  undistort  640x576 depth to the pinhole (IR costs the same)  {ms:7.1f}")
 
     image, what = person_image(mug)
     print(f"  2D model on {what}:")

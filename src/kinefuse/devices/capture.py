@@ -24,7 +24,10 @@ class CameraCalibration:
     Attributes
     ----------
     depth : Intrinsics
-        The depth camera (undistorted pinhole; ``distortion_depth`` holds what the device gave).
+        The depth camera as a pinhole (the device's focal lengths and principal point);
+        ``distortion_depth`` holds the device's lens distortion, which its own images have.
+        A tracker is handed the images resampled to this pinhole, with ``distortion_depth``
+        empty (:class:`~kinefuse.devices.trackers.Tracker`).
     color : Intrinsics or None
         The colour camera, if the device has one.
     color_from_depth : (4, 4) float or None
@@ -63,7 +66,8 @@ class Capture:
         Arrival at the host, on the host's monotonic clock; NaN for a recording.
     depth_mm : (H, W) uint16 or None
         Depth in millimetres along z, 0 = no reading, in the depth camera
-        (``CameraCalibration.depth``).
+        (``CameraCalibration.depth``; with the lens distortion of ``distortion_depth`` when
+        the calibration lists one).
     color : (h, w, 3) uint8 or None
         Colour image, RGB order, in the colour camera.
     ir : (H, W) uint16 or None

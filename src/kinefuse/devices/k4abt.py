@@ -92,6 +92,8 @@ class K4abtTracker:
     """The SDK's tracker on captures of one Azure Kinect (created on the first capture)."""
 
     name = "k4abt"
+    #: the SDK takes the device's own (distorted) depth and IR with the device's calibration
+    device_images = True
 
     def __init__(self, pk: Any, options: Mapping[str, str]) -> None:
         self._pk = pk

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -125,11 +126,14 @@ class MkvRecording:
         ``creation_time``, to the second), Unix seconds; NaN if absent.
     live : bool
         False: a recording is played on its own timestamps.
+    repeat : int
+        How many times :meth:`captures` plays the recording (1; the ``repeat`` option: a
+        short recording played on for a demonstration or a soak test of a live server).
     """
 
     live = False
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, repeat: int = 1) -> None:
         import av
 
         p = Path(path)
@@ -145,6 +149,7 @@ class MkvRecording:
         finally:
             container.close()
         self.path = p
+        self.repeat = int(repeat)
         #: the sensor id a client gives it unless told (the file's name)
         self.default_id = p.stem
 
@@ -207,7 +212,27 @@ class MkvRecording:
 
     def captures(self) -> Iterator[Capture]:
         """The captures in file order: images with the same timestamp (within half a frame)
-        form one capture; IMU samples go with the next capture."""
+        form one capture; IMU samples go with the next capture. With :attr:`repeat` above 1
+        the recording is played that many times over, its device times (and the IMU's) going
+        on by the recording's length plus one frame each pass, its counter going on too."""
+        seq = 0
+        shift = 0.0
+        for _ in range(self.repeat):
+            first = last = math.nan
+            for cap in self._one_pass():
+                first = cap.t_device_s if math.isnan(first) else first
+                last = cap.t_device_s
+                imu = cap.imu
+                if imu is not None and shift:
+                    imu = imu.copy()
+                    imu[:, 0] += shift
+                yield replace(cap, seq=seq, t_device_s=cap.t_device_s + shift, imu=imu)
+                seq += 1
+            if math.isnan(first):
+                return
+            shift += last - first + 1.0 / self.rate_hz
+
+    def _one_pass(self) -> Iterator[Capture]:
         import av
 
         by_index = {i: n for n, i in self._tracks.items()}
@@ -272,9 +297,13 @@ class MkvRecording:
 
 
 def open_mkv(arg: str, options: dict[str, str]) -> MkvRecording:
-    """The ``mkv`` camera kind: ``mkv:FILE.mkv`` (no options)."""
-    if options:
-        raise InputError(f"mkv:{arg}: takes no options (got {', '.join(sorted(options))})")
+    """The ``mkv`` camera kind: ``mkv:FILE.mkv[?repeat=N]`` (``repeat``: play it N times)."""
+    extra = sorted(set(options) - {"repeat"})
+    if extra:
+        raise InputError(f"mkv:{arg}: takes only ?repeat=N (got {', '.join(extra)})")
+    text = options.get("repeat", "1")
+    if not text.isdigit() or int(text) < 1:
+        raise InputError(f"mkv:{arg}: repeat must be a whole number of passes >= 1, got {text!r}")
     if not arg:
         raise InputError("mkv: name the recording, mkv:FILE.mkv")
     try:
@@ -283,4 +312,4 @@ def open_mkv(arg: str, options: dict[str, str]) -> MkvRecording:
         raise InputError(
             "reading an Azure Kinect recording needs PyAV: pip install 'kinefuse[mkv]'"
         ) from None
-    return MkvRecording(arg)
+    return MkvRecording(arg, int(text))

@@ -10,9 +10,12 @@ when its library, runtime or device is missing. :data:`KNOWN_SOURCES` says, for 
 which library each kind needs and the command that installs it.
 
 :class:`CameraFrameSource` turns each capture into a :class:`DepthFrame` (the wand is found in
-it) and, with a tracker, a :class:`BodyFrame` of the nearest body the tracker kept (every frame,
-empty when it kept none). A camera that delivers bodies itself (the Kinect v2's SDK) gives them
-as ``Capture``-side results through its own tracker (:attr:`Camera.tracker`).
+it) and, with a tracker, a :class:`BodyFrame` of the nearest body the tracker kept (empty when
+it kept none): for every capture when the tracker runs inline (``kinefuse track``), for the
+captures it kept up with when it runs on its own thread (``kinefuse sensor``). The tracker is
+handed the pinhole depth and IR (:meth:`CameraFrameSource.for_tracker`). A camera that delivers
+bodies itself (the Kinect v2's SDK) gives them as ``Capture``-side results through its own
+tracker (:attr:`Camera.tracker`).
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ from __future__ import annotations
 import importlib.util
 import math
 import sys
+import time
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib.metadata import entry_points
 from typing import Protocol, runtime_checkable
 from urllib.parse import parse_qsl
@@ -39,6 +43,7 @@ from kinefuse.devices.trackers import (
     load_tracker,
 )
 from kinefuse.devices.undistort import DepthUndistorter
+from kinefuse.devices.worker import TrackerWorker
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
 from kinefuse.skeleton import N_JOINTS, TrackingState
@@ -261,6 +266,15 @@ class CameraFrameSource:
         Runs on every capture; None (and the camera has none of its own): depth only.
     depth : bool
         Deliver the depth frames (default True; the wand is found in them).
+    threaded : bool
+        Run the tracker on its own thread (:class:`~kinefuse.devices.worker.TrackerWorker`), as
+        a sensor client does: depth frames flow at the camera's rate, body frames follow as
+        the tracker finishes them, and the oldest waiting capture is dropped when it falls
+        behind (at most ``max_pending`` wait). False (``kinefuse track``): every capture is
+        tracked, in turn.
+    speed : float
+        With ``threaded``, a recording's captures are handed over at ``speed`` times its
+        device clock (a live camera gives them at its own rate).
 
     After a pass, :attr:`captures`, :attr:`with_person` and :attr:`refused` count what it saw.
     """
@@ -272,8 +286,16 @@ class CameraFrameSource:
         tracker: Tracker | None = None,
         *,
         depth: bool = True,
+        threaded: bool = False,
+        speed: float = 1.0,
+        max_pending: int = 2,
     ) -> None:
+        if not speed > 0:
+            raise InputError(f"speed must be positive, got {speed}")
         self.camera = camera
+        self.threaded, self.speed, self.max_pending = threaded, float(speed), int(max_pending)
+        #: the running tracker worker (``threaded`` only), for its status
+        self.worker: TrackerWorker | None = None
         self._id = sensor_id
         self.tracker = tracker if tracker is not None else getattr(camera, "tracker", None)
         self.depth = depth
@@ -286,14 +308,29 @@ class CameraFrameSource:
         #: resamples the device's depth to the pinhole camera kinefuse works with (None: the
         #: device gives undistorted images)
         self._pinhole = DepthUndistorter(cal) if any(cal.distortion_depth) else None
+        self._tracker_calibration = replace(cal, distortion_depth=())
 
     def depth_of(self, capture: Capture) -> NDArray[np.uint16] | None:
-        """A capture's depth image in the pinhole camera :meth:`intrinsics` describes (the
-        tracker gets the device's own images and calibration)."""
+        """A capture's depth image in the pinhole camera :meth:`intrinsics` describes."""
         d = capture.depth_mm
         if d is None or self._pinhole is None:
             return d
         return self._pinhole(d)
+
+    def for_tracker(self, capture: Capture) -> tuple[Capture, CameraCalibration]:
+        """What the tracker gets (the :class:`~kinefuse.devices.trackers.Tracker` contract):
+        the depth and IR images in the pinhole camera, with the calibration that says so (no
+        depth distortion); the device's own images and calibration for a tracker that sets
+        ``device_images`` (Microsoft's, which undistorts itself from the device's JSON)."""
+        cal = self.camera.calibration
+        if self._pinhole is None or getattr(self.tracker, "device_images", False):
+            return capture, cal
+        ir = capture.ir
+        pinhole_ir = None if ir is None else self._pinhole(ir)
+        return (
+            replace(capture, depth_mm=self.depth_of(capture), ir=pinhole_ir),
+            self._tracker_calibration,
+        )
 
     @property
     def sensor_ids(self) -> tuple[str, ...]:
@@ -305,23 +342,67 @@ class CameraFrameSource:
         return self.camera.calibration.depth
 
     def __iter__(self) -> Iterator[Frame]:
-        cal = self.camera.calibration
+        if self.threaded and self.tracker is not None:
+            yield from self._threaded()
+            return
         for cap in self.camera.captures():
             self.captures += 1
-            t_host = cap.t_host_s
-            if self.depth and cap.depth_mm is not None:
-                depth = self.depth_of(cap)
-                assert depth is not None
-                yield DepthFrame(self._id, cap.seq, cap.t_device_s, t_host, depth)
+            yield from self._depth_frame(cap)
             if self.tracker is None:
                 continue
-            result = self.tracker.track(cap, cal)
-            self.refused.extend(result.refused)
-            body = nearest_body(result)
-            self.with_person += body is not None
-            yield body_frame(self._id, cap, body, t_host)
+            yield self._body_frame(cap, self.tracker.track(*self.for_tracker(cap)))
+
+    def _depth_frame(self, cap: Capture, pinhole: Capture | None = None) -> Iterator[DepthFrame]:
+        """The depth frame of ``cap`` (``pinhole``: the tracker's copy, its depth already
+        resampled)."""
+        if self.depth and cap.depth_mm is not None:
+            depth = pinhole.depth_mm if pinhole is not None else self.depth_of(cap)
+            assert depth is not None
+            yield DepthFrame(self._id, cap.seq, cap.t_device_s, cap.t_host_s, depth)
+
+    def _body_frame(self, cap: Capture, result: TrackerResult) -> BodyFrame:
+        self.refused.extend(result.refused)
+        body = nearest_body(result)
+        self.with_person += body is not None
+        return body_frame(self._id, cap, body, cap.t_host_s)
+
+    def _threaded(self) -> Iterator[Frame]:
+        """Depth frames at the camera's rate; body frames as the worker finishes them, stamped
+        with their capture's times (a recording is paced on its device clock at ``speed``)."""
+        assert self.tracker is not None
+        raw = self._pinhole is None or getattr(self.tracker, "device_images", False)
+        cal = self.camera.calibration if raw else self._tracker_calibration
+        worker = TrackerWorker(self.tracker, cal, max_pending=self.max_pending)
+        self.worker = worker.start()
+        t0: tuple[float, float] | None = None
+        try:
+            for cap in self.camera.captures():
+                if not self.live:
+                    now = time.monotonic()
+                    t0 = t0 or (now, cap.t_device_s)
+                    due = t0[0] + (cap.t_device_s - t0[1]) / self.speed
+                    if due > now:
+                        time.sleep(due - now)
+                self.captures += 1
+                tcap = self.for_tracker(cap)[0]
+                yield from self._depth_frame(cap, None if raw else tcap)
+                worker.submit(tcap)
+                while (done := worker.get(0)) is not None:
+                    yield self._body_frame(*done)
+            worker.drain()
+            while (done := worker.get(0)) is not None:
+                yield self._body_frame(*done)
+        finally:
+            worker.stop()
+
+    def tracker_status(self) -> str | None:
+        """The tracker worker's one-line status (rate, drops, last refusal); None without one."""
+        return None if self.worker is None else self.worker.status().line()
 
     def close(self) -> None:
+        """Close the camera and the tracker (its worker stopped first: never closed mid-call)."""
+        if self.worker is not None:
+            self.worker.stop()
         try:
             self.camera.close()
         finally:
@@ -342,10 +423,16 @@ def parse_spec(spec: str) -> tuple[str, str, dict[str, str], str]:
 
 
 def open_camera_source(
-    spec: str, tracker: str | None = None, *, depth: bool = True
+    spec: str,
+    tracker: str | None = None,
+    *,
+    depth: bool = True,
+    threaded: bool = False,
+    speed: float = 1.0,
 ) -> CameraFrameSource:
     """The frame source of a camera spec ``KIND:ARG[?K=V&...][#SENSOR_ID]`` with the tracker
-    named ``tracker`` (:func:`~kinefuse.devices.trackers.load_tracker`), or none."""
+    named ``tracker`` (:func:`~kinefuse.devices.trackers.load_tracker`), or none;
+    ``threaded`` and ``speed`` as :class:`CameraFrameSource`'s."""
     kind, arg, options, sensor = parse_spec(spec)
     trk = load_tracker(tracker) if tracker else None
     try:
@@ -355,4 +442,4 @@ def open_camera_source(
             trk.close()
         raise
     sid = sensor or str(getattr(cam, "default_id", "") or f"{kind}-{cam.serial or 0}")
-    return CameraFrameSource(cam, sid, trk, depth=depth)
+    return CameraFrameSource(cam, sid, trk, depth=depth, threaded=threaded, speed=speed)

@@ -75,7 +75,16 @@ class TrackerResult:
 
 @runtime_checkable
 class Tracker(Protocol):
-    """A body tracker: captures in, bodies out (one call per capture, in capture order)."""
+    """A body tracker: captures in, bodies out (one call per capture, in capture order).
+
+    What it is handed (:meth:`kinefuse.devices.sources.CameraFrameSource.for_tracker`): the
+    capture's depth and IR images in the undistorted pinhole camera ``calibration.depth``, the
+    same images kinefuse's depth frames carry, with a calibration whose ``distortion_depth`` is
+    empty; the colour image as the device gives it (``distortion_color`` says its lens). A
+    tracker that needs the device's own images and calibration (Microsoft's, which takes the
+    device's raw JSON, :attr:`CameraCalibration.raw`) sets a class attribute
+    ``device_images = True`` and gets the capture unchanged with the device's calibration.
+    """
 
     name: str
 

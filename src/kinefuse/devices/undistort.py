@@ -20,9 +20,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration
 
-__all__ = ["DepthUndistorter", "distort_normalized"]
+__all__ = ["DepthUndistorter", "distort_normalized", "undistort_pixels"]
 
 
 def distort_normalized(
@@ -36,6 +37,20 @@ def distort_normalized(
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
     return xd, yd
+
+
+def undistort_pixels(
+    uv_px: NDArray[np.float64], camera: Intrinsics, coeffs: tuple[float, ...], iterations: int = 20
+) -> NDArray[np.float64]:
+    """The pinhole pixels ``(N, 2)`` of a distorted camera's pixels ``uv_px`` (the inverse of
+    :func:`distort_normalized`, by fixed-point iteration; NaN stays NaN)."""
+    uv = np.asarray(uv_px, dtype=np.float64)
+    xd, yd = (uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy
+    x, y = xd.copy(), yd.copy()
+    for _ in range(iterations):
+        ex, ey = distort_normalized(x, y, coeffs)
+        x, y = x - (ex - xd), y - (ey - yd)
+    return np.stack([x * camera.fx + camera.cx, y * camera.fy + camera.cy], axis=-1)
 
 
 class DepthUndistorter:

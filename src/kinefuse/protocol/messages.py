@@ -193,7 +193,11 @@ class Heartbeat(Message):
     ``floor_error`` (a sensor; optional, nil from older peers): why the floor fit of the
     current calibration failed, nil when it did not. A sensor whose fit fails sends a heartbeat
     with it at once; the server shows it in that sensor's status until the next calibration
-    starts or a floor plane arrives.
+    starts or a floor plane arrives. ``tracker`` (a sensor whose client runs a body tracker;
+    optional since 1.2, nil otherwise and from older peers): the tracker's one-line status
+    (achieved rate, captures dropped because it was behind, its last refusal); such a sensor
+    sends a heartbeat at least every ``heartbeat_s`` even while it sends data, and the server
+    shows the line in that sensor's status.
     """
 
     TYPE: ClassVar[str] = "heartbeat"
@@ -203,6 +207,7 @@ class Heartbeat(Message):
     sent: int = _f(_SEQ, 0)
     dropped: int = _f(_SEQ, 0)
     floor_error: str | None = _f(Optional(_TEXT), None)
+    tracker: str | None = _f(Optional(_TEXT), None)
 
 
 # ---- clock -------------------------------------------------------------------------------
@@ -386,7 +391,8 @@ class SensorInfo:
     """One sensor in a :class:`Status` (times in ms, NaN unknown; ``sensor2world`` (4, 4) or
     None if not calibrated; ``floor_error``: why the sensor's floor fit failed, or None;
     ``stale_frames``: body frames refused because their seq did not increase on their
-    connection, since the server started (None: a server older than protocol 1.2))."""
+    connection, since the server started (None: a server older than protocol 1.2);
+    ``tracker``: the sensor's body-tracker status line from its heartbeats, or None)."""
 
     sensor_id: str
     connected: bool
@@ -399,6 +405,7 @@ class SensorInfo:
     sensor2world: NDArray[np.float64] | None = None
     floor_error: str | None = None
     stale_frames: int | None = None
+    tracker: str | None = None
 
 
 _NANF = Float(-1e12, 1e12, allow_nan=True)
@@ -416,6 +423,7 @@ _SENSOR_INFO = Records(
         ("sensor2world", Optional(Array((4, 4), lo=-1e4, hi=1e4))),
         ("floor_error", Optional(_TEXT)),
         ("stale_frames", Optional(Int(0))),
+        ("tracker", Optional(_TEXT)),
     ),
     make=SensorInfo,
     label="SensorInfo",

@@ -161,6 +161,8 @@ def status_message(status: Status) -> dict[str, Any]:
                 # why the sensor's floor fit failed: what the operator must see, not only the log
                 "stale_frames": s.stale_frames,
                 "floor_error": s.floor_error,
+                # the sensor's body tracker: achieved rate and captures dropped (text)
+                "tracker": s.tracker,
                 "pose": None  # row-major 4x4, sensor -> world
                 if s.sensor2world is None or not np.isfinite(s.sensor2world).all()
                 else [float(v) for v in np.asarray(s.sensor2world).ravel()],

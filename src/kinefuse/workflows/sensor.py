@@ -68,7 +68,7 @@ def run_sensor(
         serial=serial,
         software=f"kinefuse {__version__}",
     )
-    timeline = open_timeline(source, tracker)
+    timeline = open_timeline(source, tracker, speed=speed)
     if not serial and timeline.serial:
         options = replace(options, serial=timeline.serial)
     try:
@@ -160,13 +160,16 @@ def run_sensor(
         print(f"kinefuse sensor: error: {e}", file=sys.stderr)
         return 3
     st = client.stats
+    tracker_line = timeline.tracker_status()
     if "m0" in side:
-        write_sidecar(stats=vars(st))
+        write_sidecar(stats=vars(st), tracker=tracker_line)
     logging.getLogger("kinefuse.sensor").info(
         "stopped: %d body frames sent, %d dropped, %d depth frames, %d sightings, "
         "%d probes answered",
         st.body_sent, st.body_dropped, st.depth_frames, st.sightings_sent, st.probes_answered,
     )  # fmt: skip
+    if tracker_line is not None:
+        logging.getLogger("kinefuse.sensor").info("%s", tracker_line)
     return code
 
 

@@ -231,7 +231,7 @@ def _track_one(
                 n += 1
                 body = None
                 if trk is not None:
-                    result = trk.track(cap, cam.calibration)
+                    result = trk.track(*src.for_tracker(cap))
                     refused.update(result.refused)
                     body = nearest_body(result)
                     with_person += body is not None

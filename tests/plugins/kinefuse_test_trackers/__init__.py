@@ -4,11 +4,15 @@ adapter); put ``tests/plugins`` on ``PYTHONPATH`` to install them.
 
 - ``nobody``: finds no one and says why (as a tracker whose gates refuse a detection does);
 - ``standing``: one person standing upright 2.5 m in front of the camera, every joint tracked
-  (kinefuse's reference standing pose turned into the camera frame).
+  (kinefuse's reference standing pose turned into the camera frame);
+- ``slow``: ``standing`` taking :data:`SLOW_S` per capture (a tracker far slower than the
+  camera, for the client's bounded queue), which also refuses a second detection with
+  :data:`SLOW_REFUSAL` (text with HTML's special characters, for the viewer's escaping).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 
 import numpy as np
@@ -43,6 +47,27 @@ class Standing:
 
     def close(self) -> None:
         pass
+
+
+#: what ``slow`` spends on each capture, seconds (a 30 Hz camera gives about 7 captures meanwhile)
+SLOW_S = 0.25
+
+
+#: what ``slow`` says of the detection it refuses
+SLOW_REFUSAL = "a <b>mug</b> & its cartoon: not a person"
+
+
+class Slow(Standing):
+    name = "slow"
+
+    def track(self, capture: Capture, calibration: CameraCalibration) -> TrackerResult:
+        time.sleep(SLOW_S)
+        bodies = super().track(capture, calibration).bodies
+        return TrackerResult(bodies=bodies, refused=(SLOW_REFUSAL,))
+
+
+def make_slow(options: Mapping[str, str]) -> Slow:
+    return Slow()
 
 
 def make_nobody(options: Mapping[str, str]) -> Nobody:

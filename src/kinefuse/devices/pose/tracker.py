@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -16,6 +16,7 @@ from kinefuse.devices.pose.landmarks import LM, Landmarks2D, with_virtual
 from kinefuse.devices.pose.lift import LiftParams, LiftResult, lift_landmarks
 from kinefuse.devices.pose.mapping import DIRECT, to_kinect
 from kinefuse.devices.trackers import TrackedBody, TrackerResult
+from kinefuse.devices.undistort import undistort_pixels
 from kinefuse.errors import InputError
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
 
@@ -42,6 +43,7 @@ class _View:
     rgb: NDArray[np.uint8]
     intrinsics: Intrinsics
     image_from_depth: NDArray[np.float64] | None
+    distortion: tuple[float, ...] = ()  #: the image's lens (the colour camera's)
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,7 +140,8 @@ class PoseTracker:
                     "the calibration has a colour camera but no color_from_depth: the pose "
                     "tracker cannot register depth to colour without it"
                 )
-            return _View(capture.color, c, np.asarray(calibration.color_from_depth, float))
+            return _View(capture.color, c, np.asarray(calibration.color_from_depth, float),
+                         calibration.distortion_color)  # fmt: skip
         if capture.ir is not None:
             return _View(ir_to_rgb(capture.ir), calibration.depth, None)
         return None
@@ -158,6 +161,9 @@ class PoseTracker:
         if landmarks is None:
             self._had_body = False
             return TrackerResult(timings_s={"model": t_model})
+        if any(view.distortion):  # the colour image as the device gives it: to its pinhole
+            uv = undistort_pixels(landmarks.uv_px, view.intrinsics, view.distortion)
+            landmarks = replace(landmarks, uv_px=uv)
         result = self.from_landmarks(
             landmarks, capture.depth_mm, calibration.depth, view.intrinsics, view.image_from_depth
         )

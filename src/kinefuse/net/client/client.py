@@ -18,7 +18,8 @@ after the Welcome:
   wand detection runs on one worker thread and skips depth frames that arrive while it is busy
   (the sighting's ``stride`` says how many frames its detection covers), so the client never
   falls behind and never queues without bound;
-- sends a Heartbeat when idle, and reconnects with capped exponential backoff and jitter when
+- sends a Heartbeat when idle (with a body tracker, at least every ``heartbeat_s``: it carries
+  the tracker's rate and drops), and reconnects with capped exponential backoff and jitter when
   the connection breaks, keeping its sensor id and its stream (the play clock goes on).
 
 It stops on :meth:`SensorClient.stop` (SIGINT/SIGTERM in ``kinefuse sensor``; it sends
@@ -469,15 +470,19 @@ class SensorClient:
         # other server messages (status, calibration_result) are not for a sensor: ignored
 
     async def _writer(self, conn: ServerLink, heartbeat_s: float) -> None:
+        last_beat = self.monotonic()
         while True:
             await conn.writable.wait()
             self._send_pending(conn)
-            idle = self.monotonic() - conn.last_tx
-            if idle >= heartbeat_s:
+            now = self.monotonic()
+            idle = now - conn.last_tx
+            # a tracker's status goes out every heartbeat_s even while data flows
+            due = idle if self.timeline.tracker_status() is None else now - last_beat
+            if due >= heartbeat_s:
                 conn.send(self._heartbeat())
-                idle = 0.0
+                last_beat, due = now, 0.0
             self._wake.clear()
-            await wait_event(self._wake, max(0.01, heartbeat_s - idle))
+            await wait_event(self._wake, max(0.01, heartbeat_s - due))
 
     def _send_pending(self, conn: ServerLink) -> None:
         # a closing connection takes nothing: what is queued waits for the next connection
@@ -505,7 +510,11 @@ class SensorClient:
 
     def _heartbeat(self) -> Heartbeat:
         return Heartbeat(
-            self._host_now(), self._n_sent(), self._n_dropped(), self.depth.floor_error
+            self._host_now(),
+            self._n_sent(),
+            self._n_dropped(),
+            self.depth.floor_error,
+            tracker[:1024] if (tracker := self.timeline.tracker_status()) else tracker,
         )
 
     def _report_floor_error(self, text: str) -> None:

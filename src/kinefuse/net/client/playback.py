@@ -90,6 +90,11 @@ class Timeline(ABC):
     def close(self) -> None:  # noqa: B027 (a timeline with nothing to release keeps it)
         """Release the source (a store, a device); nothing by default."""
 
+    def tracker_status(self) -> str | None:
+        """The body tracker's one-line status (achieved rate, captures dropped because it was
+        behind, its last refusal) for the server's status; None when no tracker runs here."""
+        return None
+
 
 class SimTimeline(Timeline):
     """A simulated sensor of a session, on the simulation's true time (see module notes)."""
@@ -186,6 +191,10 @@ class SourceTimeline(Timeline):
         self.serial = str(getattr(source, "serial", "") or "")
         self._source = source
 
+    def tracker_status(self) -> str | None:
+        status = getattr(self._source, "tracker_status", None)
+        return status() if callable(status) else None
+
     def frames(self) -> Iterator[Timed]:
         last = -math.inf
         first = True
@@ -240,12 +249,13 @@ def _check_source(src: object, what: str) -> FrameSource:
     return src
 
 
-def open_timeline(spec: str, tracker: str | None = None) -> Timeline:
+def open_timeline(spec: str, tracker: str | None = None, *, speed: float = 1.0) -> Timeline:
     """The timeline of a ``--source`` spec (see the module notes for the forms); ``tracker``
-    names the body tracker of a camera source (refused for the other sources)."""
+    names the body tracker of a camera source (refused for the other sources), which runs on
+    its own thread; a camera recording is read at ``speed``."""
     kind, _, rest = spec.partition(":")
     if kind in camera_kinds():
-        camera = open_camera_source(spec, tracker)
+        camera = open_camera_source(spec, tracker, threaded=True, speed=speed)
         return SourceTimeline(camera, None, live=camera.live)
     if tracker:
         raise InputError(

@@ -39,6 +39,7 @@ def server_status(srv: Server) -> Status:
                 sensor2world=None if p is None else np.asarray(p, dtype=float).reshape(4, 4),
                 floor_error=c.floor_error,
                 stale_frames=c.stale,
+                tracker=c.tracker,
             )
         )
     return Status(

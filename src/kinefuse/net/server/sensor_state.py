@@ -133,6 +133,8 @@ class SensorState:
         self.latency_s = float("nan")
         #: why the client's floor fit of this calibration failed (its heartbeats say), or None
         self.floor_error: str | None = None
+        #: the client's body-tracker status line (its heartbeats say), or None
+        self.tracker: str | None = None
         #: what of this sensor is logged and recorded one by one (the rest is summarized)
         self.events = EventLimit(per_window=10, window_s=10.0)
         self._arrivals: deque[float] = deque(maxlen=90)

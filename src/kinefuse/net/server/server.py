@@ -597,6 +597,9 @@ class Server:
                 return
             elif isinstance(msg, Heartbeat):
                 self._floor_error(client, msg.floor_error)
+                if msg.tracker != client.tracker:
+                    client.tracker = msg.tracker
+                    self._status_dirty = True
             else:
                 raise OutOfOrder(f"a sensor may not send {msg.TYPE} after the handshake")
 

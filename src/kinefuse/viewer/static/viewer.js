@@ -198,7 +198,9 @@ function renderStatus() {
   const rows = st.sensors.map((s) => {
     // what the operator must act on: frames refused as stale, a floor the sensor cannot fit
     const warn = (s.stale_frames ? `<span class="note"> · ${s.stale_frames} stale</span>` : "") +
-      (s.floor_error ? `<span class="note" title="${esc(s.floor_error)}"> · no floor</span>` : "");
+      (s.floor_error ? `<span class="note" title="${esc(s.floor_error)}"> · no floor</span>` : "") +
+      // the client's body tracker: its achieved rate and the captures it dropped (its text)
+      (s.tracker ? `<span class="note tracker"> · ${esc(s.tracker)}</span>` : "");
     const off = s.clock_offset_ms == null ? "–" :
       `${s.clock_offset_ms.toFixed(2)}<span class="note"> ±${fmt(s.clock_offset_sd_ms, 2)}</span>`;
     return `<tr class="sensor-row" data-sensor="${s.id}">` +
