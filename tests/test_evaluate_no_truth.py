@@ -157,6 +157,7 @@ def test_evaluate_a_simulated_session_without_its_truth(tmp_path, shared_data, c
     assert main(["evaluate", str(session), "--true-calibration"]) == 2
     err = capsys.readouterr().err
     assert "has no ground truth" in err and len(err.splitlines()) == 1
+    assert "leave it out" in err and _suggested(err) == []  # no command that would not run
 
 
 @pytest.fixture(scope="module")
