@@ -210,3 +210,19 @@ def test_inspect_of_a_real_recording_gives_no_rig_file_advice(real, tmp_path) ->
     assert p.returncode == 0, p.stderr
     assert "warning: sensor idle sent no frame: check that its client ran" in p.stdout
     assert "rig file" not in p.stdout
+
+
+def test_evaluate_with_one_sensor_seeing_the_body(real, tmp_path) -> None:
+    """One view: no sensor-vs-sensor figure, the rest of the figures and the report still."""
+    rec = tmp_path / "one.sqlite"
+    rec.write_bytes(real.read_bytes())
+    with sqlite3.connect(rec) as db:  # a copy we made: the second sensor's frames dropped
+        (key,) = db.execute("SELECT key FROM sensors ORDER BY key").fetchall()[1]
+        db.execute("DELETE FROM observations WHERE sensor_key = ?", (key,))
+    out = tmp_path / "eval"
+    assert main(["evaluate", str(rec), "--methods", "best,paper", "--out", str(out)]) == 0
+    report = json.loads((out / "evaluate.json").read_text())
+    assert report["agreement"] is None and len(report["sensors_with_body"]) == 1
+    assert report["best"]["placed"] > 0.5 and report["registration"]["kind"] == "body"
+    page = _parse(out / "report.html")
+    assert "no second view to compare" in " ".join(page.text)
