@@ -19,6 +19,7 @@ import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from kinefuse.cli import main
@@ -226,3 +227,22 @@ def test_evaluate_with_one_sensor_seeing_the_body(real, tmp_path) -> None:
     assert report["best"]["placed"] > 0.5 and report["registration"]["kind"] == "body"
     page = _parse(out / "report.html")
     assert "no second view to compare" in " ".join(page.text)
+
+
+def test_inspect_of_a_live_sensor_with_depth_only_says_to_add_a_tracker(real, tmp_path) -> None:
+    """A live sensor that streamed depth only (a camera with no --tracker): how to add one."""
+    from kinefuse.camera.intrinsics import Intrinsics
+
+    rec = tmp_path / "depth.sqlite"
+    rec.write_bytes(real.read_bytes())
+    with SessionStore.open(rec, writable=True) as st:
+        st.add_sensor("cam", "CAM", Intrinsics())
+        st.append_depth_frames("cam", [0], [0.0], np.full((1, 424, 512), 1500, np.uint16))
+    p = _kinefuse(f"kinefuse inspect {shlex.quote(str(rec))}", tmp_path)
+    assert p.returncode == 0, p.stderr
+    (warning,) = [ln for ln in p.stdout.splitlines() if "sensor cam" in ln]
+    assert "depth frames only, no body tracker's frames: add --tracker NAME" in warning
+    assert "rig file" not in p.stdout
+    (cmd,) = _suggested(warning)
+    run = _kinefuse(cmd, tmp_path)
+    assert run.returncode == 0 and "tracker pose" in run.stdout, run.stderr

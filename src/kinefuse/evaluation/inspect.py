@@ -147,9 +147,9 @@ def never_seen_advice(store: SessionStore, sensors: list[dict[str, Any]]) -> dic
             )
         elif e["depth_frames"]:
             out[sid] = (
-                f"sensor {sid} delivered depth frames only, no body tracker's frames: start its "
-                "`kinefuse sensor` with --tracker NAME to get skeletons (`kinefuse sensor "
-                "--list-sources` lists the trackers installed)"
+                f"sensor {sid} delivered depth frames only, no body tracker's frames: add "
+                "--tracker NAME to its kinefuse sensor command to get skeletons (`kinefuse "
+                "sensor --list-sources` lists the trackers installed)"
             )
         elif e["frames"]:
             out[sid] = (
