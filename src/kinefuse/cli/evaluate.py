@@ -1,4 +1,5 @@
-"""``kinefuse evaluate``: every fusion method against the simulator's truth."""
+"""``kinefuse evaluate``: every fusion method against the simulator's truth, or (a session
+without truth) their consistency figures."""
 
 from __future__ import annotations
 
@@ -12,8 +13,11 @@ from kinefuse.fusion.methods import METHODS
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse evaluate``."""
-    p = sub.add_parser("evaluate", help="compare fusion methods against the simulator's truth")
-    p.add_argument("session", type=Path, help="simulated session store (.sqlite)")
+    p = sub.add_parser(
+        "evaluate",
+        help="compare fusion methods against the simulator's truth (without truth: consistency)",
+    )
+    p.add_argument("session", type=Path, help="session store (.sqlite), simulated or recorded")
     shared.add_calibration_args(p)
     p.add_argument(
         "--methods",
@@ -29,21 +33,28 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
+
+    from kinefuse.evaluation.no_truth import NothingToEvaluate
     from kinefuse.workflows.evaluate import format_evaluate, run_evaluate
     from kinefuse.workflows.progress import TerminalProgress
 
-    with TerminalProgress("evaluate", enabled=not args.json) as progress:
-        report = run_evaluate(
-            session=args.session,
-            methods=args.methods,
-            out_dir=args.out,
-            calibration=args.calibration,
-            true_calibration=args.true_calibration,
-            allow_incomplete=args.partial,
-            start_s=args.start,
-            end_s=args.end,
-            progress=progress,
-        )
+    try:
+        with TerminalProgress("evaluate", enabled=not args.json) as progress:
+            report = run_evaluate(
+                session=args.session,
+                methods=args.methods,
+                out_dir=args.out,
+                calibration=args.calibration,
+                true_calibration=args.true_calibration,
+                allow_incomplete=args.partial,
+                start_s=args.start,
+                end_s=args.end,
+                progress=progress,
+            )
+    except NothingToEvaluate as e:  # a session with nothing fusable: not a user error, exit 3
+        print(f"kinefuse: error: {e}", file=sys.stderr)
+        return 3
     if args.json:
         print(json.dumps(report, indent=2))
     else:

@@ -97,8 +97,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     except OSError as exc:
         # a file the user named that cannot be read or written: say which and why, no traceback
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"kinefuse: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"kinefuse: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("kinefuse: interrupted", file=sys.stderr)

@@ -12,10 +12,20 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("session", type=Path, help="session store (.sqlite) to replay")
     p.add_argument("--host", default="127.0.0.1", help="interface to serve on (127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="TCP port (0: a free one)")
+    p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name the viewer answers to besides --host and the loopback names (repeatable; "
+        "a request naming any other host is refused: docs/security.md)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from kinefuse.workflows.view import run_view
 
-    return run_view(args.session, host=args.host, port=args.port)
+    return run_view(
+        args.session, host=args.host, port=args.port, allow_hosts=tuple(args.allow_host)
+    )

@@ -110,14 +110,20 @@ def tracking_coverage(store: SessionStore) -> dict[str, Any]:
     return result
 
 
-def coverage_warnings(cov: dict[str, Any]) -> list[str]:
-    """Plain-language warnings for a :func:`tracking_coverage` result (empty when all is well)."""
+def coverage_warnings(cov: dict[str, Any], never_seen: dict[str, str] | None = None) -> list[str]:
+    """Plain-language warnings for a :func:`tracking_coverage` result (empty when all is well).
+
+    ``never_seen``: per sensor, what to say of one that never sees the body instead of the
+    simulated lab's advice (check its pose in the rig file), e.g. for a recording of real
+    sensors (:func:`kinefuse.evaluation.inspect.never_seen_advice`).
+    """
     out = list(cov.get("notes", []))
     for sid, s in cov["sensors"].items():
         frac = s["body_fraction"]
         if frac == 0.0:
             out.append(
-                f"sensor {sid} never sees the body: check that it looks at the capture area "
+                (never_seen or {}).get(sid)
+                or f"sensor {sid} never sees the body: check that it looks at the capture area "
                 "(its position and look_at_m in the rig file)"
             )
         elif frac < LOW_TRACKING_FRACTION:

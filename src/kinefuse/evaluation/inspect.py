@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import warnings
 from os import PathLike
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -108,6 +109,70 @@ def inspect_session(store: SessionStore | str | PathLike[str]) -> dict[str, Any]
     )
 
 
+def never_seen_advice(store: SessionStore, sensors: list[dict[str, Any]]) -> dict[str, str]:
+    """What to say of each sensor of a recording of real sensors that never saw the body.
+
+    A sensor that delivered only depth frames had no body tracker: a session made by
+    ``kinefuse track`` gets the command that tracks its recordings again with kinefuse's own
+    tracker (into a new file), a live recording the option its client needs. ``sensors``: the
+    per-sensor entries of :func:`inspect_session`.
+    """
+    import shlex
+
+    meta = store.meta()
+    tracked = meta.get("track_recordings") if meta.get("generator") == "kinefuse track" else None
+    retrack = ""
+    if isinstance(tracked, dict) and tracked:
+        recs = [str(v.get("recording", "")) for v in tracked.values() if isinstance(v, dict)]
+        new = _free_name(store.path.with_name(f"{store.path.stem}-pose.sqlite"))
+        retrack = "kinefuse track " + " ".join(
+            shlex.quote(r) for r in [*recs, "--out", str(new), "--tracker", "pose"]
+        )
+    out = {}
+    for e in sensors:
+        sid = e["id"]
+        if e["frames_with_body"]:
+            continue
+        tracker = tracked.get(sid, {}).get("tracker") if isinstance(tracked, dict) else None
+        if tracker:
+            out[sid] = (
+                f"sensor {sid}: the body tracker ({tracker}) found no person in its "
+                f"{e['frames']} frames: check that the person is in the camera's view"
+            )
+        elif e["depth_frames"] and retrack:
+            out[sid] = (
+                f"sensor {sid} delivered depth frames only, no body tracker's frames (it was "
+                f"tracked without --tracker): track the recordings again with one, `{retrack}` "
+                "(`kinefuse sensor --list-sources` lists the trackers installed)"
+            )
+        elif e["depth_frames"]:
+            out[sid] = (
+                f"sensor {sid} delivered depth frames only, no body tracker's frames: add "
+                "--tracker NAME to its kinefuse sensor command to get skeletons (`kinefuse "
+                "sensor --list-sources` lists the trackers installed)"
+            )
+        elif e["frames"]:
+            out[sid] = (
+                f"sensor {sid} never saw the body in its {e['frames']} frames: check that it looks "
+                "at the capture area and that the person is in its view"
+            )
+        else:
+            out[sid] = (
+                f"sensor {sid} sent no frame: check that its client ran and reached the server"
+            )
+    return out
+
+
+def _free_name(path: Path) -> Path:
+    """``path``, or ``stem-2.suffix``, ``stem-3.suffix``... the first that does not exist."""
+    k = 2
+    out = path
+    while out.exists():
+        out = path.with_name(f"{path.stem}-{k}{path.suffix}")
+        k += 1
+    return out
+
+
 def _inspect(store: SessionStore) -> dict[str, Any]:
     meta = store.meta()
     has_truth = store.has_truth()
@@ -190,6 +255,7 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
     from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
 
     coverage = tracking_coverage(store)
+    simulated = has_truth or str(meta.get("generator", "")).endswith(" simulate")
     left_out = coverage["left_out"]
     for entry in sensors:
         entry["left_out"] = left_out.get(entry["id"])
@@ -200,7 +266,9 @@ def _inspect(store: SessionStore) -> dict[str, Any]:
         "complete": store.complete,
         "storage_bytes": store.storage_bytes(),
         "coverage": coverage,
-        "warnings": coverage_warnings(coverage),
+        "warnings": coverage_warnings(
+            coverage, None if simulated else never_seen_advice(store, sensors)
+        ),
         "left_out": [{"id": k, "reason": v} for k, v in left_out.items()],
         "meta": meta,
         "sensors": sensors,

@@ -46,7 +46,6 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
         ``to_fused``, ``to_fused_no_lr``, ``swaps``, ``frames``, ``frames_with_body``,
         ``fused_finite``.
     """
-    from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
     from kinefuse.calibration.calib_file import loads_calibration
     from kinefuse.evaluation.consistency import consistency
     from kinefuse.pipeline.session import load_sensors
@@ -72,28 +71,15 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
     # frames go in capture order
     sensors = loaded
     streams = {
-        s.id: s.observations.take(_distinct_frames(s.t_server_s, s.observations.t_device_s))
+        s.id: s.observations.take(distinct_frames(s.t_server_s, s.observations.t_device_s))
         for s in sensors
     }
     times = {k: v.t_server_s for k, v in streams.items()}
     joints = {k: v.joints_m for k, v in streams.items()}
-    ref = sensors[0]
-    t_ref, j_ref = times[ref.id], joints[ref.id]
     reg_info: dict[str, Any] = {"kind": "calibration" if cal_name else "body"}
     if cal_name is None:
-        floor = fit_foot_plane(t_ref, j_ref)
-        ref2world = world_from_floor(floor)
-        s2w = {ref.id: ref2world}
-        reg_info["by_sensor"] = {}
-        for s in sensors[1:]:
-            reg = refine_registration(t_ref, j_ref, times[s.id], joints[s.id])
-            s2w[s.id] = ref2world @ reg.other2ref
-            reg_info["by_sensor"][s.id] = {
-                "correction_deg": reg.angle_deg,
-                "trunk_median_before_m": reg.trunk_median_before_m,
-                "trunk_median_after_m": reg.trunk_median_after_m,
-            }
-        reg_info["floor_samples"] = floor.n_samples
+        s2w, body_info = register_from_body(times, joints)
+        reg_info.update(body_info)
     else:
         s2w = {s.id: s.sensor2world for s in sensors}
     lo = max(float(t.min()) for t in times.values())
@@ -127,7 +113,50 @@ def recording_consistency(path: Path, *, grid_hz: float = 30.0) -> dict[str, Any
     return out
 
 
-def _distinct_frames(t_server_s: Array, t_device_s: Array) -> NDArray[np.intp]:
+def register_from_body(
+    times: dict[str, Array], joints: dict[str, Array]
+) -> tuple[dict[str, Array], dict[str, Any]]:
+    """Sensor poses with the body as the calibration object (as ``kinefuse realdata`` does).
+
+    The first sensor of ``times`` is the reference: the world's up from its standing feet, the
+    others registered rigidly onto it from the trunk joints
+    (:func:`kinefuse.calibration.body.refine_registration`).
+
+    Parameters
+    ----------
+    times : dict
+        ``sensor id -> (T,)`` capture times on one clock, seconds.
+    joints : dict
+        ``sensor id -> (T, 25, 3)`` joints in that sensor's frame, metres.
+
+    Returns
+    -------
+    sensor2world : dict
+        ``sensor id -> (4, 4)``.
+    info : dict
+        ``by_sensor`` (per other sensor: ``correction_deg``, ``trunk_median_before_m``,
+        ``trunk_median_after_m``) and ``floor_samples``.
+    """
+    from kinefuse.calibration.body import fit_foot_plane, refine_registration, world_from_floor
+
+    ids = list(times)
+    ref = ids[0]
+    floor = fit_foot_plane(times[ref], joints[ref])
+    ref2world = world_from_floor(floor)
+    s2w = {ref: ref2world}
+    by_sensor = {}
+    for sid in ids[1:]:
+        reg = refine_registration(times[ref], joints[ref], times[sid], joints[sid])
+        s2w[sid] = ref2world @ reg.other2ref
+        by_sensor[sid] = {
+            "correction_deg": reg.angle_deg,
+            "trunk_median_before_m": reg.trunk_median_before_m,
+            "trunk_median_after_m": reg.trunk_median_after_m,
+        }
+    return s2w, {"by_sensor": by_sensor, "floor_samples": floor.n_samples}
+
+
+def distinct_frames(t_server_s: Array, t_device_s: Array) -> NDArray[np.intp]:
     """Indices of the distinct frames (by device time, first received kept) in capture order."""
     _, first = np.unique(t_device_s, return_index=True)
     return first[np.argsort(t_server_s[first], kind="stable")]

@@ -27,8 +27,9 @@ def resolve_poses(
     if true_calibration:
         if not store.has_truth():
             raise InputError(
-                f"{store.path} has no ground truth (a live recording): --true-calibration is only "
-                "for simulated sessions; calibrate it with `kinefuse calibrate`"
+                f"{store.path} has no ground truth (a recording): --true-calibration is only "
+                "for simulated sessions; leave it out to use the session's stored calibration, or "
+                "pass --calibration CALIB.toml"
             )
         truth = store.truth()
         poses = {}

@@ -194,88 +194,10 @@ def render_report(
     kpi.append((_n(occ.get("precision"), 2), "occlusion precision"))
     add('<div class="kpi">' + "".join(f"<div><b>{v}</b>{_e(k)}</div>" for v, k in kpi) + "</div>")
 
-    # setup
-    add('<h2 id="setup">Setup</h2><div class="row"><div>')
     path = None
     if "best" in results:
         path = results["best"].positions[:, JOINT_INDEX["SpineBase"], :2]
-    add(_img(hp.data_uri(hp.rig_figure(facts, path)), "rig seen from above"))
-    add("</div><div>")
-    add(
-        _table(
-            ["sensor", "serial", "frames", "rate (Hz)", "tracked"],
-            [
-                [
-                    _e(s["id"]),
-                    _e(s["serial"]),
-                    str(s["frames"]),
-                    _n(s["rate_hz"], 1),
-                    f"{_n(s['tracked_fraction'], 0, 100)} %",
-                ]
-                for s in facts.sensors
-            ],
-        )
-    )
-    add("</div></div>")
-
-    # calibration
-    add('<h2 id="calibration">Calibration quality</h2>')
-    add(f'<p class="note">{_e(facts.calibration_note)}</p>')
-    if facts.calibration:
-        rows = facts.calibration
-        has_err = "position_error_mm" in rows[0]
-        head = ["sensor", "wand residual (mm)", "sightings"]
-        head += ["position error (mm)", "rotation error (deg)"] if has_err else []
-        body = [
-            [_e(r["id"]), _n(r["residual_mm"], 2), str(r["sightings"])]
-            + ([_n(r["position_error_mm"], 2), _n(r["rotation_error_deg"], 3)] if has_err else [])
-            for r in rows
-        ]
-        add(
-            '<div class="row"><div>'
-            + _img(hp.data_uri(hp.calibration_figure(rows)), "calibration residuals")
-            + "</div><div>"
-            + _table(head, body)
-            + "</div></div>"
-        )
-
-    # clock
-    add('<h2 id="clock">Clock sync over time</h2>')
-    if facts.clocks:
-        add(_img(hp.data_uri(hp.clock_figure(facts)), "clock sync"))
-        clock_rows: list[list[str]] = []
-        for c in facts.clocks:
-            err = c.error_ms
-            clock_rows.append(
-                [
-                    _e(c.sensor_id),
-                    str(c.t_probe_s.size),
-                    _n(float(np.median(c.rtt_ms)), 2),
-                    _n(float(np.std(c.probe_residual_ms)), 3),
-                    _n(float(np.max(np.abs(err))), 3) if err is not None else "–",
-                ]
-            )
-        add(
-            _table(
-                [
-                    "sensor",
-                    "probes",
-                    "median RTT (ms)",
-                    "probe scatter (ms)",
-                    "max error vs truth (ms)",
-                ],
-                clock_rows,
-            )
-        )
-    else:
-        add('<p class="note">no clock probes in this session</p>')
-
-    # latency
-    add('<h2 id="latency">Latency</h2>')
-    if facts.latency_ms is not None and np.isfinite(facts.latency_ms).any():
-        add(_img(hp.data_uri(hp.latency_figure(facts.latency_ms)), "latency distribution"))
-    else:
-        add(f'<p class="note">{_e(facts.latency_note)}</p>')
+    parts += _session_sections(facts, path)
 
     # accuracy
     add('<h2 id="accuracy">Accuracy</h2>')
@@ -392,12 +314,104 @@ def render_report(
             "it needs a range-of-motion phase (<code>kinefuse simulate --rom SECONDS</code>); "
             "<code>kinefuse analyze SESSION --out DIR</code> computes paper B's joint angles</p>"
         )
+    return _page(facts, parts)
+
+
+def _page(facts: SessionFacts, parts: Sequence[str]) -> str:
+    """The whole HTML document around the sections ``parts``."""
     top = f'<meta charset="utf-8">{GENERATOR}<title>kinefuse report: {_e(facts.name)}</title>'
     return (
         f'<!DOCTYPE html>\n<html lang="en"><head>{top}<style>{CSS}</style></head><body>\n'
         + "\n".join(parts)
         + "\n</body></html>\n"
     )
+
+
+def _session_sections(facts: SessionFacts, path: Array | None) -> list[str]:
+    """The setup, calibration, clock and latency sections (``path``: the body's ground track
+    ``(T, 2)`` drawn on the rig figure, or None)."""
+    parts: list[str] = []
+    add = parts.append
+    # setup
+    add('<h2 id="setup">Setup</h2><div class="row"><div>')
+    add(_img(hp.data_uri(hp.rig_figure(facts, path)), "rig seen from above"))
+    add("</div><div>")
+    add(
+        _table(
+            ["sensor", "serial", "frames", "rate (Hz)", "tracked"],
+            [
+                [
+                    _e(s["id"]),
+                    _e(s["serial"]),
+                    str(s["frames"]),
+                    _n(s["rate_hz"], 1),
+                    f"{_n(s['tracked_fraction'], 0, 100)} %",
+                ]
+                for s in facts.sensors
+            ],
+        )
+    )
+    add("</div></div>")
+
+    # calibration
+    add('<h2 id="calibration">Calibration quality</h2>')
+    add(f'<p class="note">{_e(facts.calibration_note)}</p>')
+    if facts.calibration:
+        rows = facts.calibration
+        has_err = "position_error_mm" in rows[0]
+        head = ["sensor", "wand residual (mm)", "sightings"]
+        head += ["position error (mm)", "rotation error (deg)"] if has_err else []
+        body = [
+            [_e(r["id"]), _n(r["residual_mm"], 2), str(r["sightings"])]
+            + ([_n(r["position_error_mm"], 2), _n(r["rotation_error_deg"], 3)] if has_err else [])
+            for r in rows
+        ]
+        add(
+            '<div class="row"><div>'
+            + _img(hp.data_uri(hp.calibration_figure(rows)), "calibration residuals")
+            + "</div><div>"
+            + _table(head, body)
+            + "</div></div>"
+        )
+
+    # clock
+    add('<h2 id="clock">Clock sync over time</h2>')
+    if facts.clocks:
+        add(_img(hp.data_uri(hp.clock_figure(facts)), "clock sync"))
+        clock_rows: list[list[str]] = []
+        vs_truth = any(c.error_ms is not None for c in facts.clocks)
+        for c in facts.clocks:
+            err = c.error_ms
+            clock_rows.append(
+                [
+                    _e(c.sensor_id),
+                    str(c.t_probe_s.size),
+                    _n(float(np.median(c.rtt_ms)), 2),
+                    _n(float(np.std(c.probe_residual_ms)), 3),
+                ]
+                + (
+                    [_n(float(np.max(np.abs(err))), 3) if err is not None else "–"]
+                    if vs_truth
+                    else []
+                )
+            )
+        add(
+            _table(
+                ["sensor", "probes", "median RTT (ms)", "probe scatter (ms)"]
+                + (["max error vs truth (ms)"] if vs_truth else []),
+                clock_rows,
+            )
+        )
+    else:
+        add('<p class="note">no clock probes in this session</p>')
+
+    # latency
+    add('<h2 id="latency">Latency</h2>')
+    if facts.latency_ms is not None and np.isfinite(facts.latency_ms).any():
+        add(_img(hp.data_uri(hp.latency_figure(facts.latency_ms)), "latency distribution"))
+    else:
+        add(f'<p class="note">{_e(facts.latency_note)}</p>')
+    return parts
 
 
 def write_html_report(
@@ -414,6 +428,146 @@ def write_html_report(
     from kinefuse.io.outputs import atomic_write_text
 
     text = render_report(facts, report, results, truth, methods, angles=angles)
+    return atomic_write_text(path, text, what="HTML report", recognizer=is_kinefuse_report)
+
+
+def _mm_pair(v: Sequence[float | None] | None) -> str:
+    """``[median, p95]`` metres as ``"median / p95"`` millimetres."""
+    if not v:
+        return "–"
+    return f"{_n(v[0], 0, 1e3)} / {_n(v[1], 0, 1e3)}"
+
+
+def render_consistency_report(
+    facts: SessionFacts,
+    report: dict[str, Any],
+    methods: Sequence[str],
+    ground_track: Array | None = None,
+) -> str:
+    """The HTML text of the report of a session without truth
+    (:func:`kinefuse.evaluation.no_truth.evaluate_without_truth`): the session's sections, then
+    the consistency figures; the sections that need the truth are absent and it says why.
+    ``ground_track`` ``(T, 2)``: the body's path seen from above, drawn on the rig figure."""
+    methods = [m for m in methods if m in report]
+    focus = "best" if "best" in methods else methods[0]
+    parts: list[str] = []
+    add = parts.append
+    add(f"<h1>kinefuse evaluation: {_e(facts.name)}</h1>")
+    add(
+        f'<p class="sub">{len(facts.sensors)} sensors · {report.get("frames", 0)} fused frames '
+        f"({facts.duration_s:.1f} s recorded) · poses: {_e(report.get('calibration'))}</p>"
+    )
+    add(
+        "<nav>"
+        + "".join(
+            f'<a href="#{a}">{t}</a>'
+            for a, t in (
+                ("setup", "setup"),
+                ("calibration", "calibration"),
+                ("clock", "clock sync"),
+                ("latency", "latency"),
+                ("consistency", "consistency"),
+                ("joints", "per joint"),
+                ("bones", "bones"),
+            )
+        )
+        + "</nav>"
+    )
+    agree = report.get("agreement")
+    r = report[focus]
+    kpi = [(f"{_n(r['placed'], 1, 100)} %", f"joints placed ({focus})")]
+    kpi.append((f"{_n(r['bone_sd_median_m'], 0, 1e3)} mm", f"bone-length spread ({focus})"))
+    if agree:
+        first = next(iter(agree["disagreement_lr"].values()))
+        kpi.append((f"{_n(first['all'][0], 0, 1e3)} mm", "sensor vs sensor (median)"))
+    add('<div class="kpi">' + "".join(f"<div><b>{v}</b>{_e(k)}</div>" for v, k in kpi) + "</div>")
+    add(
+        '<p class="note" id="no-truth">No accuracy, error over time, trajectories against the '
+        f"truth, occlusion or plausibility sections: {_e(report.get('why_no_truth'))}.</p>"
+    )
+    parts += _session_sections(facts, ground_track)
+
+    add('<h2 id="consistency">Consistency</h2>')
+    if agree:
+        add("<h3>Sensor against sensor, before fusion</h3>")
+        add(
+            _table(
+                ["pair", "as reported (mm)", "after left/right correction (mm)", "frames"],
+                [
+                    [
+                        _e(pair),
+                        _mm_pair(v["all"]),
+                        _mm_pair(agree["disagreement_lr"][pair]["all"]),
+                        str(v["n"]),
+                    ]
+                    for pair, v in agree["disagreement"].items()
+                ],
+            )
+        )
+    else:
+        add('<p class="note">one sensor saw the body: there is no second view to compare</p>')
+    add("<h3>Per method</h3>")
+    sensors = list(r["to_sensors"])
+    add(
+        _table(
+            ["method", "placed", "OK", "residual (mm)", "bone spread (mm)"]
+            + [f"{sid} to fused (mm)" for sid in sensors],
+            [
+                [
+                    _e(m),
+                    f"{_n(report[m]['placed'], 1, 100)} %",
+                    f"{_n(report[m]['status']['OK'], 1, 100)} %",
+                    _mm_pair(report[m]["residual_m"]),
+                    _n(report[m]["bone_sd_median_m"], 1, 1e3),
+                ]
+                + [_mm_pair(report[m]["to_sensors"][sid]["all"]) for sid in sensors]
+                for m in methods
+            ],
+        )
+    )
+    add(
+        '<p class="note">median / p95; placed: joint-frames with a position; OK: solved by the '
+        "method (the other statuses are predicted, held or inferred joints); residual: the "
+        "method's own (best: RMS position uncertainty of its filter; range methods: RMS range "
+        "residual); bone spread: median over bones of the standard deviation of a bone's length "
+        "(a rigid bone keeps its length)</p>"
+    )
+    add(f'<h2 id="joints">Per joint ({_e(focus)})</h2>')
+    statuses = list(next(iter(r["by_joint"].values()))["status"])
+    add(
+        _table(
+            ["joint", "placed", "residual (mm)", *statuses],
+            [
+                [_e(j), f"{_n(v['placed'], 1, 100)} %", _n(v["residual_median_m"], 1, 1e3)]
+                + [f"{_n(v['status'][c], 1, 100)} %" for c in statuses]
+                for j, v in r["by_joint"].items()
+            ],
+        )
+    )
+    add(f'<h2 id="bones">Bone lengths ({_e(focus)})</h2>')
+    add(
+        _table(
+            ["bone", "median (mm)", "spread (mm)", "frames"],
+            [
+                [_e(b), _n(v["median_m"], 0, 1e3), _n(v["sd_m"], 1, 1e3), str(v["frames"])]
+                for b, v in r["bones"].items()
+            ],
+        )
+    )
+    return _page(facts, parts)
+
+
+def write_consistency_report(
+    path: Path,
+    facts: SessionFacts,
+    report: dict[str, Any],
+    methods: Sequence[str],
+    ground_track: Array | None = None,
+) -> Path:
+    """Write :func:`render_consistency_report`'s ``report.html`` at ``path`` atomically."""
+    from kinefuse.io.outputs import atomic_write_text
+
+    text = render_consistency_report(facts, report, methods, ground_track)
     return atomic_write_text(path, text, what="HTML report", recognizer=is_kinefuse_report)
 
 

@@ -30,7 +30,9 @@ def run_evaluate(
     end_s: float | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, object]:
-    """Compare fusion methods against the truth of a simulated session (opened read-only).
+    """Compare fusion methods against the truth of a simulated session (opened read-only); a
+    session without truth gets its consistency figures instead
+    (:func:`kinefuse.evaluation.no_truth.evaluate_without_truth`; ``report["truth"]`` is False).
 
     ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
     swapped in on success (an existing folder is replaced only if kinefuse made it).
@@ -53,10 +55,9 @@ def run_evaluate(
     with SessionStore.open(session) as store:
         store.require_complete(allow_incomplete=allow_incomplete)
         if not store.has_truth():
-            raise InputError(
-                f"{session} has no ground truth, so there is nothing to evaluate against; "
-                "evaluate simulated sessions (kinefuse simulate)"
-            )
+            if true_calibration:  # refused with the reason: there are no true poses
+                resolve_poses(store, calibration, true_calibration)
+            return _without_truth(store, methods, out_dir, calibration, start_s, end_s, say)
         poses, source = resolve_poses(store, calibration, true_calibration)
         say("reading the sensors' streams and clocks")
         sensors, screen = load_usable_sensors(store, poses)
@@ -110,13 +111,56 @@ def run_evaluate(
     return report
 
 
+def _without_truth(
+    store: SessionStore,
+    methods: tuple[str, ...],
+    out_dir: Path | None,
+    calibration: Path | None,
+    start_s: float | None,
+    end_s: float | None,
+    say: Callable[[str], None],
+) -> dict[str, object]:
+    """:func:`run_evaluate` of a session without truth (``store`` open): the consistency figures,
+    ``evaluate.json``, ``consistency_by_joint.csv`` and ``report.html`` in ``out_dir``."""
+    from kinefuse.evaluation.no_truth import evaluate_without_truth, write_consistency_csv
+    from kinefuse.io.outputs import atomic_dir
+
+    report, results, sensors, poses, source = evaluate_without_truth(
+        store, methods, calibration=calibration, start_s=start_s, end_s=end_s, progress=say
+    )
+    if out_dir is None:
+        return report
+    from kinefuse.evaluation.report_facts import session_facts
+    from kinefuse.report.html import write_consistency_report
+    from kinefuse.skeleton import JOINT_INDEX
+
+    facts = session_facts(store, sensors, poses, source)
+    focus = results.get("best") or next(iter(results.values()))
+    track = focus.positions[:, JOINT_INDEX["SpineBase"], :2]
+    say(f"writing the table and the report to {out_dir}")
+    with atomic_dir(out_dir, what="evaluation folder") as tmp:
+        written = [
+            write_consistency_csv(tmp / "consistency_by_joint.csv", report, methods),
+            write_consistency_report(tmp / "report.html", facts, report, methods, track),
+        ]
+        report["written"] = [str(out_dir / p.name) for p in written] + [
+            str(out_dir / "evaluate.json")
+        ]
+        (tmp / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
 def _cm(mae_m: float) -> str:
     """An error in cm, or what it is when there is none (joints with no position: no_data)."""
     return f"{100 * mae_m:.1f} cm" if math.isfinite(mae_m) else "no position to compare"
 
 
 def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
-    """A short text table of an evaluation."""
+    """A short text table of an evaluation (the consistency figures without truth)."""
+    if report.get("truth") is False:
+        from kinefuse.evaluation.no_truth import format_consistency
+
+        return format_consistency(report, methods)
     common = report.get("common")
     frac = common.get("joint_fraction", float("nan")) if isinstance(common, dict) else float("nan")
     lines = [f"calibration: {report.get('calibration')}, frames: {report.get('frames')}"]

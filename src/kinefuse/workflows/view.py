@@ -17,25 +17,34 @@ def run_view(
     *,
     host: str = "127.0.0.1",
     port: int = 0,
+    allow_hosts: tuple[str, ...] = (),
     say: Callable[[str], None] = print,
     stop: asyncio.Event | None = None,
 ) -> int:
     """Serve the replay viewer of ``session`` until Ctrl-C (or ``stop`` is set).
 
     The session is opened read-only, read into memory and closed before serving starts.
+    Requests must name the viewer by ``host``, a loopback name or one of ``allow_hosts``
+    (:class:`kinefuse.viewer.guard.HostNames`).
     """
+    from kinefuse.viewer.guard import host_name
     from kinefuse.viewer.replay import ReplaySource
     from kinefuse.viewer.server import serve
     from kinefuse.viewer.session_data import load_session_view
 
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be 0..65535 (0 picks a free port), got {port}")
+    for name in allow_hosts:
+        try:
+            host_name(name)
+        except ValueError as e:
+            raise InputError(f"--allow-host: {e}; give a DNS name or an IP address") from None
     with SessionStore.open(session) as store:
         view = load_session_view(store)
     source = ReplaySource(view, name=session.name)
 
     async def main() -> None:
-        async with serve(source, host=host, port=port) as bound:
+        async with serve(source, host=host, port=port, allowed_hosts=allow_hosts) as bound:
             shown = f"[{host}]" if ":" in host else host
             say(
                 f"kinefuse view: {session.name}, {view.n_frames} frames, results: "
