@@ -337,6 +337,63 @@ def _trunk_frames(
     return out
 
 
+#: A trunk cluster marker within this distance of the thorax's midsagittal plane in the static
+#: trial (the plane of its long axis and ``X``), metres, is a midline marker (IJ, PX, C7, T8;
+#: not the acromions).
+MIDLINE_M = 0.03
+
+
+def _thorax_frames(
+    y: Array,
+    top: Array,
+    template: Array,
+    moving: Array,
+    static_frame: Array,
+    static_top: Array,
+    carried: Array,
+) -> Array:
+    """The thorax of a capture without a pelvis, built in every frame as ISB's (Wu et al. 2005):
+    ``Y`` the long axis (``y``, from the landmarks' midpoints: mid PX/T8 to mid IJ/C7, which
+    ``SpineBase`` and ``SpineShoulder`` lie on), ``Z`` normal to the plane of that axis and the
+    cluster's midline markers (:data:`MIDLINE_M`; the plane of IJ, C7 and mid PX/T8 when they
+    are IJ and PX). The acromion markers of the cluster slide with the shoulder girdle: a
+    rigid fit through them turns the thorax with every shrug and arm swing. Frames (or a
+    cluster) without midline markers keep the carried ``Z`` (``carried``, ``(T, 3, 3)``), and
+    frames without the axis the carried frame.
+
+    ``top``: ``(T, 3)`` the axis's upper point (``SpineShoulder``); ``template``, ``moving``:
+    the cluster's markers in the static trial ``(M, 3)`` and the motion ``(T, M, 3)``;
+    ``static_frame``, ``static_top``: the thorax frame and ``SpineShoulder`` in the static
+    trial."""
+    lateral = (template - static_top) @ static_frame[:, 2]
+    midline = np.abs(lateral) < MIDLINE_M
+    z_hint = carried[..., 2]
+    if midline.any():
+        with np.errstate(invalid="ignore"):
+            forward = np.nanmean(moving[:, midline] - top[:, None], axis=1)
+        z_from = np.cross(forward, y)  # forward x up: to the right
+        z_hint = np.where(np.isfinite(z_from), z_from, z_hint)
+    built: Array = an.frame_from_long_axis(y, z_hint)
+    out: Array = np.where(np.isfinite(built), built, carried)
+    return out
+
+
+#: Seconds at the start of the motion whose mean thorax heading is the lab's ``X`` of a
+#: capture without a pelvis.
+HEADING_S = 1.0
+
+
+def _initial_heading(trunk: Array, t_s: Array) -> Array:
+    """The thorax's mean forward axis over the first :data:`HEADING_S` seconds in which it is
+    present (world ``+x`` when it never is), ``(3,)``."""
+    ok = np.flatnonzero(np.isfinite(trunk).all(axis=(1, 2)))
+    if not ok.size:
+        return np.array([1.0, 0.0, 0.0])
+    first = ok[t_s[ok] <= t_s[ok[0]] + HEADING_S]
+    forward: Array = trunk[first, :, 0].mean(axis=0)
+    return forward
+
+
 def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -> AnatomicalFrames:
     """ISB frames of every segment the map and the files allow (module docstring).
 
@@ -446,6 +503,18 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         trunk = _trunk_frames(mpos, midx, poses["pelvis"], lumbar)
         if trunk is not None:
             frames["trunk"] = trunk
+    elif (
+        "trunk" in frames and "pelvis" not in frames and {"SpineBase", "SpineShoulder"} <= set(midx)
+    ):
+        frames["trunk"] = _thorax_frames(
+            mpos[:, midx["SpineShoulder"]] - mpos[:, midx["SpineBase"]],
+            mpos[:, midx["SpineShoulder"]],
+            templates["trunk"],
+            moving["trunk"],
+            static_frames["trunk"],
+            jp["SpineShoulder"],
+            frames["trunk"],
+        )
     # each elbow's carrying angle in the static trial (its epicondyle frames): the hinge's
     carrying = {}
     for side in ("right", "left"):
@@ -455,6 +524,11 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     _long_axes_per_frame(mpos, midx, motion, st_aug, mmap, frames, carrying)
     for seg in frames:
         status[seg] = "ok"
+    if "trunk" in frames and "pelvis" not in frames:
+        status["trunk"] = (
+            "ok: no pelvis, so its angles (thorax_*) are relative to the lab: the vertical and "
+            "the thorax's heading at the start of the motion"
+        )
     for kind in (*_LEG, *_ARM):
         for side in ("right", "left"):
             seg = f"{kind}_{side}"
@@ -466,6 +540,8 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         disp = tr[ok[-1]] - tr[ok[0]] if ok.size else np.zeros(3)
         facing = np.nanmean(frames["pelvis"][:, :, 0], axis=0)
         lab = an.lab_frame(an.progression_axis(disp, facing))
+    elif "trunk" in frames:
+        lab = an.lab_frame(_initial_heading(frames["trunk"], motion.t_s))
     else:
         lab = an.lab_frame(np.array([1.0, 0.0, 0.0]))
     undefined = tuple(
