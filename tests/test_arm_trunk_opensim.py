@@ -66,9 +66,27 @@ def test_rajagopal_arm_and_trunk_targets_that_hold(rajagopal: Path, shared_data:
     assert not any(v["wraps"] for v in c.values())
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (docs/analysis.md, OpenSim coordinates)")
-def test_rajagopal_lumbar_offset_not_met_yet(rajagopal: Path, shared_data: Path) -> None:
+def test_rajagopal_lumbar_offset(rajagopal: Path, shared_data: Path) -> None:
+    """Met since the lumbar joint's depth is scaled by the pelvis's depth, as OpenSim's Scale
+    tool does (5.8 deg before, 2.3 now; docs/analysis.md)."""
     v = _compare(rajagopal, shared_data)["lumbar_extension"]["offset_deg"]
+    assert abs(v) <= 5.0, v
+
+
+@pytest.mark.xfail(strict=True, reason="not met: OpenSim's scaled gait2354 model places the "
+                   "acromion markers 3.1 deg behind its torso axis (docs/analysis.md)")  # fmt: skip
+def test_gait2354_lumbar_offset_not_met(shared_data: Path, tmp_path: Path) -> None:
+    from kinefuse.evaluation.opensim_ik import compare_with_ik
+    from kinefuse.workflows.analyze import run_analyze
+
+    out = tmp_path / "out"
+    run_analyze([shared_data / f"{GAIT}subject01_walk1.trc"], out=out,
+                static=shared_data / f"{GAIT}subject01_static.trc",
+                names="opensim:gait2354", plots=False)  # fmt: skip
+    c = compare_with_ik(
+        out / "angles.mot", shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot"
+    )
+    v = c["lumbar_extension"]["offset_deg"]
     assert abs(v) <= 5.0, v
 
 

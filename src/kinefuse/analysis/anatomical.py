@@ -265,9 +265,17 @@ def pelvis_frame_from_hips(hip_right: ArrayLike, hip_left: ArrayLike, up: ArrayL
 #: middle of the acromions.
 MODEL_LUMBAR_FROM_ASIS_M: Final = np.array([-0.1137, 0.0515, 0.0])
 MODEL_ASIS_WIDTH_M: Final = 0.256
+#: The generic model's pelvis depth, the distance from the ASIS midpoint to the PSIS midpoint,
+#: metres: Rajagopal2016.osim's RASI/RPSI markers at ``(0.0095, 0.0181, ±0.1285)`` and
+#: ``(-0.155, 0.035, ±0.045)``. OpenSim's Scale tool scales the pelvis along its X (depth) by
+#: the subject's MidASIS-MidPSIS distance over this one (the Rajagopal pipeline's
+#: ``scale_setup_walk`` measurement ``PelvisX``), and along Z by the widths, not all by the width.
+MODEL_PELVIS_DEPTH_M: Final = 0.1654
 
 
-def lumbar_joint_centre(pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: float) -> Array:
+def lumbar_joint_centre(
+    pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: float, depth_m: float | None = None
+) -> Array:
     """The lumbar joint centre (L5/S1, where the gait models' torso turns on the pelvis).
 
     Parameters
@@ -278,13 +286,21 @@ def lumbar_joint_centre(pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: fl
         The ASIS midpoint, metres.
     asis_width_m : float
         Distance between the ASIS markers, metres (scales the model's offset).
+    depth_m : float, optional
+        Distance from the ASIS midpoint to the PSIS midpoint, metres: scales the offset's
+        anterior component (``X``) instead, as OpenSim's Scale tool scales the pelvis's depth
+        (:data:`MODEL_PELVIS_DEPTH_M`). Without PSIS markers (a sacral marker only) the width
+        scales all of it.
 
     Returns
     -------
     (..., 3) float
-        ``asis_mid + pelvis @ MODEL_LUMBAR_FROM_ASIS_M * asis_width_m / MODEL_ASIS_WIDTH_M``.
+        ``asis_mid + pelvis @ MODEL_LUMBAR_FROM_ASIS_M * asis_width_m / MODEL_ASIS_WIDTH_M``,
+        its ``X`` scaled by ``depth_m / MODEL_PELVIS_DEPTH_M`` when given.
     """
     off = MODEL_LUMBAR_FROM_ASIS_M * (asis_width_m / MODEL_ASIS_WIDTH_M)
+    if depth_m is not None:
+        off[0] = MODEL_LUMBAR_FROM_ASIS_M[0] * (depth_m / MODEL_PELVIS_DEPTH_M)
     out: Array = np.asarray(asis_mid, float) + np.asarray(pelvis, float) @ off
     return out
 

@@ -510,11 +510,13 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     pelvis_pts = None if pv is None else _cluster_points(static, pv.marker_names())
     asis_mid: Array | None = None
     asis_width = 0.0
+    depth: float | None = None  # ASIS midpoint to PSIS midpoint (not to a sacral marker)
     if pv is not None and pelvis_pts is not None:
         pts = [_median(pelvis_pts[:, k]) for k in range(pelvis_pts.shape[1])]
         back = pts[2] if pv.sacrum else 0.5 * (pts[2] + pts[3])
         static_frames["pelvis"], asis_mid = an.pelvis_frame(pts[0], pts[1], back)
         asis_width = float(np.linalg.norm(pts[0] - pts[1]))
+        depth = None if pv.sacrum else float(np.linalg.norm(asis_mid - back))
     elif {"HipLeft", "HipRight", "SpineMid"} <= set(jp):
         static_frames["pelvis"] = an.pelvis_frame_from_hips(jp["HipRight"], jp["HipLeft"],
                                                             jp["SpineMid"])  # fmt: skip
@@ -525,7 +527,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     if shoulders and asis_mid is not None:
         # the torso's long axis as the gait models define it: from the lumbar joint to the
         # middle of the shoulders (anatomical.lumbar_joint_centre)
-        lumbar = an.lumbar_joint_centre(static_frames["pelvis"], asis_mid, asis_width)
+        lumbar = an.lumbar_joint_centre(static_frames["pelvis"], asis_mid, asis_width, depth)
         static_frames["trunk"] = an.frame_from_long_axis(
             0.5 * (jp["ShoulderLeft"] + jp["ShoulderRight"]) - lumbar,
             jp["ShoulderRight"] - jp["ShoulderLeft"],
