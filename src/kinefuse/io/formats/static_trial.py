@@ -341,9 +341,9 @@ def _trunk_frames(
 MIN_FUNCTIONAL_RANGE_DEG = 30.0
 #: Largest angle (degrees) between the static trial's epicondyle axis and the axis the knee
 #: flexes about in the motion that is taken as the same axis (the epicondyles are kept, ISB).
-#: Ours, not a literature value: the two are 1-7 deg apart on the marker sets placed on CMU
-#: clips and on the shared walks' right knees, 30 deg on the Rajagopal walk's left knee, whose
-#: medial marker sits behind the axis the knee turns about (docs/analysis.md).
+#: Ours, not a literature value: the two are 0.3-10.7 deg apart on the marker sets placed on
+#: CMU clips and on the shared walks' other knees, 29 deg on the Rajagopal walk's left knee,
+#: whose medial marker sits behind the axis the knee turns about (docs/analysis.md).
 MAX_KNEE_AXIS_DISAGREEMENT_DEG = 15.0
 
 
