@@ -30,6 +30,7 @@ def test_analyze_gives_the_thorax_in_the_lab_and_says_so(
     code = main(["analyze", str(walk), "--static", str(static), "--out", str(out), "--no-plots"])
     err = capsys.readouterr().err
     assert code == 0, err
+    assert "partial body" in err and "thigh_left" in err  # the legs: said skipped
     anat = json.loads((out / "analysis.json").read_text())["anatomical"]
     assert anat["segment_status"]["trunk"].startswith("ok: no pelvis")
     assert "relative to the lab" in anat["segment_status"]["trunk"]
