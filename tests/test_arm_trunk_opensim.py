@@ -26,6 +26,23 @@ def rajagopal(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Pa
     return out
 
 
+@pytest.fixture(scope="module")
+def rajagopal_epicondyles(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The walk with every knee's axis from its static trial's epicondyle markers, however far
+    from the axis the knee flexes about (the left one is 29 deg from it: docs/analysis.md):
+    what an ISB-only reading gives."""
+    from kinefuse.io.formats import static_trial
+    from kinefuse.workflows.analyze import run_analyze
+
+    out = tmp_path_factory.mktemp("raj_epi") / "out"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(static_trial, "MAX_KNEE_AXIS_DISAGREEMENT_DEG", 180.0)
+        run_analyze([shared_data / f"{RAJ}ExpData_motion_capture_walk.trc"], out=out,
+                    static=shared_data / f"{RAJ}ExpData_static_walk_1.trc",
+                    names="opensim:rajagopal", plots=False)  # fmt: skip
+    return out
+
+
 def _compare(out: Path, shared_data: Path) -> dict[str, dict[str, float]]:
     from kinefuse.evaluation.opensim_ik import compare_with_ik
 
@@ -49,9 +66,27 @@ def test_rajagopal_arm_and_trunk_targets_that_hold(rajagopal: Path, shared_data:
     assert not any(v["wraps"] for v in c.values())
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (docs/analysis.md, OpenSim coordinates)")
-def test_rajagopal_lumbar_offset_not_met_yet(rajagopal: Path, shared_data: Path) -> None:
+def test_rajagopal_lumbar_offset(rajagopal: Path, shared_data: Path) -> None:
+    """Met since the lumbar joint's depth is scaled by the pelvis's depth, as OpenSim's Scale
+    tool does (5.8 deg before, 2.3 now; docs/analysis.md)."""
     v = _compare(rajagopal, shared_data)["lumbar_extension"]["offset_deg"]
+    assert abs(v) <= 5.0, v
+
+
+@pytest.mark.xfail(strict=True, reason="not met: OpenSim's scaled gait2354 model places the "
+                   "acromion markers 3.1 deg behind its torso axis (docs/analysis.md)")  # fmt: skip
+def test_gait2354_lumbar_offset_not_met(shared_data: Path, tmp_path: Path) -> None:
+    from kinefuse.evaluation.opensim_ik import compare_with_ik
+    from kinefuse.workflows.analyze import run_analyze
+
+    out = tmp_path / "out"
+    run_analyze([shared_data / f"{GAIT}subject01_walk1.trc"], out=out,
+                static=shared_data / f"{GAIT}subject01_static.trc",
+                names="opensim:gait2354", plots=False)  # fmt: skip
+    c = compare_with_ik(
+        out / "angles.mot", shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot"
+    )
+    v = c["lumbar_extension"]["offset_deg"]
     assert abs(v) <= 5.0, v
 
 
@@ -81,12 +116,14 @@ def test_unknown_names_are_refused_before_any_work(shared_data: Path, tmp_path: 
     assert code == 2 and not (tmp_path / "o").exists()
 
 
-def test_status_is_in_the_csv_the_json_and_the_report(rajagopal: Path) -> None:
-    """The left knee's anatomical adduction (varus) reaches 34 deg in swing, outside its range
-    on 15 % of the frames (the cross-talk of knee flexion into an axis a few degrees off):
-    implausible, with the reason, in all three places; the knee's flexion is ok."""
+def test_status_is_in_the_csv_the_json_and_the_report(rajagopal_epicondyles: Path) -> None:
+    """Read about its static trial's epicondyle axis, the left knee's anatomical adduction
+    (varus) reaches 34 deg in swing, outside its range on 15 % of the frames (the cross-talk of
+    knee flexion into an axis 29 deg off): implausible, with the reason, in all three places;
+    the knee's flexion is ok."""
     from kinefuse.workflows.analyze_one import format_report
 
+    rajagopal = rajagopal_epicondyles
     rows = [ln.split(",") for ln in (rajagopal / "angles.csv").read_text().splitlines()]
     assert rows[0][-1] == "status"
     status = {(r[2], r[3]): r[6] for r in rows[1:]}
@@ -148,11 +185,12 @@ def test_pronation_where_the_forearm_has_two_styloids(
     assert ",forearm_pronation_left,anatomical," not in csv
 
 
-def test_the_html_report_has_the_status_column(rajagopal: Path) -> None:
+def test_the_html_report_has_the_status_column(rajagopal_epicondyles: Path) -> None:
     """report.html's angle table: the walk's real curves, one implausible (with why), one ok."""
     from kinefuse.report.html import angle_status_table
 
-    rows = [ln.split(",") for ln in (rajagopal / "angles.csv").read_text().splitlines()[1:]]
+    out = rajagopal_epicondyles
+    rows = [ln.split(",") for ln in (out / "angles.csv").read_text().splitlines()[1:]]
     curves: dict[str, list[float]] = {}
     times: list[float] = []
     for r in rows:

@@ -205,7 +205,8 @@ def test_rajagopal_walk_with_its_static_trial(shared_data: Path) -> None:
     inp = load_input(shared_data / f"{raj}motion_capture_walk.trc",
                      static=shared_data / f"{raj}static_walk_1.trc")  # fmt: skip
     assert inp.anatomical is not None and inp.anatomical_status is not None
-    assert set(inp.anatomical_status.values()) == {"ok"}, inp.anatomical_status
+    # every segment ok; the left knee's axis from the motion (tests/test_knee_axis_from_motion)
+    assert all(v.startswith("ok") for v in inp.anatomical_status.values()), inp.anatomical_status
     a = inp.anatomical
     for s in ("left", "right"):
         assert 50.0 < np.nanmax(a[f"knee_flexion_{s}"]) < 80.0  # degrees: swing-phase peak

@@ -47,6 +47,11 @@ axis of progression (:func:`lab_frame`), ``Y`` up, ``Z`` to the right of progres
 signs and zeros: :data:`ANATOMICAL_ANGLES` (the zero of every angle is the pose in which the
 two frames coincide: standing upright with the feet flat for the frames above). The shoulder
 also gets ISB's elevation plane, elevation and axial rotation (``Y-X-Y``, Wu et al. 2005).
+A capture without a pelvis (an upper-limb set) has no trunk-to-pelvis angles; its thorax is
+measured relative to the lab instead, as ISB's upper-limb recommendation does (thorax relative
+to the global frame, the same ``Z-X-Y`` sequence: ``thorax_extension``,
+``thorax_lateral_bend``, ``thorax_rotation``), with the lab's ``X`` the thorax's horizontal
+heading at the start of the motion.
 
 Pure numpy; arrays in, arrays out.
 """
@@ -260,9 +265,17 @@ def pelvis_frame_from_hips(hip_right: ArrayLike, hip_left: ArrayLike, up: ArrayL
 #: middle of the acromions.
 MODEL_LUMBAR_FROM_ASIS_M: Final = np.array([-0.1137, 0.0515, 0.0])
 MODEL_ASIS_WIDTH_M: Final = 0.256
+#: The generic model's pelvis depth, the distance from the ASIS midpoint to the PSIS midpoint,
+#: metres: Rajagopal2016.osim's RASI/RPSI markers at ``(0.0095, 0.0181, ±0.1285)`` and
+#: ``(-0.155, 0.035, ±0.045)``. OpenSim's Scale tool scales the pelvis along its X (depth) by
+#: the subject's MidASIS-MidPSIS distance over this one (the Rajagopal pipeline's
+#: ``scale_setup_walk`` measurement ``PelvisX``), and along Z by the widths, not all by the width.
+MODEL_PELVIS_DEPTH_M: Final = 0.1654
 
 
-def lumbar_joint_centre(pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: float) -> Array:
+def lumbar_joint_centre(
+    pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: float, depth_m: float | None = None
+) -> Array:
     """The lumbar joint centre (L5/S1, where the gait models' torso turns on the pelvis).
 
     Parameters
@@ -273,13 +286,21 @@ def lumbar_joint_centre(pelvis: ArrayLike, asis_mid: ArrayLike, asis_width_m: fl
         The ASIS midpoint, metres.
     asis_width_m : float
         Distance between the ASIS markers, metres (scales the model's offset).
+    depth_m : float, optional
+        Distance from the ASIS midpoint to the PSIS midpoint, metres: scales the offset's
+        anterior component (``X``) instead, as OpenSim's Scale tool scales the pelvis's depth
+        (:data:`MODEL_PELVIS_DEPTH_M`). Without PSIS markers (a sacral marker only) the width
+        scales all of it.
 
     Returns
     -------
     (..., 3) float
-        ``asis_mid + pelvis @ MODEL_LUMBAR_FROM_ASIS_M * asis_width_m / MODEL_ASIS_WIDTH_M``.
+        ``asis_mid + pelvis @ MODEL_LUMBAR_FROM_ASIS_M * asis_width_m / MODEL_ASIS_WIDTH_M``,
+        its ``X`` scaled by ``depth_m / MODEL_PELVIS_DEPTH_M`` when given.
     """
     off = MODEL_LUMBAR_FROM_ASIS_M * (asis_width_m / MODEL_ASIS_WIDTH_M)
+    if depth_m is not None:
+        off[0] = MODEL_LUMBAR_FROM_ASIS_M[0] * (depth_m / MODEL_PELVIS_DEPTH_M)
     out: Array = np.asarray(asis_mid, float) + np.asarray(pelvis, float) @ off
     return out
 
@@ -447,6 +468,14 @@ def _side_table() -> tuple[AnatomicalAngle, ...]:
                         "positive bending to the right"),
         AnatomicalAngle("trunk_rotation", "pelvis", "trunk", 2, 1.0,
                         "positive turning to the left"),
+        AnatomicalAngle("thorax_extension", "lab", "trunk", 0, 1.0,
+                        "thorax relative to the lab (captures without a pelvis only): positive "
+                        "extension (leaning back); 0 with the thorax's long axis vertical"),
+        AnatomicalAngle("thorax_lateral_bend", "lab", "trunk", 1, 1.0,
+                        "positive bending to the right; 0 with the thorax's long axis vertical"),
+        AnatomicalAngle("thorax_rotation", "lab", "trunk", 2, 1.0,
+                        "positive turning to the left; 0 facing the lab frame's X (the "
+                        "thorax's heading at the start of the motion)"),
     ]  # fmt: skip
     for side, s in (("right", 1.0), ("left", -1.0)):
         out += [
@@ -577,7 +606,8 @@ def anatomical_angles(
         Segment name (``pelvis``, ``trunk``, ``thigh_left``, ``shank_left``, ``foot_left``,
         ``upper_arm_left``, ``forearm_left``, and the right side) -> its anatomical frame.
     lab : (3, 3) float, optional
-        The lab frame of the pelvis angles (:func:`lab_frame`); without it no pelvis angle.
+        The lab frame of the pelvis angles (:func:`lab_frame`), and of the thorax angles
+        (``thorax_*``) of a capture without a pelvis; without it no angle relative to the lab.
     skip : sequence of str
         Angles not to give (their frames cannot define them, e.g. ``forearm_pronation_left``
         without styloid markers).
@@ -599,6 +629,8 @@ def anatomical_angles(
     for ang in ANATOMICAL_ANGLES:
         if ang.proximal not in have or ang.distal not in have or ang.name in skip:
             continue
+        if ang.name.startswith("thorax_") and "pelvis" in have:
+            continue  # with a pelvis the trunk is measured relative to it (trunk_*)
         key = (ang.proximal, ang.distal)
         if key not in cache:
             cache[key] = jcs_zxy(have[ang.proximal], have[ang.distal])

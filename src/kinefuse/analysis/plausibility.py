@@ -94,8 +94,8 @@ def plausibility(
 #: tissue, marker placement). Not from those tables, and ours: knee flexion to 150 (AAOS's 135
 #: is active flexion; a deep squat goes further), knee adduction ±20 and elbow adduction
 #: -30..20 (a joint's varus-valgus play is a few degrees, the elbow's carrying angle 10-15 deg
-#: of valgus; beyond these it is an axis misread). Angles relative to the lab (the pelvis's)
-#: have no physiological range.
+#: of valgus; beyond these it is an axis misread). Angles relative to the lab (the pelvis's,
+#: the thorax's of a capture without a pelvis) have no physiological range.
 ANGLE_RANGES_DEG: dict[str, tuple[float, float]] = {
     "trunk_extension": (-80.0, 30.0),
     "trunk_lateral_bend": (-35.0, 35.0),
@@ -142,8 +142,8 @@ def angle_status(name: str, t_s: NDArray[np.float64], deg: NDArray[np.float64]) 
     faster than a body moves (:data:`MAX_SPEED_DEG_S`, :data:`MAX_AXIAL_SPEED_DEG_S` for
     rotations about a long axis); it is outside :data:`ANGLE_RANGES_DEG` (plus
     :data:`RANGE_MARGIN_DEG`) on more than :data:`MAX_OUT_OF_RANGE_FRACTION` of its frames.
-    Angles relative to the lab (``pelvis_*``) and the shoulder's plane of elevation (undefined
-    with the arm down) are only tested for jumps.
+    Angles relative to the lab (``pelvis_*``, ``thorax_*``) and the shoulder's plane of
+    elevation (undefined with the arm down) are only tested for jumps.
     """
     v = np.asarray(deg, dtype=np.float64)
     t = np.asarray(t_s, dtype=np.float64)
@@ -154,7 +154,7 @@ def angle_status(name: str, t_s: NDArray[np.float64], deg: NDArray[np.float64]) 
     k = np.flatnonzero(ok)
     step = np.abs(np.diff(v[k]))
     dt = np.diff(t[k])
-    free = name.startswith("pelvis_") or "_plane" in name
+    free = name.startswith(("pelvis_", "thorax_")) or "_plane" in name
     consecutive = np.diff(k) == 1
     wraps = (step > 180.0) & consecutive
     if wraps.any() and not free:

@@ -28,9 +28,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis.anatomical import anatomical_angles, skeleton_anatomical_frames
+from kinefuse.analysis.anatomical import (
+    anatomical_angles,
+    frame_from_long_axis,
+    lab_frame,
+    skeleton_anatomical_frames,
+)
 from kinefuse.analysis.limbs import LIMB_NAMES
 from kinefuse.errors import InputError
+from kinefuse.io.formats.static_trial import HEADING_S
 from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 Array = NDArray[np.float64]
@@ -256,6 +262,21 @@ def _upper_limb_isb(
     return out
 
 
+def _true_thorax_in_lab(trunk: Array, shoulder: Array, mid: Array, t_s: Array) -> dict[str, Array]:
+    """The clip's ``thorax_*`` angles (a capture without a pelvis): ISB's thorax of the clip's
+    landmarks (:func:`_upper_limb_isb` puts IJ and C7 either side of ``SpineShoulder``, PX and
+    T8 either side of ``SpineMid``, along the clip's trunk bone's ``X``): ``Y`` from ``SpineMid``
+    to ``SpineShoulder``, ``Z`` normal to the plane of ``Y`` and that ``X``; relative to the lab
+    whose ``X`` is its heading over the motion's first second (as
+    :func:`kinefuse.io.formats.static_trial.anatomical_frames` defines it)."""
+    y = shoulder - mid
+    thorax = frame_from_long_axis(y, np.cross(trunk[..., 0], y))
+    first = t_s <= t_s[0] + HEADING_S
+    lab = lab_frame(thorax[first, :, 0].mean(axis=0))
+    out = anatomical_angles({"trunk": thorax}, lab)
+    return {k: v for k, v in out.items() if k.startswith("thorax_")}
+
+
 def _cast(
     m: dict[str, Array], fr: dict[str, Array], j: Callable[[str], Array], at: _At
 ) -> dict[str, Array]:
@@ -431,6 +452,9 @@ def marker_trial(
     keep = [i for i, n in enumerate(names) if n not in static_only]
     motion_names = tuple(names[i] for i in keep)
     true = anatomical_angles({k: v[ns:] for k, v in fr.items()}, sa.lab)
+    if marker_set == "upper-limb-isb":
+        true.update(_true_thorax_in_lab(fr["trunk"][ns:], j("SpineShoulder")[ns:],
+                                        j("SpineMid")[ns:], t[ns:]))  # fmt: skip
     return SyntheticTrial(
         names=names,
         static=static,

@@ -273,7 +273,9 @@ def analyse_one(
         report["anatomical"] = {
             "static_trial": inp.static_source,
             "segment_status": inp.anatomical_status,
-            "skipped": {k: v for k, v in (inp.anatomical_status or {}).items() if v != "ok"},
+            "skipped": {
+                k: v for k, v in (inp.anatomical_status or {}).items() if not v.startswith("ok")
+            },
             "angle_names": sorted(inp.anatomical),
             "present_fraction": {
                 k: float(np.isfinite(v).mean()) for k, v in sorted(inp.anatomical.items())

@@ -337,6 +337,155 @@ def _trunk_frames(
     return out
 
 
+#: Least knee flexion range in the motion (degrees) for its hinge axis to be found from it.
+MIN_FUNCTIONAL_RANGE_DEG = 30.0
+#: Largest angle (degrees) between the static trial's epicondyle axis and the axis the knee
+#: flexes about in the motion that is taken as the same axis (the epicondyles are kept, ISB).
+#: Ours, not a literature value: the two are 0.3-10.7 deg apart on the marker sets placed on
+#: CMU clips and on the shared walks' other knees, 29 deg on the Rajagopal walk's left knee,
+#: whose medial marker sits behind the axis the knee turns about (docs/analysis.md).
+MAX_KNEE_AXIS_DISAGREEMENT_DEG = 15.0
+
+
+def _rotvec(r: Array) -> Array:
+    """Rotation vectors (axis times angle, radians) of rotations ``(..., 3, 3)``."""
+    c = np.clip((np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.arccos(c)
+    v = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                  r[..., 1, 0] - r[..., 0, 1]], axis=-1)  # fmt: skip
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out: Array = v * (ang / (2.0 * np.sin(ang)))[..., None]
+    return np.where((ang < 1e-9)[..., None], 0.0, out)
+
+
+def functional_hinge_axis(proximal: Array, distal: Array) -> tuple[Array, float] | None:
+    """The axis a hinge turns about in the motion, in the static trial's world coordinates.
+
+    ``proximal``, ``distal``: ``(T, 3, 3)`` rotations of the two segments' clusters from the
+    static trial (:func:`kinefuse.analysis.anatomical.rigid_fit`). The distal segment's
+    rotation relative to the proximal one, from its least-turned frame to every other, is a
+    rotation about the hinge's axis (in the proximal segment's static coordinates); the axis is
+    the principal direction of those rotation vectors. Returns ``(unit axis, range in
+    degrees)``, None with fewer than 10 frames."""
+    rel = np.einsum("tji,tjk->tik", proximal, distal)
+    ok = np.isfinite(rel).all(axis=(1, 2))
+    if ok.sum() < 10:
+        return None
+    rel = rel[ok]
+    ref = int(np.argmin(np.linalg.norm(_rotvec(rel), axis=-1)))
+    v = _rotvec(np.einsum("tij,kj->tik", rel, rel[ref]))
+    _, _, vt = np.linalg.svd(v, full_matrices=False)
+    axis: Array = vt[0]
+    span = float(np.degrees(np.ptp(v @ axis)))
+    return axis, span
+
+
+def _functional_knees(
+    poses: dict[str, tuple[Array, Array]],
+    static_frames: dict[str, Array],
+    jp: dict[str, Array],
+    static: MarkerData,
+    mmap: MarkerMap,
+) -> dict[str, str]:
+    """Each knee whose static trial's epicondyle axis is more than
+    :data:`MAX_KNEE_AXIS_DISAGREEMENT_DEG` from the axis it flexes about in the motion (at
+    least :data:`MIN_FUNCTIONAL_RANGE_DEG` of flexion; :func:`functional_hinge_axis`): a
+    medial or lateral knee marker of the static trial is misplaced, and with it the ISB axis
+    and the centre between the two. The thigh's ``Z`` then is the hinge axis (pointing right),
+    the centre on it through the lateral epicondyle marker, as far medial of it as the map's
+    centre is, and the thigh's and shank's long axes are rebuilt to that centre (in place in
+    ``static_frames``). Returns ``thigh_<side>`` -> what was done, for its status."""
+    notes: dict[str, str] = {}
+    for side in ("right", "left"):
+        cap = side.capitalize()
+        th, sh = f"thigh_{side}", f"shank_{side}"
+        pair = mmap.anatomy.get(f"knee_axis_{side}")
+        need = (f"Hip{cap}", f"Knee{cap}", f"Ankle{cap}")
+        if th not in poses or sh not in poses or pair is None or not set(need) <= set(jp):
+            continue
+        found = functional_hinge_axis(poses[th][0], poses[sh][0])
+        hint = _axis_hint(static, mmap, "knee_axis", side)
+        lat = _cluster_points(static, pair[1:])
+        if found is None or hint is None or lat is None:
+            continue
+        axis, span = found
+        axis = axis if axis @ hint > 0 else -axis
+        off = float(np.degrees(np.arccos(np.clip(axis @ hint / np.linalg.norm(hint), -1, 1))))
+        if span < MIN_FUNCTIONAL_RANGE_DEG or off <= MAX_KNEE_AXIS_DISAGREEMENT_DEG:
+            continue
+        lateral = _median(lat[:, 0])
+        depth = float(np.linalg.norm(jp[need[1]] - lateral))
+        centre = lateral + depth * (-axis if side == "right" else axis)
+        static_frames[th] = an.frame_from_long_axis(jp[need[0]] - centre, axis)
+        ankle_hint = _axis_hint(static, mmap, "ankle_axis", side)
+        static_frames[sh] = an.frame_from_long_axis(
+            centre - jp[need[2]], ankle_hint if ankle_hint is not None else axis
+        )
+        notes[th] = (
+            f"ok: the static trial's knee markers give an axis {off:.0f} deg from the one the "
+            f"knee flexes about in the motion ({span:.0f} deg of flexion), so the knee's axis "
+            "and centre are that hinge's, through the lateral knee marker"
+        )
+    return notes
+
+
+#: A trunk cluster marker within this distance of the thorax's midsagittal plane in the static
+#: trial (the plane of its long axis and ``X``), metres, is a midline marker (IJ, PX, C7, T8;
+#: not the acromions).
+MIDLINE_M = 0.03
+
+
+def _thorax_frames(
+    y: Array,
+    top: Array,
+    template: Array,
+    moving: Array,
+    static_frame: Array,
+    static_top: Array,
+    carried: Array,
+) -> Array:
+    """The thorax of a capture without a pelvis, built in every frame as ISB's (Wu et al. 2005):
+    ``Y`` the long axis (``y``, from the landmarks' midpoints: mid PX/T8 to mid IJ/C7, which
+    ``SpineBase`` and ``SpineShoulder`` lie on), ``Z`` normal to the plane of that axis and the
+    cluster's midline markers (:data:`MIDLINE_M`; the plane of IJ, C7 and mid PX/T8 when they
+    are IJ and PX). The acromion markers of the cluster slide with the shoulder girdle: a
+    rigid fit through them turns the thorax with every shrug and arm swing. Frames (or a
+    cluster) without midline markers keep the carried ``Z`` (``carried``, ``(T, 3, 3)``), and
+    frames without the axis the carried frame.
+
+    ``top``: ``(T, 3)`` the axis's upper point (``SpineShoulder``); ``template``, ``moving``:
+    the cluster's markers in the static trial ``(M, 3)`` and the motion ``(T, M, 3)``;
+    ``static_frame``, ``static_top``: the thorax frame and ``SpineShoulder`` in the static
+    trial."""
+    lateral = (template - static_top) @ static_frame[:, 2]
+    midline = np.abs(lateral) < MIDLINE_M
+    z_hint = carried[..., 2]
+    if midline.any():
+        with np.errstate(invalid="ignore"):
+            forward = np.nanmean(moving[:, midline] - top[:, None], axis=1)
+        z_from = np.cross(forward, y)  # forward x up: to the right
+        z_hint = np.where(np.isfinite(z_from), z_from, z_hint)
+    built: Array = an.frame_from_long_axis(y, z_hint)
+    out: Array = np.where(np.isfinite(built), built, carried)
+    return out
+
+
+#: Seconds at the start of the motion whose mean thorax heading is the lab's ``X`` of a
+#: capture without a pelvis.
+HEADING_S = 1.0
+
+
+def _initial_heading(trunk: Array, t_s: Array) -> Array:
+    """The thorax's mean forward axis over the first :data:`HEADING_S` seconds in which it is
+    present (world ``+x`` when it never is), ``(3,)``."""
+    ok = np.flatnonzero(np.isfinite(trunk).all(axis=(1, 2)))
+    if not ok.size:
+        return np.array([1.0, 0.0, 0.0])
+    first = ok[t_s[ok] <= t_s[ok[0]] + HEADING_S]
+    forward: Array = trunk[first, :, 0].mean(axis=0)
+    return forward
+
+
 def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -> AnatomicalFrames:
     """ISB frames of every segment the map and the files allow (module docstring).
 
@@ -361,11 +510,13 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     pelvis_pts = None if pv is None else _cluster_points(static, pv.marker_names())
     asis_mid: Array | None = None
     asis_width = 0.0
+    depth: float | None = None  # ASIS midpoint to PSIS midpoint (not to a sacral marker)
     if pv is not None and pelvis_pts is not None:
         pts = [_median(pelvis_pts[:, k]) for k in range(pelvis_pts.shape[1])]
         back = pts[2] if pv.sacrum else 0.5 * (pts[2] + pts[3])
         static_frames["pelvis"], asis_mid = an.pelvis_frame(pts[0], pts[1], back)
         asis_width = float(np.linalg.norm(pts[0] - pts[1]))
+        depth = None if pv.sacrum else float(np.linalg.norm(asis_mid - back))
     elif {"HipLeft", "HipRight", "SpineMid"} <= set(jp):
         static_frames["pelvis"] = an.pelvis_frame_from_hips(jp["HipRight"], jp["HipLeft"],
                                                             jp["SpineMid"])  # fmt: skip
@@ -376,7 +527,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
     if shoulders and asis_mid is not None:
         # the torso's long axis as the gait models define it: from the lumbar joint to the
         # middle of the shoulders (anatomical.lumbar_joint_centre)
-        lumbar = an.lumbar_joint_centre(static_frames["pelvis"], asis_mid, asis_width)
+        lumbar = an.lumbar_joint_centre(static_frames["pelvis"], asis_mid, asis_width, depth)
         static_frames["trunk"] = an.frame_from_long_axis(
             0.5 * (jp["ShoulderLeft"] + jp["ShoulderRight"]) - lumbar,
             jp["ShoulderRight"] - jp["ShoulderLeft"],
@@ -434,6 +585,7 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         if lb.parent in templates and lb.proximal in jp:
             joints.append((lb.parent, seg, jp[lb.proximal]))
     poses = an.segment_poses(templates, moving, joints)
+    knee_notes = _functional_knees(poses, static_frames, jp, st_aug, mmap)
     frames = {seg: an.carry(static_frames[seg], np.eye(3), poses[seg][0]) for seg in templates}
     # the motion's joint centres in every frame: the trunk and the arms are built from them
     mpos, mjn, _ = apply_marker_map(motion, mmap, partial=True)
@@ -446,6 +598,18 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         trunk = _trunk_frames(mpos, midx, poses["pelvis"], lumbar)
         if trunk is not None:
             frames["trunk"] = trunk
+    elif (
+        "trunk" in frames and "pelvis" not in frames and {"SpineBase", "SpineShoulder"} <= set(midx)
+    ):
+        frames["trunk"] = _thorax_frames(
+            mpos[:, midx["SpineShoulder"]] - mpos[:, midx["SpineBase"]],
+            mpos[:, midx["SpineShoulder"]],
+            templates["trunk"],
+            moving["trunk"],
+            static_frames["trunk"],
+            jp["SpineShoulder"],
+            frames["trunk"],
+        )
     # each elbow's carrying angle in the static trial (its epicondyle frames): the hinge's
     carrying = {}
     for side in ("right", "left"):
@@ -454,7 +618,12 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
             carrying[side] = float(an.jcs_zxy(arm, fore)[1])
     _long_axes_per_frame(mpos, midx, motion, st_aug, mmap, frames, carrying)
     for seg in frames:
-        status[seg] = "ok"
+        status[seg] = knee_notes.get(seg, "ok")
+    if "trunk" in frames and "pelvis" not in frames:
+        status["trunk"] = (
+            "ok: no pelvis, so its angles (thorax_*) are relative to the lab: the vertical and "
+            "the thorax's heading at the start of the motion"
+        )
     for kind in (*_LEG, *_ARM):
         for side in ("right", "left"):
             seg = f"{kind}_{side}"
@@ -466,6 +635,8 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         disp = tr[ok[-1]] - tr[ok[0]] if ok.size else np.zeros(3)
         facing = np.nanmean(frames["pelvis"][:, :, 0], axis=0)
         lab = an.lab_frame(an.progression_axis(disp, facing))
+    elif "trunk" in frames:
+        lab = an.lab_frame(_initial_heading(frames["trunk"], motion.t_s))
     else:
         lab = an.lab_frame(np.array([1.0, 0.0, 0.0]))
     undefined = tuple(
