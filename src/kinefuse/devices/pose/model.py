@@ -13,6 +13,10 @@ tracking). ``image`` mode runs the detector on every frame.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -68,13 +72,14 @@ class BlazePoseModel:
         self.input_width = int(input_width)
         self.detect_every = int(detect_every) if video else 0
         self._frames = 0
-        self._pose: Any = mp_pose.Pose(
-            static_image_mode=not video,
-            model_complexity=1,  # the full model: the one inside the wheel
-            enable_segmentation=False,
-            min_detection_confidence=min_detection,
-            min_tracking_confidence=min_tracking,
-        )
+        with _native_stderr_silenced():
+            self._pose: Any = mp_pose.Pose(
+                static_image_mode=not video,
+                model_complexity=1,  # the full model: the one inside the wheel
+                enable_segmentation=False,
+                min_detection_confidence=min_detection,
+                min_tracking_confidence=min_tracking,
+            )
 
     def detect(self, rgb: NDArray[np.uint8]) -> Landmarks2D | None:
         """The person's landmarks in ``rgb`` ``(h, w, 3)`` uint8, or None when there is none."""
@@ -88,7 +93,11 @@ class BlazePoseModel:
         if self.detect_every and self._frames and self._frames % self.detect_every == 0:
             self._pose.reset()  # the next frame starts from the detector
         self._frames += 1
-        result = self._pose.process(np.ascontiguousarray(image))
+        if self._frames == 1:  # the graph starts on the first frame, and says so natively
+            with _native_stderr_silenced():
+                result = self._pose.process(np.ascontiguousarray(image))
+        else:
+            result = self._pose.process(np.ascontiguousarray(image))
         if result.pose_landmarks is None:
             return None
         lms = result.pose_landmarks.landmark
@@ -100,3 +109,24 @@ class BlazePoseModel:
 
     def close(self) -> None:
         self._pose.close()
+
+
+@contextlib.contextmanager
+def _native_stderr_silenced() -> Iterator[None]:
+    """MediaPipe's C++ side (TensorFlow Lite, absl) writes its start-up notes straight to file
+    descriptor 2 ("Created TensorFlow Lite XNNPACK delegate", "Feedback manager requires...");
+    no environment variable of theirs stops it. They are not for the user: while the model
+    starts, descriptor 2 points at /dev/null (Python's own stderr is flushed first)."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no descriptor 2 to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
