@@ -418,13 +418,15 @@ def test_the_real_server_survives_fuzzing_and_keeps_fusing(tmp_path) -> None:
     rec = tmp_path / "rec.sqlite"
     env = {**os.environ, "KINEFUSE_TOKEN": TOKEN}
     args = [sys.executable, "-m", "kinefuse", "serve", "--port", "0", "--record", str(rec)]
-    server = subprocess.Popen(
-        [*args, "--calibration", str(cal_path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        env=env,
-    )
+    err_path = tmp_path / "server.err"  # what the server said, shown if it fails
+    with err_path.open("w") as err_log:
+        server = subprocess.Popen(
+            [*args, "--calibration", str(cal_path)],
+            stdout=subprocess.PIPE,
+            stderr=err_log,
+            text=True,
+            env=env,
+        )
     try:
         assert server.stdout is not None
         line = server.stdout.readline()
@@ -468,7 +470,12 @@ def test_the_real_server_survives_fuzzing_and_keeps_fusing(tmp_path) -> None:
                 "outcomes": outcomes,
             }
 
-        out = asyncio.run(asyncio.wait_for(main(), 240))
+        try:
+            out = asyncio.run(asyncio.wait_for(main(), 240))
+        except OSError as e:  # the server stopped answering: say what it printed
+            tail = err_path.read_text(errors="replace")[-3000:]
+            alive = server.poll() is None
+            raise AssertionError(f"{e}; server alive: {alive}; stderr:\n{tail}") from e
         print(
             f"fuzz: {N_SOCKET} socket inputs in {out['took']:.1f} s; RSS {out['rss'][0]} -> "
             f"{out['rss'][1]} KiB; outcomes {sorted(out['outcomes'].items())}"

@@ -412,7 +412,7 @@ def test_a_standing_leg_reads_as_straight_as_on_the_real_front_sensors(
     offsets (each joint's definition offset drawn on its own) read it about 12° bent in the
     median; drawn coherently along the limb (`limb_coherence`, fitted on the sensors' angle
     disagreement, not on this) they give the real figure."""
-    from kinefuse.workflows.realism import population_seeds
+    from kinefuse.evaluation.realism_person import population_seeds
 
     folder = shared_data / "kinect" / "kinect_multitrack_population"
     firsts: dict[str, Path] = {}

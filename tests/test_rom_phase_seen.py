@@ -150,10 +150,10 @@ def test_rom_phase_without_actor_at_the_common_volume_centre(
 # --- 3. analyze: was the phase seen? -----------------------------------------------------------
 
 
-def analyze(capsys: pytest.CaptureFixture[str], session: Path, out: Path) -> dict:
+def analyze(capsys: pytest.CaptureFixture[str], session: Path, out: Path, expect: int = 0) -> dict:
     code, stdout, err = run(capsys, "analyze", str(session), "--true-calibration", "--out",
                             str(out), "--json", "--no-plots")  # fmt: skip
-    assert code == 0, err
+    assert code == expect, err
     report: dict = json.loads(stdout)
     report["_stderr"] = err
     return report
@@ -232,7 +232,8 @@ def test_analyze_a_phase_no_two_sensors_saw(
     assert sensors_seeing(load_rig(rig), [(0.0, 0.0)]).tolist() == [1]
     s = tmp_path / "unseen.sqlite"
     simulate(capsys, shared_data / WALK, rig, s)
-    r = analyze(capsys, s, tmp_path / "out")
+    r = analyze(capsys, s, tmp_path / "out", expect=3)  # nothing analysed: exit 3, says why
+    assert "nothing analysed" in r["_stderr"]
     seen = r["calibration_phase"]["seen"]
     assert seen["frames"] > 1000  # the phase was fused (from one sensor): not skipped as empty
     assert max(seen["fraction_by_limb"].values()) < SEEN_MIN_FRACTION
