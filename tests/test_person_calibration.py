@@ -336,3 +336,21 @@ def test_a_wand_calibration_in_force_stops_the_person_path(take45, rows45) -> No
     _feed(p, rows45, 30.0, 50.0)
     assert not p.due(50.0, ids, cal)
     assert p.say(50.0, ids, cal) is None and p.message is None and not p.active
+
+
+def test_a_sensor_with_too_few_person_frames_fails_the_solve_not_the_server() -> None:
+    """A sensor with a pose (from a file) and a newcomer that sent three frames of nothing (as a
+    fuzzing peer with the token does): the solve fails with a reason; it used to raise (numpy's
+    "need at least one array to stack") and end the server."""
+    from kinefuse.net.server.person import PersonJob, solve_person
+    from kinefuse.skeleton import standing_pose
+
+    pose = np.asarray(standing_pose(), dtype=float)
+    t = [k / 30 for k in range(60)]
+    tracks = {
+        "s0": (t, t, [pose + [0.0, 0.0, 3.0]] * 60),
+        "fz0": (t[:3], t[:3], [pose * np.nan] * 3),
+    }
+    out = solve_person(PersonJob(1, tracks, {"s0": np.eye(4)}, None, {}, {}))
+    assert not out.ok and out.grade.grade == "failed"
+    assert "no sensor could be registered" in out.message

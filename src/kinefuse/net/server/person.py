@@ -287,6 +287,11 @@ def solve_person(job: PersonJob) -> CalibrationOutcome:
             cid, False, METHOD, Grade("failed", (str(e),)), f"calibration failed: {e}", targets
         )
     ids = tuple(sorted(bc.sensor2world))
+    if not set(ids) - set(job.fixed):
+        why = "no sensor could be registered from the person (too few frames with a person)"
+        return CalibrationOutcome(
+            cid, False, METHOD, Grade("failed", (why,)), f"calibration failed: {why}", targets
+        )
     res = [bc.fits[s].residual_m if s in bc.fits else 0.0 for s in ids]
     n = [bc.fits[s].n_frames if s in bc.fits else len(job.tracks[s][0]) for s in ids]
     world = (
@@ -342,7 +347,15 @@ def person_step(srv: Server, now: float) -> None:
 
 
 async def _solve(srv: Server, job: PersonJob) -> None:
-    out = await asyncio.to_thread(solve_person, job)
+    try:
+        out = await asyncio.to_thread(solve_person, job)
+    except Exception as e:  # a defect of ours must not stop the server: the poses in force stay
+        why = f"internal error, please report: {type(e).__name__}: {e}"
+        log.error("calibration %d from the person: %s", job.calibration_id, why)
+        targets = tuple(sorted(s for s in job.tracks if s not in job.fixed))
+        out = CalibrationOutcome(
+            job.calibration_id, False, METHOD, Grade("failed", (why,)), why, targets
+        )
     if srv.person.finish(out, srv.calibration):
         srv.announce_calibration(out)
     else:
