@@ -347,8 +347,9 @@ def test_a_sensor_with_too_few_person_frames_fails_the_solve_not_the_server() ->
 
     pose = np.asarray(standing_pose(), dtype=float)
     t = [k / 30 for k in range(60)]
+    ahead = pose + np.array([0.0, 0.0, 3.0])
     tracks = {
-        "s0": (t, t, [pose + [0.0, 0.0, 3.0]] * 60),
+        "s0": (t, t, [ahead] * 60),
         "fz0": (t[:3], t[:3], [pose * np.nan] * 3),
     }
     out = solve_person(PersonJob(1, tracks, {"s0": np.eye(4)}, None, {}, {}))
