@@ -8,7 +8,7 @@ misses. The references: the Gait2354 walk's IK (gait2354 model, no arms) and the
 walk's IK (Rajagopal 2016 model, arms included; ``../shared/data/MANIFEST.md``). Nothing is
 fitted to these walks: ISB frames, Harrington's hip centres, the models' joint definitions.
 
-    python benchmarks/bench_opensim_ik.py [--data ../shared/data] [--plot docs/img/opensim_ik.png]
+    python studies/opensim_ik.py [--data ../shared/data] [--plot docs/img/opensim_ik.png]
 
 ``--smoke`` (CI) runs the same comparison: two short walks, a few seconds already.
 """
