@@ -118,6 +118,18 @@ def error_parts(text: str) -> tuple[str, ...]:
     return names
 
 
+def add_allow_host_arg(p: argparse.ArgumentParser) -> None:
+    """``--allow-host NAME`` of the commands that serve the viewer (``serve``, ``view``)."""
+    p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name the viewer answers to besides --host and the loopback names (repeatable; "
+        "a request naming any other host is refused: docs/security.md)",
+    )
+
+
 def add_calibration_args(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--calibration", type=Path, help="calibration file (TOML) with sensor poses")

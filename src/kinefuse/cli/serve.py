@@ -59,14 +59,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="PORT",
         help="serve the live web viewer on this port (0: a free one; on --host)",
     )
-    p.add_argument(
-        "--allow-host",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="a name the viewer answers to besides --host and the loopback names (repeatable; "
-        "a request naming any other host is refused: docs/security.md)",
-    )
+    shared.add_allow_host_arg(p)
     p.add_argument(
         "--lsl",
         nargs="?",

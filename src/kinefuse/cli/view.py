@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from kinefuse.cli import args as shared
+
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``kinefuse view``."""
@@ -12,14 +14,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("session", type=Path, help="session store (.sqlite) to replay")
     p.add_argument("--host", default="127.0.0.1", help="interface to serve on (127.0.0.1)")
     p.add_argument("--port", type=int, default=0, help="TCP port (0: a free one)")
-    p.add_argument(
-        "--allow-host",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="a name the viewer answers to besides --host and the loopback names (repeatable; "
-        "a request naming any other host is refused: docs/security.md)",
-    )
+    shared.add_allow_host_arg(p)
     p.set_defaults(func=run)
 
 
