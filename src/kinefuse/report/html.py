@@ -149,6 +149,17 @@ def _gain_cell(g: dict[str, Any]) -> str:
     )
 
 
+#: the sections every report has, first in its navigation (:func:`_session_sections`)
+_SESSION_NAV = (("setup", "setup"), ("calibration", "calibration"), ("clock", "clock sync"),
+                ("latency", "latency"))  # fmt: skip
+
+
+def _nav(*sections: tuple[str, str]) -> str:
+    """The report's navigation: the session's sections, then ``sections`` (anchor, title)."""
+    links = (f'<a href="#{a}">{t}</a>' for a, t in (*_SESSION_NAV, *sections))
+    return "<nav>" + "".join(links) + "</nav>"
+
+
 def render_report(
     facts: SessionFacts,
     report: dict[str, Any],
@@ -172,22 +183,13 @@ def render_report(
         f"{_e(facts.pose_source)}</p>"
     )
     add(
-        "<nav>"
-        + "".join(
-            f'<a href="#{a}">{t}</a>'
-            for a, t in (
-                ("setup", "setup"),
-                ("calibration", "calibration"),
-                ("clock", "clock sync"),
-                ("latency", "latency"),
-                ("accuracy", "accuracy"),
-                ("time", "error over time"),
-                ("trajectories", "trajectories"),
-                ("occlusion", "occlusion"),
-                ("angles", "angles"),
-            )
+        _nav(
+            ("accuracy", "accuracy"),
+            ("time", "error over time"),
+            ("trajectories", "trajectories"),
+            ("occlusion", "occlusion"),
+            ("angles", "angles"),
         )
-        + "</nav>"
     )
     kpi = [(f"{_n(report[m]['mae_m'], 1, 100)} cm", f"MAE {m}") for m in focus]
     occ = report.get("occlusion") or {}
@@ -457,22 +459,7 @@ def render_consistency_report(
         f'<p class="sub">{len(facts.sensors)} sensors · {report.get("frames", 0)} fused frames '
         f"({facts.duration_s:.1f} s recorded) · poses: {_e(report.get('calibration'))}</p>"
     )
-    add(
-        "<nav>"
-        + "".join(
-            f'<a href="#{a}">{t}</a>'
-            for a, t in (
-                ("setup", "setup"),
-                ("calibration", "calibration"),
-                ("clock", "clock sync"),
-                ("latency", "latency"),
-                ("consistency", "consistency"),
-                ("joints", "per joint"),
-                ("bones", "bones"),
-            )
-        )
-        + "</nav>"
-    )
+    add(_nav(("consistency", "consistency"), ("joints", "per joint"), ("bones", "bones")))
     agree = report.get("agreement")
     r = report[focus]
     kpi = [(f"{_n(r['placed'], 1, 100)} %", f"joints placed ({focus})")]
