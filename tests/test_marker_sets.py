@@ -205,25 +205,6 @@ def test_different_landmarks_stay_apart(a: str, b: str) -> None:
     assert marker_key(a) != marker_key(b)
 
 
-def test_an_upper_limb_capture_gives_arm_and_trunk_angles_and_says_the_legs_were_skipped(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    tr = marker_trial(shared_data / START_STOP, "upper-limb-isb")
-    walk, static = write_trial(tr, tmp_path, prefixed("Name"), "+z")
-    out = tmp_path / "out"
-    code = main(["analyze", str(walk), "--static", str(static), "--out", str(out), "--no-plots"])
-    err = capsys.readouterr().err
-    assert code == 0, err
-    assert "partial body" in err and "upper-limb-isb marker set has none" in err
-    report = json.loads((out / "analysis.json").read_text())
-    skipped = report["skipped_limbs"]
-    assert {"thigh_left", "shank_right", "foot_left"} <= set(skipped)
-    _header, *rows = (out / "angles.csv").read_text().splitlines()
-    angles = {r.split(",")[2] for r in rows}
-    assert {"elbow_flexion_left", "elbow_flexion_right"} <= angles
-    assert not any(a.startswith(("knee", "hip_", "ankle")) for a in angles), angles
-
-
 def test_a_file_of_an_unknown_set_gets_at_most_twelve_lines_and_exit_2(
     shared_data: Path,
     tmp_path: Path,

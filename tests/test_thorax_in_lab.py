@@ -21,7 +21,7 @@ from test_marker_sets import START_STOP, THORAX_2, WALK, prefixed, write_trial
 THORAX = ("thorax_extension", "thorax_lateral_bend", "thorax_rotation")
 
 
-def test_analyze_gives_the_thorax_in_the_lab_and_says_so(
+def test_an_upper_limb_capture_gives_arm_and_thorax_angles_and_says_the_legs_were_skipped(
     shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     tr = marker_trial(shared_data / START_STOP, "upper-limb-isb")
@@ -31,7 +31,10 @@ def test_analyze_gives_the_thorax_in_the_lab_and_says_so(
     err = capsys.readouterr().err
     assert code == 0, err
     assert "partial body" in err and "thigh_left" in err  # the legs: said skipped
-    anat = json.loads((out / "analysis.json").read_text())["anatomical"]
+    assert "upper-limb-isb marker set has none" in err
+    report = json.loads((out / "analysis.json").read_text())
+    assert {"thigh_left", "shank_right", "foot_left"} <= set(report["skipped_limbs"])
+    anat = report["anatomical"]
     assert anat["segment_status"]["trunk"].startswith("ok: no pelvis")
     assert "relative to the lab" in anat["segment_status"]["trunk"]
     assert "trunk" not in anat["skipped"] and "pelvis" in anat["skipped"]
@@ -42,6 +45,10 @@ def test_analyze_gives_the_thorax_in_the_lab_and_says_so(
                 got[row["angle"]].append(float(row["degrees"]) if row["degrees"] else np.nan)
                 assert row["status"] == "ok", row
     assert set(got) == set(THORAX)
+    with (out / "angles.csv").open() as f:
+        angles = {row["angle"] for row in csv.DictReader(f)}
+    assert {"elbow_flexion_left", "elbow_flexion_right"} <= angles  # the arms
+    assert not any(a.startswith(("knee", "hip_", "ankle")) for a in angles), angles
     # no pelvis for the trunk to be relative to
     assert not any(a.startswith("trunk_") for a in anat["angle_names"])
     for name in THORAX:
