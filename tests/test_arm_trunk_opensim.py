@@ -73,21 +73,74 @@ def test_rajagopal_lumbar_offset(rajagopal: Path, shared_data: Path) -> None:
     assert abs(v) <= 5.0, v
 
 
-@pytest.mark.xfail(strict=True, reason="not met: OpenSim's scaled gait2354 model places the "
-                   "acromion markers 3.1 deg behind its torso axis (docs/analysis.md)")  # fmt: skip
-def test_gait2354_lumbar_offset_not_met(shared_data: Path, tmp_path: Path) -> None:
-    from kinefuse.evaluation.opensim_ik import compare_with_ik
+def _gait2354(shared_data: Path, tmp_path: Path, how: str, window: tuple[float, float] | None
+              ) -> dict[str, dict[str, float]]:  # fmt: skip
+    """The Gait2354 walk (as is, or left-right mirrored with its IK) with --names
+    opensim:gait2354 against OpenSim's IK of it."""
+    from kinefuse.evaluation.opensim_ik import compare_with_ik, mirror_trc_text
     from kinefuse.workflows.analyze import run_analyze
 
+    walk = shared_data / f"{GAIT}subject01_walk1.trc"
+    static = shared_data / f"{GAIT}subject01_static.trc"
+    if how == "mirrored":
+        (tmp_path / "w.trc").write_text(mirror_trc_text(walk.read_text()))
+        (tmp_path / "s.trc").write_text(mirror_trc_text(static.read_text()))
+        walk, static = tmp_path / "w.trc", tmp_path / "s.trc"
     out = tmp_path / "out"
-    run_analyze([shared_data / f"{GAIT}subject01_walk1.trc"], out=out,
-                static=shared_data / f"{GAIT}subject01_static.trc",
-                names="opensim:gait2354", plots=False)  # fmt: skip
-    c = compare_with_ik(
-        out / "angles.mot", shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot"
-    )
-    v = c["lumbar_extension"]["offset_deg"]
-    assert abs(v) <= 5.0, v
+    run_analyze([walk], out=out, static=static, static_window=window, names="opensim:gait2354",
+                plots=False)  # fmt: skip
+    ik = shared_data / f"{GAIT}OutputReference_subject01_walk1_ik.mot"
+    return compare_with_ik(out / "angles.mot", ik, mirrored=how == "mirrored")
+
+
+@pytest.mark.parametrize(
+    ("how", "window"), [("as is", None), ("mirrored", None), ("as is", (0.0, 2.5)),
+                        ("as is", (2.5, 5.0))]
+)  # fmt: skip
+def test_gait2354_lumbar_offset_from_the_models_own_bodies(
+    shared_data: Path, tmp_path: Path, how: str, window: tuple[float, float] | None
+) -> None:
+    """Met since the pelvis and torso of the gait2354 coordinates are the model's own bodies,
+    fitted to the static trial by the model's marker template (8.3 deg before; -1.6 now), on
+    the walk, its mirror and either half of the static trial; the hip, knee and ankle keep
+    their ISB frames and figures (test_opensim_ik.py)."""
+    c = _gait2354(shared_data, tmp_path, how, window)
+    assert abs(c["lumbar_extension"]["offset_deg"]) <= 5.0, c["lumbar_extension"]
+    assert abs(c["pelvis_tilt"]["offset_deg"]) <= 1.0, c["pelvis_tilt"]  # -3.7 with ISB's
+    # the hips keep their ISB frames: 0.01 / 1.26 as before (-3.2 / -1.9 from the model pelvis)
+    assert max(abs(c[f"hip_flexion_{s}"]["offset_deg"]) for s in "rl") <= 1.5
+
+
+@pytest.mark.xfail(strict=True, reason="not reachable from the pelvis's three markers: the "
+                   "IK's lumbar_extension spans 2.4 deg (SD 0.69), r >= 0.8 allows 0.52 deg RMS "
+                   "of error, and the pelvis tilt alone differs from the IK's by 1.5 deg RMS "
+                   "(docs/analysis.md)")  # fmt: skip
+def test_gait2354_lumbar_r_not_met(shared_data: Path, tmp_path: Path) -> None:
+    assert _gait2354(shared_data, tmp_path, "as is", None)["lumbar_extension"]["r"] >= 0.8
+
+
+def test_model_body_offsets_recover_a_posed_template(rng: np.random.Generator) -> None:
+    """The gait2354 template placed in a known pose (the torso turned about the lumbar joint)
+    gives back the model bodies' frames relative to any ISB frames; a segment whose markers
+    the static trial lacks is left out."""
+    from scipy.spatial.transform import Rotation
+
+    from kinefuse.analysis.anatomical import GAIT2354_TEMPLATES, model_body_offsets
+
+    body = {k: Rotation.random(random_state=rng).as_matrix() for k in ("pelvis", "trunk")}
+    isb = {k: Rotation.random(random_state=rng).as_matrix() for k in ("pelvis", "trunk")}
+    origin = {"pelvis": rng.normal(size=3), "trunk": rng.normal(size=3)}  # the trunk's: the joint
+    markers = {
+        name: body[seg] @ np.asarray(loc) + origin[seg]
+        for seg, tmpl in GAIT2354_TEMPLATES.items()
+        for name, loc in tmpl.items()
+    }
+    lumbar = origin["trunk"]
+    got = model_body_offsets(isb, markers, GAIT2354_TEMPLATES, lumbar)
+    for seg in ("pelvis", "trunk"):
+        np.testing.assert_allclose(isb[seg] @ got[seg], body[seg], atol=1e-9)
+    del markers["Sternum"]
+    assert set(model_body_offsets(isb, markers, GAIT2354_TEMPLATES, lumbar)) == {"pelvis"}
 
 
 def test_the_model_decides_the_knee_sign(rajagopal: Path, shared_data: Path) -> None:

@@ -59,7 +59,7 @@ Pure numpy; arrays in, arrays out.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
@@ -85,6 +85,7 @@ __all__ = [
     "humerus_from_forearm",
     "jcs_zxy",
     "lab_frame",
+    "model_body_offsets",
     "opensim_angles",
     "opensim_model",
     "pelvis_frame",
@@ -557,7 +558,33 @@ class OpenSimModel:
     knee_sign: float  # +1: knee_angle positive in flexion (Rajagopal 2016); -1: negative
     arms: bool  # the model has arm coordinates (arm_flex/add/rot, elbow_flex)
     source: str  # the model file the convention was read from
+    #: segment (``pelvis``, ``trunk``) -> marker -> its location in the model body's frame
+    #: (metres; X anterior, Y up, Z right): the marker template of the model's example marker
+    #: set, from which the body's own frame is found in the static trial
+    #: (:func:`model_body_offsets`); empty: the ISB frames stand for the bodies
+    templates: Mapping[str, Mapping[str, tuple[float, float, float]]] = field(default_factory=dict)
 
+
+#: The Gait2354 example's marker template on the model's ``pelvis`` and ``torso`` bodies
+#: (metres, body frames): its scale marker set as the pipeline's scale step leaves it, scaled
+#: but not yet moved onto a subject's markers (opensim-models
+#: ``Pipelines/Gait2354_Simbody/OutputReference/subject01_scaledOnly.osim``). The model's
+#: ``pelvis`` frame is not the ISB one: its ASIS markers sit 10 mm below the sacral marker
+#: (3.2 deg); its ``torso`` Y axis runs from the ``back`` joint in front of the acromion
+#: markers (3.9 deg).
+GAIT2354_TEMPLATES: Final[dict[str, dict[str, tuple[float, float, float]]]] = {
+    "pelvis": {
+        "R.ASIS": (0.0204915, 0.0307373, 0.131146),
+        "L.ASIS": (0.0204915, 0.0307373, -0.131146),
+        "V.Sacral": (-0.163932, 0.0409831, 0.0),
+    },
+    "trunk": {
+        "Sternum": (0.0755804, 0.323916, 0.0),
+        "R.Acromium": (-0.0323916, 0.475077, 0.161958),
+        "L.Acromium": (-0.0323916, 0.475077, -0.161958),
+        "Top.Head": (0.000906965, 0.709376, 0.0),
+    },
+}
 
 #: The models ``--names opensim:MODEL`` knows (``--names opensim``: :data:`DEFAULT_OPENSIM`).
 #: Their knee is a ``CustomJoint`` whose flexion coordinate turns the tibia about the femur's
@@ -568,7 +595,13 @@ class OpenSimModel:
 OPENSIM_MODELS: Final[dict[str, OpenSimModel]] = {
     m.name: m
     for m in (
-        OpenSimModel("gait2354", -1.0, False, "Models/Gait2354_Simbody/gait2354_simbody.osim"),
+        OpenSimModel(
+            "gait2354",
+            -1.0,
+            False,
+            "Models/Gait2354_Simbody/gait2354_simbody.osim",
+            GAIT2354_TEMPLATES,
+        ),
         OpenSimModel("gait2392", -1.0, False, "Models/Gait2392_Simbody/gait2392_simbody.osim"),
         OpenSimModel("hamner", -1.0, True, "Models/Hamner/FullBodyModel_Hamner2010_v2_0.osim"),
         OpenSimModel("rajagopal", 1.0, True, "Models/Rajagopal/Rajagopal2016.osim"),
@@ -576,6 +609,63 @@ OPENSIM_MODELS: Final[dict[str, OpenSimModel]] = {
 }
 #: ``--names opensim`` alone: the gait-model knee (negative in flexion) with Hamner's arms.
 DEFAULT_OPENSIM: Final = "hamner"
+
+
+def _rotation_about(template: Array, points: Array) -> Array:
+    """The rotation ``R`` minimising ``sum |R @ template_i - points_i|^2`` (no translation:
+    both are relative to the same pivot), ``(M, 3)`` each -> ``(3, 3)``."""
+    u, _, vt = np.linalg.svd(template.T @ points)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    out: Array = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return out
+
+
+def model_body_offsets(
+    static_frames: Mapping[str, Array],
+    markers: Mapping[str, Array],
+    templates: Mapping[str, Mapping[str, tuple[float, float, float]]],
+    lumbar: ArrayLike | None = None,
+) -> dict[str, Array]:
+    """Where an OpenSim model's own bodies sit in kinefuse's ISB frames, from the static trial.
+
+    OpenSim's IK places a body by its markers as the model's marker set puts them on it; its
+    coordinates relate those bodies, not ISB frames. Here the model's marker template of each
+    segment is fitted to the static trial's markers (least squares, every template marker the
+    same weight): the pelvis as a free rigid body, the torso turning about the lumbar joint
+    (``lumbar``, the model's ``back`` joint, where the torso's frame has its origin).
+
+    Parameters
+    ----------
+    static_frames : mapping of str to (3, 3) float
+        ISB frames in the static trial (``pelvis``, ``trunk``), world.
+    markers : mapping of str to (3,) float
+        The static trial's marker positions (medians), metres, world.
+    templates : mapping
+        :attr:`OpenSimModel.templates`.
+    lumbar : (3,) float, optional
+        The lumbar joint in the static trial; without it the trunk is fitted as a free body.
+
+    Returns
+    -------
+    dict of str to (3, 3) float
+        Segment -> ``static_frame^T @ model_body``: the model body's frame in the ISB frame, so
+        ``isb_frames @ offset`` carries it through the motion. Segments whose frame or template
+        markers the static trial lacks are left out.
+    """
+    out: dict[str, Array] = {}
+    for seg, tmpl in templates.items():
+        if seg not in static_frames or not set(tmpl) <= set(markers):
+            continue
+        a = np.array([tmpl[k] for k in tmpl], dtype=np.float64)
+        b = np.array([markers[k] for k in tmpl], dtype=np.float64)
+        if not np.isfinite(b).all():
+            continue
+        if seg == "trunk" and lumbar is not None:
+            body = _rotation_about(a, b - np.asarray(lumbar, dtype=np.float64))
+        else:
+            body = _rotation_about(a - a.mean(0), b - b.mean(0))
+        out[seg] = np.asarray(static_frames[seg], dtype=np.float64).T @ body
+    return out
 
 
 def opensim_model(names: str) -> OpenSimModel | None:

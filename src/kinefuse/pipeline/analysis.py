@@ -36,6 +36,9 @@ class AnalysisInput:
     sensor_poses: dict[str, Array] | None = None  # sensor2world used by the fusion (sessions)
     anatomical: dict[str, Array] | None = None  # ISB anatomical angles, degrees (static trial)
     anatomical_status: dict[str, str] | None = None  # segment -> "ok" or why it was skipped
+    # OpenSim model -> the pelvis_* and trunk_* angles of its own pelvis and torso bodies
+    # (anatomical.model_body_offsets), for --names opensim:MODEL
+    opensim_body_angles: dict[str, dict[str, Array]] | None = None
     static_source: str | None = None  # the static trial used
     # sessions: (T, L) how many sensors tracked each limb (both its joints TRACKED) at each frame
     limb_sensors: NDArray[np.int64] | None = None

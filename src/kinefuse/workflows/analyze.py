@@ -223,12 +223,21 @@ def _markers_with_static(
     seq = sequence_from_marker_data(markers, mmap, notes)
     af = anatomical_frames(markers, st, mmap)
     where = f"{static}" + (f" {window[0]:g}-{window[1]:g} s" if window else "")
+    body_angles = {}
+    for model, offsets in af.model_offsets.items():
+        frames = {**af.frames, **{k: af.frames[k] @ v for k, v in offsets.items()}}
+        body_angles[model] = {
+            k: v
+            for k, v in anatomical_angles(frames, af.lab, af.undefined).items()
+            if k.startswith(("pelvis_", "trunk_"))
+        }
     return AnalysisInput(
         path=path,
         kind="markers",
         seq=seq,
         anatomical=anatomical_angles(af.frames, af.lab, af.undefined),
         anatomical_status=af.status,
+        opensim_body_angles=body_angles or None,
         static_source=where,
         unbuilt_joints=unbuilt_joints(markers, mmap) or None,
     )

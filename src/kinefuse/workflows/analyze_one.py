@@ -356,7 +356,9 @@ def _write_outputs(
                 f"{inp.path}: --names {mot_names} writes the anatomical angles, which need a "
                 "static trial (--static STATIC.trc or --static-window START:END)"
             )
-        mot_cols = opensim_angles(anat, model)
+        # the pelvis and torso as the model's own bodies where its marker template is known
+        body, _ = fill_short_gaps_all(t, (inp.opensim_body_angles or {}).get(model.name, {}))
+        mot_cols = opensim_angles({**anat, **body}, model)
     else:
         mot_cols = dict(filled)
         mot_cols.update({f"{k}_anatomical": v for k, v in anat.items()})

@@ -221,6 +221,10 @@ class AnatomicalFrames:
     status: dict[str, str] = field(default_factory=dict)  # segment -> "ok" or the reason
     #: angles the frames do not define (forearm pronation without two styloid markers)
     undefined: tuple[str, ...] = ()
+    #: OpenSim model -> segment -> the model body's frame in the ISB frame
+    #: (:func:`kinefuse.analysis.anatomical.model_body_offsets`), for the models whose marker
+    #: template the static trial has
+    model_offsets: dict[str, dict[str, Array]] = field(default_factory=dict)
 
 
 def _axis_hint(static: MarkerData, mmap: MarkerMap, key: str, side: str) -> Array | None:
@@ -645,4 +649,18 @@ def anatomical_frames(motion: MarkerData, static: MarkerData, mmap: MarkerMap) -
         if mmap.anatomy.get(f"wrist_axis_{side}") is None
         or _cluster_points(motion, mmap.anatomy[f"wrist_axis_{side}"]) is None
     )
-    return AnatomicalFrames(frames=frames, lab=lab, status=status, undefined=undefined)
+    model_offsets = {}
+    for name, model in an.OPENSIM_MODELS.items():
+        names = tuple(k for tmpl in model.templates.values() for k in tmpl)
+        found = _cluster_points(static, names) if names else None
+        if found is not None:
+            medians = {k: _median(found[:, i]) for i, k in enumerate(names)}
+            offsets = an.model_body_offsets(
+                {k: v for k, v in static_frames.items() if k in frames}, medians,
+                model.templates, lumbar,
+            )  # fmt: skip
+            if offsets:
+                model_offsets[name] = offsets
+    return AnatomicalFrames(
+        frames=frames, lab=lab, status=status, undefined=undefined, model_offsets=model_offsets
+    )
