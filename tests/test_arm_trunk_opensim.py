@@ -119,6 +119,23 @@ def test_gait2354_lumbar_r_not_met(shared_data: Path, tmp_path: Path) -> None:
     assert _gait2354(shared_data, tmp_path, "as is", None)["lumbar_extension"]["r"] >= 0.8
 
 
+def test_without_the_template_markers_the_isb_frames_stand(
+    rajagopal: Path, shared_data: Path, tmp_path: Path
+) -> None:
+    """The Rajagopal walk has none of the Gait2354 set's torso markers: under gait2354's names
+    its pelvis and lumbar coordinates are the ISB ones, as under Rajagopal's."""
+    from kinefuse.io.formats.angles import read_angles_mot
+    from kinefuse.workflows.analyze import run_analyze
+
+    run_analyze([shared_data / f"{RAJ}ExpData_motion_capture_walk.trc"], out=tmp_path / "o",
+                static=shared_data / f"{RAJ}ExpData_static_walk_1.trc",
+                names="opensim:gait2354", plots=False)  # fmt: skip
+    _, gait, _ = read_angles_mot(tmp_path / "o" / "angles.mot")
+    _, raj, _ = read_angles_mot(rajagopal / "angles.mot")
+    for k in ("pelvis_tilt", "pelvis_list", "lumbar_extension", "lumbar_bending"):
+        np.testing.assert_array_equal(gait[k], raj[k])
+
+
 def test_model_body_offsets_recover_a_posed_template(rng: np.random.Generator) -> None:
     """The gait2354 template placed in a known pose (the torso turned about the lumbar joint)
     gives back the model bodies' frames relative to any ISB frames; a segment whose markers
