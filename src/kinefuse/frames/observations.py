@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -50,6 +51,13 @@ class BodyFrame:
         The client's occlusion flags, if it ran the test.
     n_crossings : int or None
         The client's number of bone crossings, if it ran the test.
+    body_id : int
+        The sensor's tracking id of this body (0 when the source reports none).
+    others : tuple of BodyFrame
+        The other bodies the tracker reported at this instant (same ``sensor_id``, ``seq`` and
+        times; their own ``body_id``, joints, states and occlusion; their own ``others``
+        empty). The frame itself is the body the tracker listed first: the one kinefuse has
+        always used.
     """
 
     sensor_id: str
@@ -60,6 +68,16 @@ class BodyFrame:
     states: NDArray[np.int8]
     occluded: NDArray[np.bool_] | None = None
     n_crossings: int | None = None
+    body_id: int = 0
+    others: tuple[BodyFrame, ...] = ()
+
+    def bodies(self) -> tuple[BodyFrame, ...]:
+        """Every body of this instant, the first listed first: ``(self, *others)``."""
+        return (self, *self.others)
+
+    def first_body(self) -> BodyFrame:
+        """This frame without its other bodies (what a one-body consumer or peer gets)."""
+        return replace(self, others=()) if self.others else self
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,6 +96,8 @@ Frame = BodyFrame | DepthFrame
 
 #: the default of a time column nobody gave: filled with NaN (unknown) for every frame
 _UNKNOWN = np.zeros(0)
+#: the default of the body-id column nobody gave: filled with 0 for every row
+_NO_IDS = np.zeros(0, dtype=np.int64)
 
 
 def _nan_column(x: ArrayLike | None, n: int, name: str, sensor_id: str) -> Array:
@@ -117,6 +137,13 @@ class BodyFrames:
         stream there: :meth:`on_server`).
     t_receive_server_s : (T,) float
         Arrival on the server's clock, seconds; NaN where unknown.
+    body_id : (T,) int64
+        The sensor's tracking id of each row's body (default: 0 for every row).
+
+    A stream may be in *all-bodies form*: several rows with the same ``seq``, one per body the
+    tracker reported (consecutive, the first listed first, identical times); :attr:`multi` says
+    whether it is, :meth:`first_bodies` gives the one-row-per-seq stream every fusion and
+    analysis consumer takes.
 
     ``present`` is the mask of the NaN convention (a joint with finite coordinates that the
     tracker did not mark NOT_TRACKED).
@@ -132,6 +159,7 @@ class BodyFrames:
     n_crossings: NDArray[np.int64] | None = None
     t_server_s: Array = field(default_factory=lambda: _UNKNOWN)
     t_receive_server_s: Array = field(default_factory=lambda: _UNKNOWN)
+    body_id: NDArray[np.int64] = field(default_factory=lambda: _NO_IDS)
 
     def __post_init__(self) -> None:
         sid = self.sensor_id
@@ -170,6 +198,13 @@ class BodyFrames:
             if cr.shape != (n,):
                 raise InputError(f"sensor {sid!r}: n_crossings must be ({n},), got {cr.shape}")
             set_(self, "n_crossings", cr)
+        if self.body_id is _NO_IDS:
+            set_(self, "body_id", np.zeros(n, dtype=np.int64))
+        else:
+            ids = np.asarray(self.body_id, dtype=np.int64).reshape(-1)
+            if ids.shape != (n,):
+                raise InputError(f"sensor {sid!r}: body_id must be ({n},), got {ids.shape}")
+            set_(self, "body_id", ids)
 
     # -- sizes and masks ------------------------------------------------------------------------
 
@@ -203,6 +238,25 @@ class BodyFrames:
         """The store's name of ``t_host_s``."""
         return self.t_host_s
 
+    # -- bodies -----------------------------------------------------------------------------------
+
+    def _first_rows(self) -> NDArray[np.bool_]:
+        """``(T,)`` True for each row whose seq differs from the row before (a seq's first)."""
+        first = np.ones(self.n_frames, dtype=bool)
+        first[1:] = self.seq[1:] != self.seq[:-1]
+        return first
+
+    @property
+    def multi(self) -> bool:
+        """True when the stream is in all-bodies form with a seq of several bodies."""
+        return bool(self.n_frames) and not bool(self._first_rows().all())
+
+    def first_bodies(self) -> BodyFrames:
+        """One row per seq, the body the tracker listed first (the stream itself when every seq
+        has one row: a one-body stream is returned unchanged)."""
+        first = self._first_rows()
+        return self if first.all() else self.take(first)
+
     # -- derived streams ------------------------------------------------------------------------
 
     def take(self, index: ArrayLike) -> BodyFrames:
@@ -223,6 +277,7 @@ class BodyFrames:
             n_crossings=pick(self.n_crossings),
             t_server_s=self.t_server_s[k],
             t_receive_server_s=self.t_receive_server_s[k],
+            body_id=self.body_id[k],
         )
 
     def on_server(self, t_server_s: ArrayLike) -> BodyFrames:
@@ -271,7 +326,7 @@ class BodyFrames:
     # -- conversions to and from single frames ---------------------------------------------------
 
     def frame(self, k: int) -> BodyFrame:
-        """Frame ``k`` as a :class:`BodyFrame` (views of the arrays, no copies)."""
+        """Row ``k`` as a :class:`BodyFrame` (views of the arrays, no copies; no others)."""
         return BodyFrame(
             sensor_id=self.sensor_id,
             seq=int(self.seq[k]),
@@ -281,21 +336,34 @@ class BodyFrames:
             states=self.states[k],
             occluded=None if self.occluded is None else self.occluded[k],
             n_crossings=None if self.n_crossings is None else int(self.n_crossings[k]),
+            body_id=int(self.body_id[k]),
         )
 
     def __iter__(self) -> Iterator[BodyFrame]:
-        for k in range(self.n_frames):
-            yield self.frame(k)
+        """One :class:`BodyFrame` per seq: its first row, the seq's other rows as ``others``
+        (a one-body stream yields every row as it is)."""
+        starts = np.flatnonzero(self._first_rows()).tolist()
+        for a, b in zip(starts, [*starts[1:], self.n_frames], strict=True):
+            f = self.frame(a)
+            if b - a > 1:
+                f = replace(f, others=tuple(self.frame(k) for k in range(a + 1, b)))
+            yield f
 
     @classmethod
     def from_frames(
-        cls, frames: Sequence[BodyFrame], *, sensor_id: str | None = None
+        cls,
+        frames: Sequence[BodyFrame],
+        *,
+        sensor_id: str | None = None,
+        bodies: Literal["first", "all"] = "first",
     ) -> BodyFrames:
         """Stack frames of one sensor (in the given order) into the batch form.
 
-        Occlusion flags and crossing counts are kept when every frame has them (frames without
-        them in a mixed list count as not occluded, 0 crossings). ``sensor_id`` names an empty
-        stream; a list with frames of several sensors is refused.
+        ``bodies="first"``: one row per frame, its first body (the frames' ``others`` are left
+        out); ``"all"``: the all-bodies form, a row per body of each frame (the first listed
+        first). Occlusion flags and crossing counts are kept when every frame has them (frames
+        without them in a mixed list count as not occluded, 0 crossings). ``sensor_id`` names
+        an empty stream; a list with frames of several sensors is refused.
         """
         ids = {f.sensor_id for f in frames}
         if len(ids) > 1:
@@ -303,6 +371,12 @@ class BodyFrames:
                 f"BodyFrames.from_frames: frames of several sensors ({', '.join(sorted(ids))}); "
                 "split them by sensor_id first"
             )
+        if bodies not in ("first", "all"):
+            raise InputError(
+                f"BodyFrames.from_frames: bodies must be 'first' or 'all', not {bodies!r}"
+            )
+        if bodies == "all":
+            frames = [b for f in frames for b in f.bodies()]
         sid = next(iter(ids)) if ids else (sensor_id or "")
         n = len(frames)
         occ = cr = None
@@ -321,4 +395,5 @@ class BodyFrames:
             states=np.array([f.states for f in frames], dtype=np.int8).reshape(n, N_JOINTS),
             occluded=occ,
             n_crossings=cr,
+            body_id=np.array([f.body_id for f in frames], dtype=np.int64),
         )
