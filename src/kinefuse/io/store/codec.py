@@ -373,5 +373,12 @@ class StorePart:
         def _existing_seqs(self, table: str, key: int, seq: NDArray[Any]) -> NDArray[np.int64]: ...
 
         def _insert_frames(
-            self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
+            self,
+            table: str,
+            key: int,
+            sensor_id: str,
+            seq: NDArray[Any],
+            sql: str,
+            rows: Any,
+            bodies: list[tuple[Any, ...]] | None = None,
         ) -> None: ...

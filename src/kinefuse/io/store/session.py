@@ -111,7 +111,19 @@ CREATE TABLE observations (
     t_receive_host_s   REAL,
     occluded           BLOB CHECK (occluded IS NULL OR length(occluded) = {_STATES_BYTES}),
     n_crossings        INTEGER CHECK (n_crossings IS NULL OR n_crossings >= 0),
+    body_id            INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY (sensor_key, seq)
+) WITHOUT ROWID;
+CREATE TABLE observation_bodies (
+    sensor_key  INTEGER NOT NULL REFERENCES sensors(key),
+    seq         INTEGER NOT NULL,
+    idx         INTEGER NOT NULL CHECK (idx >= 1),
+    body_id     INTEGER NOT NULL,
+    joints_m    BLOB NOT NULL CHECK (length(joints_m) = {_JOINTS_BYTES}),
+    states      BLOB NOT NULL CHECK (length(states) = {_STATES_BYTES}),
+    occluded    BLOB CHECK (occluded IS NULL OR length(occluded) = {_STATES_BYTES}),
+    n_crossings INTEGER CHECK (n_crossings IS NULL OR n_crossings >= 0),
+    PRIMARY KEY (sensor_key, seq, idx)
 ) WITHOUT ROWID;
 CREATE TABLE depth_frames (
     sensor_key INTEGER NOT NULL REFERENCES sensors(key),
@@ -240,6 +252,8 @@ class SessionStore(SensorStreams, TruthTables):
         cols = {r[1] for r in conn.execute("PRAGMA table_info(observations)").fetchall()}
         self._has_host_time = "t_receive_host_s" in cols
         self._has_client_occlusion = "occluded" in cols
+        # sessions written before every body was recorded hold one body per frame (id 0)
+        self._has_bodies = "body_id" in cols
 
     # -- opening and closing ------------------------------------------------------------------
 
@@ -520,8 +534,17 @@ class SessionStore(SensorStreams, TruthTables):
         return np.intersect1d(have, seq)
 
     def _insert_frames(
-        self, table: str, key: int, sensor_id: str, seq: NDArray[Any], sql: str, rows: Any
+        self,
+        table: str,
+        key: int,
+        sensor_id: str,
+        seq: NDArray[Any],
+        sql: str,
+        rows: Any,
+        bodies: list[tuple[Any, ...]] | None = None,
     ) -> None:
+        """Insert ``rows`` by ``sql`` (refusing a seq already stored), and ``bodies``, the
+        frames' other bodies (``observation_bodies`` rows), in the same transaction."""
         what = f"{table} of sensor {sensor_id!r}"
         with self._transaction(what) as conn:
             dup = self._existing_seqs(table, key, seq)
@@ -531,6 +554,12 @@ class SessionStore(SensorStreams, TruthTables):
                     f"sequence numbers must be unique per sensor"
                 )
             conn.executemany(sql, rows)
+            if bodies:
+                conn.executemany(
+                    "INSERT INTO observation_bodies (sensor_key, seq, idx, body_id, joints_m, "
+                    "states, occluded, n_crossings) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                    bodies,
+                )
 
     # -- metadata ------------------------------------------------------------------------------
 

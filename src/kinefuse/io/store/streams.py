@@ -11,7 +11,7 @@ import math
 import sqlite3
 import zlib
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,6 +25,7 @@ from kinefuse.io.store.codec import (
     _U2,
     MAX_DEPTH_SIDE,
     Blob,
+    Column,
     StorePart,
     _blobs,
     _check_shape,
@@ -48,6 +49,13 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 
 
+#: the columns an observation row is read as (:meth:`SensorStreams.observations`)
+_OBS_COLUMNS: list[Column] = [
+    "i8", "f8", "f8", Blob(_F8, (N_JOINTS, 3)), Blob(_I1, (N_JOINTS,)), "f8",
+    Blob(_U1, (N_JOINTS,), nullable=True), "i8", "i8",
+]  # fmt: skip
+
+
 class SensorStreams(StorePart):
     """Observations, depth frames and clock probes of each sensor (a part of SessionStore)."""
 
@@ -55,6 +63,7 @@ class SensorStreams(StorePart):
         _sensor_keys: dict[str, int]
         _has_host_time: bool
         _has_client_occlusion: bool
+        _has_bodies: bool
 
         def sensors(self) -> list[SensorInfo]: ...
 
@@ -74,8 +83,14 @@ class SensorStreams(StorePart):
         t_receive_host_s: ArrayLike | None = None,
         occluded: ArrayLike | None = None,
         n_crossings: ArrayLike | None = None,
+        body_id: ArrayLike | None = None,
     ) -> None:
         """Append body-tracker frames of one sensor (one transaction).
+
+        Given ``body_id``, the rows may be in all-bodies form (see
+        :class:`~kinefuse.frames.observations.BodyFrames`): several consecutive rows with the
+        same ``seq``, one per body the tracker reported, the first listed first, with the same
+        times (the first row's are kept).
 
         Parameters
         ----------
@@ -98,6 +113,9 @@ class SensorStreams(StorePart):
             The client's occlusion flags; given together with ``n_crossings``.
         n_crossings : (N,) int, optional
             The client's number of bone crossings per frame (>= 0).
+        body_id : (N,) int, optional
+            The sensor's tracking id of each row's body (default: 0, one row per seq), unique
+            within a seq.
         """
         what = f"append_observations(sensor {sensor_id!r})"
         key = self._key(sensor_id, what)
@@ -151,8 +169,23 @@ class SensorStreams(StorePart):
                 f"frame {f}, joint {jj} has state {int(st[f, jj])} and position "
                 f"{j[f, jj].tolist()}"
             )
-        _require_unique(s, what)
+        ids = (
+            np.zeros(n, np.int64) if body_id is None else _int_array(body_id, "body_id", (n,), what)
+        )
+        first = np.ones(n, dtype=bool)
+        if body_id is not None:  # the all-bodies form: a seq's rows are consecutive
+            first[1:] = s[1:] != s[:-1]
+        _require_unique(s[first], what)
         occ_rows = self._client_occlusion_rows(occluded, n_crossings, n, what)
+        more = self._other_body_rows(key, s, first, ids, j, st, occ_rows, what)
+        if not first.all():
+            s, st, ids = s[first], st[first], ids[first]
+            t, tr, th, j = t[first], tr[first], th[first], j[first]
+            occ_rows = (
+                [b for b, f in zip(occ_rows[0], first, strict=True) if f],
+                [c for c, f in zip(occ_rows[1], first, strict=True) if f],
+            )
+            n = int(first.sum())
         cols: tuple[list[Any], ...] = (
             np.full(n, key).tolist(),
             s.astype(np.int64).tolist(),
@@ -168,6 +201,9 @@ class SensorStreams(StorePart):
         if self._has_client_occlusion:
             cols = (*cols, *occ_rows)
             extra_cols, extra_q = extra_cols + ", occluded, n_crossings", extra_q + ", ?, ?"
+        if self._has_bodies:
+            cols = (*cols, ids.tolist())
+            extra_cols, extra_q = extra_cols + ", body_id", extra_q + ", ?"
         self._insert_frames(
             "observations",
             key,
@@ -176,7 +212,41 @@ class SensorStreams(StorePart):
             "INSERT INTO observations (sensor_key, seq, t_sensor_s, t_receive_server_s, joints_m,"
             f" states{extra_cols}) VALUES (?, ?, ?, ?, ?, ?{extra_q})",
             zip(*cols, strict=True),
+            more,
         )
+
+    def _other_body_rows(
+        self,
+        key: int,
+        seq: NDArray[np.int64],
+        first: NDArray[np.bool_],
+        ids: NDArray[np.int64],
+        joints: Array,
+        states: NDArray[Any],
+        occ_rows: tuple[list[bytes | None], list[int | None]],
+        what: str,
+    ) -> list[tuple[Any, ...]]:
+        """The ``observation_bodies`` rows of an all-bodies batch: each seq's bodies after its
+        first, numbered 1, 2, ... in the order given."""
+        pairs = np.stack([seq, ids], axis=1)
+        if np.unique(pairs, axis=0).shape[0] != pairs.shape[0]:
+            raise InputError(f"{what}: a body_id repeats within one seq; each body needs its own")
+        if first.all() and (self._has_bodies or not ids.any()):
+            return []
+        if not self._has_bodies:
+            raise InputError(
+                f"{what}: {self.path} was written by an older kinefuse that keeps one body per "
+                "frame; append to a new session store to record every body"
+            )
+        start = np.maximum.accumulate(np.where(first, np.arange(seq.shape[0]), 0))
+        idx = np.arange(seq.shape[0]) - start
+        rest = np.flatnonzero(~first)
+        jb, sb = _blobs(joints[rest], _F8), _blobs(states[rest], _I1)
+        return [
+            (key, int(seq[r]), int(idx[r]), int(ids[r]), jb[i], sb[i], occ_rows[0][r],
+             occ_rows[1][r])
+            for i, r in enumerate(rest.tolist())
+        ]  # fmt: skip
 
     def _client_occlusion_rows(
         self, occluded: ArrayLike | None, n_crossings: ArrayLike | None, n: int, what: str
@@ -201,28 +271,59 @@ class SensorStreams(StorePart):
         blobs: list[bytes | None] = list(_blobs(occ, _U1))
         return blobs, [int(c) for c in cr.tolist()]
 
-    def observations(self, sensor_id: str, *, since_seq: int | None = None) -> BodyFrames:
+    def observations(
+        self,
+        sensor_id: str,
+        *,
+        since_seq: int | None = None,
+        bodies: Literal["first", "all"] = "first",
+    ) -> BodyFrames:
         """Observations of one sensor ordered by sequence number: all of them, or only those
-        after ``since_seq`` (a reader following a live recording asks for what is new)."""
+        after ``since_seq`` (a reader following a live recording asks for what is new).
+
+        ``bodies="first"`` (the default): one row per seq, the body the tracker listed first;
+        ``"all"``: the all-bodies form, a row per body (see
+        :class:`~kinefuse.frames.observations.BodyFrames`). A store written before every body
+        was recorded reads the same both ways, each row body 0.
+        """
         what = f"observations of sensor {sensor_id!r}"
+        if bodies not in ("first", "all"):
+            raise InputError(f"{what}: bodies must be 'first' or 'all', not {bodies!r}")
         key = self._key(sensor_id, what)
         host = ", t_receive_host_s" if self._has_host_time else ", NULL"
         occ = ", occluded, n_crossings" if self._has_client_occlusion else ", NULL, NULL"
+        ids = ", body_id" if self._has_bodies else ", 0"
         after = -(2**63) if since_seq is None else int(since_seq)
         cur = self._db.execute(
             "SELECT seq, t_sensor_s, t_receive_server_s, joints_m, states"
-            f"{host}{occ} FROM observations WHERE sensor_key = ? AND seq > ? ORDER BY seq",
+            f"{host}{occ}{ids} FROM observations WHERE sensor_key = ? AND seq > ? ORDER BY seq",
             (key, after),
         )
-        cols, have = read_columns(
-            cur,
-            ["i8", "f8", "f8", Blob(_F8, (N_JOINTS, 3)), Blob(_I1, (N_JOINTS,)), "f8",
-             Blob(_U1, (N_JOINTS,), nullable=True), "i8"],
-            what,
-        )  # fmt: skip
-        seq, t_device, t_server, joints, states, t_host, flags, n_cross = cols
+        cols, have = read_columns(cur, _OBS_COLUMNS, what)
+        seq, t_device, t_server, joints, states, t_host, flags, n_cross, body_id = cols
         flagged = have[6]
         assert flagged is not None
+        if bodies == "all" and self._has_bodies:
+            cur = self._db.execute(
+                "SELECT seq, 0.0, 0.0, joints_m, states, 0.0, occluded, n_crossings, body_id "
+                "FROM observation_bodies WHERE sensor_key = ? AND seq > ? ORDER BY seq, idx",
+                (key, after),
+            )
+            more, more_have = read_columns(cur, _OBS_COLUMNS, what)
+            if more[0].size:
+                # each seq's other bodies after its first, with the first's times
+                at = np.searchsorted(seq, more[0])
+                if (at >= seq.size).any() or (seq[np.minimum(at, seq.size - 1)] != more[0]).any():
+                    raise StoreError(f"{what}: {self.path} holds bodies of frames it lacks")
+                for i in (1, 2, 5):
+                    more[i] = cols[i][at]
+                mh = more_have[6]
+                assert mh is not None
+                order = np.argsort(np.concatenate([seq, more[0]]), kind="stable")
+                seq, t_device, t_server, joints, states, t_host, flags, n_cross, body_id = (
+                    np.concatenate([a, b])[order] for a, b in zip(cols, more, strict=True)
+                )
+                flagged = np.concatenate([flagged, mh])[order]
         occluded = crossings = None
         if flagged.any():  # frames without flags (NULL rows) count as not occluded
             occluded, crossings = flags.astype(bool), n_cross
@@ -236,6 +337,7 @@ class SensorStreams(StorePart):
             t_host_s=t_host,
             occluded=occluded,
             n_crossings=crossings,
+            body_id=body_id,
         )
 
     def observation_times(self, sensor_id: str) -> tuple[NDArray[np.int64], Array, Array, Array]:
@@ -281,6 +383,13 @@ class SensorStreams(StorePart):
                 h.update(st)
                 if th is not None:  # rows without a host time hash as before
                     h.update(np.array([th], _F8).tobytes())
+            if self._has_bodies:  # other bodies (none in a one-body session: hashes as before)
+                for row in self._db.execute(
+                    "SELECT seq, idx, body_id, joints_m, states FROM observation_bodies "
+                    "WHERE sensor_key = ? ORDER BY seq, idx",
+                    (self._sensor_keys[info.id],),
+                ):
+                    h.update(np.array(row[:3], "<i8").tobytes() + row[3] + row[4])
         return h.hexdigest()
 
     # -- depth frames -------------------------------------------------------------------------
