@@ -55,6 +55,7 @@ from kinefuse.protocol import (
     Goodbye,
     Heartbeat,
     Hello,
+    OtherBody,
     Status,
     StatusRequest,
     WandSighting,
@@ -94,6 +95,8 @@ def real_stream(rng: random.Random) -> list[bytes]:
                     states=np.full(N_JOINTS, 2, np.int8),
                     occluded=np.zeros(N_JOINTS, bool),
                     n_crossings=0,
+                    body_id=7,
+                    others=_others(joints, k % 3),
                 )
             )
         )
@@ -112,6 +115,20 @@ def real_stream(rng: random.Random) -> list[bytes]:
     out += [encode(StatusRequest(request_id=1)), encode(CalibrationStart(method="full"))]
     out += [encode(CalibrationStop(abort=True)), encode(Goodbye(reason="done"))]
     return out
+
+
+def _others(joints: np.ndarray, n: int) -> tuple[OtherBody, ...]:
+    """``n`` more bodies beside ``joints`` (ids 11, 12, ...), one without occlusion flags."""
+    return tuple(
+        OtherBody(
+            11 + i,
+            joints + np.array([0.7 * (i + 1), 0.0, 0.0]),
+            np.full(N_JOINTS, 2, np.int8),
+            None if i else np.zeros(N_JOINTS, bool),
+            None if i else 1,
+        )
+        for i in range(n)
+    )
 
 
 def _sample_messages() -> list[dict]:
@@ -137,6 +154,8 @@ def _sample_messages() -> list[dict]:
             t_host_s=1.0,
             joints_m=np.zeros((N_JOINTS, 3)),
             states=np.zeros(N_JOINTS, np.int8),
+            body_id=3,
+            others=_others(np.zeros((N_JOINTS, 3)), 2),
         ),
         StatusRequest(),
         Status(),
@@ -204,6 +223,13 @@ def _big_frames() -> list[bytes]:
         out.append(_frame(_pack({"type": "hello", "role": _nest(n)})))
         out.append(_frame(_pack({"type": "status", "sensors": [{}] * (2 * n)})))
         out.append(_frame(_pack({"type": "hello", "capabilities": ["a"] * (n + 60)})))
+    # a body frame with more bodies than the limit (8 a frame): refused, nothing decoded
+    body = to_wire(BodyFrameMessage(seq=1, t_device_s=1.0, t_host_s=1.0,
+                                    joints_m=np.zeros((N_JOINTS, 3)),
+                                    states=np.zeros(N_JOINTS, np.int8)))  # fmt: skip
+    for n in (8, 64, 4000):
+        one = {"body_id": 1, "joints_m": body["joints_m"], "states": body["states"]}
+        out.append(_frame(_pack({**body, "others": [dict(one, body_id=i) for i in range(n)]})))
     return out
 
 

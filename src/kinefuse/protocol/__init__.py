@@ -28,6 +28,8 @@ from kinefuse.protocol.errors import (
 )
 from kinefuse.protocol.fields import printable
 from kinefuse.protocol.messages import (
+    BODIES_VERSION,
+    MAX_BODIES,
     MESSAGE_TYPES,
     PROTOCOL_VERSION,
     AuthReply,
@@ -44,6 +46,7 @@ from kinefuse.protocol.messages import (
     Heartbeat,
     Hello,
     Message,
+    OtherBody,
     SensorInfo,
     Shutdown,
     Status,
@@ -53,6 +56,8 @@ from kinefuse.protocol.messages import (
 )
 
 __all__ = [
+    "BODIES_VERSION",
+    "MAX_BODIES",
     "MAX_FRAME_BYTES",
     "MESSAGE_TYPES",
     "PROTOCOL_VERSION",
@@ -78,6 +83,7 @@ __all__ = [
     "LimitExceeded",
     "MalformedMessage",
     "Message",
+    "OtherBody",
     "OutOfOrder",
     "RemoteError",
     "SensorInfo",

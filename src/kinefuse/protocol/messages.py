@@ -1,4 +1,4 @@
-"""The wire messages: one frozen dataclass per message type (protocol version 1.2).
+"""The wire messages: one frozen dataclass per message type (protocol version 1.3).
 
 Each class names its wire ``TYPE`` (the ``type`` field of the msgpack map), the roles that may
 send it (``SENDERS``: ``"sensor"``, ``"control"``, ``"server"``) and, in its fields' metadata,
@@ -44,7 +44,11 @@ from kinefuse.protocol.fields import (
 )
 
 #: (major, minor) this code speaks; see docs/protocol.md "Versioning"
-PROTOCOL_VERSION: tuple[int, int] = (1, 2)
+PROTOCOL_VERSION: tuple[int, int] = (1, 3)
+#: the first version whose body frames carry every body (``body_id``, ``others``)
+BODIES_VERSION: tuple[int, int] = (1, 3)
+#: the most bodies one body frame carries (Kinect v2 and the Azure Kinect track up to six)
+MAX_BODIES = 8
 
 N_JOINTS = 25
 ROLES = ("sensor", "control")
@@ -334,6 +338,47 @@ class FloorPlaneMessage(Message):
 # ---- body frames -------------------------------------------------------------------------------
 
 
+_JOINTS_KIND = Array(
+    (N_JOINTS, 3),
+    wire="<f4",
+    accept=("<f4", "<f8"),
+    values="finite_or_nan",
+    lo=-100.0,
+    hi=100.0,
+)
+_STATES_KIND = Array((N_JOINTS,), wire="|i1", accept=("|i1",), out="int8", values="int", lo=0, hi=2)
+_OCCLUDED_KIND = Optional(
+    Array((N_JOINTS,), wire="|u1", accept=("|u1",), out="bool", values="bool")
+)
+_CROSSINGS_KIND = Optional(Int(0, 10000))
+_BODY_ID = Int(0)
+
+
+@dataclass(frozen=True, eq=False)
+class OtherBody:
+    """One more body of a :class:`BodyFrameMessage` (its fields as the first body's)."""
+
+    body_id: int
+    joints_m: NDArray[np.float64]
+    states: NDArray[np.int8]
+    occluded: NDArray[np.bool_] | None = None
+    n_crossings: int | None = None
+
+
+_OTHER_BODIES = Records(
+    fields=(
+        ("body_id", _BODY_ID),
+        ("joints_m", _JOINTS_KIND),
+        ("states", _STATES_KIND),
+        ("occluded", _OCCLUDED_KIND),
+        ("n_crossings", _CROSSINGS_KIND),
+    ),
+    make=OtherBody,
+    max_items=MAX_BODIES - 1,
+    label="OtherBody",
+)
+
+
 @dataclass(frozen=True, eq=False)
 class BodyFrameMessage(Message):
     """Sensor -> server: one body-tracker frame with the client's occlusion result.
@@ -343,7 +388,12 @@ class BodyFrameMessage(Message):
     joint order, sensor frame, metres, NaN where not tracked (float32 on the wire);
     ``states`` (25,) int8: 0 not tracked, 1 inferred, 2 tracked; ``occluded`` (25,) bool and
     ``n_crossings``: the 2-D bone-crossing test (nil if not run); ``dropped``: body frames the
-    client dropped so far (bounded queue, newest wins).
+    client dropped so far (bounded queue, newest wins). Since 1.3: ``body_id``, the sensor's
+    tracking id of this body (0 when the tracker reports none), and ``others``, the other
+    bodies the tracker reported at this instant (at most 7: 8 bodies per frame), each with its
+    own ``body_id`` (unique in the frame), joints, states and occlusion result; the body the
+    tracker listed first is the frame's own. A 1.2 peer's body frame has neither: it is one
+    body with id 0; a 1.3 sensor talking to a 1.2 server sends its first body only.
     """
 
     TYPE: ClassVar[str] = "body_frame"
@@ -352,25 +402,18 @@ class BodyFrameMessage(Message):
     seq: int = _f(_SEQ)
     t_device_s: float = _f(_T)
     t_host_s: float = _f(_T)
-    joints_m: NDArray[np.float64] = _f(
-        Array(
-            (N_JOINTS, 3),
-            wire="<f4",
-            accept=("<f4", "<f8"),
-            values="finite_or_nan",
-            lo=-100.0,
-            hi=100.0,
-        )
-    )
-    states: NDArray[np.int8] = _f(
-        Array((N_JOINTS,), wire="|i1", accept=("|i1",), out="int8", values="int", lo=0, hi=2)
-    )
-    occluded: NDArray[np.bool_] | None = _f(
-        Optional(Array((N_JOINTS,), wire="|u1", accept=("|u1",), out="bool", values="bool")),
-        None,
-    )
-    n_crossings: int | None = _f(Optional(Int(0, 10000)), None)
+    joints_m: NDArray[np.float64] = _f(_JOINTS_KIND)
+    states: NDArray[np.int8] = _f(_STATES_KIND)
+    occluded: NDArray[np.bool_] | None = _f(_OCCLUDED_KIND, None)
+    n_crossings: int | None = _f(_CROSSINGS_KIND, None)
     dropped: int = _f(_SEQ, 0)
+    body_id: int = _f(_BODY_ID, 0)
+    others: tuple[OtherBody, ...] = _f(_OTHER_BODIES, ())
+
+    def check(self) -> None:
+        ids = [self.body_id, *(b.body_id for b in self.others)]
+        if len(set(ids)) != len(ids):
+            raise FieldError(self.TYPE, "others", f"body ids {ids} repeat; each body has its own")
 
 
 # ---- control peer ------------------------------------------------------------------------------
