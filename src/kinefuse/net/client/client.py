@@ -48,18 +48,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from kinefuse.errors import KinefuseError
 from kinefuse.frames.observations import DepthFrame
 from kinefuse.net.client.clocks import HostClock, Monotonic
 from kinefuse.net.client.depth import DepthWork
-from kinefuse.net.client.parts import Prefetch, Prepared, ServerLink, wait_event
+from kinefuse.net.client.parts import Occlusion, Prefetch, Prepared, ServerLink, wait_event
 from kinefuse.net.client.playback import Timed, Timeline
 from kinefuse.protocol import auth, printable
 from kinefuse.protocol.codec import check_version
 from kinefuse.protocol.errors import AuthError, VersionError, WireError
 from kinefuse.protocol.messages import (
+    BODIES_VERSION,
+    MAX_BODIES,
+    PROTOCOL_VERSION,
     AuthReply,
     BodyFrameMessage,
     CalibrationStart,
@@ -71,6 +72,7 @@ from kinefuse.protocol.messages import (
     Heartbeat,
     Hello,
     Message,
+    OtherBody,
     Welcome,
 )
 
@@ -225,6 +227,9 @@ class SensorClient:
         self._urgent: deque[Message] = deque()  # floor planes: tiny, once per calibration
         self._wake = asyncio.Event()
         self._welcomed = asyncio.Event()
+        #: the protocol the server welcomed this client with (a 1.2 server takes one body)
+        self._server_version: tuple[int, int] = PROTOCOL_VERSION
+        self._said_first_body = False
         self._conn: ServerLink | None = None
         self._source_done = False
         self._held_probes: list[tuple[ServerLink, ClockProbe, float]] = []
@@ -326,6 +331,7 @@ class SensorClient:
             )  # fmt: skip
             if welcome.calibrating:
                 self.depth.start(welcome.calibration_id)
+            self._server_version = welcome.protocol_version
             self._welcomed.set()
             await self._session(conn, welcome)
         finally:
@@ -649,7 +655,7 @@ class SensorClient:
         if self.on_play_start is not None:
             self.on_play_start(self.m0, start_mono, start_src)
 
-    def _deliver(self, timed: Timed, occ: tuple[np.ndarray, int] | None) -> None:
+    def _deliver(self, timed: Timed, occ: Occlusion | None) -> None:
         self._delivered += 1
         f = timed.frame
         assert self.host_clock is not None
@@ -660,7 +666,21 @@ class SensorClient:
         if isinstance(f, DepthFrame):
             self.depth.on_depth(f, t_host)
             return
-        occluded, n_cross = occ if occ is not None else (None, None)
+        bodies = f.bodies()[:MAX_BODIES]
+        if len(bodies) > 1 and self._server_version < BODIES_VERSION:
+            if not self._said_first_body:
+                self._said_first_body = True
+                log.warning(
+                    "sensor %s: the server speaks protocol %d.%d, older than %d.%d: it is sent "
+                    "the first body of each frame only (upgrade the server to keep every body)",
+                    self.timeline.sensor_id, *self._server_version, *BODIES_VERSION,
+                )  # fmt: skip
+            bodies = bodies[:1]
+        occs = occ if occ is not None else ((None, None),) * len(bodies)
+        others = tuple(
+            OtherBody(b.body_id, b.joints_m, b.states, o[0], o[1])
+            for b, o in zip(bodies[1:], occs[1:], strict=False)
+        )
         self._enqueue_body(
             BodyFrameMessage(
                 seq=f.seq,
@@ -668,8 +688,10 @@ class SensorClient:
                 t_host_s=t_host,
                 joints_m=f.joints_m,
                 states=f.states,
-                occluded=occluded,
-                n_crossings=n_cross,
+                occluded=occs[0][0],
+                n_crossings=occs[0][1],
                 dropped=self.stats.body_dropped,
+                body_id=f.body_id,
+                others=others,
             )
         )

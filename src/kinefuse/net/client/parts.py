@@ -24,6 +24,10 @@ if TYPE_CHECKING:
     from kinefuse.net.client.client import SensorClient
 
 
+#: the occlusion test's result per body of a frame (the first body first): flags, crossings
+Occlusion = tuple[tuple[np.ndarray, int], ...]
+
+
 class ServerLink(asyncio.Protocol):
     """One TCP connection: decodes, answers probes inline, queues everything else."""
 
@@ -148,7 +152,7 @@ class Prefetch:
     def halt(self) -> None:
         self.halted.set()
 
-    async def get(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
+    async def get(self) -> tuple[Timed, Occlusion | None] | None:
         item = await self.queue.get()
         self.slots.release()
         if isinstance(item, BaseException):
@@ -180,7 +184,7 @@ class Prepared:
         if close is not None:
             close()
 
-    def next(self) -> tuple[Timed, tuple[np.ndarray, int] | None] | None:
+    def next(self) -> tuple[Timed, Occlusion | None] | None:
         # imported here, on the source thread, while the loop thread connects
         from kinefuse.occlusion.segments import detect_occlusion
 
@@ -195,8 +199,10 @@ class Prepared:
         f = timed.frame
         if isinstance(f, DepthFrame):
             return timed, None
-        r = detect_occlusion(f.joints_m[None], self.timeline.intrinsics, rule=self.rule)  # type: ignore[arg-type]
-        return timed, (r.occluded[0], int(r.n_intersections[0]))
+        bodies = f.bodies()  # each body's own test, in one call (a body per row)
+        joints = np.stack([b.joints_m for b in bodies])
+        r = detect_occlusion(joints, self.timeline.intrinsics, rule=self.rule)  # type: ignore[arg-type]
+        return timed, tuple((r.occluded[k], int(r.n_intersections[k])) for k in range(len(bodies)))
 
 
 def warm_up() -> None:

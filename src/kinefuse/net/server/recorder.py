@@ -47,9 +47,11 @@ from numpy.typing import NDArray
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import OutputError
+from kinefuse.frames.observations import BodyFrame
 from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.bus import FusedFrame, Status, Subscription
+from kinefuse.skeleton import N_JOINTS
 
 log = logging.getLogger("kinefuse.serve")
 
@@ -107,6 +109,37 @@ class _ObsBatch:
     states: list[NDArray[np.int8]] = field(default_factory=list)
     occluded: list[NDArray[np.bool_] | None] = field(default_factory=list)
     crossings: list[int | None] = field(default_factory=list)
+    body_id: list[int] = field(default_factory=list)
+    #: each frame's other bodies (the first listed first; empty for a one-body frame)
+    others: list[tuple[BodyFrame, ...]] = field(default_factory=list)
+
+    def all_bodies(self, occlusion: bool) -> dict[str, NDArray[Any]]:
+        """The batch in all-bodies form, as the store takes it: each frame's row, then a row
+        per other body with the frame's times (``occluded``/``crossings`` if ``occlusion``;
+        another body without flags counts as not occluded)."""
+        first: list[BodyFrame | None] = [None]
+        rows = [(k, x) for k in range(len(self.seq)) for x in (*first, *self.others[k])]
+        k = np.array([r[0] for r in rows], dtype=np.int64)
+        blank = np.zeros(N_JOINTS, dtype=bool)
+        out: dict[str, NDArray[Any]] = {
+            "seq": np.array(self.seq, dtype=np.int64)[k],
+            "t_device": np.array(self.t_device)[k],
+            "t_host": np.array(self.t_host)[k],
+            "t_server": np.array(self.t_server)[k],
+            "joints": np.stack([self.joints[i] if x is None else x.joints_m for i, x in rows]),
+            "states": np.stack([self.states[i] if x is None else x.states for i, x in rows]),
+            "body_id": np.array(
+                [self.body_id[i] if x is None else x.body_id for i, x in rows], dtype=np.int64
+            ),
+        }
+        if occlusion:
+            flags = [self.occluded[i] if x is None else x.occluded for i, x in rows]
+            out["occluded"] = np.stack([blank if f is None else f for f in flags]).astype(bool)
+            out["crossings"] = np.array(
+                [self.crossings[i] if x is None else (x.n_crossings or 0) for i, x in rows],
+                dtype=np.int64,
+            )
+        return out
 
 
 @dataclass
@@ -313,9 +346,13 @@ class Recorder:
         states: NDArray[np.int8],
         occluded: NDArray[np.bool_] | None,
         n_crossings: int | None,
+        *,
+        bodies: tuple[BodyFrame, ...] = (),
     ) -> None:
         """One body frame (joints NaN exactly where states is 0: the server sanitized it);
-        ``seq`` is the wire seq, increasing on the sensor's current stream."""
+        ``seq`` is the wire seq, increasing on the sensor's current stream. ``bodies``: every
+        body of the frame, the first (the one given by the other arguments) first; each is
+        recorded with its tracking id."""
         rec, changed = self._obs_seq[sensor_id].record(seq)
         if changed:  # a restarted stream (the wire seq is the recorded one minus the offset)
             self.add_event(
@@ -332,6 +369,8 @@ class Recorder:
         b.states.append(states)
         b.occluded.append(occluded)
         b.crossings.append(n_crossings)
+        b.body_id.append(bodies[0].body_id if bodies else 0)
+        b.others.append(bodies[1:])
 
     def add_probe(self, sensor_id: str, t1: float, t2: float, t3: float, t4: float) -> None:
         self._batch.probes[sensor_id].append((t1, t2, t3, t4))
@@ -395,18 +434,18 @@ class Recorder:
             has_occ = all(x is not None for x in o.occluded) and all(
                 c is not None for c in o.crossings
             )
+            every = o.all_bodies(has_occ)
             st.append_observations(
                 sid,
-                np.array(o.seq, dtype=np.int64),
-                np.array(o.t_device),
-                np.stack(o.joints),
-                np.stack(o.states),
-                t_receive_server_s=np.array(o.t_server),
-                t_receive_host_s=np.array(o.t_host),
-                occluded=np.stack([np.asarray(x, dtype=bool) for x in o.occluded])
-                if has_occ
-                else None,
-                n_crossings=np.array(o.crossings, dtype=np.int64) if has_occ else None,
+                every["seq"],
+                every["t_device"],
+                every["joints"],
+                every["states"],
+                t_receive_server_s=every["t_server"],
+                t_receive_host_s=every["t_host"],
+                occluded=every.get("occluded"),
+                n_crossings=every.get("crossings"),
+                body_id=every["body_id"],
             )
             ok = [i for i, t in enumerate(o.t_capture) if math.isfinite(t)]
             store_live.append_obs_times(

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import SyncError
+from kinefuse.frames.observations import BodyFrame
 from kinefuse.net.server.guard import EventLimit
 from kinefuse.skeleton import N_JOINTS, TrackingState
 from kinefuse.sync.device import NOMINAL_LATENCY_S, DeviceClockEstimate, estimate_device_clock
@@ -66,7 +67,13 @@ class DeviceClockTracker:
 
 @dataclass(frozen=True, eq=False)
 class Observation:
-    """One body frame as the fusion takes it (see the module docstring for the times)."""
+    """One body frame as the fusion takes it (see the module docstring for the times).
+
+    ``joints_m``, ``states``, ``occluded`` and ``n_crossings`` are the first body's (the one
+    the tracker listed first: what the fusion uses); ``bodies`` is every body of the frame, the
+    first first, each a :class:`~kinefuse.frames.observations.BodyFrame` with its tracking id
+    (sanitized like the first; its times the client's clocks; no ``others``).
+    """
 
     seq: int
     t_capture_server_s: float
@@ -75,6 +82,7 @@ class Observation:
     states: NDArray[np.int8]
     occluded: NDArray[np.bool_] | None
     n_crossings: int | None
+    bodies: tuple[BodyFrame, ...] = ()
 
 
 def sanitize_joints(joints_m: Array, states: NDArray[np.int8]) -> tuple[Array, NDArray[np.int8]]:
@@ -137,6 +145,8 @@ class SensorState:
         self.tracker: str | None = None
         #: what of this sensor is logged and recorded one by one (the rest is summarized)
         self.events = EventLimit(per_window=10, window_s=10.0)
+        self._bodies: tuple[BodyFrame, ...] = ()
+        self._bodies_t_capture_server_s = float("nan")
         self._arrivals: deque[float] = deque(maxlen=90)
         self._tracked: deque[float] = deque(maxlen=90)
 
@@ -153,6 +163,7 @@ class SensorState:
         self.last_seq = None
         self.late_since = None
         self.queue.clear()
+        self.keep_bodies((), float("nan"))
 
     def disconnect(self) -> None:
         self.connected = False
@@ -209,6 +220,19 @@ class SensorState:
         self.queue.append(obs)
         self._arrivals.append(t_receive_server_s)
         self._tracked.append(float((obs.states == TrackingState.TRACKED).mean()))
+
+    def keep_bodies(self, bodies: tuple[BodyFrame, ...], t_capture_server_s: float) -> None:
+        """Every body of the sensor's latest body frame (the first listed first), captured at
+        ``t_capture_server_s`` on the server clock (NaN: not yet known)."""
+        self._bodies = bodies
+        self._bodies_t_capture_server_s = t_capture_server_s
+
+    def bodies(self) -> tuple[float, tuple[BodyFrame, ...]]:
+        """The latest body frame's capture time on the server clock (s, NaN: unknown) and its
+        bodies, each a :class:`~kinefuse.frames.observations.BodyFrame` with the sensor's
+        tracking id, joints in the sensor frame (the first is the one the fusion uses);
+        ``(nan, ())`` before the first frame and after a reconnect."""
+        return self._bodies_t_capture_server_s, self._bodies
 
     def drain(self) -> list[Observation]:
         """Take what is queued (atomically per item: safe against an append meanwhile)."""

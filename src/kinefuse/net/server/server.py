@@ -52,8 +52,12 @@ from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import NDArray
+
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.errors import CalibrationError, SyncError
+from kinefuse.frames.observations import BodyFrame
 from kinefuse.fusion.live import LiveOptions
 from kinefuse.io.store.live import SightingRow
 from kinefuse.net.address import is_loopback
@@ -655,6 +659,7 @@ class Server:
         joints, states = sanitize_joints(msg.joints_m, msg.states)
         t_cap = client.capture_to_server(msg.t_device_s)
         t_host = client.host_to_server(msg.t_host_s)
+        bodies = _bodies(client.sensor_id, msg, joints, states)
         self.person.add_body(client.sensor_id, msg.t_device_s, t_host, joints)
         if self.recorder is not None:
             self.recorder.add_observation(
@@ -668,10 +673,14 @@ class Server:
                 states,
                 msg.occluded,
                 msg.n_crossings,
+                bodies=bodies,
             )
         if backlog:
             return
-        obs = Observation(msg.seq, t_cap, t_host, joints, states, msg.occluded, msg.n_crossings)
+        client.keep_bodies(bodies, t_cap)
+        obs = Observation(
+            msg.seq, t_cap, t_host, joints, states, msg.occluded, msg.n_crossings, bodies
+        )
         client.enqueue(obs, t_arr)
         self.loop.notify()
         if math.isfinite(t_host):
@@ -830,3 +839,31 @@ class Server:
     def status(self) -> Status:
         """The status snapshot (:func:`kinefuse.net.server.report.server_status`)."""
         return server_status(self)
+
+
+def _bodies(
+    sensor_id: str, msg: BodyFrameMessage, joints: NDArray[np.float64], states: NDArray[np.int8]
+) -> tuple[BodyFrame, ...]:
+    """Every body of a body frame (the first with its sanitized ``joints``/``states``), each
+    a :class:`BodyFrame` with the sensor's tracking id; the others sanitized the same way."""
+    first = BodyFrame(
+        sensor_id, msg.seq, msg.t_device_s, msg.t_host_s, joints, states,
+        msg.occluded, msg.n_crossings, msg.body_id,
+    )  # fmt: skip
+    out = [first]
+    for b in msg.others:
+        j, st = sanitize_joints(b.joints_m, b.states)
+        out.append(
+            BodyFrame(
+                sensor_id,
+                msg.seq,
+                msg.t_device_s,
+                msg.t_host_s,
+                j,
+                st,
+                b.occluded,
+                b.n_crossings,
+                b.body_id,
+            )
+        )
+    return tuple(out)
