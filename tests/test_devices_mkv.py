@@ -328,3 +328,16 @@ def test_the_resampling_agrees_with_libk4a_everywhere_where_pyk4a_loads(mkv: Pat
     finally:
         pb.close()
     assert len(errors) > 300 and max(errors) <= 1.0
+
+
+def test_the_adapter_keeps_every_body_the_nearest_first(mkv: Path) -> None:
+    """The tracker's two bodies both reach the body frame: the nearer (id 2, the body kinefuse
+    has always taken) first, the farther (id 1) as the frame's other body, same seq and times."""
+    src = CameraFrameSource(MkvRecording(mkv), "k1", _FixedBodies())
+    (b,) = [f for f in src if isinstance(f, BodyFrame)]
+    src.close()
+    assert [x.body_id for x in b.bodies()] == [2, 1]
+    (o,) = b.others
+    assert (o.seq, o.t_device_s, o.sensor_id) == (b.seq, b.t_device_s, "k1") and o.others == ()
+    assert np.all(o.joints_m[o.states > 0, 2] == 3.0)
+    assert o.states[3] == TrackingState.NOT_TRACKED and np.isnan(o.joints_m[3]).all()

@@ -24,7 +24,7 @@ import importlib.util
 import math
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from importlib.metadata import entry_points
 from typing import Protocol, runtime_checkable
@@ -45,7 +45,7 @@ from kinefuse.devices.trackers import (
 from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.devices.worker import TrackerWorker
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
+from kinefuse.frames.observations import MAX_BODIES, BodyFrame, DepthFrame, Frame
 from kinefuse.skeleton import N_JOINTS, TrackingState
 
 __all__ = [
@@ -57,6 +57,7 @@ __all__ = [
     "SourceInfo",
     "body_frame",
     "camera_kinds",
+    "frame_bodies",
     "list_sources",
     "nearest_body",
     "open_camera",
@@ -238,21 +239,51 @@ def nearest_body(result: TrackerResult) -> TrackedBody | None:
     return best
 
 
+def frame_bodies(result: TrackerResult) -> tuple[TrackedBody, ...]:
+    """Every body of a tracker result that has a present joint: the nearest first (the body
+    kinefuse has always taken, :func:`nearest_body`), then the others in the tracker's order;
+    at most :data:`~kinefuse.frames.observations.MAX_BODIES`."""
+    first = nearest_body(result)
+    if first is None:
+        return ()
+    rest = [
+        b
+        for b in result.bodies
+        if b is not first
+        and (
+            np.isfinite(np.asarray(b.joints_m, dtype=np.float64)).all(-1)
+            & (np.asarray(b.states) != TrackingState.NOT_TRACKED)
+        ).any()
+    ]
+    return (first, *rest)[:MAX_BODIES]
+
+
 def body_frame(
-    sensor_id: str, capture: Capture, body: TrackedBody | None, t_host_s: float
+    sensor_id: str,
+    capture: Capture,
+    body: TrackedBody | None,
+    t_host_s: float,
+    others: Sequence[TrackedBody] = (),
 ) -> BodyFrame:
     """The client's body frame of one capture: the body's joints (already in the depth camera's
-    frame, x right, y down, z forward, metres) with NaN exactly where NOT_TRACKED; an empty frame
-    (every joint NOT_TRACKED) when there is no body."""
+    frame, x right, y down, z forward, metres) with NaN exactly where NOT_TRACKED, its tracker id
+    as ``body_id``, and ``others`` as the frame's other bodies; an empty frame (every joint
+    NOT_TRACKED, body 0) when there is no body."""
     joints = np.full((N_JOINTS, 3), np.nan)
     states = np.zeros(N_JOINTS, dtype=np.int8)
+    body_id = 0
     if body is not None:
         j = np.asarray(body.joints_m, dtype=np.float64).reshape(N_JOINTS, 3)
         st = np.asarray(body.states, dtype=np.int8).reshape(N_JOINTS)
         ok = (st != TrackingState.NOT_TRACKED) & np.isfinite(j).all(axis=1)
         joints[ok] = j[ok]
         states[ok] = st[ok]
-    return BodyFrame(sensor_id, capture.seq, capture.t_device_s, t_host_s, joints, states)
+        body_id = int(body.body_id) % (1 << 63)  # a Kinect v2 id is a uint64
+    more = tuple(body_frame(sensor_id, capture, o, t_host_s) for o in others)
+    return BodyFrame(
+        sensor_id, capture.seq, capture.t_device_s, t_host_s, joints, states,
+        body_id=body_id, others=more,
+    )  # fmt: skip
 
 
 class CameraFrameSource:
@@ -362,9 +393,10 @@ class CameraFrameSource:
 
     def _body_frame(self, cap: Capture, result: TrackerResult) -> BodyFrame:
         self.refused.extend(result.refused)
-        body = nearest_body(result)
-        self.with_person += body is not None
-        return body_frame(self._id, cap, body, cap.t_host_s)
+        bodies = frame_bodies(result)  # the nearest first: the one kinefuse always took
+        self.with_person += bool(bodies)
+        first = bodies[0] if bodies else None
+        return body_frame(self._id, cap, first, cap.t_host_s, bodies[1:])
 
     def _threaded(self) -> Iterator[Frame]:
         """Depth frames at the camera's rate; body frames as the worker finishes them, stamped

@@ -26,7 +26,11 @@ from kinefuse.skeleton import N_JOINTS, TrackingState
 
 Array = NDArray[np.float64]
 
-__all__ = ["BodyFrame", "BodyFrames", "DepthFrame", "Frame"]
+__all__ = ["MAX_BODIES", "BodyFrame", "BodyFrames", "DepthFrame", "Frame"]
+
+#: the most bodies kinefuse keeps of one frame (Kinect v2 and the Azure Kinect track up to six);
+#: the wire's limit (docs/protocol.md, "Limits")
+MAX_BODIES = 8
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,8 +21,9 @@ from __future__ import annotations
 import heapq
 import json
 from collections.abc import Iterator, Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,7 +31,7 @@ from numpy.typing import NDArray
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.devices.kinect2 import KINECT_CAMERA_TO_SENSOR
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
+from kinefuse.frames.observations import MAX_BODIES, BodyFrame, DepthFrame, Frame
 from kinefuse.frames.source import FrameSource
 from kinefuse.io.inputs import read_text
 from kinefuse.io.store.session import SessionStore
@@ -98,7 +99,7 @@ class SessionReplay:
         return self._store.sensor(sensor_id).intrinsics
 
     def _body(self, sid: str) -> Iterator[tuple[float, Frame]]:
-        for f in self._store.observations(sid):
+        for f in self._store.observations(sid, bodies="all"):  # each frame with its bodies
             yield _arrival_key(f), f
 
     def _depth_frames(self, sid: str) -> Iterator[tuple[float, Frame]]:
@@ -154,21 +155,42 @@ class MultitrackReplay:
 
     def __iter__(self) -> Iterator[Frame]:
         s = self._stream.frames
-        order = np.argsort(s.t_receive_server_s, kind="stable")
-        for seq, k in enumerate(order.tolist()):
+        order = np.argsort(s.t_receive_server_s, kind="stable").tolist()
+
+        def body(k: int, seq: int) -> BodyFrame:
             # the server's receive time is the only arrival time the log has
-            yield BodyFrame(
+            return BodyFrame(
                 sensor_id=s.sensor_id,
                 seq=seq,
                 t_device_s=float(s.t_device_s[k]),
                 t_host_s=float(s.t_receive_server_s[k]),
                 joints_m=s.joints_m[k],
                 states=s.states[k],
+                body_id=int(s.body_id[k]),
             )
+
+        # rows logged one after the other of one capture, of other persons, are one frame's
+        # bodies (a one-person log: each row is a frame, as always)
+        seq, i = 0, 0
+        while i < len(order):
+            k, j = order[i], i + 1
+            ids = {int(s.body_id[k])}
+            while (
+                j < len(order)
+                and s.t_device_s[order[j]] == s.t_device_s[k]
+                and int(s.body_id[order[j]]) not in ids
+            ):
+                ids.add(int(s.body_id[order[j]]))
+                j += 1
+            first = body(k, seq)
+            others = tuple(body(order[m], seq) for m in range(i + 1, j))
+            yield replace(first, others=others) if others else first
+            seq, i = seq + 1, j
 
 
 class Kinect2TrackingReplay:
-    """The kinect2-tracking JSON (``walker.json``): the first tracked body of every frame.
+    """The kinect2-tracking JSON (``walker.json``): every tracked body of each frame (the first
+    listed first, each with its ``trackingId``; at most ``MAX_BODIES``).
 
     The file has no timestamps; frames are placed at the Kinect v2's 30 Hz (``rate_hz``).
     Joints come in Kinect camera space and are turned into the sensor frame (x right, y down).
@@ -200,18 +222,34 @@ class Kinect2TrackingReplay:
 
     def __iter__(self) -> Iterator[Frame]:
         for k, f in enumerate(self._frames):
-            body = next((b for b in f.get("bodies", []) if b.get("tracked")), None)
-            joints = np.full((N_JOINTS, 3), np.nan)
-            states = np.zeros(N_JOINTS, dtype=np.int8)
-            if body is not None:
-                for jt in body.get("joints", []):
-                    i = int(jt["jointType"])
-                    st = int(jt.get("trackingState", 0))
-                    if 0 <= i < N_JOINTS and st in (1, 2):
-                        joints[i] = _KINECT_AXES * [jt["cameraX"], jt["cameraY"], jt["cameraZ"]]
-                        states[i] = st
             t = k / self._rate
-            yield BodyFrame(self._id, k, t, float("nan"), joints, states)
+            tracked = [b for b in f.get("bodies", []) if b.get("tracked")][:MAX_BODIES]
+            bodies = [self._body(b, k, t) for b in tracked]
+            if not bodies:  # no one tracked: a frame without a body, as always
+                empty = np.full((N_JOINTS, 3), np.nan)
+                yield BodyFrame(self._id, k, t, float("nan"), empty, np.zeros(N_JOINTS, np.int8))
+                continue
+            yield replace(bodies[0], others=tuple(bodies[1:])) if len(bodies) > 1 else bodies[0]
+
+    def _body(self, body: dict[str, Any], k: int, t: float) -> BodyFrame:
+        """One tracked body of frame ``k``, with its ``trackingId`` as its body id (its
+        ``bodyIndex`` when it has none)."""
+        joints = np.full((N_JOINTS, 3), np.nan)
+        states = np.zeros(N_JOINTS, dtype=np.int8)
+        for jt in body.get("joints", []):
+            i = int(jt["jointType"])
+            st = int(jt.get("trackingState", 0))
+            if 0 <= i < N_JOINTS and st in (1, 2):
+                joints[i] = _KINECT_AXES * [jt["cameraX"], jt["cameraY"], jt["cameraZ"]]
+                states[i] = st
+        try:
+            body_id = int(body.get("trackingId", body.get("bodyIndex", 0))) % (1 << 63)
+        except (TypeError, ValueError):
+            raise InputError(
+                f"{self.path}: frame {k}: trackingId {body.get('trackingId')!r} is not an "
+                "integer; the file is not kinect2-tracking output"
+            ) from None
+        return BodyFrame(self._id, k, t, float("nan"), joints, states, body_id=body_id)
 
 
 class SimulatedSensorSource:

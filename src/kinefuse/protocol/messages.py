@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.frames.observations import MAX_BODIES
 from kinefuse.protocol.errors import FieldError
 from kinefuse.protocol.fields import (
     Array,
@@ -47,8 +48,6 @@ from kinefuse.protocol.fields import (
 PROTOCOL_VERSION: tuple[int, int] = (1, 3)
 #: the first version whose body frames carry every body (``body_id``, ``others``)
 BODIES_VERSION: tuple[int, int] = (1, 3)
-#: the most bodies one body frame carries (Kinect v2 and the Azure Kinect track up to six)
-MAX_BODIES = 8
 
 N_JOINTS = 25
 ROLES = ("sensor", "control")

@@ -10,7 +10,10 @@ spaces, in any order; extra columns are ignored):
 ``Tracker_Time``
     the receiving server's clock, milliseconds (.NET epoch; tens of ms of jitter).
 ``Person_Id, Skeleton_Id``
-    the tracked person, and the skeleton's index among the sensors watching them.
+    the tracked person, and the skeleton's index among the sensors watching them. The reader
+    keeps every person: ``Person_Id`` is each row's body id (0 where the column is absent), and
+    :func:`unique_frames` makes a sensor's bodies of one capture one frame (the shipped logs
+    hold one person, id 0).
 ``Skeleton_Time``
     the sensor's own clock (Kinect ``RelativeTime``), 100 ns ticks.
 ``Skeleton_Init_Angle, Skeleton_Init_Dist``
@@ -95,6 +98,9 @@ class MultitrackSensor:
     n_rows, n_duplicates, n_out_of_order : int
         Rows in the file, rows that repeated an already-logged frame, and frames logged after a
         frame captured later (0 until :func:`unique_frames` counts them).
+    bodies : BodyFrames or None
+        After :func:`unique_frames`, the all-bodies form when the sensor logged several persons
+        at one capture (``frames`` is then its first bodies); None when it is ``frames`` itself.
     """
 
     frames: BodyFrames
@@ -106,6 +112,12 @@ class MultitrackSensor:
     n_rows: int
     n_duplicates: int = 0
     n_out_of_order: int = 0
+    bodies: BodyFrames | None = None
+
+    @property
+    def every_body(self) -> BodyFrames:
+        """Every body of each frame (the all-bodies form; ``frames`` for a one-person log)."""
+        return self.frames if self.bodies is None else self.bodies
 
     @property
     def sensor_id(self) -> str:
@@ -142,9 +154,11 @@ def multitrack_sensor(
     init_dist_m: float = float("nan"),
     tilt_deg: float = float("nan"),
     height_m: float = float("nan"),
+    person: NDArray[np.int64] | None = None,
 ) -> MultitrackSensor:
     """A sensor's logged rows ``(N,)`` times, ``(N, 25, 3)`` joints as a :class:`MultitrackSensor`
-    (sequence numbers are the row order; present joints TRACKED, NaN ones NOT_TRACKED)."""
+    (sequence numbers are the row order; present joints TRACKED, NaN ones NOT_TRACKED;
+    ``person`` ``(N,)`` each row's ``Person_Id``, its body id, default 0)."""
     j = np.asarray(joints_m, dtype=np.float64)
     present = np.isfinite(j).all(-1)
     n = j.shape[0]
@@ -156,6 +170,7 @@ def multitrack_sensor(
         joints_m=j,
         states=np.where(present, TrackingState.TRACKED, TrackingState.NOT_TRACKED),
         t_receive_server_s=t_receive_s,
+        body_id=np.zeros(n, dtype=np.int64) if person is None else person,
     )
     return MultitrackSensor(
         frames=frames,
@@ -281,6 +296,7 @@ def read_kinect_multitrack(path: str | Path) -> MultitrackRecording:
     scenario = np.empty(n, dtype=np.int64)
     t_recv_ms = np.empty(n, dtype=np.int64)
     t_skel = np.empty(n)
+    person = np.zeros(n, dtype=np.int64)
     ids: list[str] = []
     opt = {c: np.full(n, np.nan) for c in _OPTIONAL_COLUMNS}
     for k, (row, line) in enumerate(zip(rows, lines, strict=True)):
@@ -298,6 +314,13 @@ def read_kinect_multitrack(path: str | Path) -> MultitrackRecording:
         scenario[k] = int(_number(row[col["Scenario_Id"]], name, line, "Scenario_Id"))
         t_recv_ms[k] = int(_number(row[col["Tracker_Time"]], name, line, "Tracker_Time"))
         t_skel[k] = _number(row[col["Skeleton_Time"]], name, line, "Skeleton_Time") * 1e-7
+        if "Person_Id" in col and row[col["Person_Id"]]:
+            pid = _number(row[col["Person_Id"]], name, line, "Person_Id")
+            if pid < 0 or pid != int(pid):
+                raise InputError(
+                    f"{name}:{line}: Person_Id {pid:g} is not a person index (0, 1, ...)"
+                )
+            person[k] = int(pid)
         sid = row[col["Kinect_Id"]]
         if not sid:
             raise InputError(f"{name}:{line}: empty Kinect_Id; every row must name its sensor")
@@ -328,6 +351,7 @@ def read_kinect_multitrack(path: str | Path) -> MultitrackRecording:
                 init_dist_m=_first(opt["Skeleton_Init_Dist"][m]),
                 tilt_deg=_first(opt["Kinect_Tilt_Angle"][m]),
                 height_m=_first(opt["Kinect_Height"][m]) * 0.01,
+                person=person[m],
             )
         )
     return MultitrackRecording(
@@ -355,12 +379,37 @@ def _first(values: Array) -> float:
 
 def unique_frames(stream: MultitrackSensor) -> MultitrackSensor:
     """Reduce a logged stream to its distinct frames (first receipt of each), in capture order,
-    counting the rows that repeated a frame and the frames logged out of order."""
+    counting the rows that repeated a frame and the frames logged out of order.
+
+    A frame is a capture (``Skeleton_Time``); its bodies are its persons (``Person_Id``), the
+    first received first, all under the seq of the frame's first receipt. ``frames`` is the
+    first body of each (a one-person log: every frame, as always); when some capture has several
+    persons, ``bodies`` holds them all (the all-bodies form).
+    """
     ticks = np.round(stream.t_sensor_s * 1e7).astype(np.int64)
-    order = np.lexsort((stream.t_receive_s, ticks))
+    person = stream.frames.body_id
+    order = np.lexsort((stream.t_receive_s, person, ticks))
     first = np.ones(order.size, dtype=bool)
-    first[1:] = np.diff(ticks[order]) != 0
-    keep = order[first]
+    first[1:] = (np.diff(ticks[order]) != 0) | (np.diff(person[order]) != 0)
+    kept = order[first]  # the first receipt of each (capture, person)
+    frame_first = np.ones(kept.size, dtype=bool)
+    frame_first[1:] = np.diff(ticks[kept]) != 0
+    # a capture's bodies in order of receipt, the first received first
+    group = np.cumsum(frame_first) - 1
+    kept = kept[np.lexsort((kept, group))]
+    keep = kept[frame_first]  # the first body of each capture
+    if keep.size == kept.size:
+        bodies = None
+    else:
+        start = np.flatnonzero(frame_first)
+        lead = np.repeat(kept[start], np.diff(np.append(start, kept.size)))
+        every = stream.frames.take(kept)
+        bodies = replace(
+            every,
+            seq=stream.frames.seq[lead],
+            t_device_s=stream.frames.t_device_s[lead],
+            t_receive_server_s=stream.frames.t_receive_server_s[lead],
+        )
     # out of order: a first appearance logged after the first appearance of a later frame
     row_first = np.sort(keep)
     later = np.maximum.accumulate(ticks[row_first])
@@ -370,8 +419,9 @@ def unique_frames(stream: MultitrackSensor) -> MultitrackSensor:
         frames=stream.frames.take(keep),
         scenario=stream.scenario[keep],
         n_rows=stream.n_rows,
-        n_duplicates=int(stream.n_frames - keep.size),
+        n_duplicates=int(stream.n_frames - kept.size),
         n_out_of_order=ooo,
+        bodies=bodies,
     )
 
 
