@@ -13,6 +13,7 @@ import numpy as np
 
 from kinefuse.frames.observations import BodyFrame
 from kinefuse.io.store.session import SessionStore
+from kinefuse.net.server.sensor_state import latest_bodies
 from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.protocol import BodyFrameMessage, Goodbye, Welcome
 from test_client import TestServer, WalkSource, _client, run
@@ -43,11 +44,10 @@ def test_two_bodies_reach_the_server_state_and_the_recording(tmp_path) -> None:
         client = _client(SimpleNamespace(port=srv.port), src, speed=3.0)  # type: ignore[arg-type]
         play = asyncio.ensure_future(client.run())
         while not play.done():
-            state = srv.clients.get("w0")
-            if state is not None:
-                _t, bodies = state.bodies()
-                if bodies:
-                    seen.append(tuple(b.body_id for b in bodies))
+            now = latest_bodies(srv.clients)
+            if now:
+                seen.append(tuple(b.body_id for b in now["w0"]))
+                assert srv.clients["w0"].bodies()[1][0].sensor_id == "w0"
             await asyncio.sleep(0.01)
         assert await play == 0
         srv.request_stop("test done")

@@ -193,7 +193,7 @@ def _track_one(
     progress: Any,
 ) -> dict[str, Any]:
     """One recording into its part store (runs in a worker process)."""
-    from kinefuse.devices.sources import body_frame, nearest_body, open_camera_source
+    from kinefuse.devices.sources import body_frame, frame_bodies, open_camera_source
     from kinefuse.io.store.session import SessionStore
 
     src = open_camera_source(spec, tracker)
@@ -212,12 +212,14 @@ def _track_one(
 
             def flush() -> None:
                 if obs:
+                    rows = [b for f in obs for b in f.bodies()]  # every body, the first first
                     store.append_observations(
                         sensor_id,
-                        [f.seq for f in obs],
-                        [f.t_device_s for f in obs],
-                        np.stack([f.joints_m for f in obs]),
-                        np.stack([f.states for f in obs]),
+                        [f.seq for f in rows],
+                        [f.t_device_s for f in rows],
+                        np.stack([f.joints_m for f in rows]),
+                        np.stack([f.states for f in rows]),
+                        body_id=[f.body_id for f in rows],
                     )
                     obs.clear()
                 if depth:
@@ -229,13 +231,14 @@ def _track_one(
 
             for cap in cam.captures():
                 n += 1
-                body = None
+                bodies: tuple[Any, ...] = ()
                 if trk is not None:
                     result = trk.track(*src.for_tracker(cap))
                     refused.update(result.refused)
-                    body = nearest_body(result)
-                    with_person += body is not None
-                obs.append(body_frame(sensor_id, cap, body, math.nan))
+                    bodies = frame_bodies(result)  # the nearest first, as always
+                    with_person += bool(bodies)
+                first = bodies[0] if bodies else None
+                obs.append(body_frame(sensor_id, cap, first, math.nan, bodies[1:]))
                 if cap.depth_mm is not None and cap.t_device_s - last_depth >= 1 / depth_hz - 1e-6:
                     depth.append((cap.seq, cap.t_device_s, src.depth_of(cap)))
                     last_depth = cap.t_device_s
@@ -280,12 +283,13 @@ def _merge(out: Any, part: Path, sensor_id: str, offset_s: float) -> None:
             have -= skip
             if skip < len(seq):
                 out.append_depth_frames(sensor_id, seq[skip:], t[skip:], frames[skip:])
-        o = p.observations(sensor_id)
+        o = p.observations(sensor_id, bodies="all")
         host = o.t_device_s + offset_s + NOMINAL_LATENCY_S
         if out.observation_count(sensor_id) == 0:
             out.append_observations(
-                sensor_id, o.seq, o.t_device_s, o.joints_m, o.states, t_receive_host_s=host
-            )
+                sensor_id, o.seq, o.t_device_s, o.joints_m, o.states, t_receive_host_s=host,
+                body_id=o.body_id,
+            )  # fmt: skip
         if out.clock_probes(sensor_id).shape[0] == 0:
             t = (
                 np.arange(math.floor(host.min()), math.ceil(host.max()) + 1.0)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -258,3 +259,15 @@ class SensorState:
         except SyncError:
             return float("nan"), float("nan")
         return e.offset_s * 1e3, e.offset_se_s * 1e3
+
+
+def latest_bodies(clients: Mapping[str, SensorState]) -> dict[str, list[BodyFrame]]:
+    """Every body of each connected sensor's latest body frame, ``{sensor_id: [first, ...]}``
+    (the first is the body the fusion uses; sensors without a frame yet are left out): what a
+    people associator takes at each fused instant."""
+    out: dict[str, list[BodyFrame]] = {}
+    for sid, c in clients.items():
+        _t, bodies = c.bodies()
+        if c.connected and bodies:
+            out[sid] = list(bodies)
+    return out
