@@ -228,11 +228,11 @@ class SensorStreams(StorePart):
     ) -> list[tuple[Any, ...]]:
         """The ``observation_bodies`` rows of an all-bodies batch: each seq's bodies after its
         first, numbered 1, 2, ... in the order given."""
-        pairs = np.stack([seq, ids], axis=1)
-        if np.unique(pairs, axis=0).shape[0] != pairs.shape[0]:
+        if first.all():  # one body a frame (seqs unique): nothing beside the first
+            if self._has_bodies or not ids.any():
+                return []
+        elif np.unique(np.stack([seq, ids], axis=1), axis=0).shape[0] != seq.shape[0]:
             raise InputError(f"{what}: a body_id repeats within one seq; each body needs its own")
-        if first.all() and (self._has_bodies or not ids.any()):
-            return []
         if not self._has_bodies:
             raise InputError(
                 f"{what}: {self.path} was written by an older kinefuse that keeps one body per "
