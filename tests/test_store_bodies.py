@@ -136,3 +136,19 @@ def test_a_stream_in_all_bodies_form_round_trips(tmp_path, rng):
     np.testing.assert_array_equal(back.seq, stream.seq)
     np.testing.assert_array_equal(back.body_id, stream.body_id)
     np.testing.assert_array_equal(back.joints_m, stream.joints_m)
+
+
+def test_a_stored_session_replays_every_body(tmp_path, rng):
+    """What a replayed session (``sim:`` and ``session:`` sources) hands its client: each frame
+    once, with its other bodies."""
+    from kinefuse.pipeline.sources import SessionReplay
+
+    seq = np.array([0, 0, 1, 2, 2, 2])
+    t, j, st, _, _ = _rows(rng, 6, seq, False)
+    with SessionStore.create(tmp_path / "s.sqlite") as s:
+        s.add_sensor("k0", "SIM-0", Intrinsics())
+        s.append_observations("k0", seq, t, j, st, body_id=[4, 6, 4, 4, 6, 7])
+        frames = list(SessionReplay(s, ["k0"], depth=False))
+    assert [f.seq for f in frames] == [0, 1, 2]
+    assert [[b.body_id for b in f.bodies()] for f in frames] == [[4, 6], [4], [4, 6, 7]]
+    np.testing.assert_array_equal(frames[2].others[1].joints_m, j[5])
