@@ -39,7 +39,7 @@ def fused(tmp_path_factory) -> tuple[Path, np.ndarray, list[str]]:
     info = run_fuse(session=session, method="best", out=d / "f.bvh", also_out=(d / "f.csv",),
                     calibration=None, true_calibration=True)  # fmt: skip
     csv = np.genfromtxt(d / "f.csv", delimiter=",", skip_header=1)
-    return d / "f.bvh", csv[:, 1:].reshape(-1, 25, 3), list(info["warnings"])  # type: ignore[call-overload]
+    return d / "f.bvh", csv[:, 1:].reshape(-1, 25, 3), list(info.warnings)
 
 
 def _chain_bound(p: np.ndarray) -> np.ndarray:

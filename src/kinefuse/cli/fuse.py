@@ -59,23 +59,23 @@ def run(args: argparse.Namespace) -> int:
             end_s=args.end,
             progress=progress,
         )
-    for w in said_once(info["warnings"]):  # type: ignore[arg-type]
+    for w in said_once(list(info.warnings)):
         print(f"kinefuse: warning: {w}", file=sys.stderr)
     if args.json:
-        print(json.dumps(info, indent=2))
+        print(json.dumps(info.as_dict(), indent=2))
     else:
-        status = ", ".join(f"{k} {v}" for k, v in info["status"].items() if v)  # type: ignore[attr-defined]
+        status = ", ".join(f"{k} {v}" for k, v in info.status.items() if v)
         print(
-            f"fused {info['frames']} frames with {info['method']} ({info['calibration']}) in "
-            f"{info['seconds']:.2f} s; joint status: {status}"
+            f"fused {info.frames} frames with {info.method} ({info.calibration}) in "
+            f"{info.seconds:.2f} s; joint status: {status}"
         )
-        if info["stored_in_session"]:
+        if info.stored_in_session:
             print(
-                f"stored the fused skeleton in {args.session} (method {info['method']}); "
+                f"stored the fused skeleton in {args.session} (method {info.method}); "
                 f"replay it: kinefuse view {shlex.quote(str(args.session))}"
             )
-        if info["out"]:
-            print(f"wrote {info['out']}")
+        if info.out:
+            print(f"wrote {info.out}")
     return 0
 
 

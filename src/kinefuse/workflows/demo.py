@@ -511,8 +511,8 @@ def run_live_demo(
             calibration=None,
             true_calibration=False,
         )
-        say(f"   {fused['frames']} frames ({fused['calibration']}) -> {', '.join(outputs)}")
-        for w in fused["warnings"]:  # type: ignore[attr-defined]
+        say(f"   {fused.frames} frames ({fused.calibration}) -> {', '.join(outputs)}")
+        for w in fused.warnings:
             say(f"   warning: {w}")
 
         say("\n== 4/4 evaluate: live and offline against the simulator's truth")
@@ -626,7 +626,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
             calibration=None,
             true_calibration=False,
         )
-        say(f"   {fused['frames']} frames in {fused['seconds']:.2f} s -> {', '.join(names)}")
+        say(f"   {fused.frames} frames in {fused.seconds:.2f} s -> {', '.join(names)}")
 
         say("\n== 4/4 evaluate: the paper's methods and ours against the truth")
         report = run_evaluate(

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,6 +14,65 @@ from kinefuse.evaluation.poses import resolve_poses
 from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FuseResult:
+    """What ``kinefuse fuse`` did (``kinefuse fuse --json`` prints :meth:`as_dict`).
+
+    Attributes
+    ----------
+    method : str
+        The fusion method.
+    calibration : str
+        Where the sensors' poses came from (the session's, a file, the truth).
+    frames : int
+        Frames fused.
+    seconds : float
+        Wall time of the fusion, seconds.
+    status : dict of str to int
+        Joint-frames per fusion status.
+    out : str or None
+        The export, if one was asked for.
+    also_out : tuple of str
+        The further exports of the same result.
+    stored_in_session : bool
+        Whether the fused skeleton was stored in the session.
+    warnings : tuple of str
+        What the user should know (sensors screened out, export notes).
+    sensors : tuple of str
+        The sensors fused.
+    left_out : dict of str to str
+        The sensors left out, by id, with the reason.
+    """
+
+    method: str
+    calibration: str
+    frames: int
+    seconds: float
+    status: dict[str, int]
+    out: str | None
+    also_out: tuple[str, ...]
+    stored_in_session: bool
+    warnings: tuple[str, ...]
+    sensors: tuple[str, ...]
+    left_out: dict[str, str]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The result as JSON-able data (what ``--json`` prints)."""
+        return {
+            "method": self.method,
+            "calibration": self.calibration,
+            "frames": self.frames,
+            "seconds": self.seconds,
+            "status": dict(self.status),
+            "out": self.out,
+            "also_out": list(self.also_out),
+            "stored_in_session": self.stored_in_session,
+            "warnings": list(self.warnings),
+            "sensors": list(self.sensors),
+            "left_out": [{"id": k, "reason": v} for k, v in self.left_out.items()],
+        }
 
 
 def run_fuse(
@@ -28,7 +89,7 @@ def run_fuse(
     end_s: float | None = None,
     also_out: tuple[Path, ...] = (),
     progress: Callable[[str], None] | None = None,
-) -> dict[str, object]:
+) -> FuseResult:
     """Fuse a session with one method and export the result.
 
     The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
@@ -74,16 +135,16 @@ def run_fuse(
             notes=notes,
         )
         warnings += [f"{o.name}: {n}" for n in notes]
-    return {
-        "method": method,
-        "calibration": source,
-        "frames": int(res.t_server_s.size),
-        "seconds": res.seconds,
-        "status": status_counts(res.status),
-        "out": str(out) if out is not None else None,
-        "also_out": [str(o) for o in also_out],
-        "stored_in_session": store_result,
-        "warnings": warnings,
-        "sensors": [s.id for s in sensors],
-        "left_out": [{"id": k, "reason": v} for k, v in screen.left_out.items()],
-    }
+    return FuseResult(
+        method=method,
+        calibration=source,
+        frames=int(res.t_server_s.size),
+        seconds=res.seconds,
+        status=status_counts(res.status),
+        out=str(out) if out is not None else None,
+        also_out=tuple(str(o) for o in also_out),
+        stored_in_session=store_result,
+        warnings=tuple(warnings),
+        sensors=tuple(s.id for s in sensors),
+        left_out=dict(screen.left_out),
+    )
