@@ -7,9 +7,13 @@ import json
 import shlex
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from kinefuse.calibration.methods import DETECTORS, METHODS
 from kinefuse.cli import args as shared
+
+if TYPE_CHECKING:
+    from kinefuse.workflows.calibrate import CalibrateResult
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -44,18 +48,18 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.set_defaults(func=run)
 
 
-def _where_it_went(args: argparse.Namespace, r: dict[str, object]) -> str:
+def _where_it_went(args: argparse.Namespace, r: CalibrateResult) -> str:
     """Where the calibration went, and the exact command of the next step."""
     session = shlex.quote(str(args.session))
-    if r["stored_in_session"]:
+    if r.stored_in_session:
         return (
-            f"stored the calibration in {args.session} (as {r['method']!r}); next: "
+            f"stored the calibration in {args.session} (as {r.method!r}); next: "
             f"kinefuse fuse {session} --method best --store"
         )
-    if r["out"]:
+    if r.out:
         return (
             f"the session was only read (not stored in it); fuse with this file: kinefuse fuse "
-            f"{session} --calibration {shlex.quote(str(r['out']))} --method best --store"
+            f"{session} --calibration {shlex.quote(str(r.out))} --method best --store"
         )
     return (
         "the calibration was not stored anywhere (the session is only read); to keep it in the "
@@ -107,19 +111,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"kinefuse: error: {e}", file=sys.stderr)
         return 3
     if args.json:
-        print(json.dumps(r, indent=2))
+        print(json.dumps(r.as_dict(), indent=2))
     else:
         print(format_calibrate(r))
-        for w in [r["out"], *r.get("written", [])]:
+        for w in [r.out, *(r.written or ())]:
             if w:
                 print(f"wrote {w}")
-        if r.get("report_note"):
-            print(r["report_note"])
-        if r["grade"] != "failed" or r["accepted"]:
+        if r.report_note:
+            print(r.report_note)
+        if r.grade != "failed" or r.accepted:
             print(_where_it_went(args, r))
-    if r["grade"] == "failed" and not r["accepted"]:
+    if r.grade == "failed" and not r.accepted:
         print(
-            f"kinefuse: error: calibration failed ({'; '.join(r['reasons'])}); nothing was "
+            f"kinefuse: error: calibration failed ({'; '.join(r.reasons)}); nothing was "
             "written (pass --accept to keep it anyway)",
             file=sys.stderr,
         )
@@ -142,5 +146,5 @@ def _run_live(args: argparse.Namespace) -> int:
         seconds=args.seconds,
         token=token_from(args.token, args.token_file),
     )
-    print(json.dumps(r, indent=2) if args.json else format_calibrate_live(r))
-    return 0 if r["accepted"] else 3
+    print(json.dumps(r.as_dict(), indent=2) if args.json else format_calibrate_live(r))
+    return 0 if r.accepted else 3

@@ -3,11 +3,154 @@ result from its own residuals, write the calibration file."""
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 from kinefuse.errors import CalibrationError, CalibrationFailed, InputError
 from kinefuse.io.store.session import SessionStore
+
+
+@dataclass(frozen=True)
+class TruthErrors:
+    """A calibration's error against the simulator's truth (sessions with truth only).
+
+    Attributes
+    ----------
+    alignment : str
+        How the calibration's world was aligned with the truth's before comparing.
+    mean_position_error_m, mean_rotation_error_deg : float
+        Mean pose error over the sensors after that alignment, metres and degrees.
+    unaligned_mean_position_error_m, unaligned_mean_rotation_error_deg : float
+        The same without the alignment.
+    """
+
+    alignment: str
+    mean_position_error_m: float
+    mean_rotation_error_deg: float
+    unaligned_mean_position_error_m: float
+    unaligned_mean_rotation_error_deg: float
+
+
+@dataclass(frozen=True)
+class SensorFit:
+    """One sensor's part of a calibration.
+
+    Attributes
+    ----------
+    id : str
+        The sensor.
+    residual_m : float
+        RMS residual of its wand sightings after the registration, metres.
+    sightings : int
+        Wand sightings the registration used.
+    detected : int
+        Depth frames in which the wand was found.
+    frames : int
+        Depth frames of the wand phase.
+    position_error_m, rotation_error_deg : float or None
+        Its pose's error against the simulator's truth (None without truth).
+    """
+
+    id: str
+    residual_m: float
+    sightings: int
+    detected: int
+    frames: int
+    position_error_m: float | None = None
+    rotation_error_deg: float | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able; the truth's errors only when there are some."""
+        d: dict[str, Any] = {
+            "id": self.id,
+            "residual_m": self.residual_m,
+            "sightings": self.sightings,
+            "detected": self.detected,
+            "frames": self.frames,
+        }
+        if self.position_error_m is not None:
+            d["position_error_m"] = self.position_error_m
+            d["rotation_error_deg"] = self.rotation_error_deg
+        return d
+
+
+@dataclass(frozen=True)
+class CalibrateResult:
+    """What ``kinefuse calibrate`` did (``--json`` prints :meth:`as_dict`).
+
+    Attributes
+    ----------
+    method, detector : str
+        The registration method and the wand detector.
+    world : str
+        How the world frame was defined.
+    rms_m : float
+        RMS residual over all sensors, metres.
+    grade : str
+        ``good``, ``doubtful`` or ``failed`` (from the residuals alone).
+    reasons : tuple of str
+        Why the grade is worse than good.
+    accepted : bool
+        Whether the calibration was written (not failed, or ``--accept``).
+    stored_in_session : bool
+        Whether it was stored in the session.
+    sensors : tuple of SensorFit
+        Per sensor.
+    out : str or None
+        The calibration file written, if any.
+    left_out : dict of str to str
+        Sensors left out, by id, with the reason.
+    notes : tuple of str
+        What the user should know about the sensors screened.
+    truth : TruthErrors or None
+        The error against the simulator's truth (None: the session has none).
+    written : tuple of str or None
+        The error plots written (``report_dir`` with truth).
+    report_note : str or None
+        Why no report was written (``report_dir`` without truth).
+    """
+
+    method: str
+    detector: str
+    world: str
+    rms_m: float
+    grade: str
+    reasons: tuple[str, ...]
+    accepted: bool
+    stored_in_session: bool
+    sensors: tuple[SensorFit, ...]
+    out: str | None
+    left_out: dict[str, str]
+    notes: tuple[str, ...]
+    truth: TruthErrors | None = None
+    written: tuple[str, ...] | None = None
+    report_note: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able, as ``--json`` prints it: the truth's figures, the plots written and the
+        report note only when there are some."""
+        d: dict[str, Any] = {
+            "method": self.method,
+            "detector": self.detector,
+            "world": self.world,
+            "rms_m": self.rms_m,
+            "grade": self.grade,
+            "reasons": list(self.reasons),
+            "accepted": self.accepted,
+            "stored_in_session": self.stored_in_session,
+            "sensors": [s.as_dict() for s in self.sensors],
+            "out": self.out,
+            "left_out": [{"id": k, "reason": v} for k, v in self.left_out.items()],
+            "notes": list(self.notes),
+        }
+        if self.truth is not None:
+            d.update(asdict(self.truth))
+        if self.written is not None:
+            d["written"] = list(self.written)
+        if self.report_note is not None:
+            d["report_note"] = self.report_note
+        return d
 
 
 def run_calibrate(
@@ -20,7 +163,7 @@ def run_calibrate(
     accept: bool = False,
     allow_incomplete: bool = False,
     detector: str | None = None,
-) -> dict[str, Any]:
+) -> CalibrateResult:
     """Calibrate a session's sensors and grade the result from its own residuals.
 
     ``detector`` (``paper`` or ``robust``) finds the wand in the depth frames; by default each
@@ -68,50 +211,49 @@ def run_calibrate(
             store.write_calibration(method, text)
         if usable and out is not None:
             write_calibration(out, text)
-        result: dict[str, Any] = {
-            "method": method,
-            "detector": det,
-            "world": reg.world,
-            "rms_m": reg.rms_m,
-            **grade.to_dict(),
-            "accepted": usable,
-            "stored_in_session": bool(usable and store_result),
-            "sensors": [
-                {
-                    "id": sid,
-                    "residual_m": float(reg.residual_m[k]),
-                    "sightings": int(reg.n_sightings[k]),
-                    "detected": int(cal_in.tracks[sid].found.sum()),
-                    "frames": len(cal_in.tracks[sid].found),
-                }
+        result = CalibrateResult(
+            method=method,
+            detector=det,
+            world=reg.world,
+            rms_m=reg.rms_m,
+            grade=grade.grade,
+            reasons=grade.reasons,
+            accepted=usable,
+            stored_in_session=bool(usable and store_result),
+            sensors=tuple(
+                SensorFit(
+                    id=sid,
+                    residual_m=float(reg.residual_m[k]),
+                    sightings=int(reg.n_sightings[k]),
+                    detected=int(cal_in.tracks[sid].found.sum()),
+                    frames=len(cal_in.tracks[sid].found),
+                )
                 for k, sid in enumerate(reg.sensor_ids)
-            ],
-            "out": str(out) if out is not None and usable else None,
-            "left_out": [{"id": k, "reason": v} for k, v in screen.left_out.items()],
-            "notes": screen.notes(),
-        }
+            ),
+            out=str(out) if out is not None and usable else None,
+            left_out=dict(screen.left_out),
+            notes=tuple(screen.notes()),
+        )
         if store.has_truth():
             from kinefuse.evaluation.calibration import calibration_errors, write_calibration_report
 
             errs = calibration_errors(store, reg)
-            for s in result["sensors"]:
-                s.update(errs["by_sensor"][s["id"]])
-            for key in (
-                "alignment",
-                "mean_position_error_m",
-                "mean_rotation_error_deg",
-                "unaligned_mean_position_error_m",
-                "unaligned_mean_rotation_error_deg",
-            ):
-                result[key] = errs[key]
+            result = replace(
+                result,
+                sensors=tuple(replace(s, **errs["by_sensor"][s.id]) for s in result.sensors),
+                truth=TruthErrors(**{f.name: errs[f.name] for f in fields(TruthErrors)}),
+            )
             if report_dir is not None:
                 with atomic_dir(report_dir, what="calibration report") as tmp:
                     written = write_calibration_report(tmp, store, cal_in, reg, method)
-                result["written"] = [str(report_dir / p.name) for p in written]
+                result = replace(result, written=tuple(str(report_dir / p.name) for p in written))
         elif report_dir is not None:
-            result["report_note"] = (
-                "no report written: the error plots compare with the truth, and this session has "
-                "none (a live recording)"
+            result = replace(
+                result,
+                report_note=(
+                    "no report written: the error plots compare with the truth, and this session "
+                    "has none (a live recording)"
+                ),
             )
     return result
 
@@ -132,34 +274,36 @@ def _why_failed(e: CalibrationError, detector: str, protocol: dict[str, object])
     return text + "; nothing was written"
 
 
-def format_calibrate(r: dict[str, Any]) -> str:
+def format_calibrate(r: CalibrateResult) -> str:
+    """A calibration's result as text for the terminal."""
     lines = [
-        f"calibration ({r['method']}, wand detector {r['detector']}): {r['world']}",
-        f"grade: {r['grade']}",
+        f"calibration ({r.method}, wand detector {r.detector}): {r.world}",
+        f"grade: {r.grade}",
     ]
-    lines += [f"  {why}" for why in r["reasons"]]
-    lines += [f"note: {n}" for n in r.get("notes", [])]
-    if r["grade"] == "failed":
+    lines += [f"  {why}" for why in r.reasons]
+    lines += [f"note: {n}" for n in r.notes]
+    if r.grade == "failed":
         lines.append(
             "  the calibration was accepted anyway (--accept)"
-            if r["accepted"]
+            if r.accepted
             else "  nothing was written; fix the setup, or pass --accept to use it all the same"
         )
     lines.append("")
-    has_err = "mean_position_error_m" in r
+    has_err = r.truth is not None
     head = f"{'sensor':<8} {'sightings':>9} {'residual mm':>12}"
     if has_err:
         head += f" {'pos err mm':>11} {'rot err deg':>12}"
     lines.append(head)
-    for s in r["sensors"]:
-        row = f"{s['id']:<8} {s['sightings']:>9} {1e3 * s['residual_m']:12.2f}"
-        if has_err:
-            row += f" {1e3 * s['position_error_m']:11.2f} {s['rotation_error_deg']:12.3f}"
+    for s in r.sensors:
+        row = f"{s.id:<8} {s.sightings:>9} {1e3 * s.residual_m:12.2f}"
+        if s.position_error_m is not None and s.rotation_error_deg is not None:
+            row += f" {1e3 * s.position_error_m:11.2f} {s.rotation_error_deg:12.3f}"
         lines.append(row)
-    if has_err:
+    if r.truth is not None:
+        e = r.truth
         lines.append(
-            f"\nmean error vs truth ({r['alignment']}-aligned): "
-            f"{1e3 * r['mean_position_error_m']:.2f} mm, {r['mean_rotation_error_deg']:.3f} deg"
-            f" (unaligned: {1e3 * r['unaligned_mean_position_error_m']:.2f} mm)"
+            f"\nmean error vs truth ({e.alignment}-aligned): "
+            f"{1e3 * e.mean_position_error_m:.2f} mm, {e.mean_rotation_error_deg:.3f} deg"
+            f" (unaligned: {1e3 * e.unaligned_mean_position_error_m:.2f} mm)"
         )
     return "\n".join(lines)

@@ -613,7 +613,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
             store_result=True,
         )
         say(format_calibrate(cal))
-        if cal["grade"] == "failed":
+        if cal.grade == "failed":
             raise CalibrationError("the demo's calibration failed; see the reasons above")
 
         say("\n== 3/4 fuse: one skeleton from the four sensors (method best)")

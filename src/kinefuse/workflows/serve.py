@@ -14,6 +14,7 @@ import math
 import os
 import signal
 import sys
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -327,6 +328,65 @@ async def _control_calibrate(
         writer.close()
 
 
+@dataclass(frozen=True)
+class LiveSensorFit:
+    """One sensor's part of a live calibration: ``id``, its RMS ``residual_m`` (metres) and
+    the wand ``sightings`` the server's registration used."""
+
+    id: str
+    residual_m: float
+    sightings: int
+
+
+@dataclass(frozen=True)
+class LiveCalibrateResult:
+    """What ``kinefuse calibrate --live`` got from the server (``--json`` prints
+    :meth:`as_dict`).
+
+    Attributes
+    ----------
+    method : str
+        The registration method.
+    detector : str
+        ``client``: the sensors found the wand themselves.
+    world : str
+        Always empty (the server does not say).
+    rms_m : float
+        RMS residual over the sensors, metres (NaN with none).
+    grade : str
+        The server's grade of the calibration.
+    reasons : tuple of str
+        Why the grade is worse than good.
+    accepted, used_by_server : bool
+        Whether the server took the calibration (the two are the same).
+    message : str
+        The server's words (escaped for the terminal).
+    sensors : tuple of LiveSensorFit
+        Per sensor.
+    out : None
+        No file is written.
+    """
+
+    method: str
+    detector: str
+    world: str
+    rms_m: float
+    grade: str
+    reasons: tuple[str, ...]
+    accepted: bool
+    used_by_server: bool
+    message: str
+    sensors: tuple[LiveSensorFit, ...]
+    out: None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able, as ``--json`` prints it."""
+        d = asdict(self)
+        d["reasons"] = list(self.reasons)
+        d["sensors"] = [asdict(s) for s in self.sensors]
+        return d
+
+
 def run_calibrate_live(
     *,
     address: tuple[str, int],
@@ -334,44 +394,41 @@ def run_calibrate_live(
     seconds: float | None,
     token: str | None,
     timeout_s: float = 300.0,
-) -> dict[str, Any]:
-    """Ask a running server to calibrate; the result as
+) -> LiveCalibrateResult:
+    """Ask a running server to calibrate; the result, like
     :func:`kinefuse.workflows.calibrate.run_calibrate`'s. ``address``: the server's
     ``(host, port)`` (:func:`kinefuse.net.address.parse_hostport` reads ``HOST:PORT``)."""
     host, port = address
     res = asyncio.run(_control_calibrate(host, port, token, method, seconds, timeout_s))
     text = printable(res.message, 1024)  # the server's words reach the terminal escaped
-    reasons = [r.strip() for r in text.split(";")[1:]]
-    return {
-        "method": res.method,
-        "detector": "client",
-        "world": "",
-        "rms_m": float(np.sqrt(np.nanmean(res.residual_m**2))) if len(res.residual_m) else math.nan,
-        "grade": res.grade,
-        "reasons": reasons,
-        "accepted": bool(res.ok),
-        "used_by_server": bool(res.ok),
-        "message": text.split(";")[0],
-        "sensors": [
-            {
-                "id": sid,
-                "residual_m": float(res.residual_m[k]),
-                "sightings": int(res.n_sightings[k]),
-            }
+    return LiveCalibrateResult(
+        method=res.method,
+        detector="client",
+        world="",
+        rms_m=float(np.sqrt(np.nanmean(res.residual_m**2))) if len(res.residual_m) else math.nan,
+        grade=res.grade,
+        reasons=tuple(r.strip() for r in text.split(";")[1:]),
+        accepted=bool(res.ok),
+        used_by_server=bool(res.ok),
+        message=text.split(";")[0],
+        sensors=tuple(
+            LiveSensorFit(
+                id=sid, residual_m=float(res.residual_m[k]), sightings=int(res.n_sightings[k])
+            )
             for k, sid in enumerate(res.sensor_ids)
-        ],
-        "out": None,
-    }
+        ),
+    )
 
 
-def format_calibrate_live(r: dict[str, Any]) -> str:
-    lines = [f"live calibration ({r['method']}): {r['message']}", f"grade: {r['grade']}"]
-    lines += [f"  {why}" for why in r["reasons"]]
+def format_calibrate_live(r: LiveCalibrateResult) -> str:
+    """A live calibration's result as text for the terminal."""
+    lines = [f"live calibration ({r.method}): {r.message}", f"grade: {r.grade}"]
+    lines += [f"  {why}" for why in r.reasons]
     lines.append("")
     lines.append(f"{'sensor':<8} {'sightings':>9} {'residual mm':>12}")
-    for s in r["sensors"]:
-        lines.append(f"{s['id']:<8} {s['sightings']:>9} {1e3 * s['residual_m']:12.2f}")
-    if not r["accepted"]:
+    for s in r.sensors:
+        lines.append(f"{s.id:<8} {s.sightings:>9} {1e3 * s.residual_m:12.2f}")
+    if not r.accepted:
         lines.append("the server keeps its previous poses (this calibration failed)")
     return "\n".join(lines)
 
