@@ -144,7 +144,7 @@ def simulated(
         return path, dict(json.loads(info.read_text(encoding="utf-8")))
     sim = run_simulate(clip=clip, out=path, rig=rig, seed=seed, calibration_s=0.0, rom_s=rom_s,
                        seconds=seconds, force=True, tracker=tracker,
-                       static_s=static_s or None, errors_off=errors_off)  # fmt: skip
+                       static_s=static_s or None, errors_off=errors_off).as_dict()  # fmt: skip
     if keep is not None:
         tmp = info.with_suffix(".tmp")
         tmp.write_text(json.dumps(sim, default=str), encoding="utf-8")

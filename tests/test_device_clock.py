@@ -185,7 +185,7 @@ def sim_and_blind(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -
         seconds=1.0,
         calibration_s=10.0,
         depth_rate_hz=5.0,
-    )["out"]
+    ).out
     with SessionStore.open(session) as s:
         assert s.has_truth()
     return Path(session), _blind_copy(Path(session), folder / "blind.sqlite")

@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         static_s=args.static,
         errors_off=args.errors_off,
     )
-    for w in r["warnings"]:
+    for w in r.warnings:
         print(f"kinefuse: warning: {w}", file=sys.stderr)
     print(f"wrote {args.out}")
     return 0

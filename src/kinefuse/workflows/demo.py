@@ -491,7 +491,7 @@ def run_live_demo(
             seed=seed,
             calibration_s=DEMO_CALIBRATION_S,
         )
-        for w in r["warnings"]:
+        for w in r.warnings:
             say(f"   warning: {w}")
         say("\n== 2/4 live: a server and one client process per sensor on 127.0.0.1; the "
             "sensors calibrate from the wand, then the body is fused at 30 Hz")  # fmt: skip
@@ -595,7 +595,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
             calibration_s=15.0,
             progress=lambda m: say("   " + m),
         )
-        for w in sim["warnings"]:
+        for w in sim.warnings:
             say(f"   warning: {w}")
         with SessionStore.open(session) as st:
             info = inspect_session(st)

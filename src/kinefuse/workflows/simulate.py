@@ -4,7 +4,7 @@ included)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -73,6 +73,44 @@ def check_session_out(out: Path, force: bool) -> None:
         )
 
 
+@dataclass(frozen=True)
+class SimulateResult:
+    """What ``kinefuse simulate`` wrote.
+
+    Attributes
+    ----------
+    out : Path
+        The session written.
+    coverage : dict
+        How well the sensors saw the subject
+        (:func:`kinefuse.evaluation.coverage.tracking_coverage`).
+    warnings : tuple of str
+        What the user should know (a subject outside the common volume, ...).
+    rom_position_m : tuple of float or None
+        With a standing or range-of-motion phase: where it was performed, ``(x, y)`` metres.
+    rom_position_from : str or None
+        Which rule placed it (the rig's ``[actor]`` position, else the common volume's centre).
+    """
+
+    out: Path
+    coverage: dict[str, Any]
+    warnings: tuple[str, ...]
+    rom_position_m: tuple[float, float] | None = None
+    rom_position_from: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able (with ``default=str`` for the path); the phase's place only with one."""
+        d: dict[str, Any] = {
+            "out": self.out,
+            "coverage": self.coverage,
+            "warnings": list(self.warnings),
+        }
+        if self.rom_position_m is not None:
+            d["rom_position_m"] = list(self.rom_position_m)
+            d["rom_position_from"] = self.rom_position_from
+        return d
+
+
 def run_simulate(
     *,
     clip: Path,
@@ -94,7 +132,7 @@ def run_simulate(
     tracker: str = "default",
     static_s: float | None = None,
     errors_off: Sequence[str] = (),
-) -> dict[str, Any]:
+) -> SimulateResult:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
     Everything that can be checked is checked before anything is written; the session is built
@@ -113,10 +151,8 @@ def run_simulate(
 
     Returns
     -------
-    dict
-        ``out`` (path), ``coverage`` (:func:`kinefuse.evaluation.coverage.tracking_coverage`),
-        ``warnings`` (list of str) and, with ``rom_s``, ``rom_position_m`` (x, y) and
-        ``rom_position_from`` (which rule placed it); the same with ``static_s``.
+    SimulateResult
+        The session, its coverage and warnings, and where a standing or ROM phase was placed.
     """
     from kinefuse.evaluation.coverage import coverage_warnings, tracking_coverage
     from kinefuse.io.outputs import atomic_file
@@ -183,12 +219,14 @@ def run_simulate(
         with SessionStore.open(tmp, writable=True) as store:
             coverage = tracking_coverage(store)
             store.mark_complete()
-    warnings = coverage_warnings(coverage)
-    result: dict[str, Any] = {"out": out, "coverage": coverage, "warnings": warnings}
-    if rom is not None and the_rig.actor_position_m is not None:
-        result["rom_position_m"] = list(the_rig.actor_position_m)
-        result["rom_position_from"] = rom_place
-    return result
+    placed = rom is not None and the_rig.actor_position_m is not None
+    return SimulateResult(
+        out=out,
+        coverage=coverage,
+        warnings=tuple(coverage_warnings(coverage)),
+        rom_position_m=the_rig.actor_position_m if placed else None,
+        rom_position_from=rom_place if placed else None,
+    )
 
 
 #: The body-tracker models a simulation can use (``--tracker``).
