@@ -46,7 +46,7 @@ def test_round_trip(tmp_path: Path) -> None:
     write_calibration(path, cal)
     text = path.read_text()
     assert 'format = "kinefuse-calibration"' in text
-    assert "created = 2026-11-21T22:50:00+00:00" in text
+    assert "created = 2026-11-21 22:50:00+00:00" in text
     assert "[[sensor]]" in text and "[sensor.intrinsics]" in text
     back = read_calibration(path)
     assert back.method == "full"

@@ -1,6 +1,7 @@
-"""Every TOML kinefuse writes quotes its strings through one writer (io.toml_file.toml_str): a
-sensor id or serial with a quote, a backslash, a newline, a control character or any unicode
-round-trips through the rig and calibration writers and tomllib."""
+"""Every TOML kinefuse writes quotes its strings through one writer (io.toml: dumps_toml on
+tomli_w for files, toml_str for the retargeting hint's fragments): a sensor id or serial with a
+quote, a backslash, a newline, a control character or any unicode round-trips through the rig
+and calibration writers and tomllib."""
 
 from __future__ import annotations
 

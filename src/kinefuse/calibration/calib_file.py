@@ -52,7 +52,7 @@ from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.geometry.transforms import check_rigid
 from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
-from kinefuse.io.toml import toml_error, toml_str
+from kinefuse.io.toml import dumps_toml, toml_error
 
 Array = NDArray[np.float64]
 
@@ -155,49 +155,40 @@ def calibration_from_registration(
 
 
 def _mm(x_m: float) -> float:
-    return round(x_m * 1e3, 4) if math.isfinite(x_m) else float("nan")
-
-
-def _toml_float(x: float) -> str:
-    if math.isnan(x):
-        return "nan"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    return repr(float(x))
+    return round(float(x_m) * 1e3, 4) if math.isfinite(x_m) else float("nan")
 
 
 def dumps_calibration(cal: CalibrationFile) -> str:
-    """The calibration as TOML text (one matrix row per line, floats written exactly)."""
+    """The calibration as TOML text (one matrix row per line, floats written exactly), through
+    :func:`kinefuse.io.toml.dumps_toml`."""
     created = cal.created
     if created.tzinfo is None:
         created = created.replace(tzinfo=_dt.UTC)
-    lines = [
-        f"format = {toml_str(FORMAT)}",
-        f"format_version = {FORMAT_VERSION}",
-        f"method = {toml_str(cal.method)}",
-        f"created = {created.isoformat()}",
-        f"world = {toml_str(cal.world)}",
-        f"rms_mm = {_toml_float(_mm(cal.rms_m))}",
-        f"scale = {_toml_float(cal.scale)}",
-    ]
-    for s in cal.sensors:
-        rows = ",\n".join(
-            "    [" + ", ".join(_toml_float(v) for v in row) + "]" for row in s.sensor2world
-        )
-        lines += [
-            "",
-            "[[sensor]]",
-            f"id = {toml_str(s.id)}",
-            f"serial = {toml_str(s.serial)}",
-            f"residual_mm = {_toml_float(_mm(s.residual_m))}",
-            f"sightings = {int(s.n_sightings)}",
-            f"sensor2world = [\n{rows},\n]",
-            "",
-            "[sensor.intrinsics]",
-        ]
-        for key, val in s.intrinsics.to_dict().items():
-            lines.append(f"{key} = {val if isinstance(val, int) else _toml_float(val)}")
-    return "\n".join(lines) + "\n"
+    return dumps_toml(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "method": cal.method,
+            "created": created,
+            "world": cal.world,
+            "rms_mm": _mm(cal.rms_m),
+            "scale": float(cal.scale),
+            "sensor": [
+                {
+                    "id": s.id,
+                    "serial": s.serial,
+                    "residual_mm": _mm(s.residual_m),
+                    "sightings": int(s.n_sightings),
+                    "sensor2world": [[float(v) for v in row] for row in s.sensor2world],
+                    "intrinsics": {
+                        k: v if isinstance(v, int) else float(v)
+                        for k, v in s.intrinsics.to_dict().items()
+                    },
+                }
+                for s in cal.sensors
+            ],
+        }
+    )
 
 
 def is_calibration_file(path: Path) -> bool:

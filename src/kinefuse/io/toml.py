@@ -1,14 +1,46 @@
 """TOML in and out: reading a TOML file a user wrote (name maps, marker maps), with errors that
-name the file, and :func:`toml_str`, the one writer of TOML strings (every TOML kinefuse writes
-quotes its strings and keys through it)."""
+name the file; :func:`dumps_toml`, the one writer of TOML documents (calibration files, rigs),
+on top of ``tomli_w``; and :func:`toml_str`, a TOML string for a fragment written by hand (the
+retargeting hint)."""
 
 from __future__ import annotations
 
+import re
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import tomli_w
+
 from kinefuse.errors import InputError
+
+#: a number as tomli_w writes it (``str`` of an int or a float: repr, ``nan``, ``inf``)
+_NUMBER = r"[-+]?(?:inf|nan|[0-9][0-9._eE+-]*)"
+#: an array of numbers only, one per line, as tomli_w writes every array
+_NUMBER_ARRAY = re.compile(rf"\[\n((?:[ ]*{_NUMBER},\n)+)[ ]*\]")
+
+
+def dumps_toml(doc: Mapping[str, Any]) -> str:
+    """``doc`` as TOML text, written by ``tomli_w`` and readable by people: an array of numbers
+    on one line (so a 4x4 matrix, a list of rows, is one row per line), floats as their
+    ``repr`` (``tomllib`` reads back exactly the float written), strings quoted and escaped.
+
+    Raises
+    ------
+    InputError
+        A string holds a lone surrogate (U+D800 to U+DFFF), which no TOML (UTF-8) file can hold.
+    """
+    text = tomli_w.dumps(doc, indent=4)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as e:
+        bad = e.object[max(0, e.start - 20) : e.end + 20]
+        raise InputError(f"{bad!r} cannot be written to a TOML file (a lone surrogate)") from None
+    return _NUMBER_ARRAY.sub(
+        lambda m: "[" + ", ".join(v.strip().rstrip(",") for v in m[1].splitlines()) + "]", text
+    )
+
 
 #: TOML's short escapes; every other control character is written as a 4-digit \u escape
 _ESCAPES = {

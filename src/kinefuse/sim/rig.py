@@ -28,7 +28,7 @@ import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,7 +40,7 @@ from kinefuse.skeleton import JOINT_INDEX
 if TYPE_CHECKING:
     from kinefuse.motion.types import Motion
 from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
-from kinefuse.io.toml import toml_error, toml_str
+from kinefuse.io.toml import dumps_toml, toml_error
 
 Array = NDArray[np.float64]
 
@@ -262,9 +262,15 @@ def load_rig(path: str | Path, *, room: Room | None = None) -> Rig:
     return parse_rig(text, source=str(p), room=room)
 
 
+def _um(x: float) -> float:
+    """A rig coordinate or angle as written: to 6 decimals (micrometres), no negative zero."""
+    return round(float(x), 6) + 0.0
+
+
 def rig_to_toml(rig: Rig) -> str:
-    """TOML text of a rig (positions and look-at points of its sensors' poses)."""
-    lines = []
+    """TOML text of a rig (positions and look-at points of its sensors' poses, to 6 decimals),
+    through :func:`kinefuse.io.toml.dumps_toml`."""
+    sensors = []
     for s in rig.sensors:
         pos = s.sensor2world[:3, 3]
         tgt = pos + s.sensor2world[:3, 2]
@@ -274,23 +280,24 @@ def rig_to_toml(rig: Rig) -> str:
         roll = float(
             np.degrees(np.arctan2(np.dot(np.cross(ref, x), s.sensor2world[:3, 2]), np.dot(ref, x)))
         )
-        lines += [
-            "[[sensor]]",
-            f"id = {toml_str(s.id)}",
-            f"serial = {toml_str(s.serial)}",
-            f"position_m = [{pos[0]:.6f}, {pos[1]:.6f}, {pos[2]:.6f}]",
-            f"look_at_m = [{tgt[0]:.6f}, {tgt[1]:.6f}, {tgt[2]:.6f}]",
-            f"roll_deg = {roll:.6f}",
-            "",
-        ]
-    lines += ["[actor]"]
+        sensors.append(
+            {
+                "id": s.id,
+                "serial": s.serial,
+                "position_m": [_um(v) for v in pos],
+                "look_at_m": [_um(v) for v in tgt],
+                "roll_deg": _um(roll),
+            }
+        )
+    actor: dict[str, Any] = {}
     if rig.actor_position_m is not None:
-        ax, ay = rig.actor_position_m
-        lines += [f"position_m = [{ax:.6f}, {ay:.6f}]"]
-    lines += [f"heading_deg = {rig.actor_heading_deg:.6f}", ""]
-    (x0, y0), (x1, y1) = rig.room_min_xy_m, rig.room_max_xy_m
-    lines += ["[room]", f"min_xy_m = [{x0:.6f}, {y0:.6f}]", f"max_xy_m = [{x1:.6f}, {y1:.6f}]", ""]
-    return "\n".join(lines)
+        actor["position_m"] = [_um(v) for v in rig.actor_position_m]
+    actor["heading_deg"] = _um(rig.actor_heading_deg)
+    room = {
+        "min_xy_m": [_um(v) for v in rig.room_min_xy_m],
+        "max_xy_m": [_um(v) for v in rig.room_max_xy_m],
+    }
+    return dumps_toml({"sensor": sensors, "actor": actor, "room": room})
 
 
 #: Heights at which a floor position must be in a sensor's view (and depth range) for the sensor
