@@ -57,5 +57,5 @@ def run(args: argparse.Namespace) -> int:
             depth_hz=args.depth_hz,
             progress=progress,
         )
-    print(json.dumps(d, indent=1) if args.json else format_track(d))
+    print(json.dumps(d.as_dict(), indent=1) if args.json else format_track(d))
     return 0

@@ -39,12 +39,49 @@ import numpy as np
 
 from kinefuse.errors import InputError, StoreError
 
-__all__ = ["format_track", "motion_lag_s", "recording_spec", "track_recordings"]
+__all__ = ["TrackResult", "format_track", "motion_lag_s", "recording_spec", "track_recordings"]
 
 #: what the session's metadata says made it (a session without it is not ours to continue)
 GENERATOR = "kinefuse track"
 
 _CHUNK = 32
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """What ``kinefuse track`` did (``--json`` prints :meth:`as_dict`).
+
+    Attributes
+    ----------
+    session : str
+        The session written.
+    clock : str
+        How the recordings' clocks were put on the session's.
+    skipped : tuple of str
+        Sensors already merged by an earlier run (not redone).
+    workers : int
+        Worker processes used (0 when everything was merged before).
+    sensors : tuple of dict
+        Per recording, in the order given: its entry of the session's ``track_recordings``
+        metadata (``sensor_id``, ``recording``, ``captures``, ``depth_frames``,
+        ``with_person``, ``tracker``, ``refused``), or only ``sensor_id`` if it has none.
+    """
+
+    session: str
+    clock: str
+    skipped: tuple[str, ...]
+    workers: int
+    sensors: tuple[dict[str, Any], ...]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able, as ``--json`` prints it."""
+        return {
+            "session": self.session,
+            "clock": self.clock,
+            "skipped": list(self.skipped),
+            "workers": self.workers,
+            "sensors": list(self.sensors),
+        }
 
 
 def recording_spec(path: str) -> str:
@@ -331,7 +368,7 @@ def track_recordings(
     jobs: int | None = None,
     depth_hz: float = 10.0,
     progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
+) -> TrackResult:
     """Track recordings into the session ``out`` (see the module notes); return a summary.
 
     Raises
@@ -378,7 +415,7 @@ def _track(
     jobs: int | None,
     depth_hz: float,
     say: Callable[[str], None],
-) -> dict[str, Any]:
+) -> TrackResult:
     specs = [h.spec for h in headers]
     ids = [h.sensor_id for h in headers]
     meta = store.meta()
@@ -439,13 +476,13 @@ def _track(
         store.set_meta("motion_phase_server_s", [lo, hi])
         store.mark_complete()
     recs = store.meta().get("track_recordings") or {}
-    return {
-        "session": str(out),
-        "clock": how,
-        "skipped": [sid for sid in ids if sid in done],
-        "workers": workers if todo else 0,
-        "sensors": [recs.get(sid, {"sensor_id": sid}) for sid in ids],
-    }
+    return TrackResult(
+        session=str(out),
+        clock=how,
+        skipped=tuple(sid for sid in ids if sid in done),
+        workers=workers if todo else 0,
+        sensors=tuple(recs.get(sid, {"sensor_id": sid}) for sid in ids),
+    )
 
 
 def _align_by_motion(
@@ -521,12 +558,12 @@ def _run_workers(
             return {futs[f]: f.result() for f in futs}
 
 
-def format_track(d: dict[str, Any]) -> str:
+def format_track(d: TrackResult) -> str:
     """The text report of :func:`track_recordings`."""
-    lines = [f"kinefuse track: {d['session']}: {len(d['sensors'])} sensor(s); clocks {d['clock']}"]
-    for s in d["sensors"]:
+    lines = [f"kinefuse track: {d.session}: {len(d.sensors)} sensor(s); clocks {d.clock}"]
+    for s in d.sensors:
         sid = s["sensor_id"]
-        if sid in d["skipped"]:
+        if sid in d.skipped:
             lines.append(f"  {sid}: already in the session (skipped)")
             continue
         if s.get("with_person") is None:
@@ -538,9 +575,9 @@ def format_track(d: dict[str, Any]) -> str:
         lines.append(
             f"  {sid}: {s['captures']} captures, {s['depth_frames']} depth frames stored; {who}"
         )
-    if d["sensors"] and all(s.get("with_person") is not None for s in d["sensors"]):
-        total = sum(s.get("with_person") or 0 for s in d["sensors"])
-        n = sum(s.get("captures") or 0 for s in d["sensors"])
+    if d.sensors and all(s.get("with_person") is not None for s in d.sensors):
+        total = sum(s.get("with_person") or 0 for s in d.sensors)
+        n = sum(s.get("captures") or 0 for s in d.sensors)
         lines.append(f"{total} of {n} frames had a person")
-    lines.append(f"next: kinefuse inspect {d['session']}")
+    lines.append(f"next: kinefuse inspect {d.session}")
     return "\n".join(lines)
