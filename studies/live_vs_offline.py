@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from kinefuse.workflows.calibrate import run_calibrate
-from kinefuse.workflows.evaluate import run_evaluate
+from kinefuse.workflows.evaluate import EvaluateResult, run_evaluate
 from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,8 +24,8 @@ RIGS = ("level4", "tiered4")
 METHODS = ("paper", "best", "best-live")
 
 
-def _row(name: str, report: dict) -> tuple[str, float, float, float]:
-    mae = {m: 100 * report[m]["mae_m"] for m in METHODS}
+def _row(name: str, report: EvaluateResult) -> tuple[str, float, float, float]:
+    mae = {m: 100 * report.method(m)["mae_m"] for m in METHODS}
     ratio = mae["best-live"] / mae["best"]
     print(f"| {name} | {mae['paper']:.2f} | {mae['best']:.2f} | {mae['best-live']:.2f} | "
           f"{ratio:.3f} | {'yes' if ratio <= 1.15 else 'NO'} |")  # fmt: skip

@@ -55,10 +55,9 @@ def main() -> None:
                 store.mark_complete()  # as kinefuse simulate does once the session is whole
             report = run_evaluate(session=path, methods=("best",), out_dir=None,
                                   calibration=None, true_calibration=True)  # fmt: skip
-            r = report["best"]
-            assert isinstance(r, dict)
+            r = report.method("best")
             print(f"{name:<30} {100 * r['mae_m']:7.2f} {100 * r['p95_m']:7.2f} "
-                  f"{100 * r['coverage']:8.1f}% {report['frames']!s:>7}")  # fmt: skip
+                  f"{100 * r['coverage']:8.1f}% {report.report['frames']!s:>7}")  # fmt: skip
 
 
 if __name__ == "__main__":

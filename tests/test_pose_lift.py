@@ -156,8 +156,7 @@ def test_a_session_tracked_by_the_pose_tracker_fuses_and_evaluates(
         assert len(store.sensors()) == 2
     report = run_evaluate(session=path, methods=("best",), out_dir=None, calibration=None,
                           true_calibration=True)  # fmt: skip
-    best = report["best"]
-    assert isinstance(best, dict)
+    best = report.method("best")
     assert best["coverage"] > 0.9 and best["mae_m"] < 0.08
 
 

@@ -56,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"kinefuse: error: {e}", file=sys.stderr)
         return 3
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(report.as_dict(), indent=2))
     else:
-        print(format_evaluate(report, args.methods))
-        for w in report.get("written", []):  # type: ignore[attr-defined]
+        print(format_evaluate(report.report, args.methods))
+        for w in report.written:
             print(f"wrote {w}")
     return 0

@@ -524,7 +524,7 @@ def run_live_demo(
             calibration=None,
             true_calibration=False,
         )
-        result = evaluate_live(live.recording, offline_report=report)
+        result = evaluate_live(live.recording, offline_report=report.report)
         result["seconds"] = {
             **{k: round(v, 2) for k, v in live.seconds.items()},
             "simulate_and_live": round(t_live - t0, 2),
@@ -636,7 +636,7 @@ def run_demo(*, out_dir: Path, seed: int = 0) -> int:
             calibration=None,
             true_calibration=False,
         )
-        say(format_evaluate(report, METHODS))
+        say(format_evaluate(report.report, METHODS))
     say(f"\noutputs in {out_dir}/: session.sqlite, inspect.json, calibration.toml, "
         "calibration/ (error plots), fused.c3d, fused.trc, fused.csv, fused.bvh, evaluation/ "
         "(report.html, tables I-III, trajectories.png, evaluate.json)")  # fmt: skip

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,54 @@ from kinefuse.io.store.session import SessionStore
 Array = NDArray[np.float64]
 
 
+@dataclass(frozen=True)
+class EvaluateResult:
+    """What ``kinefuse evaluate`` found (``--json`` prints :meth:`as_dict`, the ``evaluate.json``
+    it writes).
+
+    Attributes
+    ----------
+    truth : bool
+        Whether the session had truth (else ``report`` holds the consistency figures).
+    calibration : str or None
+        Where the sensors' poses came from.
+    written : tuple of str
+        The files written into the evaluation folder (none without one).
+    report : dict
+        The whole report as ``evaluate.json`` holds it: per method its figures (``mae_m``,
+        ``rmse_m``, ``p95_m``, ``coverage``, ...), ``frames``, ``comparisons``, ``notes``, ...
+        (:func:`kinefuse.evaluation.fusion.evaluate`,
+        :func:`kinefuse.evaluation.no_truth.evaluate_without_truth`).
+    """
+
+    truth: bool
+    calibration: str | None
+    written: tuple[str, ...]
+    report: dict[str, Any]
+
+    @classmethod
+    def of(cls, report: dict[str, Any]) -> EvaluateResult:
+        """The result of a finished report."""
+        cal = report.get("calibration")
+        return cls(
+            truth=report.get("truth") is not False,
+            calibration=cal if isinstance(cal, str) else None,
+            written=tuple(report.get("written", ())),
+            report=report,
+        )
+
+    def method(self, name: str) -> dict[str, Any]:
+        """One method's figures; :class:`KeyError` naming the methods evaluated otherwise."""
+        figures = self.report.get(name)
+        if not isinstance(figures, dict):
+            raise KeyError(f"method {name!r} was not evaluated")
+        return figures
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able: the report, as ``evaluate.json`` holds it."""
+        return self.report
+
+
 def run_evaluate(
     *,
     session: Path,
@@ -29,10 +78,10 @@ def run_evaluate(
     start_s: float | None = None,
     end_s: float | None = None,
     progress: Callable[[str], None] | None = None,
-) -> dict[str, object]:
+) -> EvaluateResult:
     """Compare fusion methods against the truth of a simulated session (opened read-only); a
     session without truth gets its consistency figures instead
-    (:func:`kinefuse.evaluation.no_truth.evaluate_without_truth`; ``report["truth"]`` is False).
+    (:func:`kinefuse.evaluation.no_truth.evaluate_without_truth`; its ``truth`` is False).
 
     ``out_dir`` gets the tables, plots and ``evaluate.json``, built in a fresh folder and
     swapped in on success (an existing folder is replaced only if kinefuse made it).
@@ -57,7 +106,9 @@ def run_evaluate(
         if not store.has_truth():
             if true_calibration:  # refused with the reason: there are no true poses
                 resolve_poses(store, calibration, true_calibration)
-            return _without_truth(store, methods, out_dir, calibration, start_s, end_s, say)
+            return EvaluateResult.of(
+                _without_truth(store, methods, out_dir, calibration, start_s, end_s, say)
+            )
         poses, source = resolve_poses(store, calibration, true_calibration)
         say("reading the sensors' streams and clocks")
         sensors, screen = load_usable_sensors(store, poses)
@@ -108,7 +159,7 @@ def run_evaluate(
                 str(out_dir / "evaluate.json")
             ]
             (tmp / "evaluate.json").write_text(json.dumps(report, indent=2) + "\n")
-    return report
+    return EvaluateResult.of(report)
 
 
 def _without_truth(
@@ -119,7 +170,7 @@ def _without_truth(
     start_s: float | None,
     end_s: float | None,
     say: Callable[[str], None],
-) -> dict[str, object]:
+) -> dict[str, Any]:
     """:func:`run_evaluate` of a session without truth (``store`` open): the consistency figures,
     ``evaluate.json``, ``consistency_by_joint.csv`` and ``report.html`` in ``out_dir``."""
     from kinefuse.evaluation.no_truth import evaluate_without_truth, write_consistency_csv
