@@ -78,7 +78,7 @@ def part_files(work: Path, img: Path, most: int | None = None) -> list[dict[str,
         extra = ["--calibration-phase", "0:8"] if f.stem.startswith("01_01") else []
         try:
             r = run_analyze([f], out=out, calibration_phase=(0.0, 8.0) if extra else None,
-                            plot_dpi=DOC_DPI)  # fmt: skip
+                            plot_dpi=DOC_DPI).report  # fmt: skip
         except KinefuseError as e:
             rows.append({"file": f.name, "error": str(e).splitlines()[0][:300]})
             continue
@@ -117,7 +117,7 @@ def _session(work: Path, name: str, clip: str, rom_s: float, seed: int, rig: str
 def part_rom(work: Path, img: Path, rom_s: float, true_calibration: bool) -> dict[str, Any]:
     s = _session(work, "rom_walk_a", "02_walk_a.amc", rom_s, 0, None, true_calibration)
     out = work / "rom_walk_a"
-    r = run_analyze([s], out=out, true_calibration=true_calibration, plot_dpi=DOC_DPI)
+    r = run_analyze([s], out=out, true_calibration=true_calibration, plot_dpi=DOC_DPI).report
     small_png(out / "angles.png", img / "analysis_rom_session_angles.png")
     small_png(out / "axes_on_spheres.png", img / "analysis_rom_session_spheres.png")
     keep = ("axis_error_by_method_deg", "reconstruction_error_m", "twist_error_deg",

@@ -165,12 +165,12 @@ def session(clip: Path, rig: Path, seed: int, folder: Path, rom_s: float,
     refused = None
     try:
         r = run_analyze([path], out=out, true_calibration=True, plots=False,
-                        static_window="auto" if static_s else None)  # fmt: skip
+                        static_window="auto" if static_s else None).report  # fmt: skip
     except InputError as e:  # the fused standing phase is not still: analysed without it
         if not static_s:
             raise
         refused = str(e)
-        r = run_analyze([path], out=out, true_calibration=True, plots=False)
+        r = run_analyze([path], out=out, true_calibration=True, plots=False).report
     seen = r["calibration_phase"]["seen"]
     rm, rs = r.get("angle_rmse_deg", {}), r.get("angle_rmse_seen_deg", {})
     rt, share = r.get("angle_rmse_tracked_deg", {}), r.get("tracked_fraction_after_phase", {})

@@ -289,7 +289,7 @@ def analyze(
     from kinefuse.workflows.analyze import run_analyze
 
     inputs: Sequence[Path] = [Path(path)]
-    report = run_analyze(
+    result = run_analyze(
         inputs,
         out=Path(out),
         calibration_phase=calibration_phase,
@@ -299,4 +299,4 @@ def analyze(
         static=None if static is None else Path(static),
         names=names,
     )
-    return Analysis(Angles.read_csv(Path(out) / "angles.csv"), report, Path(out))
+    return Analysis(Angles.read_csv(Path(out) / "angles.csv"), result.report, result.out)

@@ -136,13 +136,13 @@ def run(args: argparse.Namespace) -> int:
     for option in ("jobs", "scheduler", "force"):
         if getattr(args, option):
             raise InputError(f"--{option} is for a study folder (kinefuse analyze STUDY_DIR/)")
-    from kinefuse.workflows.analyze import format_analyze, json_text, run_analyze
+    from kinefuse.workflows.analyze import format_analyze, run_analyze
 
     if not args.no_plots:
         import matplotlib
 
         matplotlib.use("Agg")  # the command draws to files only
-    report = run_analyze(
+    result = run_analyze(
         args.inputs,
         out=args.out,
         calibration_phase=args.calibration_phase,
@@ -156,11 +156,10 @@ def run(args: argparse.Namespace) -> int:
         static_window=args.static_window,
         names=args.names,
     )
-    for r in report.get("inputs", [report]):
-        for w in r.get("warnings", []):
-            print(f"kinefuse: warning: {r['input']}: {w}", file=sys.stderr)
-    print(json_text(report) if args.json else format_analyze(report))
-    empty = [r for r in report.get("inputs", [report]) if _nothing_analysed(r)]
+    for name, w in result.warnings:
+        print(f"kinefuse: warning: {name}: {w}", file=sys.stderr)
+    print(result.to_json() if args.json else format_analyze(result.report))
+    empty = [r for r in result.inputs if _nothing_analysed(r)]
     for r in empty:
         print(f"kinefuse: nothing analysed in {r['input']}: {_why_nothing(r)}", file=sys.stderr)
     return 3 if empty else 0

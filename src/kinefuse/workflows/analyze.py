@@ -360,6 +360,47 @@ def json_text(report: dict[str, Any]) -> str:
     return json.dumps(clean_json(report), indent=2)
 
 
+@dataclass(frozen=True)
+class AnalyzeResult:
+    """What ``kinefuse analyze`` made (``--json`` prints the ``analysis.json`` it wrote).
+
+    Attributes
+    ----------
+    out : Path
+        The analysis folder.
+    inputs : tuple of dict
+        Each input's report, in the order given (one input: the report itself): ``input``,
+        ``frames``, ``angle_names``, ``limb_status``, ``warnings``, ... (the per-input part of
+        ``analysis.json``, docs/analysis.md).
+    report : dict
+        The whole report, as ``analysis.json`` holds it (several inputs: ``inputs`` and the
+        consistency across them).
+    """
+
+    out: Path
+    inputs: tuple[dict[str, Any], ...]
+    report: dict[str, Any]
+
+    @classmethod
+    def of(cls, out: Path, report: dict[str, Any]) -> AnalyzeResult:
+        """The result of a report read back from ``analysis.json``."""
+        return cls(out=out, inputs=tuple(report.get("inputs", [report])), report=report)
+
+    @property
+    def warnings(self) -> tuple[tuple[str, str], ...]:
+        """``(input, warning)`` for every input's warnings, in order."""
+        return tuple((str(r["input"]), str(w)) for r in self.inputs for w in r.get("warnings", []))
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able: the report, as ``analysis.json`` holds it."""
+        return self.report
+
+    def to_json(self) -> str:
+        """The report as strict JSON text, as ``analysis.json`` holds it (without its final
+        newline)."""
+        return json_text(self.report)
+
+
 def run_analyze(
     inputs: Sequence[Path],
     *,
@@ -375,8 +416,8 @@ def run_analyze(
     static: Path | None = None,
     static_window: tuple[float, float] | str | None = None,
     names: str = "kinefuse",
-) -> dict[str, Any]:
-    """Analyse one or several inputs into a fresh folder ``out``; returns the report.
+) -> AnalyzeResult:
+    """Analyse one or several inputs into a fresh folder ``out``; returns what it made.
 
     Everything is written into a hidden staging folder beside ``out`` and renamed onto ``out``
     at the end, so a failed run leaves nothing behind (and never touches other files).
@@ -417,7 +458,7 @@ def run_analyze(
         text = json_text(report).replace(str(stage), str(out))
         atomic_write_text(stage / "analysis.json", text + "\n", what="analysis report",
                           recognizer=lambda _p: False)  # fmt: skip
-    return dict(json.loads(text))
+    return AnalyzeResult.of(out, dict(json.loads(text)))
 
 
 def _analyse_all(
