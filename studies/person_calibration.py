@@ -102,7 +102,7 @@ def realdata_agreement(rec: Path, log: Path) -> dict[str, object]:
 
     rf.consistency = keep  # realdata's own call, observed
     try:
-        rep = rf.fuse_multitrack(log)
+        rep = rf.fuse_multitrack(log).report
     finally:
         rf.consistency = real
     ref = rep["sensors"][0]

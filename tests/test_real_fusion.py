@@ -72,7 +72,7 @@ def real_runs() -> dict[str, tuple[dict, list]]:
 
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(rf, "consistency", record)
-            out[name] = (fuse_multitrack(_real(pattern)), calls)
+            out[name] = (fuse_multitrack(_real(pattern)).report, calls)
     return out
 
 

@@ -1,6 +1,7 @@
 """Every command's workflow returns a typed result, never a bare dict: each ``run_*`` of
-``workflows/`` and ``pipeline/`` (and ``track_recordings``, the entry of ``kinefuse track``) has
-a return annotation, and it is not ``dict``/``Mapping``."""
+``workflows/`` and ``pipeline/`` (and ``track_recordings``, ``fuse_multitrack``: the entries of
+``kinefuse track`` and ``kinefuse realdata``) has a return annotation, and it is not
+``dict``/``Mapping``."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import ast
 from pathlib import Path
 
 SRC = Path(__file__).parents[1] / "src" / "kinefuse"
-#: entry functions of commands not named run_*
-ENTRIES = {"track_recordings"}
+#: entry functions of commands not named run_* (kinefuse track, kinefuse realdata)
+ENTRIES = {"track_recordings", "fuse_multitrack"}
 DICTS = {"dict", "Dict", "Mapping", "MutableMapping"}
 
 

@@ -73,15 +73,16 @@ def run(args: argparse.Namespace) -> int:
     ]
     written: list[Path] = []
     if args.out is not None:
-        out, notes = export_fused(fused[0], args.out, results[0]["file"])
+        out, notes = export_fused(fused[0], args.out, results[0].file)
         for w in said_once([f"{out.name}: {n}" for n in notes]):
             print(f"kinefuse: warning: {w}", file=sys.stderr)
         written.append(out)
     if args.json:
-        print(json.dumps(results if len(results) > 1 else results[0], indent=1))
+        reports = [r.as_dict() for r in results]
+        print(json.dumps(reports if len(reports) > 1 else reports[0], indent=1))
     else:
-        print("\n".join(format_summary(r) for r in results))
-        print("\n" + "\n\n".join(format_report(r) for r in results))
+        print("\n".join(format_summary(r.report) for r in results))
+        print("\n" + "\n\n".join(format_report(r.report) for r in results))
         for f in written:
             print(f"\nwrote {f}")
     return 0

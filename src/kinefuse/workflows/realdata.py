@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,34 @@ def _grid(t_lists: Sequence[Array], hz: float) -> Array:
     return lo + np.arange(n) / hz
 
 
+@dataclass(frozen=True)
+class RealdataResult:
+    """What ``kinefuse realdata`` made of one KinectMultiTrack log (``--json`` prints
+    :meth:`as_dict`).
+
+    Attributes
+    ----------
+    file : str
+        The log.
+    layout : str
+        The sensors' layout the log names (``parallel``, ``45 degrees``, ...).
+    sensors : tuple of str
+        The reference sensor and the other.
+    report : dict
+        Every figure, JSON-ready, as :func:`fuse_multitrack` documents it (what
+        :func:`format_report` writes out).
+    """
+
+    file: str
+    layout: str
+    sensors: tuple[str, str]
+    report: dict[str, Any]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able: the report."""
+        return self.report
+
+
 def fuse_multitrack(
     path: str | Path,
     *,
@@ -76,7 +105,7 @@ def fuse_multitrack(
     motion_latency: bool = True,
     options: BestOptions | None = None,
     fused: list[tuple[Array, Array]] | None = None,
-) -> dict[str, Any]:
+) -> RealdataResult:
     """Read a two-Kinect KinectMultiTrack log, align its clocks, fuse it, and report.
 
     Parameters
@@ -104,9 +133,9 @@ def fuse_multitrack(
 
     Returns
     -------
-    dict
-        JSON-ready: ``file``, ``layout``, ``reference`` (sensor and how it was found),
-        ``sensors``, ``clocks`` (per sensor: ``drift_ppm``, ``offset_s``, ``rate``, frames,
+    RealdataResult
+        Its ``report``, JSON-ready: ``file``, ``layout``, ``reference`` (sensor and how it was
+        found), ``sensors``, ``clocks`` (per sensor: ``drift_ppm``, ``offset_s``, ``rate``, frames,
         duplicates, out-of-order frames, ``jitter_median_ms``, ``jitter_p95_ms``),
         ``row_pair_skew_ms`` (capture-time difference of the two skeletons the log pairs in one
         row: median, p95), ``relative_latency_ms`` (taken off the other sensor's times),
@@ -301,9 +330,10 @@ def fuse_multitrack(
     lag_receive = residual_lag_s(t_rx[ref_id], pw[ref_id], t_rx[oth_id], pw_refined_other)
     if fused is not None:
         fused.append(_joined(fused_parts, grid_hz))
-    return {
+    layout = LAYOUT_NAMES.get(rec.kinect_config, f"config {rec.kinect_config}")
+    report: dict[str, Any] = {
         "file": str(rec.path),
-        "layout": LAYOUT_NAMES.get(rec.kinect_config, f"config {rec.kinect_config}"),
+        "layout": layout,
         "kinect_config": rec.kinect_config,
         "reference": {"sensor": ref_id, "found_by": how},
         "sensors": [ref_id, oth_id],
@@ -356,6 +386,9 @@ def fuse_multitrack(
         },
         "scenarios": scen_out,
     }
+    return RealdataResult(
+        file=str(rec.path), layout=layout, sensors=(ref_id, oth_id), report=report
+    )
 
 
 def _joined(parts: list[tuple[Array, Array]], hz: float) -> tuple[Array, Array]:
