@@ -340,8 +340,8 @@ def clock_errors(store: SessionStore, warmup_s: float = CLOCK_WARMUP_S) -> dict[
 
 def calibration_figures(store: SessionStore) -> dict[str, Any]:
     """The live calibration stored in the recording against the true rig (yaw-aligned, as
-    :func:`kinefuse.calibration.evaluate.pose_errors`), and its grade as the server gave it."""
-    from kinefuse.calibration.evaluate import pose_errors
+    :func:`kinefuse.calibration.compare.pose_errors`), and its grade as the server gave it."""
+    from kinefuse.calibration.compare import pose_errors
     from kinefuse.evaluation.poses import resolve_poses
 
     poses, source = resolve_poses(store, None, False)

@@ -82,7 +82,7 @@ def _calibration_rows(
         loads_calibration,
         read_calibration,
     )
-    from kinefuse.calibration.evaluate import pose_errors
+    from kinefuse.calibration.compare import pose_errors
 
     # ``source`` is how kinefuse.evaluation.poses.resolve_poses named the poses it used
     name = next(
