@@ -23,7 +23,7 @@ from kinefuse.errors import InputError
 from kinefuse.frames.observations import DepthFrame
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.client import ClientOptions, SensorClient
-from kinefuse.net.client.clocks import HostClock, SimClockTruth
+from kinefuse.net.client.clocks import HostClock
 from kinefuse.net.client.playback import SimTimeline, open_timeline
 from kinefuse.protocol import (
     BodyFrameMessage,
@@ -36,7 +36,7 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.sim.clock import ClockParams
+from kinefuse.sim.clock import ClockParams, read_sensor_clocks
 from test_client import LIMIT_S, TestServer, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,7 +78,7 @@ def test_the_sim_timeline_is_one_clock_depth_first_then_body(session: Path):
     with SessionStore.open(session) as st:
         assert n_depth == st.depth_frame_count("k1")
         assert len(items) - n_depth == st.observation_count("k1")
-        truth = SimClockTruth.from_store(st, "k1")
+        truth = read_sensor_clocks(st, "k1")
         _seq, t_true, _j, _v, _s = st.truth().observations("k1")
         wand_t, _ = st.truth().wand()
     # a body frame plays when it reaches the host: its true capture + the capture-to-host latency
@@ -466,7 +466,7 @@ def test_a_client_joining_a_past_epoch_starts_at_the_present(session: Path):
     tl = SimTimeline(str(session), "k1")
     truth = tl.truth
     assert truth is not None
-    first_true = truth.host_to_true(
+    first_true = truth.host.affine.inverse(
         next(x.frame.t_host_s for x in tl.frames() if x.frame.seq == bodies[0].seq
              and not isinstance(x.frame, DepthFrame))
     )  # fmt: skip

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from kinefuse.evaluation.live import PlaybackTruth
-from kinefuse.net.client.clocks import HostClock, SimClockTruth
-from kinefuse.sim.clock import SensorClock
+from kinefuse.net.client.clocks import HostClock
+from kinefuse.sim.clock import SensorClock, SensorClocks
 from kinefuse.sync.affine import AffineClock
 from kinefuse.sync.device import DeviceClockEstimate
 from kinefuse.sync.envelope import ClockFit
@@ -163,10 +163,11 @@ def test_host_clock_as_before() -> None:
 def test_sim_clock_truth_as_before() -> None:
     rng = np.random.default_rng(15)
     for (off, ppm), (hoff, hppm) in zip(ppm_params(16), ppm_params(17), strict=True):
-        truth = SimClockTruth(off, ppm, hoff, hppm, 0.002)
+        d = {"offset_s": off, "drift_ppm": ppm, "host_offset_s": hoff, "host_drift_ppm": hppm}
+        truth = SensorClocks.from_dict(d)
         for t in rng.uniform(0, 2e3, 8).tolist():
-            assert truth.device_to_true(t) == (t - off) / (1.0 + ppm * 1e-6)
-            assert truth.host_to_true(t) == (t - hoff) / (1.0 + hppm * 1e-6)
+            assert truth.device.affine.inverse(t) == (t - off) / (1.0 + ppm * 1e-6)
+            assert truth.host.affine.inverse(t) == (t - hoff) / (1.0 + hppm * 1e-6)
 
 
 def test_online_estimate_as_before() -> None:

@@ -22,12 +22,18 @@ time from the probes. Every parameter is in :class:`ClockParams` with its unit a
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.errors import InputError
 from kinefuse.sync.affine import OffsetDriftClock
+
+if TYPE_CHECKING:
+    from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
 
@@ -197,6 +203,45 @@ class SensorClocks:
             "host_drift_ppm": self.host.drift_ppm,
             "latency_offset_s": self.latency_offset_s,
         }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, float]) -> SensorClocks:
+        """The clocks :meth:`to_dict` wrote (a missing unit latency: 0; phases are not kept
+        for the host clock: 0)."""
+        return cls(
+            device=SensorClock(
+                offset_s=d["offset_s"], drift_ppm=d["drift_ppm"], phase_s=d.get("phase_s", 0.0)
+            ),
+            host=SensorClock(
+                offset_s=d["host_offset_s"], drift_ppm=d["host_drift_ppm"], phase_s=0.0
+            ),
+            latency_offset_s=d.get("latency_offset_s", 0.0),
+        )
+
+
+def read_sensor_clocks(store: SessionStore, sensor_id: str) -> SensorClocks:
+    """The simulated sensor's true clocks, from the session's truth: the simulator reading back
+    what it wrote, to play that sensor live (a ``sim:`` source of ``kinefuse sensor``).
+
+    Raises
+    ------
+    InputError
+        The session has no truth (a live recording), or its clocks lack a key (an old session).
+    """
+    if not store.has_truth():
+        raise InputError(
+            f"{store.path} holds no simulator truth (a live recording?): a sim: source must "
+            "be a simulated session (kinefuse simulate); replay a recording with "
+            "--clock-offset-ms/--clock-drift-ppm given"
+        )
+    _pose, clock = store.truth().sensor(sensor_id)
+    try:
+        return SensorClocks.from_dict(clock)
+    except KeyError as e:
+        raise InputError(
+            f"{store.path}: the true clock of sensor {sensor_id!r} has no {e}; simulate the "
+            "session again with this kinefuse"
+        ) from None
 
 
 def draw_sensor_clocks(
