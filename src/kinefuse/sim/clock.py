@@ -150,9 +150,6 @@ class SensorClock(OffsetDriftClock):
 
     phase_s: float
 
-    to_sensor = OffsetDriftClock.forward  # sensor-clock time of true times (no jitter)
-    to_true = OffsetDriftClock.inverse  # true time of sensor-clock times
-
     def to_dict(self) -> dict[str, float]:
         return {"offset_s": self.offset_s, "drift_ppm": self.drift_ppm, "phase_s": self.phase_s}
 
@@ -301,14 +298,14 @@ def capture_times(
     if not t_end_s > t_start_s:
         raise ValueError(f"capture span must be positive, got {t_start_s}..{t_end_s} s")
     period = 1.0 / params.frame_rate_hz
-    s0, s1 = clock.to_sensor(t_start_s), clock.to_sensor(t_end_s)
+    s0, s1 = clock.affine.forward(t_start_s), clock.affine.forward(t_end_s)
     k0 = int(np.ceil((float(s0) - clock.phase_s) / period))
     k1 = int(np.floor((float(s1) - clock.phase_s) / period))
     k = np.arange(k0, k1 + 1, dtype=np.int64)
     keep = rng.random(k.size) >= params.frame_drop_prob
     k = k[keep]
     t_sensor_grid = clock.phase_s + k * period
-    t_true = clock.to_true(t_sensor_grid)
+    t_true = clock.affine.inverse(t_sensor_grid)
     t_sensor = t_sensor_grid + rng.normal(0.0, params.timestamp_jitter_s, k.size)
     mean = params.latency_mean_s + latency_offset_s
     latency = np.maximum(rng.normal(mean, params.latency_sigma_s, k.size), params.latency_min_s)
@@ -319,7 +316,7 @@ def capture_times(
         t_true_s=t_true,
         t_sensor_s=t_sensor,
         t_receive_server_s=t_true + latency + net,
-        t_receive_host_s=h.to_sensor(t_true + latency),
+        t_receive_host_s=h.affine.forward(t_true + latency),
     )
 
 
@@ -348,7 +345,7 @@ def clock_probes(
     up = params.network_delay_s + rng.exponential(params.network_jitter_s, n)
     down = params.network_delay_s + rng.exponential(params.network_jitter_s, n)
     turn = params.probe_turnaround_s * (1.0 + rng.random(n))
-    t2 = clock.to_sensor(t1 + up)
+    t2 = clock.affine.forward(t1 + up)
     t3 = t2 + turn * clock.rate
     t4 = t1 + up + turn + down
     return np.stack([t1, t2, t3, t4], axis=1)

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
-from kinefuse.sync.affine import OffsetDriftClock
+from kinefuse.sync.affine import AffineClock, OffsetDriftClock
 from kinefuse.sync.ntp import ClockEstimate, estimate_clock
 
 Array = NDArray[np.float64]
@@ -59,8 +59,6 @@ class DeviceClockEstimate(OffsetDriftClock):
 
     residual_s: float
     n_frames: int
-
-    to_host = OffsetDriftClock.forward  # capture times on the host clock of device timestamps
 
     @classmethod
     def identity(cls) -> DeviceClockEstimate:
@@ -134,9 +132,11 @@ class SensorTimebase:
     device: DeviceClockEstimate
     host: ClockEstimate
 
-    def to_server(self, t_device_s: ArrayLike) -> Array:
-        """Server capture times of device timestamps, seconds."""
-        return self.host.to_server(self.device.to_host(t_device_s))
+    @property
+    def affine(self) -> AffineClock:
+        """Device timestamps -> server capture times: the device fit, then the host clock's
+        inverse (server -> client) map."""
+        return self.host.affine.inverted().compose(self.device.affine)
 
 
 def sensor_timebase(

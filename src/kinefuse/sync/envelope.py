@@ -64,10 +64,6 @@ class ClockFit:
         """Drift of the sensor clock against the receiver, parts per million."""
         return self.affine.drift_ppm
 
-    def to_receiver(self, t_sensor_s: ArrayLike) -> Array:
-        """Capture times ``(N,)`` on the receiver's clock for sensor times ``(N,)``, seconds."""
-        return self.affine.forward(np.asarray(t_sensor_s, dtype=np.float64))
-
 
 def fit_clock_lower_envelope(
     t_sensor_s: ArrayLike,

@@ -66,9 +66,6 @@ class ClockEstimate(OffsetDriftClock):
     residual_s: float
     n_probes: int
 
-    to_client = OffsetDriftClock.forward  # client times of server times
-    to_server = OffsetDriftClock.inverse  # server times of client timestamps
-
 
 def estimate_clock(
     probes: ArrayLike, *, burst_gap_s: float = 0.5, delay_factor: float = 3.0

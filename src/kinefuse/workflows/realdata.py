@@ -149,7 +149,7 @@ def fuse_multitrack(
     oth_stream = next(s for s in rec.streams if s.sensor_id != ref_id)
     frames = {s.sensor_id: unique_frames(s) for s in (ref_stream, oth_stream)}
     clocks = {k: fit_clock_lower_envelope(f.t_sensor_s, f.t_receive_s) for k, f in frames.items()}
-    t_cap = {k: clocks[k].to_receiver(f.t_sensor_s) for k, f in frames.items()}
+    t_cap = {k: clocks[k].affine.forward(f.t_sensor_s) for k, f in frames.items()}
     fr, fo = frames[ref_id], frames[oth_stream.sensor_id]
     oth_id = fo.sensor_id
 
@@ -228,8 +228,8 @@ def fuse_multitrack(
     skew: list[float | None] = [None, None]
     if np.array_equal(ref_stream.t_receive_s, oth_stream.t_receive_s):
         sk = np.abs(
-            clocks[ref_id].to_receiver(ref_stream.t_sensor_s)
-            - clocks[oth_id].to_receiver(oth_stream.t_sensor_s)
+            clocks[ref_id].affine.forward(ref_stream.t_sensor_s)
+            - clocks[oth_id].affine.forward(oth_stream.t_sensor_s)
         )
         skew = [float(np.median(sk)) * 1e3, float(np.quantile(sk, 0.95)) * 1e3]
 

@@ -61,17 +61,9 @@ class HostClock:
         a = AffineClock.from_drift(self.drift, offset=self.h0, origin=self.m0)
         object.__setattr__(self, "affine", a)
 
-    def at(self, t_mono: float) -> float:
-        """Host time at monotonic time ``t_mono``."""
-        return self.affine.forward(t_mono)
-
-    def mono_at(self, t_host: float) -> float:
-        """The monotonic time at which the host clock reads ``t_host``."""
-        return self.affine.inverse(t_host)
-
     def now(self) -> float:
         """The host clock now."""
-        return self.at(self.monotonic())
+        return self.affine.forward(self.monotonic())
 
     def to_dict(self) -> dict[str, float]:
         return {"h0": self.h0, "drift": self.drift, "m0": self.m0}
