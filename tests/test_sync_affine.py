@@ -141,9 +141,11 @@ def test_clock_fit_as_before() -> None:
     t = random_times(4)
     for _ in range(N_CASES):
         t0, off, rate = rng.uniform(0, 1e4), rng.uniform(0, 1e4), 1.0 + rng.normal(0, 1e-4)
-        f = ClockFit(float(t0), float(off), float(rate), 100, 5, 1e-3, 5e-3)
+        f = ClockFit(
+            AffineClock(origin=float(t0), offset=float(off), rate=float(rate)), 100, 5, 1e-3, 5e-3
+        )
         np.testing.assert_array_equal(f.affine.forward(t), off + rate * (t - t0))
-        assert f.drift_ppm == (rate - 1.0) * 1e6
+        assert f.affine.drift_ppm == (rate - 1.0) * 1e6
 
 
 def test_host_clock_as_before() -> None:

@@ -311,9 +311,9 @@ def fuse_multitrack(
         "other_offaxis_deg": other_offaxis_deg,
         "clocks": {
             k: {
-                "drift_ppm": clocks[k].drift_ppm,
-                "offset_s": clocks[k].offset_s,
-                "rate": clocks[k].rate,
+                "drift_ppm": clocks[k].affine.drift_ppm,
+                "offset_s": clocks[k].affine.offset,
+                "rate": clocks[k].affine.rate,
                 "rows": frames[k].n_rows,
                 "frames": frames[k].t_sensor_s.size,
                 "duplicates": frames[k].n_duplicates,
