@@ -6,9 +6,9 @@ clocks, asymmetric exponential queues, congestion spikes; the delays are stated 
 are the figures the tests bound, on more seeds and longer sessions (``--smoke``: one seed, short
 sessions, to check that it runs). Prints, per network, the offset error after a 5 s warm-up
 (p50, p99, max), the share of checks within 3 standard errors, the recovery time after +/-80 ms
-clock steps and after a reconnect, and microseconds per ``add_probe`` / ``to_server`` /
-``estimate`` against a baseline measured in the same run (a Python function that only computes
-the probe's offset and delay).
+clock steps and after a reconnect, and microseconds per ``add_probe`` / ``affine.inverse``
+(the row ``to_server``) / ``estimate`` against a baseline measured in the same run (a Python
+function that only computes the probe's offset and delay).
 """
 
 from __future__ import annotations
