@@ -134,19 +134,9 @@ class ClockParams:
 
 @dataclass(frozen=True)
 class SensorClock(OffsetDriftClock):
-    """One sensor's clock relative to true (server) time (source: true, target: sensor).
-
-    Attributes
-    ----------
-    offset_s : float
-        Sensor time at true time 0.
-    drift_ppm : float
-        Rate error, parts per million: the sensor clock's seconds per true second, minus 1.
-    phase_s : float
-        Sensor time of the first frame grid point modulo the frame period.
-    affine : AffineClock
-        True time -> sensor time (derived from ``offset_s`` and ``drift_ppm``).
-    """
+    """One simulated clock: the :class:`OffsetDriftClock` map from true (server) time to the
+    clock's time (``offset_s``: its time at true time 0), with ``phase_s`` (its time of the
+    first frame grid point modulo the frame period)."""
 
     phase_s: float
 
