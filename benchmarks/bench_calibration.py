@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from kinefuse.calibration.common import WandDetection
-from kinefuse.calibration.evaluate import pose_errors
+from kinefuse.calibration.compare import pose_errors
 from kinefuse.calibration.floor import FloorPlane
 from kinefuse.calibration.register import register_full
 from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving

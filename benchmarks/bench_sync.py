@@ -6,9 +6,9 @@ clocks, asymmetric exponential queues, congestion spikes; the delays are stated 
 are the figures the tests bound, on more seeds and longer sessions (``--smoke``: one seed, short
 sessions, to check that it runs). Prints, per network, the offset error after a 5 s warm-up
 (p50, p99, max), the share of checks within 3 standard errors, the recovery time after +/-80 ms
-clock steps and after a reconnect, and microseconds per ``add_probe`` / ``to_server`` /
-``estimate`` against a baseline measured in the same run (a Python function that only computes
-the probe's offset and delay).
+clock steps and after a reconnect, and microseconds per ``add_probe`` / ``affine.inverse``
+(the row ``to_server``) / ``estimate`` against a baseline measured in the same run (a Python
+function that only computes the probe's offset and delay).
 """
 
 from __future__ import annotations
@@ -38,13 +38,13 @@ def accuracy() -> None:
         for seed in range(SEEDS):
             rng = np.random.default_rng(1000 + seed)
             clock = random_clock(rng)
-            probes = asymmetric_probes(clock.to_sensor, 0.0, SESSION_S, rng, **kw)
-            out = replay(OnlineClock(), probes, clock.to_sensor)
+            probes = asymmetric_probes(clock.affine.forward, 0.0, SESSION_S, rng, **kw)
+            out = replay(OnlineClock(), probes, clock.affine.forward)
             m = out["t"] >= WARMUP_S
             # the offline fit over the whole session (future probes included), at the same checks
             fit = estimate_clock(probes)
             t = out["t"][m]
-            off.append(np.abs(fit.to_client(t) - clock.to_sensor(t)))
+            off.append(np.abs(fit.affine.forward(t) - clock.affine.forward(t)))
             err.append(np.abs(out["err"][m]))
             se.append(out["se"][m])
             z.append(np.abs(out["err"] / out["se"]))
@@ -74,16 +74,17 @@ def recovery() -> None:
             clock = random_clock(rng)
 
             def client(t, clock=clock, step=step):  # type: ignore[no-untyped-def]
-                return clock.to_sensor(t) + step * (np.asarray(t) >= t_event)
+                return clock.affine.forward(t) + step * (np.asarray(t) >= t_event)
 
             out = replay(OnlineClock(), asymmetric_probes(client, 0.0, 120.0, rng), client)
             jumps.append(recovery_s(out["t"], out["err"], t_event))
         rng = np.random.default_rng(3000 + seed)
         old, new = random_clock(rng), random_clock(rng)
         est = OnlineClock()
-        replay(est, asymmetric_probes(old.to_sensor, 0.0, t_event, rng), old.to_sensor)
+        replay(est, asymmetric_probes(old.affine.forward, 0.0, t_event, rng), old.affine.forward)
         est.reset("reconnect")
-        out = replay(est, asymmetric_probes(new.to_sensor, 61.0, 120.0, rng), new.to_sensor)
+        to_new = new.affine.forward
+        out = replay(est, asymmetric_probes(to_new, 61.0, 120.0, rng), to_new)
         reconnects.append(recovery_s(out["t"], out["err"], t_event))
     for step in (0.0015, 0.002, 0.003, 0.005):
         detected, worst = 0, 0.0
@@ -92,7 +93,7 @@ def recovery() -> None:
             clock = random_clock(rng)
 
             def client(t, clock=clock, step=step):  # type: ignore[no-untyped-def]
-                return clock.to_sensor(t) + step * (np.asarray(t) >= t_event)
+                return clock.affine.forward(t) + step * (np.asarray(t) >= t_event)
 
             est = OnlineClock()
             out = replay(est, asymmetric_probes(client, 0.0, 120.0, rng), client)
@@ -112,7 +113,7 @@ def recovery() -> None:
 def speed() -> None:
     rng = np.random.default_rng(0)
     clock = random_clock(rng)
-    probes = asymmetric_probes(clock.to_sensor, 0.0, SPEED_S, rng)
+    probes = asymmetric_probes(clock.affine.forward, 0.0, SPEED_S, rng)
     rows = [tuple(map(float, q)) for q in probes]
 
     def baseline(t1: float, t2: float, t3: float, t4: float) -> tuple[float, float]:
@@ -130,7 +131,7 @@ def speed() -> None:
     t_client = [r[1] for r in rows]
     t0 = time.perf_counter()
     for tc in t_client:
-        est.to_server(tc)
+        est.affine.inverse(tc)
     t_conv = (time.perf_counter() - t0) / len(rows)
     t0 = time.perf_counter()
     for r in rows:

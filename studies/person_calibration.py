@@ -48,7 +48,7 @@ def _tracks(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     out = {}
     for s in read_kinect_multitrack(path).streams:
         f = unique_frames(s)
-        t = fit_clock_lower_envelope(f.t_sensor_s, f.t_receive_s).to_receiver(f.t_sensor_s)
+        t = fit_clock_lower_envelope(f.t_sensor_s, f.t_receive_s).affine.forward(f.t_sensor_s)
         out[s.sensor_id] = (t, f.joints_m)
     t0 = min(float(t[0]) for t, _ in out.values())
     return {k: (t - t0, p) for k, (t, p) in out.items()}
@@ -119,7 +119,11 @@ def realdata_agreement(rec: Path, log: Path) -> dict[str, object]:
     grid = np.concatenate([g for g, _ in fused])
     p_rd = np.concatenate([p for _, p in fused])
     t_live = np.interp(
-        np.interp(grid, clock.to_receiver(dev), dev), dev, t_cap[first], left=np.nan, right=np.nan
+        np.interp(grid, clock.affine.forward(dev), dev),
+        dev,
+        t_cap[first],
+        left=np.nan,
+        right=np.nan,
     )
     on = np.isfinite(t_live)
     p_live = interpolate(lf.t_server_s, lf.positions_m, t_live[on], max_gap_s=0.05)

@@ -7,15 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.evaluate import (
-    align_worlds,
-    binned,
-    error_vs_sightings,
-    mapped_wand_errors,
-    plot_calibration_errors,
-    pose_errors,
-    wand_errors,
-)
+from kinefuse.calibration.compare import align_worlds, pose_errors
 from kinefuse.calibration.register import register_full
 from kinefuse.calibration.synthetic import (
     make_rig,
@@ -25,6 +17,13 @@ from kinefuse.calibration.synthetic import (
 )
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
+from kinefuse.evaluation.calibration import (
+    binned,
+    error_vs_sightings,
+    mapped_wand_errors,
+    plot_calibration_errors,
+    wand_errors,
+)
 from kinefuse.geometry.rotations import rot_x, rot_z
 from kinefuse.geometry.transforms import make_transform
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration.evaluate import pose_errors
+from kinefuse.calibration.compare import pose_errors
 from kinefuse.calibration.grade import (
     HALVES_DOUBTFUL_M,
     HalvesCheck,

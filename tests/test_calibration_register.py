@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration.evaluate import pose_errors
+from kinefuse.calibration.compare import pose_errors
 from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
 from kinefuse.calibration.register import (
     Sightings,

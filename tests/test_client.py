@@ -279,7 +279,7 @@ def test_handshake_and_body_frames_arrive_in_order_with_their_content():
     assert abs((t_host[-1] - t_host[0]) - 44 / 90) < 0.05  # s, scheduling slack
     # and that clock is the one the client was given: h0 + (1 + drift)(t - m0)
     assert client.m0 is not None
-    assert host.h0 == 77.0 and abs(t_host[0] - host.at(client.m0 + 500.0 / 3.0)) < 0.05
+    assert host.h0 == 77.0 and abs(t_host[0] - host.affine.forward(client.m0 + 500.0 / 3.0)) < 0.05
 
 
 def test_probes_are_answered_at_once_with_consistent_times():
@@ -312,7 +312,7 @@ def test_probes_are_answered_at_once_with_consistent_times():
     assert [r.probe_id for r, _ in server.peers[0].replies] == list(range(20))
     # the true offset host - server at the mid-probe instant (the emulated clock is known here)
     expected = [
-        host.at(server.t0 + 0.5 * (r.t1 + t4)) - 0.5 * (r.t1 + t4)
+        host.affine.forward(server.t0 + 0.5 * (r.t1 + t4)) - 0.5 * (r.t1 + t4)
         for r, t4 in server.peers[0].replies
     ]
     err = np.abs(np.array(offsets) - np.array(expected))

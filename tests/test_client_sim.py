@@ -23,7 +23,7 @@ from kinefuse.errors import InputError
 from kinefuse.frames.observations import DepthFrame
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.client.client import ClientOptions, SensorClient
-from kinefuse.net.client.clocks import HostClock, SimClockTruth
+from kinefuse.net.client.clocks import HostClock
 from kinefuse.net.client.playback import SimTimeline, open_timeline
 from kinefuse.protocol import (
     BodyFrameMessage,
@@ -36,7 +36,7 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.sim.clock import ClockParams
+from kinefuse.sim.clock import ClockParams, read_sensor_clocks
 from test_client import LIMIT_S, TestServer, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def session(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
 def test_host_clock_and_its_inverse():
     c = HostClock(h0=900.0, drift=25e-6, m0=10.0, monotonic=lambda: 12.0)
     assert c.now() == pytest.approx(900.0 + 2.0 * (1 + 25e-6), abs=1e-12)
-    assert c.mono_at(c.at(123.456)) == pytest.approx(123.456, abs=1e-9)
+    assert c.affine.inverse(c.affine.forward(123.456)) == pytest.approx(123.456, abs=1e-9)
     with pytest.raises(InputError, match="ppm is not a clock"):
         HostClock(0.0, 0.05, 0.0)
 
@@ -78,7 +78,7 @@ def test_the_sim_timeline_is_one_clock_depth_first_then_body(session: Path):
     with SessionStore.open(session) as st:
         assert n_depth == st.depth_frame_count("k1")
         assert len(items) - n_depth == st.observation_count("k1")
-        truth = SimClockTruth.from_store(st, "k1")
+        truth = read_sensor_clocks(st, "k1")
         _seq, t_true, _j, _v, _s = st.truth().observations("k1")
         wand_t, _ = st.truth().wand()
     # a body frame plays when it reaches the host: its true capture + the capture-to-host latency
@@ -228,7 +228,7 @@ def test_sigterm_is_a_clean_stop_and_the_sidecar_holds_the_truth(session: Path, 
         arrive = dict(zip(obs.seq.tolist(), obs.t_host_s, strict=True))
     for b in server.bodies():
         assert 0 <= b.t_host_s - arrive[b.seq] < 0.1  # s: sent when its time came, not before
-    assert host.at(d["m0"]) == d["h0"]
+    assert host.affine.forward(d["m0"]) == d["h0"]
     # every key the sidecar holds is documented in docs/live.md (D's evaluation reads them)
     doc = (ROOT / "docs" / "live.md").read_text(encoding="utf-8")
     table = doc.split("### The truth sidecar", 1)[1].split("###", 1)[0]
@@ -428,7 +428,7 @@ def test_probes_stay_prompt_while_the_client_detects_the_wand(session: Path):
     delay = np.array([(t4 - r.t1) - (r.t3 - r.t2) for r, t4 in replies])
     mid = np.array([0.5 * (r.t1 + t4) for r, t4 in replies])
     offset = np.array([0.5 * ((r.t2 - r.t1) + (r.t3 - t4)) for r, t4 in replies])
-    truth = np.array([host.at(server.t0 + m) - m for m in mid])
+    truth = np.array([host.affine.forward(server.t0 + m) - m for m in mid])
     # the least-delay probe of each burst of 4 (what the server's estimator keeps)
     n = len(replies) // 4 * 4
     best = np.argmin(delay[:n].reshape(-1, 4), axis=1) + np.arange(0, n, 4)
@@ -466,7 +466,7 @@ def test_a_client_joining_a_past_epoch_starts_at_the_present(session: Path):
     tl = SimTimeline(str(session), "k1")
     truth = tl.truth
     assert truth is not None
-    first_true = truth.host_to_true(
+    first_true = truth.host.affine.inverse(
         next(x.frame.t_host_s for x in tl.frames() if x.frame.seq == bodies[0].seq
              and not isinstance(x.frame, DepthFrame))
     )  # fmt: skip

@@ -41,16 +41,16 @@ def test_the_device_clock_is_not_the_probed_clock(rng: np.random.Generator) -> N
     probes = clock_probes(clocks.host, 0.0, 60.0, rng, params)
     # the probes measure the host clock: through them alone, device stamps land far off
     probed = estimate_clock(probes)
-    assert np.abs(probed.to_server(cap.t_sensor_s) - cap.t_true_s).min() > 0.5  # s
+    assert np.abs(probed.affine.inverse(cap.t_sensor_s) - cap.t_true_s).min() > 0.5  # s
     # each frame's arrival on the host clock, after a variable latency
-    arrival = clocks.host.to_true(cap.t_receive_host_s) - cap.t_true_s
+    arrival = clocks.host.affine.inverse(cap.t_receive_host_s) - cap.t_true_s
     assert arrival.std() == pytest.approx(params.latency_sigma_s, rel=0.2)
     assert arrival.mean() == pytest.approx(
         params.latency_mean_s + clocks.latency_offset_s, abs=1e-3
     )
     # device -> host from the two stamps, host -> server from the probes
     tb = sensor_timebase(probes, cap.t_sensor_s, cap.t_receive_host_s)
-    err = tb.to_server(cap.t_sensor_s) - cap.t_true_s
+    err = tb.affine.forward(cap.t_sensor_s) - cap.t_true_s
     # what is left is this unit's own latency offset, which no client can see (1 ms besides)
     np.testing.assert_allclose(err, clocks.latency_offset_s, atol=0.001)
     assert tb.device.residual_s == pytest.approx(params.latency_sigma_s, rel=0.25)
@@ -122,7 +122,7 @@ def test_an_old_store_reads_and_appends_without_host_times(tmp_path: Path) -> No
         assert s.observations("k0").t_receive_host_s[3] == 0.2
     # without host times the device stamps are taken to be on the probed clock
     tb = sensor_timebase([[0.0, 5.0, 5.0, 0.001]], obs.t_sensor_s, obs.t_receive_host_s)
-    np.testing.assert_allclose(tb.to_server(obs.t_sensor_s), obs.t_sensor_s - 5.0, atol=1e-3)
+    np.testing.assert_allclose(tb.affine.forward(obs.t_sensor_s), obs.t_sensor_s - 5.0, atol=1e-3)
 
 
 # -------------------------------------------------------------------------------------------

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -142,3 +144,65 @@ def test_rotation_vector_deg_round_trips_through_scipy(rng) -> None:
     assert abs(rv @ axis) == pytest.approx(180.0, abs=1e-6)
     with pytest.raises(ValueError, match=r"one \(3, 3\) rotation"):
         rotation_vector_deg(np.eye(4))
+
+
+# -- the one rigid fit, plane fit and unit: real markers ----------------------------------------
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "markers" / "opensim"
+
+
+def _walk_markers() -> tuple[np.ndarray, np.ndarray]:
+    """The Gait2354 walk's right foot markers over time (a near-rigid cluster of four), one of
+    them dropped from every 7th frame, and the first frame."""
+    from kinefuse.io.formats.markers import read_trc
+
+    m = read_trc(DATA / "Pipelines_Gait2354_Simbody_subject01_walk1.trc")
+    cluster = [m.names.index(n) for n in ("R.Heel", "R.Midfoot.Sup", "R.Midfoot.Lat", "R.Toe.Tip")]
+    moving = m.positions[:, cluster].copy()
+    moving[::7, 0] = np.nan  # a marker missing now and then
+    return moving[0], moving
+
+
+def test_rigid_fit_is_kabsch_per_frame_on_real_markers() -> None:
+    from kinefuse.geometry.transforms import rigid_fit
+
+    template, moving = _walk_markers()
+    template = moving[1]  # a frame with every marker
+    rot, tr = rigid_fit(template, moving)
+    assert rot.shape == (len(moving), 3, 3) and np.isfinite(rot).all()
+    for t in range(0, len(moving), 10):
+        t2 = kabsch(template, moving[t])
+        np.testing.assert_allclose(rot[t], t2[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(tr[t], t2[:3, 3], atol=1e-9)
+    few = moving.copy()
+    few[3, 1:] = np.nan  # one marker left: no fit there, the rest unaffected
+    r2, p2 = rigid_fit(template, few)
+    assert np.isnan(r2[3]).all() and np.isnan(p2[3]).all()
+    np.testing.assert_array_equal(r2[4], rot[4])
+
+
+def test_fit_plane_through_origin_on_real_directions() -> None:
+    from kinefuse.geometry.rotations import unit
+    from kinefuse.geometry.transforms import fit_plane
+
+    _, moving = _walk_markers()
+    d = unit(moving[:, 2] - moving[:, 1])  # a real segment direction over the walk
+    d = d[np.isfinite(d).all(1)]
+    c, n = fit_plane(d, through_origin=True)
+    assert np.array_equal(c, np.zeros(3)) and abs(np.linalg.norm(n) - 1.0) < 1e-12
+    # the normal is the direction the samples vary least along, through the origin
+    spread = ((d @ n) ** 2).mean()
+    for other in unit(np.random.default_rng(0).normal(size=(200, 3))):
+        assert ((d @ other) ** 2).mean() >= spread - 1e-12
+    c2, _ = fit_plane(d)  # about the centroid: another plane
+    np.testing.assert_allclose(c2, d.mean(0), atol=1e-12)
+
+
+def test_unit_zero_and_missing() -> None:
+    from kinefuse.geometry.rotations import unit
+
+    v = np.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0], [np.nan, 1.0, 0.0]])
+    np.testing.assert_allclose(unit(v)[0], [0.6, 0.0, 0.8])
+    assert np.isnan(unit(v)[1:]).all()
+    z = unit(v, zero=0.0)
+    assert np.array_equal(z[1], np.zeros(3)) and np.isnan(z[2]).all()

@@ -181,7 +181,7 @@ def test_exporters_called_directly_refuse_foreign_files(tmp_path, fmt) -> None:
 
 
 def test_tables_and_plots_never_replace_an_existing_file(tmp_path) -> None:
-    from kinefuse.calibration.evaluate import WandErrors, plot_calibration_errors
+    from kinefuse.evaluation.calibration import WandErrors, plot_calibration_errors
     from kinefuse.evaluation.fusion import _write_table, plot_trajectories
 
     victim = tmp_path / "table1.md"

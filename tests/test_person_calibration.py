@@ -37,7 +37,7 @@ def _tracks(path: Path) -> Tracks:
     out = {}
     for s in rec.streams:
         f = unique_frames(s)
-        t = fit_clock_lower_envelope(f.t_sensor_s, f.t_receive_s).to_receiver(f.t_sensor_s)
+        t = fit_clock_lower_envelope(f.t_sensor_s, f.t_receive_s).affine.forward(f.t_sensor_s)
         out[s.sensor_id] = (t, f.joints_m)
     t0 = min(float(t[0]) for t, _ in out.values())
     return {k: (t - t0, p) for k, (t, p) in out.items()}

@@ -109,9 +109,9 @@ def _synthetic_clock(rng: np.random.Generator, *, drift_ppm: float, latency_s: f
 def test_lower_envelope_recovers_drift_and_latency(rng) -> None:
     t_sensor, t_rx, t_cap = _synthetic_clock(rng, drift_ppm=40.0, latency_s=0.05)
     fit = fit_clock_lower_envelope(t_sensor, t_rx)
-    assert fit.drift_ppm == pytest.approx(40.0, abs=5.0)  # 5 ppm
+    assert fit.affine.drift_ppm == pytest.approx(40.0, abs=5.0)  # 5 ppm
     # capture on the receiver clock up to the constant latency
-    err = fit.to_receiver(t_sensor) - (t_cap + 0.05)
+    err = fit.affine.forward(t_sensor) - (t_cap + 0.05)
     assert np.abs(err).max() < 2e-3  # 2 ms
     assert fit.jitter_median_s > 0.02 and fit.jitter_p95_s > 0.2  # the queue was removed
     # an ordinary least-squares line is pulled by the queue: the envelope is what works here
@@ -123,8 +123,8 @@ def test_lower_envelope_negative_drift_any_order(rng) -> None:
     t_sensor, t_rx, t_cap = _synthetic_clock(rng, drift_ppm=-150.0, latency_s=0.08)
     perm = rng.permutation(t_sensor.size)
     fit = fit_clock_lower_envelope(t_sensor[perm], t_rx[perm])
-    assert fit.drift_ppm == pytest.approx(-150.0, abs=5.0)  # 5 ppm
-    assert np.abs(fit.to_receiver(t_sensor) - (t_cap + 0.08)).max() < 2e-3  # 2 ms
+    assert fit.affine.drift_ppm == pytest.approx(-150.0, abs=5.0)  # 5 ppm
+    assert np.abs(fit.affine.forward(t_sensor) - (t_cap + 0.08)).max() < 2e-3  # 2 ms
 
 
 @pytest.mark.parametrize(

@@ -87,7 +87,7 @@ def test_capture_times_follow_the_sensor_clock(rng) -> None:
     cap = capture_times(clock, 5.0, 15.0, rng, params)
     # 30 Hz on the sensor's own clock: true-time period is 1/30 divided by the rate
     np.testing.assert_allclose(np.diff(cap.t_true_s), 1 / 30 / clock.rate, rtol=1e-9)
-    np.testing.assert_allclose(clock.to_true(cap.t_sensor_s), cap.t_true_s, atol=1e-9)
+    np.testing.assert_allclose(clock.affine.inverse(cap.t_sensor_s), cap.t_true_s, atol=1e-9)
     assert cap.t_true_s[0] >= 5.0 and cap.t_true_s[-1] <= 15.0
     assert (cap.t_receive_server_s - cap.t_true_s).min() > 0.03  # latency is tens of ms
     np.testing.assert_array_equal(cap.seq, np.arange(cap.seq.size))
@@ -105,7 +105,7 @@ def test_ntp_probes_recover_the_offset(rng) -> None:
     clock = draw_clock(rng, params)
     t1, t2, t3, t4 = clock_probes(clock, 0.0, 30.0, rng, params).T
     offset = ((t2 - t1) + (t3 - t4)) / 2  # client minus server at the probe time
-    true = clock.to_sensor((t1 + t4) / 2) - (t1 + t4) / 2
+    true = clock.affine.forward((t1 + t4) / 2) - (t1 + t4) / 2
     # delays are asymmetric: the estimate errs by at most half the round trip
     assert np.all(np.abs(offset - true) <= ((t4 - t1) - (t3 - t2)) / 2 + 1e-9)
     assert np.median(np.abs(offset - true)) < 1e-3  # 1 ms
@@ -121,7 +121,7 @@ def test_host_stamps_arrivals_on_its_own_clock(rng) -> None:
         clocks.device, 0.0, 20.0, rng, params,
         host=clocks.host, latency_offset_s=0.01,
     )  # fmt: skip
-    latency = clocks.host.to_true(cap.t_receive_host_s) - cap.t_true_s
+    latency = clocks.host.affine.inverse(cap.t_receive_host_s) - cap.t_true_s
     assert latency.min() >= params.latency_min_s - 1e-9
     assert np.mean(latency) == pytest.approx(params.latency_mean_s + 0.01, abs=0.001)  # 1 ms
     # the server's receive time is the same arrival plus the network
@@ -131,7 +131,7 @@ def test_host_stamps_arrivals_on_its_own_clock(rng) -> None:
     # without a host clock the device clock stamps the arrivals (a client that stamps frames
     # with the probed clock)
     own = capture_times(clocks.device, 0.0, 2.0, rng, params)
-    lat_own = clocks.device.to_true(own.t_receive_host_s) - own.t_true_s
+    lat_own = clocks.device.affine.inverse(own.t_receive_host_s) - own.t_true_s
     assert lat_own.min() >= params.latency_min_s - 1e-9
 
 

@@ -106,7 +106,7 @@ def scripts(sim) -> dict[str, Script]:
             t_dev = np.concatenate([t for _, t, _ in st.iter_depth_frames(s.id)])
             tr = cal.tracks[s.id]
             for k in np.flatnonzero(tr.found):
-                t = float(tb.to_server(t_dev[k])) + NOMINAL_LATENCY_S
+                t = float(tb.affine.forward(t_dev[k])) + NOMINAL_LATENCY_S
                 sc.sightings.append(
                     (
                         t,
@@ -120,7 +120,7 @@ def scripts(sim) -> dict[str, Script]:
                         ),
                     )
                 )
-            t_cap = tb.to_server(obs.t_device_s)
+            t_cap = tb.affine.forward(obs.t_device_s)
             for k in range(obs.n_frames):
                 sc.bodies.append(
                     (

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from kinefuse.evaluation.live import PlaybackTruth
-from kinefuse.net.client.clocks import HostClock, SimClockTruth
-from kinefuse.sim.clock import SensorClock
+from kinefuse.net.client.clocks import HostClock
+from kinefuse.sim.clock import SensorClock, SensorClocks
 from kinefuse.sync.affine import AffineClock
-from kinefuse.sync.device import DeviceClockEstimate
+from kinefuse.sync.device import DeviceClockEstimate, SensorTimebase
 from kinefuse.sync.envelope import ClockFit
 from kinefuse.sync.ntp import ClockEstimate
 from kinefuse.sync.online import OnlineClock, OnlineEstimate
@@ -110,8 +110,8 @@ def test_sensor_clock_as_before() -> None:
         c = SensorClock(offset_s=off, drift_ppm=ppm, phase_s=0.01)
         rate = 1.0 + ppm * 1e-6
         assert c.rate == rate
-        np.testing.assert_array_equal(c.to_sensor(t), off + rate * t)
-        np.testing.assert_array_equal(c.to_true(t), (t - off) / rate)
+        np.testing.assert_array_equal(c.affine.forward(t), off + rate * t)
+        np.testing.assert_array_equal(c.affine.inverse(t), (t - off) / rate)
         assert c.to_dict() == {"offset_s": off, "drift_ppm": ppm, "phase_s": 0.01}
 
 
@@ -121,8 +121,8 @@ def test_clock_estimate_as_before() -> None:
         e = ClockEstimate(offset_s=off, drift_ppm=ppm, residual_s=1e-4, n_probes=10)
         rate = 1.0 + ppm * 1e-6
         assert e.rate == rate
-        np.testing.assert_array_equal(e.to_server(t), (t - off) / rate)
-        np.testing.assert_array_equal(e.to_client(t), off + rate * t)
+        np.testing.assert_array_equal(e.affine.inverse(t), (t - off) / rate)
+        np.testing.assert_array_equal(e.affine.forward(t), off + rate * t)
         assert e == ClockEstimate(offset_s=off, drift_ppm=ppm, residual_s=1e-4, n_probes=10)
 
 
@@ -132,8 +132,8 @@ def test_device_clock_estimate_as_before() -> None:
         e = DeviceClockEstimate(offset_s=off, drift_ppm=ppm, residual_s=1e-3, n_frames=100)
         rate = 1.0 + ppm * 1e-6
         assert e.rate == rate
-        np.testing.assert_array_equal(e.to_host(t), off + rate * t)
-    np.testing.assert_array_equal(DeviceClockEstimate.identity().to_host(t), t)
+        np.testing.assert_array_equal(e.affine.forward(t), off + rate * t)
+    np.testing.assert_array_equal(DeviceClockEstimate.identity().affine.forward(t), t)
 
 
 def test_clock_fit_as_before() -> None:
@@ -141,9 +141,11 @@ def test_clock_fit_as_before() -> None:
     t = random_times(4)
     for _ in range(N_CASES):
         t0, off, rate = rng.uniform(0, 1e4), rng.uniform(0, 1e4), 1.0 + rng.normal(0, 1e-4)
-        f = ClockFit(float(t0), float(off), float(rate), 100, 5, 1e-3, 5e-3)
-        np.testing.assert_array_equal(f.to_receiver(t), off + rate * (t - t0))
-        assert f.drift_ppm == (rate - 1.0) * 1e6
+        f = ClockFit(
+            AffineClock(origin=float(t0), offset=float(off), rate=float(rate)), 100, 5, 1e-3, 5e-3
+        )
+        np.testing.assert_array_equal(f.affine.forward(t), off + rate * (t - t0))
+        assert f.affine.drift_ppm == (rate - 1.0) * 1e6
 
 
 def test_host_clock_as_before() -> None:
@@ -152,21 +154,22 @@ def test_host_clock_as_before() -> None:
         h0, drift, m0 = rng.uniform(0, 1e3), rng.normal(0, 5e-5), rng.uniform(0, 1e5)
         c = HostClock(float(h0), float(drift), float(m0))
         for t in rng.uniform(0, 1e5, 8).tolist():
-            assert c.at(t) == h0 + (1.0 + drift) * (t - m0)
-            assert c.mono_at(t) == m0 + (t - h0) / (1.0 + drift)
-            assert type(c.at(t)) is float
+            assert c.affine.forward(t) == h0 + (1.0 + drift) * (t - m0)
+            assert c.affine.inverse(t) == m0 + (t - h0) / (1.0 + drift)
+            assert type(c.affine.forward(t)) is float
         p = PlaybackTruth("k1", float(h0), float(drift), float(m0), 0.0)
         tm = rng.uniform(0, 1e5, 8)
-        np.testing.assert_array_equal(p.host_at_mono(tm), h0 + (1.0 + drift) * (tm - m0))
+        np.testing.assert_array_equal(p.host.forward(tm), h0 + (1.0 + drift) * (tm - m0))
 
 
 def test_sim_clock_truth_as_before() -> None:
     rng = np.random.default_rng(15)
     for (off, ppm), (hoff, hppm) in zip(ppm_params(16), ppm_params(17), strict=True):
-        truth = SimClockTruth(off, ppm, hoff, hppm, 0.002)
+        d = {"offset_s": off, "drift_ppm": ppm, "host_offset_s": hoff, "host_drift_ppm": hppm}
+        truth = SensorClocks.from_dict(d)
         for t in rng.uniform(0, 2e3, 8).tolist():
-            assert truth.device_to_true(t) == (t - off) / (1.0 + ppm * 1e-6)
-            assert truth.host_to_true(t) == (t - hoff) / (1.0 + hppm * 1e-6)
+            assert truth.device.affine.inverse(t) == (t - off) / (1.0 + ppm * 1e-6)
+            assert truth.host.affine.inverse(t) == (t - hoff) / (1.0 + hppm * 1e-6)
 
 
 def test_online_estimate_as_before() -> None:
@@ -178,9 +181,9 @@ def test_online_estimate_as_before() -> None:
         for t in rng.uniform(0, 1e4, 8).tolist():
             old_server = (t - off + b * at) / (1.0 + b)
             old_client = t + off + b * (t - at)
-            assert e.to_server(t) == pytest.approx(old_server, rel=0, abs=1e-11)
-            assert e.to_client(t) == pytest.approx(old_client, rel=0, abs=1e-11)
-            assert type(e.to_server(t)) is float
+            assert e.affine.inverse(t) == pytest.approx(old_server, rel=0, abs=1e-11)
+            assert e.affine.forward(t) == pytest.approx(old_client, rel=0, abs=1e-11)
+            assert type(e.affine.inverse(t)) is float
 
 
 def test_online_clock_line_as_before() -> None:
@@ -195,7 +198,45 @@ def test_online_clock_line_as_before() -> None:
     for t in rng.uniform(0, 100, 8).tolist():
         old_server = (t - line.a + line.b * line.t_ref) / (1.0 + line.b)
         old_client = t + line.a + line.b * (t - line.t_ref)
-        assert clock.to_server(t) == pytest.approx(old_server, rel=0, abs=1e-11)
-        assert clock.to_client(t) == pytest.approx(old_client, rel=0, abs=1e-11)
+        assert clock.affine.inverse(t) == pytest.approx(old_server, rel=0, abs=1e-11)
+        assert clock.affine.forward(t) == pytest.approx(old_client, rel=0, abs=1e-11)
     t = rng.uniform(0, 100, 8)
-    np.testing.assert_allclose(clock.to_server(clock.to_client(t)), t, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(clock.affine.inverse(clock.affine.forward(t)), t, rtol=0, atol=1e-11)
+
+
+def test_sensor_timebase_is_one_affine_clock_as_before() -> None:
+    """Device -> server was the device fit then the host clock's inverse, two steps; it is
+    now one composed AffineClock, within float rounding of the two steps."""
+    rng = np.random.default_rng(21)
+    for (doff, dppm), (hoff, hppm) in zip(ppm_params(22), ppm_params(23), strict=True):
+        dev = DeviceClockEstimate(offset_s=doff, drift_ppm=dppm, residual_s=0.0, n_frames=9)
+        host = ClockEstimate(offset_s=hoff, drift_ppm=hppm, residual_s=0.0, n_probes=9)
+        tb = SensorTimebase(device=dev, host=host)
+        assert isinstance(tb.affine, AffineClock)
+        t = rng.uniform(0.0, 2e3, 50)
+        two_steps = (doff + (1.0 + dppm * 1e-6) * t - hoff) / (1.0 + hppm * 1e-6)
+        np.testing.assert_allclose(tb.affine.forward(t), two_steps, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "holder",
+    [
+        SensorClock,
+        SensorClocks,
+        ClockEstimate,
+        DeviceClockEstimate,
+        SensorTimebase,
+        ClockFit,
+        OnlineEstimate,
+        OnlineClock,
+        HostClock,
+        PlaybackTruth,
+    ],
+)
+def test_only_affine_clock_maps_times(holder: type) -> None:
+    """The estimates and the clocks that hold a map carry no mapping of their own: code that
+    maps times takes the AffineClock (``.affine``, ``.host``, ``.device``)."""
+    mapping = {n for n in dir(holder) if n in ("forward", "inverse", "at", "mono_at")}
+    mapping |= {n for n in dir(holder) if n.startswith("to_") and n != "to_dict"}
+    mapping |= {n for n in dir(holder) if n.startswith("host_at") or n.endswith("_to_true")}
+    assert not mapping, f"{holder.__name__} maps times itself: {sorted(mapping)}"

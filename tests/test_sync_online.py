@@ -27,9 +27,9 @@ def test_offset_error_after_warmup(network: str) -> None:
     for seed in range(4):
         rng = np.random.default_rng(seed)
         clock = random_clock(rng)
-        probes = asymmetric_probes(clock.to_sensor, 0.0, 120.0, rng, **NETWORKS[network])
+        probes = asymmetric_probes(clock.affine.forward, 0.0, 120.0, rng, **NETWORKS[network])
         est = OnlineClock()
-        out = replay(est, probes, clock.to_sensor)
+        out = replay(est, probes, clock.affine.forward)
         assert not out["reset"].any()  # no false jump
         errs.append(np.abs(out["err"][out["t"] >= WARMUP_S]))
         drift_errs.append(est.estimate(120.0).drift_ppm - clock.drift_ppm)
@@ -45,8 +45,8 @@ def test_uncertainty_is_honest(network: str) -> None:
     for seed in range(4):
         rng = np.random.default_rng(100 + seed)
         clock = random_clock(rng)
-        probes = asymmetric_probes(clock.to_sensor, 0.0, 120.0, rng, **NETWORKS[network])
-        out = replay(OnlineClock(), probes, clock.to_sensor)
+        probes = asymmetric_probes(clock.affine.forward, 0.0, 120.0, rng, **NETWORKS[network])
+        out = replay(OnlineClock(), probes, clock.affine.forward)
         z.append(out["err"] / out["se"])  # every check, warm-up included
         se.append(out["se"][out["t"] >= WARMUP_S])
     z_all = np.concatenate(z)
@@ -64,7 +64,7 @@ def test_recovers_from_clock_jump(step_s: float) -> None:
     t_jump = 60.3
 
     def client(t: np.ndarray) -> np.ndarray:
-        return clock.to_sensor(t) + step_s * (np.asarray(t) >= t_jump)
+        return clock.affine.forward(t) + step_s * (np.asarray(t) >= t_jump)
 
     est = OnlineClock()
     out = replay(est, asymmetric_probes(client, 0.0, 120.0, rng), client)
@@ -86,12 +86,12 @@ def test_recovers_from_clock_jump(step_s: float) -> None:
 def test_one_bad_burst_does_not_reset() -> None:
     rng = np.random.default_rng(3)
     clock = random_clock(rng)
-    probes = asymmetric_probes(clock.to_sensor, 0.0, 90.0, rng)
+    probes = asymmetric_probes(clock.affine.forward, 0.0, 90.0, rng)
     # the client stamps one whole burst 50 ms late (a stalled process), delays unchanged
     glitch = (probes[:, 0] >= 40.0) & (probes[:, 0] < 40.5)
     probes[glitch, 1:3] += 0.050
     est = OnlineClock()
-    out = replay(est, probes, clock.to_sensor)
+    out = replay(est, probes, clock.affine.forward)
     seen = set(out["status"][glitch])
     assert ProbeStatus.SUSPECT in seen and seen <= {"suspect", "kept", "rejected-delay"}
     assert not out["reset"].any() and est.epoch == 0
@@ -103,17 +103,17 @@ def test_reconnect_reset_and_recovery() -> None:
     old, new = random_clock(rng), random_clock(rng)
     t_reconnect = 60.3
     est = OnlineClock()
-    first = asymmetric_probes(old.to_sensor, 0.0, t_reconnect, rng)
-    replay(est, first, old.to_sensor)
+    first = asymmetric_probes(old.affine.forward, 0.0, t_reconnect, rng)
+    replay(est, first, old.affine.forward)
     est.reset("client k1 reconnected")
     assert est.epoch == 1 and est.n_bursts == 0
     with pytest.raises(SyncError, match=r"no clock estimate yet.*k1 reconnected"):
-        est.to_server(1.0)
+        est.affine.inverse(1.0)
     # the new client's clock and a faster network (base 0.2 ms, queues 1 and 0.5 ms)
     second = asymmetric_probes(
-        new.to_sensor, 61.0, 120.0, rng, base_s=0.2e-3, up_mean_s=1e-3, down_mean_s=0.5e-3
+        new.affine.forward, 61.0, 120.0, rng, base_s=0.2e-3, up_mean_s=1e-3, down_mean_s=0.5e-3
     )
-    out = replay(est, second, new.to_sensor)
+    out = replay(est, second, new.affine.forward)
     bad = np.flatnonzero(np.abs(out["err"]) >= 2e-3)
     recovered_at = out["t"][bad[-1] + 1] if bad.size else out["t"][0]
     assert recovered_at - t_reconnect < 5.0  # s (measured 0.7 s: the first reply after it)
@@ -125,8 +125,8 @@ def test_unannounced_new_clock_is_taken_as_a_jump() -> None:
     rng = np.random.default_rng(12)
     old, new = random_clock(rng), random_clock(rng)
     est = OnlineClock()
-    replay(est, asymmetric_probes(old.to_sensor, 0.0, 40.0, rng), old.to_sensor)
-    out = replay(est, asymmetric_probes(new.to_sensor, 40.0, 80.0, rng), new.to_sensor)
+    replay(est, asymmetric_probes(old.affine.forward, 0.0, 40.0, rng), old.affine.forward)
+    out = replay(est, asymmetric_probes(new.affine.forward, 40.0, 80.0, rng), new.affine.forward)
     assert est.epoch == 1 and "clock jump" in est.last_reset
     assert np.abs(out["err"][out["t"] >= 45.0]).max() < 2e-3  # 2 ms
 
@@ -144,10 +144,14 @@ def test_online_agrees_with_offline_fit_at_session_end() -> None:
         off = estimate_clock(probes)
         t_end = float(probes[:, 3].max())
         online = est.estimate(t_end)
-        assert online.offset_s == pytest.approx(float(off.to_client(t_end)) - t_end, abs=0.1e-3)
+        assert online.offset_s == pytest.approx(
+            float(off.affine.forward(t_end)) - t_end, abs=0.1e-3
+        )
         assert online.drift_ppm == pytest.approx(off.drift_ppm, abs=1.0)  # ppm
-        t_client = clock.to_sensor(np.linspace(100.0, 120.0, 5))
-        np.testing.assert_allclose(est.to_server(t_client), off.to_server(t_client), atol=0.2e-3)
+        t_client = clock.affine.forward(np.linspace(100.0, 120.0, 5))
+        np.testing.assert_allclose(
+            est.affine.inverse(t_client), off.affine.inverse(t_client), atol=0.2e-3
+        )
 
 
 def test_burst_keeps_least_delay_probe() -> None:
@@ -176,14 +180,18 @@ def test_conversions_round_trip() -> None:
     rng = np.random.default_rng(5)
     clock = SensorClock(offset_s=321.0, drift_ppm=55.0, phase_s=0.0)
     est = OnlineClock()
-    replay(est, asymmetric_probes(clock.to_sensor, 0.0, 60.0, rng), clock.to_sensor)
+    replay(est, asymmetric_probes(clock.affine.forward, 0.0, 60.0, rng), clock.affine.forward)
     t_server = np.linspace(50.0, 60.0, 7)
-    np.testing.assert_allclose(est.to_server(est.to_client(t_server)), t_server, atol=1e-9)
-    np.testing.assert_allclose(est.to_server(clock.to_sensor(t_server)), t_server, atol=1e-3)
+    np.testing.assert_allclose(
+        est.affine.inverse(est.affine.forward(t_server)), t_server, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        est.affine.inverse(clock.affine.forward(t_server)), t_server, atol=1e-3
+    )
     e = est.estimate(58.0)
-    assert e.to_server(float(clock.to_sensor(58.0))) == pytest.approx(58.0, abs=1e-3)
-    assert e.to_client(59.0) == pytest.approx(float(est.to_client(59.0)), abs=1e-12)
-    assert isinstance(est.to_server(400.0), float)
+    assert e.affine.inverse(float(clock.affine.forward(58.0))) == pytest.approx(58.0, abs=1e-3)
+    assert e.affine.forward(59.0) == pytest.approx(float(est.affine.forward(59.0)), abs=1e-12)
+    assert isinstance(est.affine.inverse(400.0), float)
 
 
 @pytest.mark.parametrize(

@@ -1,5 +1,5 @@
-"""Small batched vector helpers of the analysis core (pure numpy, ``(..., 3)``); the rotation
-helpers are in :mod:`kinefuse.geometry.rotations`."""
+"""Small batched vector helpers of the analysis core (pure numpy, ``(..., 3)``); ``unit``, the
+frame builder and the rotation helpers are in :mod:`kinefuse.geometry.rotations`."""
 
 from __future__ import annotations
 
@@ -7,16 +7,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
-
-
-def unit(v: ArrayLike) -> Array:
-    """``v / |v|`` along the last axis; NaN where ``|v|`` is zero or not finite."""
-    a = np.asarray(v, dtype=np.float64)
-    n = np.sqrt(np.einsum("...i,...i->...", a, a))[..., None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = a / n
-    out[~(n[..., 0] > 1e-12)] = np.nan
-    return out
 
 
 def dot(a: Array, b: Array) -> Array:
@@ -54,14 +44,6 @@ def wrap(angle: ArrayLike) -> Array:
     """Angles wrapped to ``(-pi, pi]``."""
     a = np.asarray(angle, dtype=np.float64)
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-
-
-def frame_from(u: Array, r: Array) -> Array:
-    """Orthonormal frames ``(..., 3, 3)`` with columns ``[u, w, u x w]``, ``w`` = ``r`` made
-    orthogonal to ``u`` (Gram-Schmidt). NaN where ``r`` is parallel to ``u`` or missing."""
-    e0 = unit(u)
-    w = unit(r - dot(r, e0)[..., None] * e0)
-    return np.stack([e0, w, np.cross(e0, w)], axis=-1)
 
 
 def tmv(r: Array, v: Array) -> Array:

@@ -66,6 +66,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError
+from kinefuse.geometry.rotations import frames_from_vectors, unit
+from kinefuse.geometry.transforms import rigid_fit
 
 Array = NDArray[np.float64]
 
@@ -98,21 +100,6 @@ __all__ = [
 ]
 
 
-def unit(v: ArrayLike) -> Array:
-    """Unit vectors along the last axis; NaN where a vector is (near) zero or NaN."""
-    return _unit(np.asarray(v, dtype=np.float64))
-
-
-def _unit(v: Array) -> Array:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.where(n > 1e-12, n, np.nan)
-
-
-def _stack(x: Array, y: Array, z: Array) -> Array:
-    return np.stack([x, y, z], axis=-1)
-
-
 def frame_from_long_axis(y_axis: ArrayLike, z_hint: ArrayLike) -> Array:
     """ISB segment frame from its long axis ``Y`` and a right-pointing hint for ``Z``.
 
@@ -129,11 +116,7 @@ def frame_from_long_axis(y_axis: ArrayLike, z_hint: ArrayLike) -> Array:
         Columns ``X = Y x Z`` (anterior), ``Y``, ``Z`` (``Z`` is the hint made perpendicular to
         ``Y``); NaN where an input is NaN or the two are parallel.
     """
-    y = _unit(np.asarray(y_axis, dtype=np.float64))
-    zh = np.asarray(z_hint, dtype=np.float64)
-    x = _unit(np.cross(y, zh))
-    z = np.cross(x, y)
-    return _stack(x, y, z)
+    return frames_from_vectors(y_axis, z_hint)[..., [2, 0, 1]]  # (Y, Z, Y x Z = X) -> (X, Y, Z)
 
 
 #: Elbow flexion (degrees) below which the humerus keeps its carried second axis, and above
@@ -168,14 +151,14 @@ def hinge_axis(
         How far the elbow is bent for the axis to hold: 0 straighter than the first of
         :data:`ELBOW_PLANE_DEG` (beyond the carrying angle), 1 beyond the second.
     """
-    yh = _unit(np.asarray(humerus_y, dtype=np.float64))
-    yf = _unit(np.asarray(forearm_y, dtype=np.float64))
+    yh = unit(np.asarray(humerus_y, dtype=np.float64))
+    yf = unit(np.asarray(forearm_y, dtype=np.float64))
     n = np.cross(yh, yf)
     beta = np.linalg.norm(n, axis=-1, keepdims=True)  # sine of the angle between the axes
-    u = _unit(yf - (yf * yh).sum(-1, keepdims=True) * yh)
+    u = unit(yf - (yf * yh).sum(-1, keepdims=True) * yh)
     with np.errstate(invalid="ignore", divide="ignore"):
         sphi = np.clip(np.sin(carrying_rad) / beta, -1.0, 1.0)
-    axis = np.sqrt(1.0 - sphi**2) * _unit(n) + sphi * u
+    axis = np.sqrt(1.0 - sphi**2) * unit(n) + sphi * u
     lo, hi = np.sin(np.radians(ELBOW_PLANE_DEG) + abs(carrying_rad))
     w = np.nan_to_num(np.clip((beta - lo) / (hi - lo), 0.0, 1.0))
     return axis, w
@@ -238,21 +221,16 @@ def pelvis_frame(rasis: ArrayLike, lasis: ArrayLike, back: ArrayLike) -> tuple[A
         The ASIS midpoint.
     """
     r, ll, b = (np.asarray(a, dtype=np.float64) for a in (rasis, lasis, back))
-    z = _unit(r - ll)
     mid = 0.5 * (r + ll)
-    a = mid - b
-    x = _unit(a - (a * z).sum(-1, keepdims=True) * z)
-    return _stack(x, np.cross(z, x), z), mid
+    return frames_from_vectors(r - ll, mid - b)[..., [1, 2, 0]], mid  # (Z, X, Y) -> (X, Y, Z)
 
 
 def pelvis_frame_from_hips(hip_right: ArrayLike, hip_left: ArrayLike, up: ArrayLike) -> Array:
     """Pelvis frame of a skeleton: ``Z`` left to right hip, ``Y`` towards ``up`` (the spine
     joint above the hips, as a point), ``X = Y x Z``. Shapes ``(..., 3)`` -> ``(..., 3, 3)``."""
     hr, hl, u = (np.asarray(a, dtype=np.float64) for a in (hip_right, hip_left, up))
-    z = _unit(hr - hl)
-    y = u - 0.5 * (hr + hl)
-    y = _unit(y - (y * z).sum(-1, keepdims=True) * z)
-    return _stack(np.cross(y, z), y, z)
+    f = frames_from_vectors(hr - hl, u - 0.5 * (hr + hl))  # (Z, Y, Z x Y = -X)
+    return np.stack([-f[..., 2], f[..., 1], f[..., 0]], axis=-1)
 
 
 #: The lumbar (``back``) joint of the OpenSim gait models relative to the ASIS midpoint, in the
@@ -311,9 +289,7 @@ def lab_frame(forward: ArrayLike) -> Array:
     (world ``+z``), ``Z = X x Y`` (to the right of progression). ``(3,)`` -> ``(3, 3)``."""
     f = np.asarray(forward, dtype=np.float64).copy()
     f[2] = 0.0
-    x = _unit(f)
-    y = np.array([0.0, 0.0, 1.0])
-    return _stack(x, y, np.cross(x, y))
+    return frames_from_vectors(f, np.array([0.0, 0.0, 1.0]))  # Y: up is horizontal's normal
 
 
 def progression_axis(displacement: ArrayLike, facing: ArrayLike) -> Array:
@@ -329,47 +305,6 @@ def progression_axis(displacement: ArrayLike, facing: ArrayLike) -> Array:
     out = np.zeros(3)
     out[k] = np.sign(v[k])
     return out
-
-
-def rigid_fit(template: ArrayLike, moving: ArrayLike) -> tuple[Array, Array]:
-    """Least-squares rigid transform of a marker cluster (Söderkvist & Wedin 1993), per frame.
-
-    Parameters
-    ----------
-    template : (M, 3) float
-        The cluster's markers in the reference (static) pose; NaN markers are not used.
-    moving : (T, M, 3) float
-        The same markers over time, NaN where missing.
-
-    Returns
-    -------
-    rotation : (T, 3, 3) float
-    translation : (T, 3) float
-        ``moving[t] ≈ rotation[t] @ template + translation[t]``; NaN on frames with fewer than
-        three markers present.
-    """
-    a = np.asarray(template, dtype=np.float64)
-    b = np.asarray(moving, dtype=np.float64)
-    present_a = np.asarray(np.isfinite(a).all(-1))
-    w = (np.isfinite(b).all(-1) & present_a[None, :]).astype(np.float64)  # (T, M)
-    a0 = np.where(np.isfinite(a), a, 0.0)
-    b0 = np.where(np.isfinite(b), b, 0.0)
-    n = w.sum(1)  # (T,)
-    ok = n >= 3
-    ns = np.where(ok, n, 1.0)[:, None]
-    ca = np.einsum("tm,mc->tc", w, a0) / ns
-    cb = np.einsum("tm,tmc->tc", w, b0) / ns
-    h = np.einsum("tm,tmi,tmj->tij", w, a0[None] - ca[:, None], b0 - cb[:, None])
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))
-    d = np.where(d == 0, 1.0, d)
-    s = np.ones((b.shape[0], 3))
-    s[:, 2] = d
-    r = np.einsum("tji,tj,tkj->tik", vt, s, u)
-    p = cb - np.einsum("tij,tj->ti", r, ca)
-    r[~ok] = np.nan
-    p[~ok] = np.nan
-    return r, p
 
 
 def carry(static_frame: ArrayLike, static_tracking: ArrayLike, tracking: ArrayLike) -> Array:

@@ -62,7 +62,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis._vec import unit
+from kinefuse.geometry.rotations import unit
 
 Array = NDArray[np.float64]
 

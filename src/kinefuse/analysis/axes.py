@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis._vec import unit
+from kinefuse.geometry.rotations import unit
+from kinefuse.geometry.transforms import fit_plane
 
 Array = NDArray[np.float64]
 
@@ -237,10 +238,7 @@ def stratify_windowed(
 
 def plane_fit(u: Array, weights: Array | None = None) -> Array:
     """Unit normal of the plane through the origin best fitting ``u (n, 3)`` (least squares)."""
-    w = np.ones(u.shape[0]) if weights is None else weights
-    s = (u * w[:, None]).T @ u
-    _, vec = np.linalg.eigh(s)
-    return np.asarray(vec[:, 0])
+    return fit_plane(u, weights, through_origin=True)[1]
 
 
 def pca_axes(u: Array, n_axes: int, cell: float = CELL_RAD) -> Array:

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.analysis import anatomy
-from kinefuse.analysis._vec import mv, tmm, twist_angle, unit
+from kinefuse.analysis._vec import mv, tmm, twist_angle
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS
 from kinefuse.analysis.normalize import Normalization
 from kinefuse.analysis.parameterize import (
@@ -26,7 +26,7 @@ from kinefuse.analysis.parameterize import (
 )
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import rodrigues
+from kinefuse.geometry.rotations import rodrigues, unit
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
 
 Array = NDArray[np.float64]

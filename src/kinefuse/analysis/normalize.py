@@ -32,11 +32,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.analysis._vec import dot, frame_from, tmm, tmv, twist_angle, unit, wrap
+from kinefuse.analysis._vec import dot, tmm, tmv, twist_angle, wrap
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS, Limb
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import chordal_mean, minimal_rotation, rodrigues
+from kinefuse.geometry.rotations import (
+    chordal_mean,
+    frames_from_vectors,
+    minimal_rotation,
+    rodrigues,
+    unit,
+)
 from kinefuse.skeleton import JOINT_INDEX
 
 Array = NDArray[np.float64]
@@ -467,7 +473,7 @@ def _limb_frames(
         return src @ k.c, np.isfinite(src).all(axis=(1, 2)).astype(float)
     if k.kind == "root":
         r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
-        o = frame_from(root_long_axis(p), r)
+        o = frames_from_vectors(root_long_axis(p), r)
         return o @ k.c, np.isfinite(o).all(axis=(1, 2)).astype(float)
     assert fp is not None
     if carried is None:
@@ -486,7 +492,7 @@ def _reference_twist(lb: Limb, k: LimbConstants, p: Array, carried: Array) -> tu
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
     w = _weight(np.linalg.norm(np.cross(unit(u), unit(r)), axis=-1))
-    f = frame_from(u, r)
+    f = frames_from_vectors(u, r)
     if lb.one_way:
         # a bend the other way is the same hinge plane (Limb.one_way): its frame is turned by
         # 180° about the limb (before the twist is measured: a half turn's twist is undefined)
@@ -610,7 +616,7 @@ def _position_constants(
     u = p[:, lb.distal_index] - p[:, lb.proximal_index]
     if par < 0:  # the root: its frame from its joints and the hip line, always conditioned
         r = p[:, JOINT_INDEX[lb.twist_ref[1]]] - p[:, JOINT_INDEX[lb.twist_ref[0]]]
-        o = frame_from(root_long_axis(p), r)
+        o = frames_from_vectors(root_long_axis(p), r)
         c_root = _mean_rot(tmm(o[win], n0))  # n0 is the body frame (see normalize)
         return LimbConstants("root", c_root, eye, np.zeros(3), axis_l), None
     fp = frames[:, par]
@@ -634,6 +640,6 @@ def _position_constants(
     idx = np.flatnonzero(near if near.sum() >= 5 else good)
     if near.sum() < 5:
         idx = idx[[int(np.argmin(np.abs(idx - d)))]]
-    o = frame_from(u[idx], r[idx])
+    o = frames_from_vectors(u[idx], r[idx])
     c = chordal_mean(tmm(o, carried[idx]))
     return LimbConstants("twist", c, l0, d0, axis_l), carried

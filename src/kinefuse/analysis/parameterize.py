@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.analysis import anatomy
-from kinefuse.analysis._vec import dot, signed_angle, tmm, tmv, unit, wrap
+from kinefuse.analysis._vec import dot, signed_angle, tmm, tmv, wrap
 from kinefuse.analysis.axes import (
     DELTA_RAD,
     dj_axes,
@@ -33,7 +33,7 @@ from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS
 from kinefuse.analysis.normalize import Normalization
 from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import chordal_mean, minimal_rotation, rodrigues
+from kinefuse.geometry.rotations import chordal_mean, minimal_rotation, rodrigues, unit
 
 Array = NDArray[np.float64]
 

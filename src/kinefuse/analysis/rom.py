@@ -28,11 +28,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.analysis import anatomy
-from kinefuse.analysis._vec import unit
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS
 from kinefuse.analysis.normalize import body_frame, limb_frame_from_body
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import rodrigues
+from kinefuse.geometry.rotations import rodrigues, unit
 from kinefuse.motion.types import Motion
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
 

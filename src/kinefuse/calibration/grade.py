@@ -18,7 +18,7 @@ whose times are off (a busy machine), can fit its own sightings well and still b
 off. The **split-half check** measures that from the calibration's own sightings: the same
 registration on two halves of them (alternate 1 s blocks of the wand phase,
 :func:`split_halves`), each sensor's pose compared between the halves after the rigid
-alignment that best maps one world onto the other (:func:`kinefuse.calibration.evaluate.
+alignment that best maps one world onto the other (:func:`kinefuse.calibration.compare.
 pose_errors`). Each half has half the sightings, so the whole calibration's random error is
 about half their disagreement; a disagreement above ``HALVES_DOUBTFUL_M`` (3 mm: the whole is
 then uncertain by about 1.5 mm, where a good live calibration is 1.2-1.4 mm off the true rig)
@@ -109,7 +109,7 @@ def halves_disagreement(
     after the rigid alignment of ``b``'s world onto ``a``'s (``align_worlds``; the worlds of two
     free registrations differ by where their wand origin fell), or as they are (both registered
     against the same fixed sensors)."""
-    from kinefuse.calibration.evaluate import pose_errors
+    from kinefuse.calibration.compare import pose_errors
 
     ids = [s for s in a.sensor_ids if s in b.sensor_ids]
     pa = np.stack([a.sensor2world[a.sensor_ids.index(s)] for s in ids])

@@ -142,7 +142,7 @@ def gather(
             residual_m=np.concatenate([t.residual_m for t in found_tracks]),
             reasons=tuple(r for t in found_tracks for r in t.reasons),
         )
-        t_server = s.timebase.to_server(np.concatenate(ts))
+        t_server = s.timebase.affine.forward(np.concatenate(ts))
         if len(t_server) > 1:
             periods.append(float(np.median(np.diff(t_server))))
         f = track.found

@@ -142,7 +142,7 @@ def calibration_alignment(store: SessionStore, poses: dict[str, Array]) -> tuple
     mean_position_error_m : float
         The calibration's own mean sensor position error after that alignment.
     """
-    from kinefuse.calibration.evaluate import pose_errors
+    from kinefuse.calibration.compare import pose_errors
 
     ids = sorted(poses)
     est = np.stack([poses[i] for i in ids])

@@ -86,13 +86,10 @@ class PlaybackTruth:
         a = AffineClock.from_drift(self.drift, offset=self.h0, origin=self.m0)
         object.__setattr__(self, "host", a)
 
-    def host_at_mono(self, t_mono: Array | float) -> Array:
-        return self.host.forward(np.asarray(t_mono, dtype=np.float64))
-
     def true_offset_s(self, t_server_s: Array, server_t0: float) -> Array:
         """True host-clock offset (client minus server) at server times, seconds."""
         t = np.asarray(t_server_s, dtype=np.float64)
-        return self.host_at_mono(t + server_t0) - t
+        return self.host.forward(t + server_t0) - t
 
 
 def read_sidecar(path: Path) -> dict[str, Any]:
@@ -228,7 +225,7 @@ def write_live_truth(recording: Path, simulated: Path, sidecars: dict[str, Path]
             dev_rate = AffineClock.from_drift_ppm(clock["drift_ppm"]).rate
             # device time = off + rate T and T = (t_server - shift) / rate_play
             dev_off = clock["offset_s"] - dev_rate * shift / rate
-            host_at_server0 = float(p.host_at_mono(t0))
+            host_at_server0 = float(p.host.forward(t0))
             rec.write_truth_sensor(
                 sid,
                 pose,
@@ -340,8 +337,8 @@ def clock_errors(store: SessionStore, warmup_s: float = CLOCK_WARMUP_S) -> dict[
 
 def calibration_figures(store: SessionStore) -> dict[str, Any]:
     """The live calibration stored in the recording against the true rig (yaw-aligned, as
-    :func:`kinefuse.calibration.evaluate.pose_errors`), and its grade as the server gave it."""
-    from kinefuse.calibration.evaluate import pose_errors
+    :func:`kinefuse.calibration.compare.pose_errors`), and its grade as the server gave it."""
+    from kinefuse.calibration.compare import pose_errors
     from kinefuse.evaluation.poses import resolve_poses
 
     poses, source = resolve_poses(store, None, False)

@@ -82,7 +82,7 @@ def _calibration_rows(
         loads_calibration,
         read_calibration,
     )
-    from kinefuse.calibration.evaluate import pose_errors
+    from kinefuse.calibration.compare import pose_errors
 
     # ``source`` is how kinefuse.evaluation.poses.resolve_poses named the poses it used
     name = next(
@@ -116,7 +116,7 @@ def _calibration_rows(
 def _clock(store: SessionStore, s: SensorData) -> ClockTrack:
     probes = store.clock_probes(s.id)
     offset, delay, t_mid = probe_offsets(probes)
-    fit = s.clock.to_client(t_mid) - t_mid
+    fit = s.clock.affine.forward(t_mid) - t_mid
     track = ClockTrack(s.id, t_mid, (offset - fit) * 1e3, 2 * delay * 1e3)
     if not store.has_truth():
         return track
@@ -128,7 +128,7 @@ def _clock(store: SessionStore, s: SensorData) -> ClockTrack:
         clock.get("host_drift_ppm", 0.0), offset=clock["host_offset_s"]
     )
     true = host.forward(t) - t
-    err = (s.clock.to_client(t) - t - true) * 1e3
+    err = (s.clock.affine.forward(t) - t - true) * 1e3
     return ClockTrack(s.id, t_mid, track.probe_residual_ms, track.rtt_ms, t, err)
 
 

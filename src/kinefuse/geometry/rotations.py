@@ -213,16 +213,29 @@ def chordal_mean(r: Array) -> Array:
 # -- rotations fitted to directions, and Euler channels over time -------------------------------
 
 
-def frames_from_vectors(primary: Array, reference: Array) -> Array:
-    """Orthonormal right-handed frames ``(..., 3, 3)`` (columns: ``e1, e2, e3``) with ``e1``
-    along ``primary`` and ``e2`` the part of ``reference`` orthogonal to it, batched.
+def unit(v: ArrayLike, zero: float = np.nan) -> Array:
+    """``v / |v|`` along the last axis, batched ``(..., 3)``.
 
-    NaN where either vector is NaN, zero, or the two are parallel (under 1e-9 of their lengths).
+    ``zero`` (NaN unless given) where ``|v|`` is at most 1e-12; NaN where ``v`` is not finite.
     """
-    a = np.asarray(primary, dtype=np.float64)
-    b = np.asarray(reference, dtype=np.float64)
+    a = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        e1 = a / np.linalg.norm(a, axis=-1, keepdims=True)
+        out: Array = np.where(n <= 1e-12, zero, a / n)
+    return out
+
+
+def frames_from_vectors(primary: ArrayLike, reference: ArrayLike) -> Array:
+    """Orthonormal right-handed frames ``(..., 3, 3)`` (columns: ``e1, e2, e3``) with ``e1``
+    along ``primary`` and ``e2`` the part of ``reference`` orthogonal to it (Gram-Schmidt),
+    batched: the package's one two-vector frame builder.
+
+    NaN where either vector is NaN or (near) zero, or the two are parallel (under 1e-9 of their
+    lengths).
+    """
+    b = np.asarray(reference, dtype=np.float64)
+    e1 = unit(primary)
+    with np.errstate(invalid="ignore", divide="ignore"):
         b_perp = b - np.einsum("...i,...i->...", b, e1)[..., None] * e1
         n = np.linalg.norm(b_perp, axis=-1, keepdims=True)
         e2 = np.where(n > 1e-9 * np.linalg.norm(b, axis=-1, keepdims=True), b_perp / n, np.nan)

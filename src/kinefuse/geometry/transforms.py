@@ -139,9 +139,67 @@ def look_at(position_m: ArrayLike, target_m: ArrayLike, roll_rad: float = 0.0) -
     return make_transform(r, pos)
 
 
+def rigid_fit(
+    src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None
+) -> tuple[Array, Array]:
+    """Least-squares rigid transforms (Kabsch/Umeyama, no scale; Söderkvist & Wedin 1993 for a
+    marker cluster), per frame: the package's one rigid fit.
+
+    Parameters
+    ----------
+    src : (M, 3) or (T, M, 3) float
+        The points in the reference pose (one set for every frame, or one per frame); NaN points
+        are not used.
+    dst : (T, M, 3) float
+        The same points over time, NaN where missing.
+    weights : (M,) or (T, M) float, optional
+        Each pair's weight (non-finite or non-positive: not used); 1 by default.
+
+    Returns
+    -------
+    rotation : (T, 3, 3) float
+    translation : (T, 3) float
+        ``dst[t] ≈ rotation[t] @ src + translation[t]``; NaN on frames with fewer than three
+        pairs.
+    """
+    r, p, _ = _rigid_fit(src, dst, weights)
+    return r, p
+
+
+def _rigid_fit(
+    src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None
+) -> tuple[Array, Array, Array]:
+    """:func:`rigid_fit`, with the singular values ``(T, 3)`` of each frame's cross-covariance."""
+    b = np.asarray(dst, dtype=np.float64)
+    a = np.broadcast_to(np.asarray(src, dtype=np.float64), b.shape)
+    w = np.ones(b.shape[:2]) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = np.broadcast_to(w, b.shape[:2])
+    with np.errstate(invalid="ignore"):
+        keep = np.isfinite(a).all(-1) & np.isfinite(b).all(-1) & np.isfinite(w) & (w > 0)
+    w = np.where(keep, w, 0.0)  # (T, M)
+    a0 = np.where(np.isfinite(a), a, 0.0)
+    b0 = np.where(np.isfinite(b), b, 0.0)
+    n = (w > 0).sum(1)  # (T,)
+    ok = n >= 3
+    ws = np.where(ok, w.sum(1), 1.0)[:, None]
+    ca = np.einsum("tm,tmc->tc", w, a0) / ws
+    cb = np.einsum("tm,tmc->tc", w, b0) / ws
+    h = np.einsum("tm,tmi,tmj->tij", w, a0 - ca[:, None], b0 - cb[:, None])
+    u, s, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))
+    d = np.where(d == 0, 1.0, d)
+    e = np.ones((b.shape[0], 3))
+    e[:, 2] = d
+    r = np.einsum("tji,tj,tkj->tik", vt, e, u)
+    p = cb - np.einsum("tij,tj->ti", r, ca)
+    r[~ok] = np.nan
+    p[~ok] = np.nan
+    return r, p, s
+
+
 def kabsch(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None) -> Array:
-    """Rigid transform ``src2dst`` minimizing the (weighted) squared distances (Kabsch/Umeyama,
-    no scale). Rows with NaN in either set are ignored.
+    """Rigid transform ``src2dst`` minimizing the (weighted) squared distances (one frame of
+    :func:`rigid_fit`). Rows with NaN in either set are ignored.
 
     Parameters
     ----------
@@ -159,31 +217,30 @@ def kabsch(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None) -> 
         raise ValueError(f"src and dst must have the same shape, got {a.shape} and {b.shape}")
     w = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     ok = np.isfinite(a).all(1) & np.isfinite(b).all(1) & np.isfinite(w) & (w > 0)
-    a, b, w = a[ok], b[ok], w[ok]
-    if len(a) < 3:
-        raise ValueError(f"kabsch needs at least 3 finite point pairs, got {len(a)}")
-    w = w / w.sum()
-    ca = w @ a
-    cb = w @ b
-    h = (a - ca).T @ ((b - cb) * w[:, None])
-    u, s, vt = np.linalg.svd(h)
-    if s[1] < 1e-12 * max(s[0], 1e-300):
+    if ok.sum() < 3:
+        raise ValueError(f"kabsch needs at least 3 finite point pairs, got {int(ok.sum())}")
+    r, t, s = _rigid_fit(a[ok], b[ok][None], (w[ok] / w[ok].sum())[None])
+    if s[0, 1] < 1e-12 * max(s[0, 0], 1e-300):
         raise ValueError("kabsch: the points are collinear; the rotation is not determined")
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return make_transform(r, cb - r @ ca)
+    return make_transform(r[0], t[0])
 
 
-def fit_plane(points: ArrayLike, weights: ArrayLike | None = None) -> tuple[Array, Array]:
-    """Least-squares plane through ``points (N, 3)``: ``(centroid (3,), unit normal (3,))``.
+def fit_plane(
+    points: ArrayLike, weights: ArrayLike | None = None, *, through_origin: bool = False
+) -> tuple[Array, Array]:
+    """Least-squares plane through ``points (N, 3)``: ``(centroid (3,), unit normal (3,))``, the
+    package's one plane fit (the smallest principal axis of the weighted scatter matrix).
 
-    ``weights (N,)`` (optional) weigh each point's squared distance. The normal's sign is
-    arbitrary; orient it where the caller knows which side is which.
+    ``weights (N,)`` (optional) weigh each point's squared distance. ``through_origin``: the
+    plane through the origin instead (the centroid returned is then the origin), as for unit
+    directions on the sphere. The normal's sign is arbitrary; orient it where the caller knows
+    which side is which.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 3:
         raise ValueError(f"fit_plane needs (N >= 3, 3) points, got {p.shape}")
     w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=np.float64)
-    c = (w[:, None] * p).sum(0) / w.sum()
-    _, _, vt = np.linalg.svd((p - c) * np.sqrt(w)[:, None], full_matrices=False)
-    return c, vt[-1]
+    c = np.zeros(3) if through_origin else (w[:, None] * p).sum(0) / w.sum()
+    q = p if through_origin else p - c
+    _, vec = np.linalg.eigh((q * w[:, None]).T @ q)
+    return c, np.asarray(vec[:, 0])

@@ -64,6 +64,7 @@ from kinefuse.geometry.rotations import (
     minimal_rotation,
     rotations_between_frames,
     slerp_rotations,
+    unit,
 )
 from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS, PARENTS, standing_pose
 
@@ -228,11 +229,6 @@ class BvhPose:
     notes: tuple[str, ...] = field(default=())
 
 
-def _unit(v: Array) -> Array:
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _bone_lengths(p: Array) -> Array:
     """Median length of each joint's bone from its parent over the frames (root: 0); a bone
     never seen takes the standing reference pose's length."""
@@ -267,8 +263,8 @@ def _group_rest(p: Array, joint: str, lengths: Array) -> dict[int, Array]:
         vec = data[:, children] - data[:, None, _J[joint]]
         ok = np.isfinite(f).all(axis=(1, 2)) & np.isfinite(vec).all(axis=(1, 2))
         if ok.any():
-            local = np.einsum("tji,tcj->tci", f[ok], _unit(vec[ok]))  # F^T v
-            mean = _unit(local.mean(axis=0))
+            local = np.einsum("tji,tcj->tci", f[ok], unit(vec[ok]))  # F^T v
+            mean = unit(local.mean(axis=0))
             return {c: rest_frame @ mean[k] * lengths[c] for k, c in enumerate(children)}
     raise AssertionError("the standing pose has every joint")  # pragma: no cover
 
@@ -282,7 +278,7 @@ def build_rig(positions_bvh: Array) -> BvhRig:
     for joint in GROUPS:
         for c, off in _group_rest(positions_bvh, joint, lengths).items():
             offsets[_B[JOINTS[c]]] = off
-    ends = {_B[n]: _unit(offsets[_B[n]]) * END_SITE_M for n in LEAVES}
+    ends = {_B[n]: unit(offsets[_B[n]]) * END_SITE_M for n in LEAVES}
     return BvhRig(offsets=offsets, end_sites=ends, bone_lengths=lengths)
 
 
@@ -313,10 +309,10 @@ def _global_rotations(p: Array, rig: BvhRig) -> Array:
     g = np.full((t, N_BVH, 3, 3), np.nan)
 
     def bone(a: str, b: str) -> Array:
-        return _unit(p[:, _J[b]] - p[:, _J[a]])
+        return unit(p[:, _J[b]] - p[:, _J[a]])
 
     def rest(child: str) -> Array:
-        return _unit(rig.offsets[_B[child]])
+        return unit(rig.offsets[_B[child]])
 
     def put(name: str, value: Array) -> None:
         g[:, _B[name]] = value
@@ -356,8 +352,8 @@ def _global_rotations(p: Array, rig: BvhRig) -> Array:
         put(ha, _swing(get(wr), bone(ha, f"HandTip{side}"), rest(f"HandTip{side}")))
         hip, kn, an, ft = (f"Hip{side}", f"Knee{side}", f"Ankle{side}", f"Foot{side}")
         thigh, shank, foot = bone(hip, kn), bone(kn, an), bone(an, ft)
-        knee_axis = _unit(np.cross(thigh, shank))
-        foot_axis = _unit(np.cross(foot, shank))
+        knee_axis = unit(np.cross(thigh, shank))
+        foot_axis = unit(np.cross(foot, shank))
         wk = _bend_weight(thigh, shank)[:, None]
         ref = np.nan_to_num(knee_axis * wk, nan=0.0) + foot_axis * (1.0 - wk)
         put(hip, _aim(thigh, ref, rest(kn), _X))

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import InputError, RetargetError
-from kinefuse.geometry.rotations import rot_z
+from kinefuse.geometry.rotations import rot_z, unit
 from kinefuse.io.toml import toml_str
 from kinefuse.motion.maps import BUILTIN_MAPS, NameMap, NameResolver, normalize_name
 from kinefuse.motion.source import Array, SourceMotion
@@ -236,11 +236,6 @@ def _spec_toml(term: Sequence[tuple[str, float]]) -> str:
     return "{ blend = { " + ", ".join(f"{toml_str(n)} = {w:g}" for n, w in term) + " } }"
 
 
-def _unit(v: Array) -> Array:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.maximum(n, 1e-12)
-
-
 def facing_direction(positions: ArrayLike) -> Array:
     """The body's horizontal forward direction, from the hips and shoulders lines.
 
@@ -262,11 +257,11 @@ def facing_direction(positions: ArrayLike) -> Array:
     def lateral(a: str, b: str) -> Array:
         v = p[..., j[a], :] - p[..., j[b], :]
         v = v * np.array([1.0, 1.0, 0.0])
-        return _unit(v)
+        return unit(v, zero=0.0)
 
     lat = lateral("HipLeft", "HipRight") + lateral("ShoulderLeft", "ShoulderRight")
     fwd = np.stack([lat[..., 1], -lat[..., 0], np.zeros(lat.shape[:-1])], axis=-1)
-    return _unit(fwd)
+    return unit(fwd, zero=0.0)
 
 
 def estimate_height_m(positions: ArrayLike) -> float:
@@ -343,7 +338,7 @@ def _synthesize(p: Array, have: NDArray[np.bool_], height_m: float) -> NDArray[n
         put("SpineBase", 0.5 * (at("HipLeft") + at("HipRight")))
     if need("SpineShoulder"):
         mid = 0.5 * (at("ShoulderLeft") + at("ShoulderRight"))
-        put("SpineShoulder", mid + 0.066 * s * _unit(mid - at("SpineBase")))
+        put("SpineShoulder", mid + 0.066 * s * unit(mid - at("SpineBase"), zero=0.0))
     if need("SpineMid"):
         put("SpineMid", at("SpineBase") + 0.577 * (at("SpineShoulder") - at("SpineBase")))
     if need("Neck"):
@@ -352,22 +347,22 @@ def _synthesize(p: Array, have: NDArray[np.bool_], height_m: float) -> NDArray[n
     for side in ("Left", "Right"):
         wrist, elbow, shoulder = at("Wrist" + side), at("Elbow" + side), at("Shoulder" + side)
         if need("Hand" + side):
-            put("Hand" + side, wrist + 0.075 * s * _unit(wrist - elbow))
+            put("Hand" + side, wrist + 0.075 * s * unit(wrist - elbow, zero=0.0))
         hand = at("Hand" + side)
         if need("HandTip" + side):
-            put("HandTip" + side, hand + 0.075 * s * _unit(hand - wrist))
+            put("HandTip" + side, hand + 0.075 * s * unit(hand - wrist, zero=0.0))
         if need("Thumb" + side):
-            f = _unit(hand - wrist)
+            f = unit(hand - wrist, zero=0.0)
             u = shoulder - elbow
             inside = u - (u * f).sum(-1, keepdims=True) * f
             fwd = forward - (forward * f).sum(-1, keepdims=True) * f
             scale = np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
-            d = _unit(inside / scale + 0.3 * fwd)
+            d = unit(inside / scale + 0.3 * fwd, zero=0.0)
             put("Thumb" + side, wrist + s * (0.045 * f + 0.075 * d))
         if need("Foot" + side):
             ankle, knee = at("Ankle" + side), at("Knee" + side)
-            shank = _unit(ankle - knee)
-            fwd = _unit(forward - (forward * shank).sum(-1, keepdims=True) * shank)
+            shank = unit(ankle - knee, zero=0.0)
+            fwd = unit(forward - (forward * shank).sum(-1, keepdims=True) * shank, zero=0.0)
             put("Foot" + side, ankle + s * (0.09 * fwd + 0.04 * shank))
     return made
 

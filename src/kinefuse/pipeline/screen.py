@@ -113,7 +113,7 @@ def server_times(
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             tb = sensor_timebase(probes, t_sensor_s, t_host_s)
-            return np.asarray(tb.to_server(t_sensor_s), dtype=np.float64)
+            return np.asarray(tb.affine.forward(t_sensor_s), dtype=np.float64)
     if np.isfinite(t_receive_server_s).any():
         return np.where(np.isfinite(t_receive_server_s), t_receive_server_s, np.nan)
     return t_sensor_s

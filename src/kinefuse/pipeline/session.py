@@ -98,7 +98,7 @@ def _load_one(
         else:
             obs = obs.with_occlusion(np.zeros((0, N_JOINTS), bool), np.zeros(0, np.int64))
     return CalibratedSensor(
-        observations=obs.on_server(timebase.to_server(obs.t_device_s)),
+        observations=obs.on_server(timebase.affine.forward(obs.t_device_s)),
         intrinsics=s.intrinsics,
         sensor2world=np.asarray(pose, dtype=np.float64),
         timebase=timebase,
@@ -266,7 +266,7 @@ def _live_sightings(
         np.concatenate([t_device, live.t_device_s]),
         np.concatenate([t_host, live.t_host_s]),
     )
-    t_server = clock.to_server(live.t_device_s)
+    t_server = clock.affine.forward(live.t_device_s)
     track = WandTrack(
         found=np.ones(n, dtype=bool),
         centre_sensor_m=live.centre_sensor_m,

@@ -22,12 +22,18 @@ time from the probes. Every parameter is in :class:`ClockParams` with its unit a
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.errors import InputError
 from kinefuse.sync.affine import OffsetDriftClock
+
+if TYPE_CHECKING:
+    from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
 
@@ -128,24 +134,11 @@ class ClockParams:
 
 @dataclass(frozen=True)
 class SensorClock(OffsetDriftClock):
-    """One sensor's clock relative to true (server) time (source: true, target: sensor).
-
-    Attributes
-    ----------
-    offset_s : float
-        Sensor time at true time 0.
-    drift_ppm : float
-        Rate error, parts per million: the sensor clock's seconds per true second, minus 1.
-    phase_s : float
-        Sensor time of the first frame grid point modulo the frame period.
-    affine : AffineClock
-        True time -> sensor time (derived from ``offset_s`` and ``drift_ppm``).
-    """
+    """One simulated clock: the :class:`OffsetDriftClock` map from true (server) time to the
+    clock's time (``offset_s``: its time at true time 0), with ``phase_s`` (its time of the
+    first frame grid point modulo the frame period)."""
 
     phase_s: float
-
-    to_sensor = OffsetDriftClock.forward  # sensor-clock time of true times (no jitter)
-    to_true = OffsetDriftClock.inverse  # true time of sensor-clock times
 
     def to_dict(self) -> dict[str, float]:
         return {"offset_s": self.offset_s, "drift_ppm": self.drift_ppm, "phase_s": self.phase_s}
@@ -197,6 +190,45 @@ class SensorClocks:
             "host_drift_ppm": self.host.drift_ppm,
             "latency_offset_s": self.latency_offset_s,
         }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, float]) -> SensorClocks:
+        """The clocks :meth:`to_dict` wrote (a missing unit latency: 0; phases are not kept
+        for the host clock: 0)."""
+        return cls(
+            device=SensorClock(
+                offset_s=d["offset_s"], drift_ppm=d["drift_ppm"], phase_s=d.get("phase_s", 0.0)
+            ),
+            host=SensorClock(
+                offset_s=d["host_offset_s"], drift_ppm=d["host_drift_ppm"], phase_s=0.0
+            ),
+            latency_offset_s=d.get("latency_offset_s", 0.0),
+        )
+
+
+def read_sensor_clocks(store: SessionStore, sensor_id: str) -> SensorClocks:
+    """The simulated sensor's true clocks, from the session's truth: the simulator reading back
+    what it wrote, to play that sensor live (a ``sim:`` source of ``kinefuse sensor``).
+
+    Raises
+    ------
+    InputError
+        The session has no truth (a live recording), or its clocks lack a key (an old session).
+    """
+    if not store.has_truth():
+        raise InputError(
+            f"{store.path} holds no simulator truth (a live recording?): a sim: source must "
+            "be a simulated session (kinefuse simulate); replay a recording with "
+            "--clock-offset-ms/--clock-drift-ppm given"
+        )
+    _pose, clock = store.truth().sensor(sensor_id)
+    try:
+        return SensorClocks.from_dict(clock)
+    except KeyError as e:
+        raise InputError(
+            f"{store.path}: the true clock of sensor {sensor_id!r} has no {e}; simulate the "
+            "session again with this kinefuse"
+        ) from None
 
 
 def draw_sensor_clocks(
@@ -256,14 +288,14 @@ def capture_times(
     if not t_end_s > t_start_s:
         raise ValueError(f"capture span must be positive, got {t_start_s}..{t_end_s} s")
     period = 1.0 / params.frame_rate_hz
-    s0, s1 = clock.to_sensor(t_start_s), clock.to_sensor(t_end_s)
+    s0, s1 = clock.affine.forward(t_start_s), clock.affine.forward(t_end_s)
     k0 = int(np.ceil((float(s0) - clock.phase_s) / period))
     k1 = int(np.floor((float(s1) - clock.phase_s) / period))
     k = np.arange(k0, k1 + 1, dtype=np.int64)
     keep = rng.random(k.size) >= params.frame_drop_prob
     k = k[keep]
     t_sensor_grid = clock.phase_s + k * period
-    t_true = clock.to_true(t_sensor_grid)
+    t_true = clock.affine.inverse(t_sensor_grid)
     t_sensor = t_sensor_grid + rng.normal(0.0, params.timestamp_jitter_s, k.size)
     mean = params.latency_mean_s + latency_offset_s
     latency = np.maximum(rng.normal(mean, params.latency_sigma_s, k.size), params.latency_min_s)
@@ -274,7 +306,7 @@ def capture_times(
         t_true_s=t_true,
         t_sensor_s=t_sensor,
         t_receive_server_s=t_true + latency + net,
-        t_receive_host_s=h.to_sensor(t_true + latency),
+        t_receive_host_s=h.affine.forward(t_true + latency),
     )
 
 
@@ -303,7 +335,7 @@ def clock_probes(
     up = params.network_delay_s + rng.exponential(params.network_jitter_s, n)
     down = params.network_delay_s + rng.exponential(params.network_jitter_s, n)
     turn = params.probe_turnaround_s * (1.0 + rng.random(n))
-    t2 = clock.to_sensor(t1 + up)
+    t2 = clock.affine.forward(t1 + up)
     t3 = t2 + turn * clock.rate
     t4 = t1 + up + turn + down
     return np.stack([t1, t2, t3, t4], axis=1)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, overload
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
@@ -103,8 +103,8 @@ class AffineClock:
 class OffsetDriftClock:
     """Base of the frozen dataclasses whose clock map is an offset and a drift in ppm.
 
-    Subclasses add what they carry beyond the map (a frame phase, a fit's residual) and name
-    the directions (e.g. ``to_client = OffsetDriftClock.forward``).
+    Subclasses add what they carry beyond the map (a frame phase, a fit's residual); times are
+    mapped by the map itself, :attr:`affine` (``forward``: source -> target).
 
     Attributes
     ----------
@@ -128,11 +128,3 @@ class OffsetDriftClock:
     def rate(self) -> float:
         """Target seconds per source second."""
         return self.affine.rate
-
-    def forward(self, t_s: ArrayLike) -> Array:
-        """Target-clock times ``(...)`` of source-clock times (s), as an array."""
-        return self.affine.forward(np.asarray(t_s, dtype=np.float64))
-
-    def inverse(self, t_s: ArrayLike) -> Array:
-        """Source-clock times ``(...)`` of target-clock times (s), as an array."""
-        return self.affine.inverse(np.asarray(t_s, dtype=np.float64))

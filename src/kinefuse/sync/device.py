@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinefuse.errors import SyncError
-from kinefuse.sync.affine import OffsetDriftClock
+from kinefuse.sync.affine import AffineClock, OffsetDriftClock
 from kinefuse.sync.ntp import ClockEstimate, estimate_clock
 
 Array = NDArray[np.float64]
@@ -41,26 +41,14 @@ NOMINAL_LATENCY_S = 0.060
 
 @dataclass(frozen=True)
 class DeviceClockEstimate(OffsetDriftClock):
-    """``t_host_capture = offset_s + rate * t_device`` for one sensor.
-
-    Attributes
-    ----------
-    offset_s : float
-        Host time of device time 0, minus the nominal latency.
-    drift_ppm : float
-        Parts per million by which the host clock runs faster than the device clock.
-    residual_s : float
-        Robust spread (1.4826 MAD) of the arrival delays around the fit: the latency jitter.
-    n_frames : int
-        Frames used (0: no host times, the identity map).
-    affine : AffineClock
-        Device time -> host capture time (derived from ``offset_s`` and ``drift_ppm``).
-    """
+    """One sensor's device clock fitted to its frames' host arrivals: the
+    :class:`OffsetDriftClock` map from device time to host capture time (``offset_s``: host time
+    of device time 0, minus the nominal latency), with ``residual_s`` (robust spread, 1.4826 MAD,
+    of the arrival delays around the fit: the latency jitter) and ``n_frames`` (frames used; 0:
+    no host times, the identity map)."""
 
     residual_s: float
     n_frames: int
-
-    to_host = OffsetDriftClock.forward  # capture times on the host clock of device timestamps
 
     @classmethod
     def identity(cls) -> DeviceClockEstimate:
@@ -134,9 +122,11 @@ class SensorTimebase:
     device: DeviceClockEstimate
     host: ClockEstimate
 
-    def to_server(self, t_device_s: ArrayLike) -> Array:
-        """Server capture times of device timestamps, seconds."""
-        return self.host.to_server(self.device.to_host(t_device_s))
+    @property
+    def affine(self) -> AffineClock:
+        """Device timestamps -> server capture times: the device fit, then the host clock's
+        inverse (server -> client) map."""
+        return self.host.affine.inverted().compose(self.device.affine)
 
 
 def sensor_timebase(

@@ -11,7 +11,7 @@ simulated and live sessions have probes (:mod:`kinefuse.sync.ntp`, :mod:`kinefus
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -28,45 +28,25 @@ _TRUNK = np.array([JOINT_INDEX[n] for n in TRUNK_JOINTS])
 
 @dataclass(frozen=True)
 class ClockFit:
-    """A sensor clock mapped onto the receiver's clock: ``t_receive = offset + rate * (t - t0)``.
+    """A sensor clock mapped onto the receiver's clock, and how well the fit went.
 
     Attributes
     ----------
-    t0_sensor_s : float
-        Origin of the sensor clock in the fit (its first frame), seconds.
-    offset_s : float
-        Receiver time of ``t0_sensor_s`` on the lower envelope (capture + minimum latency), s.
-    rate : float
-        Receiver seconds per sensor second.
+    affine : AffineClock
+        Sensor time -> receiver time: ``origin`` the sensor clock's first frame, ``offset`` its
+        receiver time on the lower envelope (capture + minimum latency), ``rate`` receiver
+        seconds per sensor second; all seconds.
     n_frames, n_envelope : int
         Frames fitted, and frames on the lower envelope used for the final fit.
     jitter_median_s, jitter_p95_s : float
         Receive time above the envelope (the jitter that the fit removes), median and p95, s.
-    affine : AffineClock
-        Sensor time -> receiver time (derived from ``t0_sensor_s``, ``offset_s``, ``rate``).
     """
 
-    t0_sensor_s: float
-    offset_s: float
-    rate: float
+    affine: AffineClock
     n_frames: int
     n_envelope: int
     jitter_median_s: float
     jitter_p95_s: float
-    affine: AffineClock = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        a = AffineClock(origin=self.t0_sensor_s, offset=self.offset_s, rate=self.rate)
-        object.__setattr__(self, "affine", a)
-
-    @property
-    def drift_ppm(self) -> float:
-        """Drift of the sensor clock against the receiver, parts per million."""
-        return self.affine.drift_ppm
-
-    def to_receiver(self, t_sensor_s: ArrayLike) -> Array:
-        """Capture times ``(N,)`` on the receiver's clock for sensor times ``(N,)``, seconds."""
-        return self.affine.forward(np.asarray(t_sensor_s, dtype=np.float64))
 
 
 def fit_clock_lower_envelope(
@@ -161,9 +141,7 @@ def fit_clock_lower_envelope(
     coef[0] += float(np.quantile(r, floor_quantile))
     jitter = y - a_mat @ coef
     return ClockFit(
-        t0_sensor_s=x0,
-        offset_s=float(coef[0]),
-        rate=float(coef[1] / span),
+        AffineClock(origin=x0, offset=float(coef[0]), rate=float(coef[1] / span)),
         n_frames=int(x.size),
         n_envelope=int(keep.sum()),
         jitter_median_s=float(np.median(jitter)),

@@ -48,26 +48,13 @@ def probe_offsets(probes: ArrayLike) -> tuple[Array, Array, Array]:
 
 @dataclass(frozen=True)
 class ClockEstimate(OffsetDriftClock):
-    """``t_client = offset_s + rate * t_server``, ``rate`` from ``drift_ppm`` (:attr:`affine`).
-
-    Attributes
-    ----------
-    offset_s : float
-        Client time at server time 0.
-    drift_ppm : float
-    residual_s : float
-        RMS of the kept probes' offsets around the fit (a quality figure).
-    n_probes : int
-        Probes kept after filtering.
-    affine : AffineClock
-        Server time -> client time (derived from ``offset_s`` and ``drift_ppm``).
-    """
+    """A client's clock fitted to its probes: the :class:`OffsetDriftClock` map from server time
+    to client time (``offset_s``: client time at server time 0), with ``residual_s`` (RMS of the
+    kept probes' offsets around the fit, a quality figure) and ``n_probes`` (probes kept after
+    filtering)."""
 
     residual_s: float
     n_probes: int
-
-    to_client = OffsetDriftClock.forward  # client times of server times
-    to_server = OffsetDriftClock.inverse  # server times of client timestamps
 
 
 def estimate_clock(

@@ -40,7 +40,6 @@ import math
 from collections import deque
 from dataclasses import dataclass, field, fields
 from enum import StrEnum
-from typing import overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -136,21 +135,6 @@ class OnlineEstimate:
         t, off = self.at_server_s, self.offset_s
         a = AffineClock.from_drift_ppm(self.drift_ppm, offset=t + off, origin=t)
         object.__setattr__(self, "affine", a)
-
-    @overload
-    def to_server(self, t_client_s: float) -> float: ...
-    @overload
-    def to_server(self, t_client_s: Array) -> Array: ...
-    def to_server(self, t_client_s: float | Array) -> float | Array:
-        """Server time of a client timestamp, under this line."""
-        return self.affine.inverse(t_client_s)
-
-    @overload
-    def to_client(self, t_server_s: float) -> float: ...
-    @overload
-    def to_client(self, t_server_s: Array) -> Array: ...
-    def to_client(self, t_server_s: float | Array) -> float | Array:
-        return self.affine.forward(t_server_s)
 
 
 @dataclass(frozen=True)
@@ -278,21 +262,11 @@ class OnlineClock:
             epoch=self.epoch,
         )
 
-    @overload
-    def to_server(self, t_client_s: float) -> float: ...
-    @overload
-    def to_server(self, t_client_s: Array) -> Array: ...
-    def to_server(self, t_client_s: float | Array) -> float | Array:
-        """Server time of client timestamps (s), under the current line."""
-        return self._require().affine.inverse(t_client_s)
-
-    @overload
-    def to_client(self, t_server_s: float) -> float: ...
-    @overload
-    def to_client(self, t_server_s: Array) -> Array: ...
-    def to_client(self, t_server_s: float | Array) -> float | Array:
-        """Client time of server times (s), under the current line."""
-        return self._require().affine.forward(t_server_s)
+    @property
+    def affine(self) -> AffineClock:
+        """The current line, server time -> client time (``inverse``: the server time of client
+        timestamps). Raises SyncError before the first kept probe."""
+        return self._require().affine
 
     def reset(self, reason: str, *, keep_drift: bool = False) -> None:
         """Forget the estimate (a reconnect: the client may be another machine, another route).

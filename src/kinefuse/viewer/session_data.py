@@ -143,11 +143,11 @@ def load_session_view(
         t_server = None
         if len(probes):
             tb = sensor_timebase(probes, obs.t_sensor_s, obs.t_receive_host_s)
-            t_server = tb.to_server(obs.t_sensor_s)
+            t_server = tb.affine.forward(obs.t_sensor_s)
             _offset, delay, _ = probe_offsets(probes)
             rtt_ms = float(np.median(2 * delay)) * 1e3
             mid = float(np.median(t_grid))
-            off_ms = float(tb.host.to_client(mid) - mid) * 1e3
+            off_ms = float(tb.host.affine.forward(mid) - mid) * 1e3
             sd_ms = float(tb.host.residual_s) * 1e3
             late = obs.t_receive_server_s - t_server
             if np.isfinite(late).any():

@@ -178,7 +178,7 @@ def fuse_multitrack(
     oth_stream = next(s for s in rec.streams if s.sensor_id != ref_id)
     frames = {s.sensor_id: unique_frames(s) for s in (ref_stream, oth_stream)}
     clocks = {k: fit_clock_lower_envelope(f.t_sensor_s, f.t_receive_s) for k, f in frames.items()}
-    t_cap = {k: clocks[k].to_receiver(f.t_sensor_s) for k, f in frames.items()}
+    t_cap = {k: clocks[k].affine.forward(f.t_sensor_s) for k, f in frames.items()}
     fr, fo = frames[ref_id], frames[oth_stream.sensor_id]
     oth_id = fo.sensor_id
 
@@ -257,8 +257,8 @@ def fuse_multitrack(
     skew: list[float | None] = [None, None]
     if np.array_equal(ref_stream.t_receive_s, oth_stream.t_receive_s):
         sk = np.abs(
-            clocks[ref_id].to_receiver(ref_stream.t_sensor_s)
-            - clocks[oth_id].to_receiver(oth_stream.t_sensor_s)
+            clocks[ref_id].affine.forward(ref_stream.t_sensor_s)
+            - clocks[oth_id].affine.forward(oth_stream.t_sensor_s)
         )
         skew = [float(np.median(sk)) * 1e3, float(np.quantile(sk, 0.95)) * 1e3]
 
@@ -341,9 +341,9 @@ def fuse_multitrack(
         "other_offaxis_deg": other_offaxis_deg,
         "clocks": {
             k: {
-                "drift_ppm": clocks[k].drift_ppm,
-                "offset_s": clocks[k].offset_s,
-                "rate": clocks[k].rate,
+                "drift_ppm": clocks[k].affine.drift_ppm,
+                "offset_s": clocks[k].affine.offset,
+                "rate": clocks[k].affine.rate,
                 "rows": frames[k].n_rows,
                 "frames": frames[k].t_sensor_s.size,
                 "duplicates": frames[k].n_duplicates,

@@ -81,8 +81,8 @@ def run_sensor(
                 )
             h0, drift = 0.0, 0.0
         else:
-            h0 = truth.host_offset_s if truth is not None else 0.0
-            drift = truth.host_drift_ppm * 1e-6 if truth is not None else 0.0
+            h0 = truth.host.offset_s if truth is not None else 0.0
+            drift = truth.host.drift_ppm * 1e-6 if truth is not None else 0.0
             if clock_offset_ms is not None:
                 h0 = clock_offset_ms * 1e-3
             if clock_drift_ppm is not None:

@@ -37,7 +37,7 @@ def replay_clients(
         tl = SimTimeline(str(session), sid, depth=False)
         truth = tl.truth
         assert truth is not None  # a SimTimeline always has its truth
-        h0, drift = truth.host_offset_s, truth.host_drift_ppm * 1e-6
+        h0, drift = truth.host.offset_s, truth.host.drift_ppm * 1e-6
 
         def emulated(m0: float, h0: float = h0, drift: float = drift) -> HostClock:
             return HostClock(h0, drift, m0)

@@ -71,7 +71,7 @@ class ServerLink(asyncio.Protocol):
             # reply is exact when it goes (only its turnaround t3 - t2 is longer)
             self.client._held_probes.append((self, probe, t_arrival))
             return
-        t2 = host.at(t_arrival)
+        t2 = host.affine.forward(t_arrival)
         t3 = max(t2, host.now())
         self.transport.write(encode(ClockReply(probe.probe_id, probe.t1, t2, t3)))
         self.last_tx = self.client.monotonic()

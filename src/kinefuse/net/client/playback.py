@@ -40,9 +40,8 @@ from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame, DepthFrame, Frame
 from kinefuse.frames.source import FrameSource
 from kinefuse.io.store.session import SessionStore
-from kinefuse.net.client.clocks import SimClockTruth
 from kinefuse.pipeline.sources import SessionReplay, open_source
-from kinefuse.sim.clock import ClockParams
+from kinefuse.sim.clock import ClockParams, SensorClocks, read_sensor_clocks
 
 #: the entry-point group a driver package registers its sources under
 ENTRY_POINT_GROUP = "kinefuse.pipeline.sources"
@@ -67,8 +66,8 @@ class Timeline(ABC):
         The wand the depth frames show (a simulated session says; else the default wand).
     source_clock : str
         ``"true"`` (simulated true time), ``"host"``, ``"device"`` or ``"live"`` (a driver).
-    truth : SimClockTruth or None
-        The simulated sensor's true clocks (sim sources only).
+    truth : SensorClocks or None
+        The simulated sensor's true clocks (sim sources only; the simulator reads them).
     live : bool
         The frames come in real time (a driver): play each as it comes.
     serial : str
@@ -80,7 +79,7 @@ class Timeline(ABC):
     serial: str = ""
     wand: Wand = Wand()
     source_clock: str = "host"
-    truth: SimClockTruth | None = None
+    truth: SensorClocks | None = None
     live: bool = False
 
     @abstractmethod
@@ -119,7 +118,7 @@ class SimTimeline(Timeline):
                 raise InputError(
                     f"source sim:{path}: no sensor {sensor_id!r}; its sensors: {', '.join(ids)}"
                 )
-            self.truth = SimClockTruth.from_store(store, sensor_id)
+            self.truth = read_sensor_clocks(store, sensor_id)
             wand = store.meta().get("wand")
             try:
                 self.wand = Wand(**wand) if isinstance(wand, dict) else Wand()
@@ -143,7 +142,7 @@ class SimTimeline(Timeline):
         truth = self.truth
         assert truth is not None
         for f in SessionReplay(store, [self.sensor_id], depth=False):
-            yield Timed(truth.host_to_true(f.t_host_s), f)
+            yield Timed(truth.host.affine.inverse(f.t_host_s), f)
 
     def _depth(self, store: SessionStore) -> Iterator[Timed]:
         truth = self.truth
@@ -151,7 +150,7 @@ class SimTimeline(Timeline):
         for seq, t, frames in store.iter_depth_frames(self.sensor_id):
             for k in range(len(seq)):
                 f = DepthFrame(self.sensor_id, int(seq[k]), float(t[k]), math.nan, frames[k])
-                yield Timed(truth.device_to_true(f.t_device_s) + self._latency_s, f)
+                yield Timed(truth.device.affine.inverse(f.t_device_s) + self._latency_s, f)
 
     def frames(self) -> Iterator[Timed]:
         """The frames in play order (the store is open while iterating, in this thread)."""

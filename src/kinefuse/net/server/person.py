@@ -265,7 +265,7 @@ def capture_times(t_device_s: Array, t_receive_s: Array) -> Array:
     as ``kinefuse realdata`` aligns the logs), which a receive-time jitter of hundreds of
     milliseconds leaves alone; the receive times themselves when there are too few frames."""
     try:
-        return fit_clock_lower_envelope(t_device_s, t_receive_s).to_receiver(t_device_s)
+        return fit_clock_lower_envelope(t_device_s, t_receive_s).affine.forward(t_device_s)
     except KinefuseError:
         return t_receive_s
 

@@ -176,7 +176,7 @@ class SensorState:
         if not math.isfinite(t_host_s):
             return float("nan")
         try:
-            return float(self.clock.to_server(t_host_s))
+            return float(self.clock.affine.inverse(t_host_s))
         except SyncError:
             return float("nan")
 
