@@ -10,7 +10,7 @@ value, over every take and side and the benchmark's walk frames: the mean joint 
 the floor (the truth plus the subject's joint offsets, what a perfect fusion gives; all joints
 and the hips, knees and ankles), and the RMSE of the knee's included angle (180 degrees minus
 hip-knee-ankle) and of the hip's (thigh against SpineBase -> SpineMid) against the truth's.
-docs/fusion.md section 17. About 2 s per take and value.
+docs/fusion.md section 13. About 2 s per take and value.
 ``--smoke``: makes one small ``accuracy --save`` folder first and reads it (CI runs it).
 """
 

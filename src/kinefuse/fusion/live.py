@@ -110,7 +110,7 @@ class LiveOptions:
     #: agreeing ambiguous views that arrive after it (below one ambiguous view's 0.5, so it
     #: still breaks an even tie); the facing so far is forgotten when the body is lost
     #: (hips and shoulders unseen for ``best.max_predict_s``): it says nothing of a body found
-    #: again seconds later (docs/fusion.md section 13)
+    #: again seconds later (docs/fusion.md section 11)
     unconfirmed_prior_weight: float = 0.25
     #: when every sensor's view is ambiguous, the pelvis's walking direction joins the swap vote
     #: with this weight (above the facing so far, so a wrong facing is re-decided while walking)

@@ -81,7 +81,7 @@ class BestOptions:
     gate_chi2: float = 11.34  # chi-square, 3 dof, 99 %
     #: correlation of one sensor's errors at two neighbouring joints of a limb (rho^k for k
     #: bones apart; :data:`kinefuse.fusion.model.LIMBS`), 0: joints combined one by one
-    #: (docs/fusion.md section 17)
+    #: (docs/fusion.md section 13)
     limb_correlation: float = 0.5
     max_interp_gap_s: float = 0.1
     max_predict_s: float = 0.5
