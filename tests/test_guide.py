@@ -67,10 +67,66 @@ def test_readme_is_a_front_door() -> None:
             assert (ROOT / link).exists(), f"README links to a missing file: {link}"
 
 
-def test_guide_pages_name_no_issues() -> None:
-    """Issue numbers and who-did-what belong to the studies section, not the user guide."""
-    for page in [DOCS / "index.md", *TUTORIALS]:
-        assert not re.search(r"\bissues? \d+", page.read_text(), re.IGNORECASE), page
+#: A reference to the tracker (``issue 21``, ``issues 9 and 12``, ``#21``) or a line of run
+#: history (a dated or timed rerun, "before this change"): what the studies section holds.
+HISTORY = re.compile(
+    r"\bissues? #?\d+|(?<![\w&/])#\d+\b|\b20\d\d-\d\d-\d\d\b|\b\d\d:\d\d UTC\b"
+    r"|\bbefore this change\b",
+    re.IGNORECASE,
+)
+
+
+def studies_pages() -> set[Path]:
+    """The pages of the guide's "Studies" section (its nav entry in mkdocs.yml, and
+    everything under ``docs/studies/``): the only place for run history."""
+    import yaml
+
+    class _Loader(yaml.SafeLoader):  # mkdocs.yml's !!python/name tags are not needed here
+        pass
+
+    _Loader.add_multi_constructor("", lambda loader, suffix, node: None)
+    nav = yaml.load((ROOT / "mkdocs.yml").read_text(), Loader=_Loader)["nav"]
+    studies = next(entry["Studies"] for entry in nav if isinstance(entry, dict) and "Studies" in entry)
+    pages = {DOCS / next(iter(item.values())) for item in studies}
+    return pages | set((DOCS / "studies").rglob("*.md"))
+
+
+def history_lines(text: str) -> list[str]:
+    """The lines of ``text`` that cite an issue or log a dated rerun."""
+    return [line for line in text.splitlines() if HISTORY.search(line)]
+
+
+def test_history_lines_are_recognized() -> None:
+    """The pattern catches what a run log says and passes what the guide says."""
+    for line in (
+        "the model before issue 21",
+        "Issues 9 and 12 asked for it",
+        "fixed in #24",
+        "Rerun 2026-12-06 after the change",
+        "on the quiet run of 07:01 UTC",
+        "0, before this change",
+    ):
+        assert history_lines(line), line
+    for line in (
+        "A rerun replaces it only once the new one is complete",
+        "`joints (T, 25, 3)` in metres (25 joints)",
+        'created = 2026-11-21T22:50:00+00:00  # TOML offset date-time',
+        "[the protocol](protocol.md#limits), colour #fff",
+    ):
+        assert not history_lines(line), line
+
+
+def test_guide_pages_hold_no_run_history() -> None:
+    """Issue numbers, dated reruns and who-did-what belong to the studies section, not to the
+    README or the guide."""
+    studies = studies_pages()
+    assert DOCS / "studies.md" in studies, "the nav lost its Studies section"
+    found = []
+    for page in [README, *sorted(DOCS.rglob("*.md"))]:
+        if page in studies:
+            continue
+        found += [f"{page.relative_to(ROOT)}: {line.strip()[:100]}" for line in history_lines(page.read_text())]
+    assert not found, "run history outside docs/studies/:\n" + "\n".join(found)
 
 
 def test_the_guide_builds_strict(tmp_path: Path) -> None:
