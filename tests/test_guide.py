@@ -20,7 +20,12 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 README = ROOT / "README.md"
 
-TUTORIALS = [DOCS / "getting-started.md", *sorted((DOCS / "tutorials").glob("*.md"))]
+#: The pages whose ``console`` blocks are run: getting started, the tutorials, the how-to pages.
+TUTORIALS = [
+    DOCS / "getting-started.md",
+    *sorted((DOCS / "tutorials").glob("*.md")),
+    *sorted((DOCS / "howto").glob("*.md")),
+]
 
 
 def console_commands(page: Path) -> list[str]:
@@ -76,19 +81,41 @@ HISTORY = re.compile(
 )
 
 
+def guide_nav() -> list[object]:
+    """The ``nav`` of mkdocs.yml."""
+    import yaml
+
+    return list(yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"])
+
+
+def nav_section(title: str) -> list[dict[str, str]]:
+    """The entries of one top-level section of the nav."""
+    sections = [e[title] for e in guide_nav() if isinstance(e, dict) and title in e]
+    assert sections, f"mkdocs.yml's nav has no section {title!r}"
+    return list(sections[0])
+
+
 def studies_pages() -> set[Path]:
     """The pages of the guide's "Studies" section (its nav entry in mkdocs.yml, and
     everything under ``docs/studies/``): the only place for run history."""
-    import yaml
-
-    class _Loader(yaml.SafeLoader):  # mkdocs.yml's !!python/name tags are not needed here
-        pass
-
-    _Loader.add_multi_constructor("", lambda loader, suffix, node: None)
-    nav = yaml.load((ROOT / "mkdocs.yml").read_text(), Loader=_Loader)["nav"]
-    studies = next(entry["Studies"] for entry in nav if isinstance(entry, dict) and "Studies" in entry)
-    pages = {DOCS / next(iter(item.values())) for item in studies}
+    pages = {DOCS / next(iter(item.values())) for item in nav_section("Studies")}
     return pages | set((DOCS / "studies").rglob("*.md"))
+
+
+def test_the_nav_has_the_four_sections_and_the_studies() -> None:
+    """Tutorials, how-to, reference, explanation, and the studies apart; each page once."""
+    for title in ("Tutorials", "How-to", "Reference", "Explanation", "Studies"):
+        assert nav_section(title), title
+    pages = [v for e in guide_nav() if isinstance(e, dict) for v in e.values()]
+    flat = [p for v in pages for p in ([v] if isinstance(v, str) else [*map(_page, v)])]
+    assert len(flat) == len(set(flat)), "a page is listed twice in the nav"
+    explanation = [_page(e) for e in nav_section("Explanation")]
+    assert "how-it-works.md" in explanation and "measured.md" in explanation
+    assert "studies/fusion.md" in [_page(e) for e in nav_section("Studies")]
+
+
+def _page(entry: dict[str, str]) -> str:
+    return next(iter(entry.values()))
 
 
 def history_lines(text: str) -> list[str]:
@@ -110,7 +137,7 @@ def test_history_lines_are_recognized() -> None:
     for line in (
         "A rerun replaces it only once the new one is complete",
         "`joints (T, 25, 3)` in metres (25 joints)",
-        'created = 2026-11-21T22:50:00+00:00  # TOML offset date-time',
+        "created = 2026-11-21T22:50:00+00:00  # TOML offset date-time",
         "[the protocol](protocol.md#limits), colour #fff",
     ):
         assert not history_lines(line), line
@@ -125,7 +152,8 @@ def test_guide_pages_hold_no_run_history() -> None:
     for page in [README, *sorted(DOCS.rglob("*.md"))]:
         if page in studies:
             continue
-        found += [f"{page.relative_to(ROOT)}: {line.strip()[:100]}" for line in history_lines(page.read_text())]
+        for line in history_lines(page.read_text()):
+            found.append(f"{page.relative_to(ROOT)}: {line.strip()[:100]}")
     assert not found, "run history outside docs/studies/:\n" + "\n".join(found)
 
 
