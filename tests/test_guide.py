@@ -75,7 +75,7 @@ def test_readme_is_a_front_door() -> None:
 #: A reference to the tracker (``issue 21``, ``issues 9 and 12``, ``#21``) or a line of run
 #: history (a dated or timed rerun, "before this change"): what the studies section holds.
 HISTORY = re.compile(
-    r"\bissues? #?\d+|(?<![\w&/])#\d+\b|\b20\d\d-\d\d-\d\d\b|\b\d\d:\d\d UTC\b"
+    r"\bissues? #?\d+|(?<![\w&/])#\d+\b|\b20\d\d-[01]\d(?:-[0-3]\d)?(?![-\dT])|\b\d\d:\d\d UTC\b"
     r"|\bbefore this change\b",
     re.IGNORECASE,
 )
@@ -130,6 +130,7 @@ def test_history_lines_are_recognized() -> None:
         "Issues 9 and 12 asked for it",
         "fixed in #24",
         "Rerun 2026-12-06 after the change",
+        "Until 2026-12 a consensus was used",
         "on the quiet run of 07:01 UTC",
         "0, before this change",
     ):
