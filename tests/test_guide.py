@@ -144,6 +144,21 @@ def test_history_lines_are_recognized() -> None:
         assert not history_lines(line), line
 
 
+def test_every_readme_figure_links_to_its_command() -> None:
+    """Each row of the README's measured table links to a page that holds the row's figure and
+    a command that measures it."""
+    rows = [line for line in README.read_text().splitlines() if line.startswith("| ")][1:]
+    assert rows, "the README has no measured table"
+    for row in rows:
+        what, result, where = (cell.strip() for cell in row.strip("|").split("|"))
+        link = re.search(r"\]\((docs/[^)#]+)", where)
+        assert link, f"README row without a page: {what}"
+        page = (ROOT / link.group(1)).read_text()
+        figure = re.search(r"\d+(?:\.\d+)?", result)
+        assert figure and figure.group() in page, f"{link.group(1)} lacks {result!r} ({what})"
+        assert re.search(r"`(?:python (?:studies|benchmarks)/|kinefuse )", page), link.group(1)
+
+
 def test_guide_pages_hold_no_run_history() -> None:
     """Issue numbers, dated reruns and who-did-what belong to the studies section, not to the
     README or the guide."""
