@@ -119,8 +119,15 @@ def _page(entry: dict[str, str]) -> str:
 
 
 def history_lines(text: str) -> list[str]:
-    """The lines of ``text`` that cite an issue or log a dated rerun."""
-    return [line for line in text.splitlines() if HISTORY.search(line)]
+    """The prose lines of ``text`` (fenced code blocks left out: an example file may carry a
+    date) that cite an issue or log a dated rerun."""
+    prose, fenced = [], False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        elif not fenced:
+            prose.append(line)
+    return [line for line in prose if HISTORY.search(line)]
 
 
 def test_history_lines_are_recognized() -> None:
@@ -139,6 +146,7 @@ def test_history_lines_are_recognized() -> None:
         "A rerun replaces it only once the new one is complete",
         "`joints (T, 25, 3)` in metres (25 joints)",
         "created = 2026-11-21T22:50:00+00:00  # TOML offset date-time",
+        "```toml\ncreated = 2026-11-21 22:50:00+00:00\n```",
         "[the protocol](protocol.md#limits), colour #fff",
     ):
         assert not history_lines(line), line
