@@ -132,10 +132,12 @@ class Handshake:
 
     @property
     def other(self) -> Side:
+        """The side this one talks to."""
         return "peer" if self.side == "server" else "server"
 
     @property
     def done(self) -> bool:
+        """Whether the Welcome went (or came): data may flow."""
         return self.state is State.DONE
 
     @property
@@ -156,12 +158,12 @@ class Handshake:
         rule = TRANSITIONS.get((self.state, msg.TYPE))
         if rule is None or rule[0] != sender:
             if sender == self.side:
-                raise OutOfOrder(f"this {self.side} may not send {msg.TYPE} now ({self._where()})")
+                raise OutOfOrder(
+                    f"this {self.side} may not send {msg.TYPE} now (handshake state "
+                    f"{self.state.value})"
+                )
             raise OutOfOrder(f"{_EXPECTED[self.state]}, got {msg.TYPE}")
         return rule[1]
-
-    def _where(self) -> str:
-        return f"handshake state {self.state.value}"
 
     # -- what this side sends -------------------------------------------------------------------
 
