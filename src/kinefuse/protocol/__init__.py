@@ -3,6 +3,7 @@
 - :mod:`~kinefuse.protocol.messages`: one frozen dataclass per message, ``PROTOCOL_VERSION``;
 - :mod:`~kinefuse.protocol.codec`: length-prefixed msgpack framing (``encode``, ``Decoder``);
 - :mod:`~kinefuse.protocol.auth`: HMAC-SHA256 challenge-response;
+- :mod:`~kinefuse.protocol.handshake`: the handshake's one state machine, driven by both ends;
 - :mod:`~kinefuse.protocol.errors`: the exception tree (each error has a wire ``code``).
 
 docs/protocol.md is the specification.

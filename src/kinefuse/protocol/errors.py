@@ -36,11 +36,13 @@ class WireError(ProtocolError):
     """Base of the protocol's errors; :attr:`code` is what an ``Error`` message carries.
 
     :attr:`decoded`: when raised by ``Decoder.feed``, the messages decoded before the bad frame
-    in that call (handle them, then close).
+    in that call (handle them, then close). :attr:`reply`: when raised by a peer's
+    :class:`~kinefuse.protocol.handshake.Handshake`, the message to send before closing.
     """
 
     code = "protocol"
     decoded: list[Any] = []  # noqa: RUF012 (replaced per instance, never mutated)
+    reply: Any = None
 
 
 class FramingError(WireError):

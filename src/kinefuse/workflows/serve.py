@@ -235,21 +235,18 @@ async def _control_calibrate(
     host: str, port: int, token: str | None, method: str, seconds: float | None, timeout_s: float
 ) -> Any:
     from kinefuse.protocol import (
-        AuthReply,
         CalibrationResult,
         CalibrationStart,
         CalibrationStop,
-        Challenge,
         Decoder,
         Error,
         Goodbye,
         Heartbeat,
         Hello,
-        Welcome,
         encode,
     )
-    from kinefuse.protocol.auth import compute_mac, new_nonce, no_challenge_error, verify_server_mac
-    from kinefuse.protocol.errors import AuthError
+    from kinefuse.protocol.errors import AuthError, OutOfOrder, RemoteError
+    from kinefuse.protocol.handshake import Handshake, State, TokenRequired
 
     try:
         reader, writer = await asyncio.wait_for(asyncio.open_connection(host, port), 10.0)
@@ -271,32 +268,33 @@ async def _control_calibrate(
         writer.write(encode(m))
 
     try:
-        # with a token, the server proves it knows it over our fresh nonce before we answer
-        client_nonce = new_nonce() if token is not None else None
-        send(Hello(role="control", software="kinefuse calibrate --live", client_nonce=client_nonce))
-        msg = await recv(10.0)
-        if isinstance(msg, Challenge):
-            if token is None or client_nonce is None:
+        # the sans-I/O handshake: with a token, the server proves it knows it over our fresh
+        # nonce before we answer
+        hs = Handshake("peer", token)
+        send(hs.send(Hello(role="control", software="kinefuse calibrate --live")))
+        while not hs.done:
+            msg = await recv(10.0)
+            try:
+                answer = hs.receive(msg)
+            except RemoteError as e:
+                raise KinefuseError(
+                    f"the server refused: {printable(e.reason)} ({e.code})"
+                ) from None
+            except TokenRequired:
                 raise KinefuseError(
                     "the server requires a token: pass --token-file FILE (or KINEFUSE_TOKEN)"
-                )
-            try:
-                verify_server_mac(
-                    token, client_nonce, msg.nonce, msg.server_mac, role="control", sensor_id=""
-                )
+                ) from None
             except AuthError as e:
-                send(Error("auth", "the server did not prove that it knows the token"))
+                send(e.reply)
                 raise KinefuseError(f"refusing the server at {host}:{port}: {e}") from None
-            send(AuthReply(mac=compute_mac(token, msg.nonce, role="control", sensor_id="")))
-            msg = await recv(10.0)
-        elif token is not None and isinstance(msg, Welcome):
-            send(Error("auth", "this peer has a token and the server asked for none"))
-            raise KinefuseError(f"refusing the server at {host}:{port}: {no_challenge_error()}")
-        if isinstance(msg, Error):
-            raise KinefuseError(f"the server refused: {printable(msg.reason)} ({msg.code})")
-        if not isinstance(msg, Welcome):
-            raise KinefuseError(f"expected welcome from the server, got {msg.TYPE}")
-        beat = msg.heartbeat_s
+            except OutOfOrder:
+                raise KinefuseError(f"expected welcome from the server, got {msg.TYPE}") from None
+            if hs.state is State.CLOSED:
+                raise KinefuseError(f"expected welcome from the server, got {msg.TYPE}")
+            if answer is not None:
+                send(answer)
+        assert hs.welcome is not None
+        beat = hs.welcome.heartbeat_s
         send(CalibrationStart(method=method, seconds=seconds))
         loop = asyncio.get_running_loop()
         t_end = loop.time() + timeout_s

@@ -55,13 +55,12 @@ from kinefuse.net.client.depth import DepthWork
 from kinefuse.net.client.parts import Occlusion, Prefetch, Prepared, ServerLink, wait_event
 from kinefuse.net.client.playback import Timed, Timeline
 from kinefuse.protocol import auth, printable
-from kinefuse.protocol.codec import check_version
-from kinefuse.protocol.errors import AuthError, VersionError, WireError
+from kinefuse.protocol.errors import AuthError, OutOfOrder, RemoteError, VersionError, WireError
+from kinefuse.protocol.handshake import Handshake, State, TokenRequired
 from kinefuse.protocol.messages import (
     BODIES_VERSION,
     MAX_BODIES,
     PROTOCOL_VERSION,
-    AuthReply,
     BodyFrameMessage,
     CalibrationStart,
     CalibrationStop,
@@ -229,6 +228,7 @@ class SensorClient:
         self._welcomed = asyncio.Event()
         #: the protocol the server welcomed this client with (a 1.2 server takes one body)
         self._server_version: tuple[int, int] = PROTOCOL_VERSION
+        self._every_body = True
         self._said_first_body = False
         self._conn: ServerLink | None = None
         self._source_done = False
@@ -323,7 +323,9 @@ class SensorClient:
             raise _Outcome("connect", f"cannot connect ({e or 'timed out'})") from None
         self._conn = conn
         try:
-            welcome = await self._handshake(conn)
+            hs = await self._handshake(conn)
+            welcome = hs.welcome
+            assert welcome is not None
             self.stats.connections += 1
             log.info(
                 "sensor %s connected to %s:%d (session %r)",
@@ -332,6 +334,7 @@ class SensorClient:
             if welcome.calibrating:
                 self.depth.start(welcome.calibration_id)
             self._server_version = welcome.protocol_version
+            self._every_body = hs.sends_every_body
             self._welcomed.set()
             await self._session(conn, welcome)
         finally:
@@ -371,65 +374,59 @@ class SensorClient:
             raise _Outcome("protocol", f"the server broke the protocol: {item}")
         return item
 
-    async def _handshake(self, conn: ServerLink) -> Welcome:
+    async def _handshake(self, conn: ServerLink) -> Handshake:
+        """Drive the sans-I/O :class:`~kinefuse.protocol.handshake.Handshake` until the Welcome:
+        with a token, the server must prove it knows it too (over this connection's fresh
+        nonce) before this client answers or sends anything else (docs/protocol.md,
+        Authentication)."""
         tl, opt = self.timeline, self.options
-        # with a token, the server must prove it knows it too (over this fresh nonce) before
-        # this client answers or sends anything else (docs/protocol.md, Authentication)
-        client_nonce = auth.new_nonce() if opt.token is not None else None
-        conn.send(
-            Hello(
-                role="sensor",
-                sensor_id=tl.sensor_id,
-                serial=opt.serial,
-                intrinsics=tl.intrinsics,
-                capabilities=("wand", "floor", "occlusion"),
-                software=opt.software,
-                client_nonce=client_nonce,
-            )
+        hs = Handshake("peer", opt.token)
+        hello = Hello(
+            role="sensor",
+            sensor_id=tl.sensor_id,
+            serial=opt.serial,
+            intrinsics=tl.intrinsics,
+            capabilities=("wand", "floor", "occlusion"),
+            software=opt.software,
         )
-        msg = await self._next(conn, opt.connect_timeout_s)
-        if isinstance(msg, Challenge):
-            if opt.token is None or client_nonce is None:
+        conn.send(hs.send(hello))
+        while not hs.done:
+            msg = await self._next(conn, opt.connect_timeout_s)
+            try:
+                answer = hs.receive(msg)
+            except RemoteError as e:
+                if e.code == "auth":
+                    raise ClientRefused(
+                        "auth",
+                        f"the server refused the token ({e.reason}); give the server's token "
+                        "with --token-file FILE",
+                    ) from None
+                if e.code == "version":
+                    raise ClientRefused(
+                        "version", f"the server speaks another version: {e.reason}"
+                    ) from None
+                raise _Outcome(e.code, f"refused: {e.reason} ({e.code})") from None
+            except TokenRequired:
                 conn.send(Goodbye("no token"))
                 raise ClientRefused(
                     "auth",
                     "the server requires a token: start the sensor with --token-file FILE "
                     "(the server's token; or KINEFUSE_TOKEN)",
-                )
-            try:
-                auth.verify_server_mac(
-                    opt.token, client_nonce, msg.nonce, msg.server_mac,
-                    role="sensor", sensor_id=tl.sensor_id,
-                )  # fmt: skip
+                ) from None
             except AuthError as e:
-                conn.send(Error("auth", "the server did not prove that it knows the token"))
+                conn.send(e.reply)
                 raise ClientRefused("auth", f"refusing the server: {e}") from None
-            mac = auth.compute_mac(opt.token, msg.nonce, role="sensor", sensor_id=tl.sensor_id)
-            conn.send(AuthReply(mac))
-            msg = await self._next(conn, opt.connect_timeout_s)
-        elif opt.token is not None and isinstance(msg, Welcome):
-            conn.send(Error("auth", "this sensor has a token and the server asked for none"))
-            raise ClientRefused("auth", f"refusing the server: {auth.no_challenge_error()}")
-        if isinstance(msg, Error):
-            if msg.code == "auth":
-                raise ClientRefused(
-                    "auth",
-                    f"the server refused the token ({msg.reason}); give the server's token "
-                    "with --token-file FILE",
-                )
-            if msg.code == "version":
-                raise ClientRefused("version", f"the server speaks another version: {msg.reason}")
-            raise _Outcome(msg.code, f"refused: {msg.reason} ({msg.code})")
-        if isinstance(msg, Goodbye):
-            raise _Outcome("goodbye", msg.reason)
-        if not isinstance(msg, Welcome):
-            conn.send(Error("order", f"expected welcome, got {msg.TYPE}"))
-            raise _Outcome("protocol", f"the server sent {msg.TYPE} instead of welcome")
-        try:
-            check_version(msg.protocol_version)
-        except WireError as e:
-            raise ClientRefused("version", str(e)) from None
-        return msg
+            except VersionError as e:
+                raise ClientRefused("version", str(e)) from None
+            except OutOfOrder as e:
+                conn.send(e.reply)
+                raise _Outcome("protocol", f"the server sent {msg.TYPE} instead of welcome") from e
+            if hs.state is State.CLOSED:  # the server said goodbye
+                assert isinstance(msg, Goodbye)
+                raise _Outcome("goodbye", msg.reason)
+            if answer is not None:
+                conn.send(answer)
+        return hs
 
     async def _session(self, conn: ServerLink, welcome: Welcome) -> None:
         writer = asyncio.ensure_future(self._writer(conn, welcome.heartbeat_s))
@@ -667,7 +664,7 @@ class SensorClient:
             self.depth.on_depth(f, t_host)
             return
         bodies = f.bodies()[:MAX_BODIES]
-        if len(bodies) > 1 and self._server_version < BODIES_VERSION:
+        if len(bodies) > 1 and not self._every_body:
             if not self._said_first_body:
                 self._said_first_body = True
                 log.warning(

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from kinefuse.net.server.guard import TokenBucket
 from kinefuse.protocol import Decoder, Error, Message, WireError, encode
 from kinefuse.protocol.errors import LimitExceeded, OutOfOrder
+from kinefuse.protocol.handshake import Handshake
 
 #: bytes decoded at a time before the event loop gets a turn
 SLICE_BYTES = 4096
@@ -74,6 +75,9 @@ class Connection:
         A peer whose unsent bytes stay above ``stall_bytes`` for ``stall_s`` is cut off too.
     msg_rate, msg_burst : float
         Frames the peer may send per second on average, and at once.
+    token : str or None
+        The server's token: its :attr:`handshake` (the sans-I/O
+        :class:`~kinefuse.protocol.handshake.Handshake`, server side) challenges with it.
     """
 
     def __init__(
@@ -88,11 +92,13 @@ class Connection:
         stall_s: float = 5.0,
         msg_rate: float = 600.0,
         msg_burst: float = 1200.0,
+        token: str | None = None,
     ) -> None:
         self.reader = reader
         self.writer = writer
         self.clock = clock
         self.decoder = Decoder(max_frame_bytes=max_frame_bytes)
+        self.handshake = Handshake("server", token)
         self.max_buffer_bytes = max_buffer_bytes
         self.stall_bytes = stall_bytes
         self.stall_s = stall_s

@@ -34,13 +34,15 @@ log = logging.getLogger("kinefuse.serve")
 async def serve_control(srv: Server, conn: Connection) -> None:
     """A control peer: calibration start/stop, status, shutdown (see docs/protocol.md)."""
     conn.send(
-        Welcome(
-            session=srv.options.session,
-            t_server_s=srv.clock(),
-            heartbeat_s=srv.options.heartbeat_s,
-            timeout_s=srv.options.timeout_s,
-            calibrating=srv.calibration.collecting,
-            calibration_id=srv.calibration.calibration_id,
+        conn.handshake.send(
+            Welcome(
+                session=srv.options.session,
+                t_server_s=srv.clock(),
+                heartbeat_s=srv.options.heartbeat_s,
+                timeout_s=srv.options.timeout_s,
+                calibrating=srv.calibration.collecting,
+                calibration_id=srv.calibration.calibration_id,
+            )
         )
     )
     srv._controls.add(conn)

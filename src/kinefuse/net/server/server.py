@@ -80,11 +80,9 @@ from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_
 from kinefuse.protocol import (
     MAX_FRAME_BYTES,
     AuthError,
-    AuthReply,
     BodyFrameMessage,
     CalibrationStart,
     CalibrationStop,
-    Challenge,
     ClockProbe,
     ClockReply,
     Error,
@@ -95,11 +93,9 @@ from kinefuse.protocol import (
     WandSighting,
     Welcome,
     WireError,
-    check_version,
     encode,
     printable,
 )
-from kinefuse.protocol.auth import compute_server_mac, new_nonce, verify_mac
 from kinefuse.protocol.errors import OutOfOrder
 
 log = logging.getLogger("kinefuse.serve")
@@ -353,6 +349,7 @@ class Server:
             writer,
             self.clock,
             max_frame_bytes=o.handshake_frame_bytes,
+            token=o.token,
             stall_s=o.timeout_s,
             msg_rate=o.msg_rate,
             msg_burst=o.msg_burst,
@@ -444,30 +441,24 @@ class Server:
 
     async def _handshake(self, conn: Connection) -> Hello:
         """Hello (and the challenge when there is a token), all within ``handshake_timeout_s``
-        of the accept: a peer cannot stretch it by answering slowly."""
+        of the accept: a peer cannot stretch it by answering slowly. The sequence is
+        ``conn.handshake``'s (:mod:`kinefuse.protocol.handshake`); this only moves messages."""
         o = self.options
+        hs = conn.handshake
         deadline = self.clock() + o.handshake_timeout_s
         msg, _ = await conn.recv(o.handshake_timeout_s, deadline=deadline)
-        if not isinstance(msg, Hello):
-            raise OutOfOrder(f"the first message must be hello, got {msg.TYPE}")
-        check_version(msg.protocol_version)
-        conn.role = msg.role
-        who = f"{msg.role} {msg.sensor_id}".strip()
+        challenge = hs.receive(msg)
+        assert hs.hello is not None
+        hello = hs.hello
+        conn.role = hello.role
+        who = f"{hello.role} {hello.sensor_id}".strip()
         conn.name = f"{who} from {conn.peer}" + (", not authenticated" if o.token else "")
-        if o.token:
-            nonce = new_nonce()
-            proof = None  # a peer older than 1.1 (or without a token) asks for no proof
-            if msg.client_nonce is not None:
-                proof = compute_server_mac(
-                    o.token, msg.client_nonce, nonce, role=msg.role, sensor_id=msg.sensor_id
-                )
-            conn.send(Challenge(nonce=nonce, server_mac=proof))
+        if challenge is not None:
+            conn.send(challenge)
             reply, _ = await conn.recv(o.handshake_timeout_s, deadline=deadline)
-            if not isinstance(reply, AuthReply):
-                raise OutOfOrder(f"expected auth_reply after the challenge, got {reply.TYPE}")
-            verify_mac(o.token, nonce, reply.mac, role=msg.role, sensor_id=msg.sensor_id)
+            hs.receive(reply)
             conn.name = f"{who} from {conn.peer}"
-        return msg
+        return hello
 
     def _register(self, conn: Connection, hello: Hello) -> SensorState:
         sid = hello.sensor_id
@@ -494,13 +485,15 @@ class Server:
         if cal.collecting:
             cal.add_target(sid)
         conn.send(
-            Welcome(
-                session=self.options.session,
-                t_server_s=self.clock(),
-                heartbeat_s=self.options.heartbeat_s,
-                timeout_s=self.options.timeout_s,
-                calibrating=cal.collecting,
-                calibration_id=cal.calibration_id,
+            conn.handshake.send(
+                Welcome(
+                    session=self.options.session,
+                    t_server_s=self.clock(),
+                    heartbeat_s=self.options.heartbeat_s,
+                    timeout_s=self.options.timeout_s,
+                    calibrating=cal.collecting,
+                    calibration_id=cal.calibration_id,
+                )
             )
         )
         self._sensor_event(
