@@ -13,6 +13,16 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     """Register ``kinefuse simulate``."""
     p = sub.add_parser("simulate", help="simulate a capture session of a real motion clip")
     p.add_argument("--clip", type=Path, required=True, help="motion clip (.bvh or .amc)")
+    p.add_argument(
+        "--bystander",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="CLIP",
+        help="another person in the room during the motion, driven by this clip, placed to pass "
+        "within a metre of the subject, between the subject and a sensor (repeat for more; "
+        "docs/simulation.md)",
+    )
     _add_simulate_args(p)
     p.add_argument("--out", type=Path, required=True, help="session store to write (.sqlite)")
     p.add_argument(
@@ -125,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         tracker=args.tracker,
         static_s=args.static,
         errors_off=args.errors_off,
+        bystanders=tuple(args.bystander),
     )
     for w in r.warnings:
         print(f"kinefuse: warning: {w}", file=sys.stderr)

@@ -13,7 +13,7 @@ tables that only evaluation code reads.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -24,6 +24,7 @@ from kinefuse import __version__
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError, StoreError
+from kinefuse.frames.observations import BodyFrames
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.outputs import atomic_file
 from kinefuse.io.store.session import SessionStore, is_simulated_session
@@ -37,6 +38,7 @@ from kinefuse.sim.clock import (
     draw_sensor_clocks,
 )
 from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
+from kinefuse.sim.people import tracking_ids
 from kinefuse.sim.rig import Rig
 from kinefuse.sim.tracker import (
     SubjectBias,
@@ -45,7 +47,7 @@ from kinefuse.sim.tracker import (
     draw_subject_bias,
     simulate_tracker,
 )
-from kinefuse.skeleton import JOINT_INDEX, capsule_radii
+from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, capsule_radii
 
 Array = NDArray[np.float64]
 
@@ -211,9 +213,20 @@ class SensorSimulation:
     sensor_id : str
         One of the rig's sensors.
     config : LabConfig
+    bystanders : sequence of Motion
+        Other people in the room during the motion phase (already placed,
+        :func:`kinefuse.sim.people.place_bystander`), persons 1, 2, ...; their own random
+        streams, so the subject's alone are what they were.
     """
 
-    def __init__(self, motion: Motion, rig: Rig, sensor_id: str, config: LabConfig) -> None:
+    def __init__(
+        self,
+        motion: Motion,
+        rig: Rig,
+        sensor_id: str,
+        config: LabConfig,
+        bystanders: Sequence[Motion] = (),
+    ) -> None:
         ids = [s.id for s in rig.sensors]
         if sensor_id not in ids:
             raise InputError(f"the rig has no sensor {sensor_id!r}; its sensors: {', '.join(ids)}")
@@ -232,6 +245,11 @@ class SensorSimulation:
         )
         # a sixth stream, spawned after the others so that they are what they always were
         self._seed_body_depth = seeds.sensors[index].spawn(1)[0]
+        # the bystanders' streams come after those (none drawn without bystanders)
+        self.bystanders = tuple(bystanders)
+        self._index = index
+        if self.bystanders:
+            self._seed_people = seeds.sensors[index].spawn(1)[0]
         # the device clock stamps frames; the client PC's clock answers the probes
         self.clocks = draw_sensor_clocks(rng_clock, errs.clock)
         self.intrinsics = draw_intrinsics(rng_intr, errs.intrinsics)
@@ -290,6 +308,12 @@ class SensorSimulation:
             truth = self.motion.at(np.array([cap.t_true_s[k] - self.t_cal_s]))[0]
             scene = Scene.from_pose(truth, self.height_m, room_min_xy_m=self.rig.room_min_xy_m,
                                     room_max_xy_m=self.rig.room_max_xy_m)  # fmt: skip
+            for other in self.bystanders:  # the other people's capsule bodies, in the room
+                pose = other.at(np.array([cap.t_true_s[k] - self.t_cal_s]))[0]
+                body = Scene.from_pose(pose, subject_height(other), walls=False, floor=False)
+                scene = replace(scene, a=np.concatenate([scene.a, body.a]),
+                                b=np.concatenate([scene.b, body.b]),
+                                radius=np.concatenate([scene.radius, body.radius]))  # fmt: skip
             depth = render_depth(scene, self.spec.sensor2world, self.intrinsics, rng, errs.depth,
                                  noise=noise)  # fmt: skip
             yield BodyDepthFrame(int(cap.seq[k]), float(cap.t_sensor_s[k]),
@@ -313,6 +337,70 @@ class SensorSimulation:
                                t_s=cap.t_true_s)  # fmt: skip
         return cap, out, truth_world
 
+    def people(self) -> tuple[CaptureTimes, list[TrackerOutput], list[Array]]:
+        """The motion phase with every person in the room: capture times, the tracker's output
+        for each person (0: the subject, then the bystanders) with the others hiding them, and
+        each person's true joints ``(N, 25, 3)`` world. Without bystanders the subject's output
+        is :meth:`body`'s. Call once (it consumes the sensor's tracker streams)."""
+        errs = self.config.errors
+        cap = capture_times(self.clocks.device, self.t_cal_s, self.t_end_s, self._rng_track,
+                            errs.clock, host=self.clocks.host,
+                            latency_offset_s=self.clocks.latency_offset_s)  # fmt: skip
+        actors = (self.motion, *self.bystanders)
+        truths = [m.at(cap.t_true_s - self.t_cal_s) for m in actors]
+        radii = [capsule_radii(subject_height(m)) for m in actors]
+        rngs = [self._rng_track]
+        biases = [self._subject]
+        if self.bystanders:
+            streams = self._seed_people.spawn(len(self.bystanders))
+            rngs += [np.random.default_rng(q) for q in streams]
+            biases += [bystander_bias(self.config, i + 1) for i in range(len(self.bystanders))]
+        outs = []
+        for k, truth in enumerate(truths):
+            others = [(truths[i], radii[i]) for i in range(len(actors)) if i != k]
+            outs.append(simulate_tracker(truth, self.spec.sensor2world, self.intrinsics,
+                                         radii[k], rngs[k], errs.tracker,
+                                         dt_s=1.0 / errs.clock.frame_rate_hz, subject=biases[k],
+                                         t_s=cap.t_true_s, others=others))  # fmt: skip
+        return cap, outs, truths
+
+    def all_bodies(
+        self,
+    ) -> tuple[CaptureTimes, BodyFrames, NDArray[np.int64], list[TrackerOutput], list[Array]]:
+        """:meth:`people` as the sensor reports it: capture times, the all-bodies stream (each
+        tracked body with its tracking id, in the sensor's listing order; an instant with no
+        body one row with nothing tracked, id 0), the person each row truly is (-1: none), and
+        :meth:`people`'s outputs and true joints per person. Call once."""
+        cap, outs, truths = self.people()
+        tracked = np.stack([~o.dropout for o in outs], axis=1)
+        rng = np.random.default_rng(self._seed_people.spawn(1)[0]) if self.bystanders else None
+        ids, slot = tracking_ids(tracked, self._index, rng or np.random.default_rng(0))
+        rows: list[tuple[int, int]] = []  # (frame, person or -1)
+        for t in range(tracked.shape[0]):
+            order = [int(p) for p in np.argsort(slot[t], kind="stable") if slot[t, p] >= 0]
+            rows += [(t, p) for p in order] if order else [(t, -1)]
+        frame = np.array([r[0] for r in rows], dtype=np.intp)
+        person = np.array([r[1] for r in rows], dtype=np.int64)
+        joints = np.full((len(rows), N_JOINTS, 3), np.nan)
+        states = np.zeros((len(rows), N_JOINTS), dtype=np.int8)
+        for p, o in enumerate(outs):
+            sel = person == p
+            joints[sel], states[sel] = o.joints_sensor[frame[sel]], o.states[frame[sel]]
+        body_id = np.where(person >= 0, ids[frame, np.maximum(person, 0)], 0)
+        frames = BodyFrames(sensor_id=self.spec.id, seq=cap.seq[frame],
+                            t_device_s=cap.t_sensor_s[frame], t_host_s=cap.t_receive_host_s[frame],
+                            joints_m=joints, states=states,
+                            t_receive_server_s=cap.t_receive_server_s[frame],
+                            body_id=body_id)  # fmt: skip
+        return cap, frames, person, outs, truths
+
+
+def bystander_bias(config: LabConfig, person: int) -> SubjectBias:
+    """The tracker's person-level draws for bystander ``person`` (>= 1): the same for every
+    sensor of the session, from a stream of their own."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(config.seed), 46, int(person)]))
+    return draw_subject_bias(rng, config.errors.tracker)
+
 
 #: makes one sensor's body observations (:func:`simulate_session`'s ``observe``)
 Observe = Callable[["SensorSimulation"], tuple[CaptureTimes, TrackerOutput, Array]]
@@ -327,6 +415,7 @@ def simulate_session(
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
     observe: Observe | None = None,
+    bystanders: Sequence[Motion] = (),
 ) -> Path:
     """Simulate a capture session of ``motion`` (already placed in the lab) seen by ``rig``.
 
@@ -342,9 +431,16 @@ def simulate_session(
     (:func:`kinefuse.io.store.session.is_simulated_session`): never a recording without ground truth
     (a live session cannot be simulated again), nor any other file.
     Deterministic: the same inputs and ``config.seed`` give the same observation rows.
+
+    ``bystanders`` (already placed, :func:`kinefuse.sim.people.place_bystander`) are persons
+    1, 2, ... in the room during the motion phase: every sensor reports every body it tracks
+    (:meth:`SensorSimulation.all_bodies`), and the truth says who is who. Without them the
+    session is what it always was.
     """
     say = progress or (lambda _msg: None)
     motion_s = _check_config(motion, config)
+    if bystanders and observe is not None:
+        raise InputError("bystanders need the simulated Kinect tracker; leave observe out")
     t_cal = float(config.calibration_s)
 
     if Path(out).exists():
@@ -367,7 +463,7 @@ def simulate_session(
     ) as tmp:
         tmp.unlink()  # the store creates its own file
         _simulate_into(SessionStore.create(tmp), motion, rig, config, t_cal, motion_s, say,
-                       observe or SensorSimulation.body)  # fmt: skip
+                       observe or SensorSimulation.body, tuple(bystanders))  # fmt: skip
     return Path(out)
 
 
@@ -380,6 +476,7 @@ def _simulate_into(
     motion_s: float,
     say: Callable[[str], None],
     observe: Observe,
+    bystanders: tuple[Motion, ...] = (),
 ) -> None:
     """Fill a new session store with the simulation (:func:`simulate_session`); closes it."""
     t_end = t_cal + motion_s
@@ -402,6 +499,16 @@ def _simulate_into(
 
         t_truth = np.arange(0.0, motion_s + 1e-9, 1.0 / motion.rate_hz)
         store.write_truth_motion(t_cal + t_truth, motion.at(t_truth), motion.synthesized)
+        if bystanders:
+            store.write_truth_info(
+                "people",
+                [{"person": 0, "role": "subject", "clip": motion.source}]
+                + [{"person": i + 1, "role": "bystander", "clip": b.source,
+                    "height_m": subject_height(b)} for i, b in enumerate(bystanders)],
+            )  # fmt: skip
+            for i, b in enumerate(bystanders):
+                t_b = np.arange(0.0, motion_s + 1e-9, 1.0 / b.rate_hz)
+                store.write_truth_person(i + 1, t_cal + t_b, b.at(t_b))
 
         # the calibration phase's wand path, on a fine grid (truth)
         wand_track = _seeds(config.seed, len(rig.sensors), config).wand_track
@@ -410,7 +517,7 @@ def _simulate_into(
             store.append_truth_wand(t_w, wand_track.at(t_w))
 
         for spec in rig.sensors:
-            sim = SensorSimulation(motion, rig, spec.id, config)
+            sim = SensorSimulation(motion, rig, spec.id, config, bystanders)
             store.add_sensor(spec.id, spec.serial, sim.intrinsics, rate_hz=errs.clock.frame_rate_hz)
             store.write_truth_sensor(spec.id, spec.sensor2world, sim.clocks.to_dict())
             store.append_clock_probes(spec.id, *sim.probes.T)
@@ -425,6 +532,9 @@ def _simulate_into(
                         np.stack([d[3] for d in depth]),
                     )
             say(f"{spec.id}: simulating the body tracker")
+            if bystanders:
+                _append_people(store, sim)
+                continue
             cap, out_, truth_world = observe(sim)
             store.append_observations(
                 spec.id,
@@ -441,6 +551,18 @@ def _simulate_into(
             )
     finally:
         store.close()
+
+
+def _append_people(store: SessionStore, sim: SensorSimulation) -> None:
+    """One sensor's every body, and who each truly is, into ``store`` (a session with
+    bystanders); the subject's truth per frame as in a one-person session."""
+    cap, frames, person, outs, truths = sim.all_bodies()
+    store.append_bodies(frames)
+    store.append_truth_bodies(sim.spec.id, frames.seq, frames.body_id, person)
+    subject = apply_transform(invert_transform(sim.spec.sensor2world), truths[0])
+    store.append_truth_observations(
+        sim.spec.id, cap.seq, cap.t_true_s, subject, outs[0].visible, outs[0].swapped
+    )
 
 
 def _fmt_value(v: object) -> str:

@@ -50,6 +50,7 @@ to which real take.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,8 @@ from scipy.special import ndtr
 
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
+from kinefuse.geometry.raycast import ray_capsules_batched
+from kinefuse.sim.people import MOSTLY_HIDDEN_FRACTION
 from kinefuse.sim.tracker_body import (
     _body_axes,
     _check_rigid,
@@ -84,6 +87,7 @@ from kinefuse.skeleton import (
     MIRROR_INDEX,
     N_JOINTS,
     TrackingState,
+    bone_index_array,
 )
 
 __all__ = [
@@ -296,6 +300,7 @@ def simulate_tracker(
     dt_s: float = 1.0 / 30.0,
     subject: SubjectBias | None = None,
     t_s: ArrayLike | None = None,
+    others: Sequence[tuple[Array, Array]] = (),
 ) -> TrackerOutput:
     """What a Kinect v2 body tracker reports, frame by frame, for one sensor.
 
@@ -322,6 +327,12 @@ def simulate_tracker(
         True capture times, seconds (the clock the session's shared latent processes run on;
         pass them so sensors of one session make correlated mistakes at the same instants).
         Default ``arange(T) * dt_s``.
+    others : sequence of ((T, 25, 3) float, (24,) float)
+        The other people in the room at the same instants (true joints, world frame, and their
+        capsule radii): a joint they hide from the sensor is not visible (as one the body hides
+        itself), and a body mostly hidden by them is lost
+        (:data:`kinefuse.sim.people.MOSTLY_HIDDEN_FRACTION`). None: the subject alone (no draw
+        changes either way).
 
     Returns
     -------
@@ -383,6 +394,8 @@ def simulate_tracker(
     )
     in_view = intrinsics.in_view(p_true)
     visible = (vis_frac >= p.min_visible_fraction) & in_view
+    by_others = hidden_by_others(truth, s2w[:3, 3], others)
+    visible &= ~by_others
 
     # facing angle, horizontal: body forward vs direction from the body to the sensor
     axes_true = _body_axes(p_true, up)
@@ -398,6 +411,7 @@ def simulate_tracker(
 
     # (e) body lost: dropouts, or too little of it in view
     lost = _dropout_mask(rng, n_t, dt, p) | (in_view.sum(axis=1) < p.min_joints_in_view)
+    lost |= by_others.sum(axis=1) > MOSTLY_HIDDEN_FRACTION * N_JOINTS
 
     # (d) swaps: a persistent latent process thresholded at the facing-dependent probability,
     # which is zero up to a side view (a person facing the sensor is never mirrored)
@@ -527,6 +541,29 @@ def simulate_tracker(
         dropout=lost,
         facing_angle_rad=facing,
     )
+
+
+def hidden_by_others(
+    truth_world: Array, centre: Array, others: Sequence[tuple[Array, Array]]
+) -> NDArray[np.bool_]:
+    """``(T, 25)`` True where another person's capsule body lies on the line of sight from the
+    sensor's optical centre ``centre`` (3,) to the true joint ``truth_world`` (T, 25, 3)."""
+    hidden = np.zeros(truth_world.shape[:2], dtype=bool)
+    if not others:
+        return hidden
+    bones = bone_index_array()
+    a = np.concatenate([np.asarray(o)[:, bones[:, 0]] for o, _ in others], axis=1)
+    b = np.concatenate([np.asarray(o)[:, bones[:, 1]] for o, _ in others], axis=1)
+    radius = np.concatenate([np.asarray(r, dtype=np.float64) for _, r in others])
+    to = truth_world - centre
+    dist = np.linalg.norm(to, axis=-1)
+    hit = ray_capsules_batched(centre, to / np.maximum(dist, 1e-9)[..., None], a, b, radius)
+    return np.asarray(hit.min(axis=-1) < dist - _OTHERS_MARGIN_M)
+
+
+#: a joint within this distance behind another person's surface is not counted hidden by it
+#: (the two bodies touch: the tracker still segments the joint's own surface)
+_OTHERS_MARGIN_M = 0.05
 
 
 def swap_probability(facing_rad: ArrayLike, params: TrackerParams | None = None) -> Array:

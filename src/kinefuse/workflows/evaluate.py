@@ -125,6 +125,14 @@ def run_evaluate(
             end_s=end_s,
             progress=say,
         )
+        if len(store.truth().people()) > 1:
+            from kinefuse.evaluation.people import evaluate_people
+
+            say("scoring each person and the identity")
+            grid = next(iter(results.values())).t_server_s
+            report["people"] = evaluate_people(
+                store, sensors, methods, grid, truth2world=truth2world, progress=say
+            )
         say("scoring plausibility")
         from kinefuse.evaluation.plausibility import plausibility_vs_errors
 
@@ -254,6 +262,16 @@ def format_evaluate(report: dict[str, object], methods: tuple[str, ...]) -> str:
                      "interval, block bootstrap over frames):")  # fmt: skip
         for pair, v in comp.items():
             lines.append(f"  {pair:<22} {_gain_text(v)}")
+    people = report.get("people")
+    if isinstance(people, dict):
+        lines.append(f"\npeople (bodies given to each by: {people['assignment']}):")
+        for p, v in people["persons"].items():
+            maes = ", ".join(f"{m} {_cm(v[m]['mae_m'])}" for m in methods if m in v)
+            lines.append(f"  person {p} ({v['role']}, {v['rows']} bodies): {maes}")
+        lines.append(
+            f"  identity: {100 * people['identity']:.1f} % of frames fuse every person only "
+            "from bodies that truly are theirs"
+        )
     from kinefuse.evaluation.plausibility import format_plausibility
 
     plaus = format_plausibility(report.get("plausibility"))

@@ -132,6 +132,7 @@ def run_simulate(
     tracker: str = "default",
     static_s: float | None = None,
     errors_off: Sequence[str] = (),
+    bystanders: Sequence[Path] = (),
 ) -> SimulateResult:
     """Load a clip and a rig, place the actor, and simulate a session into ``out``.
 
@@ -147,7 +148,9 @@ def run_simulate(
     ``static_s``: a standing phase (a static trial, for the anatomical angles) of that many
     seconds before the ROM phase (or before the clip), performed at the same place.
     ``errors_off``: parts of the tracker's error model switched off
-    (:data:`kinefuse.sim.tracker_params.ERROR_PARTS`).
+    (:data:`kinefuse.sim.tracker_params.ERROR_PARTS`). ``bystanders``: clips of other people
+    in the room during the motion, persons 1, 2, ..., placed by
+    :func:`kinefuse.sim.people.place_bystander`'s rule.
 
     Returns
     -------
@@ -199,6 +202,14 @@ def run_simulate(
                 seconds + rom.motion.duration_s - motion.duration_s, rom.motion.duration_s
             )
         motion = rom.motion
+    others = []
+    for i, path in enumerate(bystanders):
+        from kinefuse.sim.people import place_bystander
+
+        say(f"loading bystander {i + 1}: {path}")
+        other = place_actor(load_motion(path), the_rig)
+        span = motion.duration_s if seconds is None else seconds
+        others.append(place_bystander(other, motion, the_rig, i, span))
     config = LabConfig(
         seed=seed,
         calibration_s=calibration_s,
@@ -211,7 +222,7 @@ def run_simulate(
         out, what="session", recognizer=is_simulated_session, suffix=".partial.sqlite"
     ) as tmp:
         tmp.unlink()  # the store creates its own file
-        simulate_session(motion, the_rig, tmp, config, progress=say)
+        simulate_session(motion, the_rig, tmp, config, progress=say, bystanders=others)
         if rom is not None:
             from kinefuse.workflows.analyze import record_rom_phase
 

@@ -182,6 +182,20 @@ CREATE TABLE truth_observations (
     swapped    INTEGER NOT NULL CHECK (swapped IN (0, 1)),
     PRIMARY KEY (sensor_key, seq)
 ) WITHOUT ROWID;
+CREATE TABLE truth_people (
+    person   INTEGER NOT NULL CHECK (person >= 1),
+    frame    INTEGER NOT NULL,
+    t_s      REAL NOT NULL,
+    joints_m BLOB NOT NULL CHECK (length(joints_m) = {_JOINTS_BYTES}),
+    PRIMARY KEY (person, frame)
+) WITHOUT ROWID;
+CREATE TABLE truth_bodies (
+    sensor_key INTEGER NOT NULL REFERENCES sensors(key),
+    seq        INTEGER NOT NULL,
+    body_id    INTEGER NOT NULL,
+    person     INTEGER NOT NULL CHECK (person >= -1),
+    PRIMARY KEY (sensor_key, seq, body_id)
+) WITHOUT ROWID;
 CREATE TABLE truth_wand (
     frame INTEGER PRIMARY KEY,
     t_s   REAL NOT NULL,
@@ -254,6 +268,9 @@ class SessionStore(SensorStreams, TruthTables):
         self._has_client_occlusion = "occluded" in cols
         # sessions written before every body was recorded hold one body per frame (id 0)
         self._has_bodies = "body_id" in cols
+        tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        # sessions written before bystanders were simulated lack the people's truth tables
+        self._has_people_truth = "truth_people" in tables
 
     # -- opening and closing ------------------------------------------------------------------
 

@@ -178,6 +178,58 @@ class TruthTables(StorePart):
             rows,
         )
 
+    def write_truth_person(self, person: int, t_s: ArrayLike, joints_world: ArrayLike) -> None:
+        """Store (replace) the true motion of a bystander (``person`` >= 1; the subject, person
+        0, is :meth:`write_truth_motion`'s).
+
+        Parameters
+        ----------
+        person : int
+            The bystander's person id (1, 2, ... in the order they were added).
+        t_s : (T,) float
+            Times on the true clock, seconds, strictly increasing.
+        joints_world : (T, 25, 3) float
+            True joints in the world frame, metres, finite.
+        """
+        what = f"write_truth_person({person!r})"
+        if not isinstance(person, int | np.integer) or int(person) < 1:
+            raise InputError(f"{what}: person must be an int >= 1 (0 is the subject's motion)")
+        t = _float_array(t_s, "t_s", (None,), what)
+        j = _float_array(joints_world, "joints_world", (None, N_JOINTS, 3), what)
+        n = _require_same_length(what, t_s=t, joints_world=j)
+        if n == 0:
+            raise InputError(f"{what}: the motion has no frames")
+        _require_finite(t, "t_s", what)
+        _require_finite(j, "joints_world", what)
+        _require_increasing(t, "t_s", what)
+        with self._transaction(what) as conn:
+            conn.execute("DELETE FROM truth_people WHERE person = ?", (int(person),))
+            conn.executemany(
+                "INSERT INTO truth_people (person, frame, t_s, joints_m) VALUES (?, ?, ?, ?)",
+                zip([int(person)] * n, range(n), t.tolist(), _blobs(j, _F8), strict=True),
+            )
+
+    def append_truth_bodies(
+        self, sensor_id: str, seq: ArrayLike, body_id: ArrayLike, person: ArrayLike
+    ) -> None:
+        """Append who each observation row truly is: ``(N,)`` seq, body id, person (-1: none,
+        a row without a body)."""
+        what = f"append_truth_bodies(sensor {sensor_id!r})"
+        key = self._key(sensor_id, what)
+        s = _int_array(seq, "seq", (None,), what)
+        b = _int_array(body_id, "body_id", (None,), what)
+        p = _int_array(person, "person", (None,), what)
+        n = _require_same_length(what, seq=s, body_id=b, person=p)
+        if n == 0:
+            return
+        if (p < -1).any():
+            raise InputError(f"{what}: person must be >= -1 (-1: no person)")
+        with self._transaction(what) as conn:
+            conn.executemany(
+                "INSERT INTO truth_bodies (sensor_key, seq, body_id, person) VALUES (?, ?, ?, ?)",
+                zip([key] * n, s.tolist(), b.tolist(), p.tolist(), strict=True),
+            )
+
     def append_truth_wand(self, t_s: ArrayLike, centre_world: ArrayLike) -> None:
         """Append the true wand centre over time.
 
@@ -314,6 +366,44 @@ class Truth:
             cur, ["i8", "f8", Blob(_F8, (N_JOINTS, 3)), Blob(_U1, (N_JOINTS,)), "i8"], what
         )
         return seq, t, joints, vis.astype(bool), swapped.astype(bool)
+
+    def people(self) -> list[int]:
+        """The person ids of the session's actors: ``[0]`` (the subject alone), or ``[0, 1, ...]``
+        with bystanders."""
+        if not self._store._has_people_truth:
+            return [0]
+        rows = self._store._db.execute("SELECT DISTINCT person FROM truth_people ORDER BY person")
+        return [0, *(int(r[0]) for r in rows)]
+
+    def person_motion(self, person: int) -> tuple[Array, Array]:
+        """``(t_s (T,), joints_world (T, 25, 3))`` of one person (0: the subject)."""
+        if person == 0:
+            t, joints, _ = self.motion()
+            return t, joints
+        if person not in self.people():
+            raise StoreError(f"{self._store.path.name} holds no person {person}")
+        cur = self._store._db.execute(
+            "SELECT t_s, joints_m FROM truth_people WHERE person = ? ORDER BY frame", (person,)
+        )
+        (t, joints), _ = read_columns(cur, ["f8", Blob(_F8, (N_JOINTS, 3))], "truth person")
+        return t, joints
+
+    def person_of(self, sensor_id: str, seq: ArrayLike, body_id: ArrayLike) -> NDArray[np.int64]:
+        """The person each observation row ``(seq, body_id)`` of a sensor truly is ``(N,)``
+        (-1: none). A session without bystanders: every row is the subject's (0)."""
+        s = np.asarray(seq, dtype=np.int64).reshape(-1)
+        b = np.asarray(body_id, dtype=np.int64).reshape(-1)
+        if len(self.people()) == 1:
+            return np.zeros(s.shape, dtype=np.int64)
+        key = self._store._key(sensor_id, "truth bodies")
+        rows = self._store._db.execute(
+            "SELECT seq, body_id, person FROM truth_bodies WHERE sensor_key = ?", (key,)
+        ).fetchall()
+        who = {(int(q), int(i)): int(p) for q, i, p in rows}
+        return np.array(
+            [who.get((q, i), -1) for q, i in zip(s.tolist(), b.tolist(), strict=True)],
+            dtype=np.int64,
+        )
 
     def wand(self) -> tuple[Array, Array]:
         """``(t_s (T,), centre_world (T, 3))``; empty arrays if no wand was simulated."""
