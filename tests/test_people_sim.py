@@ -65,7 +65,7 @@ def test_bystander_passes_near_and_between_but_not_in_the_calibration(sessions) 
         t_cal, t_end = st.meta()["motion_phase_server_s"]
         t = np.linspace(t_cal, t_end, 200)
         a, b = _root_xy(st, 0, t), _root_xy(st, 1, t)
-        assert np.linalg.norm(a - b, axis=1).min() < 1.0
+        assert 0.45 < np.linalg.norm(a - b, axis=1).min() < 1.0  # close, not through each other
         # at mid-motion the bystander stands on the line from the subject to sensor k0
         mid = np.array([(t_cal + t_end) / 2])
         a, b = _root_xy(st, 0, mid)[0], _root_xy(st, 1, mid)[0]

@@ -21,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="CLIP",
         help="another person in the room during the motion, driven by this clip, placed to pass "
         "within a metre of the subject, between the subject and a sensor (repeat for more; "
-        "docs/simulation.md)",
+        "docs/error_model.md)",
     )
     _add_simulate_args(p)
     p.add_argument("--out", type=Path, required=True, help="session store to write (.sqlite)")

@@ -8,7 +8,9 @@ stands in its first pose before and in its last pose after), turned so that its 
 to last SpineBase, horizontally) crosses the line from the subject to sensor ``i mod S`` at right
 angles, and moved so that, at the middle of the motion phase, its SpineBase stands on that line
 ``BYSTANDER_GAP_M`` from the subject's (toward the sensor): it passes within a metre of the
-subject, between the subject and that sensor.
+subject, between the subject and that sensor. Two people do not walk through each other: when
+the two SpineBases would come closer than ``MIN_APPROACH_M`` at some instant of the motion
+phase, the gap grows in steps of 5 cm (up to half the distance to the sensor) until they do not.
 
 **Occlusion between people** is the tracker model's (:func:`kinefuse.sim.tracker.simulate_tracker`
 ``others``): a joint whose line of sight from the sensor passes through another person's capsule
@@ -37,6 +39,8 @@ Array = NDArray[np.float64]
 
 #: horizontal distance from the subject's SpineBase to a bystander's at mid-motion, metres
 BYSTANDER_GAP_M = 0.8
+#: the closest the two SpineBases may come (horizontally), metres: about a shoulder width
+MIN_APPROACH_M = 0.5
 #: a body with more than this share of its joints hidden by other people is lost
 MOSTLY_HIDDEN_FRACTION = 0.6
 #: the first tracking id of a sensor's bodies (a Kinect v2's ids are large 64-bit numbers);
@@ -80,7 +84,12 @@ def place_bystander(
     q[..., :2] = p[..., :2] @ rot.T
     turned = replace(bystander, positions=q)
     at_mid = turned.at(np.array([t_mid]))[0, _ROOT, :2]
-    gap = min(BYSTANDER_GAP_M, 0.5 * dist)
+    t = np.arange(0.0, float(motion_s) + 1e-9, 1.0 / 30.0)
+    path = turned.at(t)[:, _ROOT, :2] - at_mid
+    own = subject.at(t)[:, _ROOT, :2]
+    for gap in np.arange(min(BYSTANDER_GAP_M, 0.5 * dist), 0.5 * dist + 1e-9, 0.05):
+        if np.linalg.norm(path + centre + gap * u - own, axis=1).min() >= MIN_APPROACH_M:
+            break
     q[..., :2] += centre + gap * u - at_mid
     return replace(bystander, positions=q)
 
