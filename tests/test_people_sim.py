@@ -15,6 +15,7 @@ from kinefuse.evaluation.people import (
     evaluate_people,
     first_body_assignment,
     identity_share,
+    match_people,
     true_assignment,
 )
 from kinefuse.frames.observations import BodyFrames
@@ -181,6 +182,10 @@ def test_identity_right_and_wrong_assignments(sessions) -> None:
     assert 0.0 < share < 1.0
     first = identity_share(streams, first_body_assignment(streams), true, grid)
     assert first < 1.0  # the one-body fusion takes the bystander when a sensor lists it first
+    # the system numbers people its own way: right bodies under other ids are still right
+    renamed = {sid: np.where(w == 0, 7, np.where(w == 1, 3, w)) for sid, w in true.items()}
+    assert match_people(renamed, true) == {7: 0, 3: 1}
+    assert identity_share(streams, renamed, true, grid) == 1.0
 
 
 def test_evaluate_people_scores_each_person(sessions) -> None:
@@ -189,7 +194,8 @@ def test_evaluate_people_scores_each_person(sessions) -> None:
     grid = clip_grid(frame_grid(sensors), None, None)
     with SessionStore.open(path) as st:
         right = evaluate_people(st, sensors, ["best"], grid, true, rule="the truth")
-        first = evaluate_people(st, sensors, ["best"], grid)
+        first = evaluate_people(st, sensors, ["best"], grid, first_body_assignment(
+            all_bodies(st, sensors)), rule="first body")  # fmt: skip
     assert right["identity"] == 1.0 and first["identity"] < 1.0
     p0, p1 = right["persons"]["0"], right["persons"]["1"]
     assert p0["role"] == "subject" and p1["role"] == "bystander" and p1["rows"] > 0
@@ -234,7 +240,8 @@ def test_store_round_trip_of_every_body(tmp_path) -> None:
                         body_id=[7, 9, 0, 9, 11])  # fmt: skip
     with SessionStore.create(tmp_path / "s.sqlite") as st:
         st.add_sensor("k0", "SIM", Intrinsics())
-        st.append_bodies(frames)
+        st.append_observations("k0", frames.seq, t, frames.joints_m, frames.states,
+                               t_receive_host_s=t, body_id=frames.body_id)  # fmt: skip
         every, first = st.observations("k0", bodies="all"), st.observations("k0")
     assert every.multi and not first.multi
     assert every.body_id.tolist() == [7, 9, 0, 9, 11] and first.body_id.tolist() == [7, 0, 9]

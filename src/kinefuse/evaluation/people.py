@@ -12,6 +12,7 @@ This module reads the truth; nothing in the capture path may import it.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -62,6 +63,46 @@ def true_assignment(store: SessionStore, streams: Mapping[str, BodyFrames]) -> d
     return {sid: truth.person_of(sid, f.seq, f.body_id) for sid, f in streams.items()}
 
 
+def match_people(assigned: Assignment, true: Assignment) -> dict[int, int]:
+    """Which true person each of the system's persons is: the one most of its bodies truly are
+    (the system numbers people its own way; -1 when none of its bodies is anybody's)."""
+    pairs: dict[tuple[int, int], int] = {}
+    for sid, a in assigned.items():
+        for x, y in zip(np.asarray(a).tolist(), np.asarray(true[sid]).tolist(), strict=True):
+            if x >= 0:
+                pairs[(x, y)] = pairs.get((x, y), 0) + 1
+    best: dict[int, tuple[int, int]] = {}
+    for (x, y), n in pairs.items():
+        if y >= 0 and n > best.get(x, (-1, 0))[1]:
+            best[x] = (y, n)
+    return {x: best[x][0] if x in best else -1 for x, _ in pairs}
+
+
+def in_true_ids(assigned: Assignment, true: Assignment) -> dict[str, NDArray[np.int64]]:
+    """``assigned`` with the system's person ids replaced by the true persons they are
+    (:func:`match_people`)."""
+    match = match_people(assigned, true)
+    return {
+        sid: np.array([match.get(x, -1) if x >= 0 else -1 for x in np.asarray(a).tolist()],
+                      dtype=np.int64)
+        for sid, a in assigned.items()
+    }  # fmt: skip
+
+
+def system_assignment(
+    streams: Mapping[str, BodyFrames], sensors: Sequence[CalibratedSensor]
+) -> tuple[dict[str, NDArray[np.int64]], str]:
+    """The bodies the system gives each person, and how: the association across sensors
+    (``kinefuse.fusion.people.associate``) where this kinefuse has it, else the one-body
+    fusion's (:func:`first_body_assignment`)."""
+    try:
+        people = importlib.import_module("kinefuse.fusion.people")
+    except ModuleNotFoundError:
+        return first_body_assignment(streams), "first body (the one-body fusion)"
+    found = people.associate(streams, {s.id: s.sensor2world for s in sensors})
+    return dict(found.person), f"the association (subject: person {found.subject}, {found.rule})"
+
+
 def person_stream(frames: BodyFrames, assigned: NDArray[np.int64], person: int) -> BodyFrames:
     """One person's one-row-per-seq stream of a sensor: at each instant the first row assigned
     to ``person``, else a row with nothing tracked (the fusion's input)."""
@@ -89,7 +130,8 @@ def identity_share(
     """Share of the fused frames ``grid`` (server times) at which every person's skeleton comes
     only from bodies that truly are theirs: for each sensor, every row with a body at the two
     instants around the frame (those the fusion reads) that is given to a person truly is that
-    person."""
+    person (the system's person ids matched to the true ones first, :func:`match_people`)."""
+    assigned = in_true_ids(assigned, true)
     wrong = np.zeros(grid.shape, dtype=bool)
     for sid, f in streams.items():
         a, t = np.asarray(assigned[sid]), np.asarray(true[sid])
@@ -125,12 +167,13 @@ def evaluate_people(
     grid: Array,
     assigned: Assignment | None = None,
     *,
-    rule: str = "first body (the one-body fusion)",
+    rule: str = "given",
     truth2world: Array | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Each person's MAE per method (their fused skeleton from the rows ``assigned`` to them,
-    default :func:`first_body_assignment`, against their own truth) and the identity share.
+    default :func:`system_assignment`, against their own truth) and the identity share. The
+    system's person ids are matched to the true ones first (:func:`match_people`).
 
     Returns
     -------
@@ -140,8 +183,10 @@ def evaluate_people(
     """
     say = progress or (lambda _m: None)
     streams = all_bodies(store, sensors)
-    a = first_body_assignment(streams) if assigned is None else assigned
+    if assigned is None:
+        assigned, rule = system_assignment(streams, sensors)
     true = true_assignment(store, streams)
+    a = in_true_ids(assigned, true)
     persons: dict[str, Any] = {}
     for p in store.truth().people():
         rows = int(sum(int(((a[s.id] == p) & streams[s.id].has_body).sum()) for s in sensors))

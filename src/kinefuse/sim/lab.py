@@ -557,7 +557,11 @@ def _append_people(store: SessionStore, sim: SensorSimulation) -> None:
     """One sensor's every body, and who each truly is, into ``store`` (a session with
     bystanders); the subject's truth per frame as in a one-person session."""
     cap, frames, person, outs, truths = sim.all_bodies()
-    store.append_bodies(frames)
+    store.append_observations(
+        frames.sensor_id, frames.seq, frames.t_device_s, frames.joints_m, frames.states,
+        t_receive_server_s=frames.t_receive_server_s, t_receive_host_s=frames.t_host_s,
+        body_id=frames.body_id,
+    )  # fmt: skip
     store.append_truth_bodies(sim.spec.id, frames.seq, frames.body_id, person)
     subject = apply_transform(invert_transform(sim.spec.sensor2world), truths[0])
     store.append_truth_observations(
