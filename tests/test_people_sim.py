@@ -247,3 +247,49 @@ def test_store_round_trip_of_every_body(tmp_path) -> None:
     assert every.body_id.tolist() == [7, 9, 0, 9, 11] and first.body_id.tolist() == [7, 0, 9]
     assert np.array_equal(every.joints_m, frames.joints_m, equal_nan=True)
     assert np.array_equal(first.joints_m, frames.first_bodies().joints_m, equal_nan=True)
+
+
+@pytest.fixture(scope="module")
+def lab(shared_data):  # type: ignore[no-untyped-def]
+    from kinefuse.motion.load import load_motion
+    from kinefuse.sim.lab import LabConfig
+    from kinefuse.sim.people import place_bystander
+    from kinefuse.sim.rig import default_rig, place_actor
+
+    rig = default_rig(3)
+    subject = place_actor(load_motion(shared_data / "motion" / "cmu" / "131_01_scaled_metres.bvh"),
+                          rig)  # fmt: skip
+    walk = place_actor(load_motion(shared_data / "motion" / "cmu" / "02_walk_a.amc"), rig)
+    other = place_bystander(walk, subject, rig, 0, 2.0)
+    return subject, rig, LabConfig(seed=5, calibration_s=1.0, motion_s=2.0), other
+
+
+def test_body_depth_renders_the_bystander_in_front_of_the_subject(lab) -> None:  # type: ignore[no-untyped-def]
+    from kinefuse.sim.lab import SensorSimulation
+
+    subject, rig, config, other = lab
+    frames = []
+    for people in ((), (other,)):
+        sim = SensorSimulation(subject, rig, "k0", config, people)
+        frames.append(list(sim.body_depth_frames(every=30, noise=False)))
+    mid = len(frames[0]) // 2
+    alone, crowd = frames[0][mid], frames[1][mid]
+    assert np.array_equal(alone.joints_sensor_m, crowd.joints_sensor_m)
+    reach = float(np.linalg.norm(alone.joints_sensor_m[JOINT_INDEX["SpineBase"]])) - 0.3
+    near = [int(((f.depth_mm > 0) & (f.depth_mm < 1000 * reach)).sum()) for f in (alone, crowd)]
+    assert near[1] > near[0] + 500  # a body nearer the sensor than the subject: the bystander
+
+
+def test_body_frames_hand_every_body_over(lab) -> None:  # type: ignore[no-untyped-def]
+    from kinefuse.sim.lab import SensorSimulation
+
+    subject, rig, config, other = lab
+    plain = list(SensorSimulation(subject, rig, "k0", config).body_frames())
+    _, body, _ = SensorSimulation(subject, rig, "k0", config).body()
+    assert all(f.others == () and f.body_id == 0 for f in plain)
+    assert np.array_equal(np.stack([f.joints_m for f in plain]), body.joints_sensor,
+                          equal_nan=True)  # fmt: skip
+    crowd = list(SensorSimulation(subject, rig, "k0", config, (other,)).body_frames())
+    assert [f.seq for f in crowd] == [f.seq for f in plain]
+    two = [f for f in crowd if len(f.bodies()) == 2]
+    assert two and all(f.others[0].seq == f.seq and f.others[0].body_id != f.body_id for f in two)

@@ -24,7 +24,7 @@ from kinefuse import __version__
 from kinefuse.camera.intrinsics import Intrinsics
 from kinefuse.camera.wand import Wand
 from kinefuse.errors import InputError, StoreError
-from kinefuse.frames.observations import BodyFrames
+from kinefuse.frames.observations import BodyFrame, BodyFrames
 from kinefuse.geometry.transforms import apply_transform, invert_transform
 from kinefuse.io.outputs import atomic_file
 from kinefuse.io.store.session import SessionStore, is_simulated_session
@@ -393,6 +393,24 @@ class SensorSimulation:
                             t_receive_server_s=cap.t_receive_server_s[frame],
                             body_id=body_id)  # fmt: skip
         return cap, frames, person, outs, truths
+
+    def body_frames(self) -> Iterator[BodyFrame]:
+        """The motion phase as a live sensor delivers it: one :class:`BodyFrame` per capture,
+        the first-listed body with the others in ``others`` (:meth:`all_bodies`; without
+        bystanders, :meth:`body`'s frames, id 0). Call once."""
+        if not self.bystanders:
+            cap, out, _ = self.body()
+            for k in range(cap.seq.size):
+                yield BodyFrame(self.spec.id, int(cap.seq[k]), float(cap.t_sensor_s[k]),
+                                float(cap.t_receive_host_s[k]), out.joints_sensor[k],
+                                out.states[k])  # fmt: skip
+            return
+        _, frames, _, _, _ = self.all_bodies()
+        starts = np.flatnonzero(np.r_[True, frames.seq[1:] != frames.seq[:-1]])
+        ends = np.r_[starts[1:], frames.n_frames]
+        for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
+            first = frames.frame(a)
+            yield replace(first, others=tuple(frames.frame(k) for k in range(a + 1, b)))
 
 
 def bystander_bias(config: LabConfig, person: int) -> SubjectBias:
