@@ -293,3 +293,16 @@ def test_body_frames_hand_every_body_over(lab) -> None:  # type: ignore[no-untyp
     assert [f.seq for f in crowd] == [f.seq for f in plain]
     two = [f for f in crowd if len(f.bodies()) == 2]
     assert two and all(f.others[0].seq == f.seq and f.others[0].body_id != f.body_id for f in two)
+
+
+def test_a_live_simulated_sensor_delivers_every_body(lab) -> None:  # type: ignore[no-untyped-def]
+    from kinefuse.frames.observations import BodyFrame
+    from kinefuse.pipeline.sources import SimulatedSensorSource
+
+    subject, rig, config, other = lab
+    source = SimulatedSensorSource(subject, rig, "k0", 5, config=config, depth=False,
+                                   bystanders=(other,))  # fmt: skip
+    frames = [f for f in source if isinstance(f, BodyFrame)]
+    assert any(len(f.bodies()) == 2 for f in frames)
+    ids = {b.body_id for f in frames for b in f.bodies() if b.states.any()}
+    assert len(ids) >= 2 and 0 not in ids

@@ -274,6 +274,9 @@ class SimulatedSensorSource:
         Phases and error model (default ``LabConfig()``).
     depth : bool
         Also deliver the calibration phase's depth frames (default True).
+    bystanders : sequence of Motion
+        Other people in the room (placed, :func:`kinefuse.sim.people.place_bystander`): each
+        frame then carries every body the sensor tracks (``BodyFrame.others``).
 
     ``probes`` holds the client's clock probes over the session ``(N, 4)`` (server ``t1``,
     client ``t2``, ``t3``, server ``t4``), as the client would answer them.
@@ -288,13 +291,14 @@ class SimulatedSensorSource:
         *,
         config: LabConfig | None = None,
         depth: bool = True,
+        bystanders: Sequence[Motion] = (),
     ) -> None:
         from dataclasses import replace
 
         from kinefuse.sim.lab import LabConfig, SensorSimulation
 
         cfg = replace(LabConfig() if config is None else config, seed=int(seed))
-        self._args = (motion, rig, sensor_id, cfg)
+        self._args = (motion, rig, sensor_id, cfg, tuple(bystanders))
         self._depth = depth
         first = SensorSimulation(*self._args)
         self._id = sensor_id
@@ -316,11 +320,7 @@ class SimulatedSensorSource:
         if self._depth:
             for seq, t_dev, t_host, frame in sim.depth_frames():
                 yield DepthFrame(self._id, seq, t_dev, t_host, frame)
-        cap, out, _truth = sim.body()
-        for k in range(cap.seq.size):
-            yield BodyFrame(self._id, int(cap.seq[k]), float(cap.t_sensor_s[k]),
-                            float(cap.t_receive_host_s[k]), out.joints_sensor[k],
-                            out.states[k])  # fmt: skip
+        yield from sim.body_frames()
 
 
 def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensorSource:
