@@ -55,7 +55,7 @@ def test_one_person_session_keeps_no_other_body(sessions) -> None:
             assert not every.multi and np.array_equal(every.seq, first.seq)
             assert (every.body_id == 0).all()
             assert (st.truth().person_of(s.id, first.seq, first.body_id) == 0).all()
-        assert st._db.execute("SELECT count(*) FROM bodies").fetchone()[0] == 0
+        assert st._db.execute("SELECT count(*) FROM observation_bodies").fetchone()[0] == 0
 
 
 def test_bystander_passes_near_and_between_but_not_in_the_calibration(sessions) -> None:
