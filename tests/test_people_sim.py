@@ -186,6 +186,9 @@ def test_identity_right_and_wrong_assignments(sessions) -> None:
     renamed = {sid: np.where(w == 0, 7, np.where(w == 1, 3, w)) for sid, w in true.items()}
     assert match_people(renamed, true) == {7: 0, 3: 1}
     assert identity_share(streams, renamed, true, grid) == 1.0
+    # the person the system gives as the subject is scored as the subject, whoever it is
+    assert match_people(renamed, true, subject=3) == {7: 0, 3: 0}
+    assert identity_share(streams, renamed, true, grid, subject=3) < 1.0
 
 
 def test_evaluate_people_scores_each_person(sessions) -> None:
@@ -195,11 +198,13 @@ def test_evaluate_people_scores_each_person(sessions) -> None:
     with SessionStore.open(path) as st:
         right = evaluate_people(st, sensors, ["best"], grid, true, rule="the truth")
         first = evaluate_people(st, sensors, ["best"], grid, first_body_assignment(
-            all_bodies(st, sensors)), rule="first body")  # fmt: skip
+            all_bodies(st, sensors)), rule="first body", subject=0)  # fmt: skip
     assert right["identity"] == 1.0 and first["identity"] < 1.0
     p0, p1 = right["persons"]["0"], right["persons"]["1"]
     assert p0["role"] == "subject" and p1["role"] == "bystander" and p1["rows"] > 0
     assert 0.0 < p0["best"]["mae_m"] < 0.15 and 0.0 < p1["best"]["mae_m"] < 0.25
+    # the one-body fusion's subject is whoever each sensor lists first
+    assert first["persons"]["0"]["rows"] > 0 and first["persons"]["0"]["best"]["mae_m"] > 0
     assert first["persons"]["1"]["rows"] == 0 and np.isnan(first["persons"]["1"]["best"]["mae_m"])
 
 

@@ -63,9 +63,12 @@ def true_assignment(store: SessionStore, streams: Mapping[str, BodyFrames]) -> d
     return {sid: truth.person_of(sid, f.seq, f.body_id) for sid, f in streams.items()}
 
 
-def match_people(assigned: Assignment, true: Assignment) -> dict[int, int]:
-    """Which true person each of the system's persons is: the one most of its bodies truly are
-    (the system numbers people its own way; -1 when none of its bodies is anybody's)."""
+def match_people(
+    assigned: Assignment, true: Assignment, subject: int | None = None
+) -> dict[int, int]:
+    """Which true person each of the system's persons is: its ``subject`` (the one it gives as
+    the subject, when given) is the true subject (0), every other the one most of its bodies
+    truly are (the system numbers people its own way; -1 when none of its bodies is anybody's)."""
     pairs: dict[tuple[int, int], int] = {}
     for sid, a in assigned.items():
         for x, y in zip(np.asarray(a).tolist(), np.asarray(true[sid]).tolist(), strict=True):
@@ -75,13 +78,18 @@ def match_people(assigned: Assignment, true: Assignment) -> dict[int, int]:
     for (x, y), n in pairs.items():
         if y >= 0 and n > best.get(x, (-1, 0))[1]:
             best[x] = (y, n)
-    return {x: best[x][0] if x in best else -1 for x, _ in pairs}
+    out = {x: best[x][0] if x in best else -1 for x, _ in pairs}
+    if subject is not None:
+        out[subject] = 0
+    return out
 
 
-def in_true_ids(assigned: Assignment, true: Assignment) -> dict[str, NDArray[np.int64]]:
+def in_true_ids(
+    assigned: Assignment, true: Assignment, subject: int | None = None
+) -> dict[str, NDArray[np.int64]]:
     """``assigned`` with the system's person ids replaced by the true persons they are
     (:func:`match_people`)."""
-    match = match_people(assigned, true)
+    match = match_people(assigned, true, subject)
     return {
         sid: np.array([match.get(x, -1) if x >= 0 else -1 for x in np.asarray(a).tolist()],
                       dtype=np.int64)
@@ -91,16 +99,17 @@ def in_true_ids(assigned: Assignment, true: Assignment) -> dict[str, NDArray[np.
 
 def system_assignment(
     streams: Mapping[str, BodyFrames], sensors: Sequence[CalibratedSensor]
-) -> tuple[dict[str, NDArray[np.int64]], str]:
-    """The bodies the system gives each person, and how: the association across sensors
-    (``kinefuse.fusion.people.associate``) where this kinefuse has it, else the one-body
-    fusion's (:func:`first_body_assignment`)."""
+) -> tuple[dict[str, NDArray[np.int64]], str, int]:
+    """The bodies the system gives each person, how, and the person it gives as the subject:
+    the association across sensors (``kinefuse.fusion.people.associate``) where this kinefuse
+    has it, else the one-body fusion's (:func:`first_body_assignment`, subject 0)."""
     try:
         people = importlib.import_module("kinefuse.fusion.people")
     except ModuleNotFoundError:
-        return first_body_assignment(streams), "first body (the one-body fusion)"
+        return first_body_assignment(streams), "first body (the one-body fusion)", 0
     found = people.associate(streams, {s.id: s.sensor2world for s in sensors})
-    return dict(found.person), f"the association (subject: person {found.subject}, {found.rule})"
+    how = f"the association (subject: person {found.subject}, {found.rule})"
+    return dict(found.person), how, int(found.subject)
 
 
 def person_stream(frames: BodyFrames, assigned: NDArray[np.int64], person: int) -> BodyFrames:
@@ -125,13 +134,24 @@ def person_stream(frames: BodyFrames, assigned: NDArray[np.int64], person: int) 
 
 
 def identity_share(
-    streams: Mapping[str, BodyFrames], assigned: Assignment, true: Assignment, grid: Array
+    streams: Mapping[str, BodyFrames],
+    assigned: Assignment,
+    true: Assignment,
+    grid: Array,
+    subject: int | None = None,
 ) -> float:
     """Share of the fused frames ``grid`` (server times) at which every person's skeleton comes
     only from bodies that truly are theirs: for each sensor, every row with a body at the two
     instants around the frame (those the fusion reads) that is given to a person truly is that
-    person (the system's person ids matched to the true ones first, :func:`match_people`)."""
-    assigned = in_true_ids(assigned, true)
+    person (the system's person ids matched to the true ones first, :func:`match_people`;
+    ``subject``: the one the system gives as the subject)."""
+    return _identity(streams, in_true_ids(assigned, true, subject), true, grid)
+
+
+def _identity(
+    streams: Mapping[str, BodyFrames], assigned: Assignment, true: Assignment, grid: Array
+) -> float:
+    """:func:`identity_share` of an assignment already in the true person ids."""
     wrong = np.zeros(grid.shape, dtype=bool)
     for sid, f in streams.items():
         a, t = np.asarray(assigned[sid]), np.asarray(true[sid])
@@ -168,12 +188,14 @@ def evaluate_people(
     assigned: Assignment | None = None,
     *,
     rule: str = "given",
+    subject: int | None = None,
     truth2world: Array | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Each person's MAE per method (their fused skeleton from the rows ``assigned`` to them,
     default :func:`system_assignment`, against their own truth) and the identity share. The
-    system's person ids are matched to the true ones first (:func:`match_people`).
+    system's person ids are matched to the true ones first (:func:`match_people`; ``subject``:
+    the person it gives as the subject, scored as the true subject).
 
     Returns
     -------
@@ -184,9 +206,9 @@ def evaluate_people(
     say = progress or (lambda _m: None)
     streams = all_bodies(store, sensors)
     if assigned is None:
-        assigned, rule = system_assignment(streams, sensors)
+        assigned, rule, subject = system_assignment(streams, sensors)
     true = true_assignment(store, streams)
-    a = in_true_ids(assigned, true)
+    a = in_true_ids(assigned, true, subject)
     persons: dict[str, Any] = {}
     for p in store.truth().people():
         rows = int(sum(int(((a[s.id] == p) & streams[s.id].has_body).sum()) for s in sensors))
@@ -203,6 +225,6 @@ def evaluate_people(
         persons[str(p)] = entry
     return {
         "persons": persons,
-        "identity": identity_share(streams, a, true, grid),
+        "identity": _identity(streams, a, true, grid),
         "assignment": rule,
     }
