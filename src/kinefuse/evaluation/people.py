@@ -32,6 +32,11 @@ Array = NDArray[np.float64]
 Assignment = Mapping[str, NDArray[np.int64]]
 
 
+def several_people(store: SessionStore) -> bool:
+    """True when the simulated session has bystanders (its truth holds more than the subject)."""
+    return len(store.truth().people()) > 1
+
+
 def all_bodies(store: SessionStore, sensors: Sequence[CalibratedSensor]) -> dict[str, BodyFrames]:
     """Every sensor's all-bodies stream on the server clock (each sensor's own clock estimate),
     with its occlusion flags (the clients' test, run on each body)."""
@@ -41,7 +46,7 @@ def all_bodies(store: SessionStore, sensors: Sequence[CalibratedSensor]) -> dict
         f = f.take(np.isin(f.seq, s.observations.seq))  # the frames the sensor's load kept
         occ = detect_occlusion(f.joints_m, s.intrinsics)
         out[s.id] = f.with_occlusion(occ.occluded, occ.n_intersections).on_server(
-            s.timebase.to_server(f.t_device_s)
+            s.timebase.affine.forward(f.t_device_s)
         )
     return out
 

@@ -125,9 +125,9 @@ def run_evaluate(
             end_s=end_s,
             progress=say,
         )
-        if len(store.truth().people()) > 1:
-            from kinefuse.evaluation.people import evaluate_people
+        from kinefuse.evaluation.people import evaluate_people, several_people
 
+        if several_people(store):
             say("scoring each person and the identity")
             grid = next(iter(results.values())).t_server_s
             report["people"] = evaluate_people(
