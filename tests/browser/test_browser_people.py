@@ -1,0 +1,105 @@
+"""The viewer with two people in the room: the server's per-person live fusion of a hand-made
+scene of two real clips (``tests/people_scene.py``: a bystander crossing in front of the subject)
+published at 30 Hz to the live viewer; the page lists every person with their id, marks the
+subject, and draws the bystander."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from kinefuse.net.bus import FusedFrame, Publisher
+from kinefuse.net.server.fusion_loop import FrameFusion
+from kinefuse.net.server.sensor_state import Observation
+from kinefuse.viewer import live_viewer
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from people_scene import RATE, two_people
+
+
+def _frames(shared_data: Path) -> list[FusedFrame]:
+    """The published frames of the scene's crossing (1.5 to 4 s), fused per person."""
+    lab = two_people(shared_data)
+    ff = FrameFusion("best-live")
+    ff.set_poses(lab["poses"])
+    out = []
+    for k in range(int(4.0 * RATE)):
+        for sid, s in lab["streams"].items():
+            rows = np.flatnonzero(s.seq == k)
+            obs = [
+                Observation(k, float(s.t_server_s[r]), float(s.t_server_s[r]), s.joints_m[r],
+                            s.states[r], None, None, int(s.body_id[r]))
+                for r in rows
+            ]  # fmt: skip
+            if obs:
+                ff.push(sid, Observation(**{**obs[0].__dict__, "others": tuple(obs[1:])}))
+        t = (k - 1) / RATE + 0.009
+        if t < 1.5:
+            continue
+        pos, var, status = ff.fuse(t)
+        out.append(
+            FusedFrame(k, t, pos, var, status, 0.01, subject=ff.subject,
+                       people_m={p: f[0] for p, f in ff.people.items()})
+        )  # fmt: skip
+    return out
+
+
+@pytest.fixture
+def people_page(loop_thread, shared_data) -> Any:
+    frames = _frames(shared_data)
+    pub = Publisher()
+    state: dict[str, Any] = {}
+
+    async def feed() -> None:
+        # one frame of the crossing, again and again (the picture changes only when the page's
+        # layers do)
+        f = frames[len(frames) // 2]
+        k = 0
+        while True:
+            pub.publish(replace(f, seq=k))
+            k += 1
+            await asyncio.sleep(1 / RATE)
+
+    async def start() -> int:
+        state["feed"] = asyncio.create_task(feed())
+        state["cm"] = live_viewer(pub, host="127.0.0.1", port=0)
+        return await state["cm"].__aenter__()
+
+    async def stop() -> None:
+        await state["cm"].__aexit__(None, None, None)
+        state["feed"].cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await state["feed"]
+
+    port = loop_thread.run(start())
+    yield f"http://127.0.0.1:{port}/"
+    loop_thread.run(stop())
+
+
+def test_the_page_shows_every_person_and_marks_the_subject(people_page, page) -> None:
+    page.goto(people_page)
+    page.wait_for_selector("#layers label[data-person] >> nth=1")
+    people = page.locator("#layers label[data-person]")
+    assert people.count() == 2
+    names = sorted(people.nth(i).inner_text().strip() for i in range(2))
+    assert names == ["p0 subject", "p1"]
+    assert page.locator("#layers label[data-subject]").inner_text().strip() == "p0 subject"
+    # the bystander is drawn: hiding their layer changes the picture
+    page.wait_for_timeout(300)
+    box = page.locator("#layers label[data-person='1'] input")
+    assert box.is_checked()
+    shown = page.locator("#scene").screenshot()
+    page.wait_for_timeout(200)
+    assert page.locator("#scene").screenshot() == shown  # the same frame draws the same
+    box.uncheck()
+    page.wait_for_timeout(200)
+    hidden = page.locator("#scene").screenshot()
+    assert shown != hidden
+    assert page.errors == []
