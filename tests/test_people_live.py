@@ -76,3 +76,18 @@ def test_the_operator_chooses_the_subject(shared_data: Path) -> None:
     kb = int(2.9 * RATE) - lab["start"]
     assert (ff.subject, ff.subject_rule) == (1, "chosen")
     assert np.nanmedian(np.linalg.norm(pos - lab["b"][kb], axis=-1)) < 0.05
+
+
+def test_the_operator_can_pick_only_a_person_fused_now(shared_data: Path) -> None:
+    lab = two_people(shared_data)
+    ff = FrameFusion("best-live")
+    ff.set_poses(lab["poses"])
+    for sid in lab["streams"]:
+        o = _observations(lab, sid, 0)
+        assert o is not None
+        ff.push(sid, o)
+    ff.fuse(0.0)
+    assert set(ff.people) == {0}  # the bystander has not come in yet
+    assert not ff.set_subject(1, "operator", known=True)
+    assert (ff.subject, ff.subject_rule) == (0, "first seen")
+    assert ff.set_subject(0, "operator", known=True) and ff.subject_rule == "operator"

@@ -55,7 +55,11 @@ def _frames(shared_data: Path) -> list[FusedFrame]:
 def people_page(loop_thread, shared_data) -> Any:
     frames = _frames(shared_data)
     pub = Publisher()
-    state: dict[str, Any] = {}
+    state: dict[str, Any] = {"subject": 0, "picked": []}
+
+    def on_subject(person: int) -> None:  # what the server does: the next frames are theirs
+        state["picked"].append(person)
+        state["subject"] = person
 
     async def feed() -> None:
         # one frame of the crossing, again and again (the picture changes only when the page's
@@ -63,13 +67,13 @@ def people_page(loop_thread, shared_data) -> Any:
         f = frames[len(frames) // 2]
         k = 0
         while True:
-            pub.publish(replace(f, seq=k))
+            pub.publish(replace(f, seq=k, subject=state["subject"]))
             k += 1
             await asyncio.sleep(1 / RATE)
 
     async def start() -> int:
         state["feed"] = asyncio.create_task(feed())
-        state["cm"] = live_viewer(pub, host="127.0.0.1", port=0)
+        state["cm"] = live_viewer(pub, host="127.0.0.1", port=0, on_subject=on_subject)
         return await state["cm"].__aenter__()
 
     async def stop() -> None:
@@ -79,17 +83,17 @@ def people_page(loop_thread, shared_data) -> Any:
             await state["feed"]
 
     port = loop_thread.run(start())
-    yield f"http://127.0.0.1:{port}/"
+    yield f"http://127.0.0.1:{port}/", state
     loop_thread.run(stop())
 
 
 def test_the_page_shows_every_person_and_marks_the_subject(people_page, page) -> None:
-    page.goto(people_page)
+    page.goto(people_page[0])
     page.wait_for_selector("#layers label[data-person] >> nth=1")
     people = page.locator("#layers label[data-person]")
     assert people.count() == 2
     names = sorted(people.nth(i).inner_text().strip() for i in range(2))
-    assert names == ["p0 subject", "p1"]
+    assert names == ["p0 subject", "p1 make subject"]  # the button picks another subject
     assert page.locator("#layers label[data-subject]").inner_text().strip() == "p0 subject"
     # the bystander is drawn: hiding their layer changes the picture
     page.wait_for_timeout(300)
@@ -102,4 +106,17 @@ def test_the_page_shows_every_person_and_marks_the_subject(people_page, page) ->
     page.wait_for_timeout(200)
     hidden = page.locator("#scene").screenshot()
     assert shown != hidden
+    assert page.errors == []
+
+
+def test_the_operator_picks_the_subject(people_page, page) -> None:
+    url, state = people_page
+    page.goto(url)
+    page.wait_for_selector("#layers label[data-person] >> nth=1")
+    # only the other person can be made the subject
+    assert page.locator("#layers button[data-pick]").count() == 1
+    page.click("#layers button[data-pick='1']")
+    page.wait_for_selector("#layers label[data-subject][data-person='1']")
+    assert state["picked"] == [1]
+    assert page.locator("#layers label[data-person='0']").inner_text().strip() == "p0 make subject"
     assert page.errors == []

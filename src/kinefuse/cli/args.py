@@ -173,8 +173,9 @@ def add_people_args(p: argparse.ArgumentParser, *, every: bool = True) -> None:
         "--subject",
         type=person_id,
         metavar="ID",
-        help="the person to give (default: the one who did the calibration walk or the "
-        "range-of-motion phase, else the one nearest the volume's centre at the start)",
+        help="the person to give (a recording's default: the one seen in the calibration walk "
+        "or the range-of-motion phase, else the one nearest the volume's centre at the start; "
+        "live: the first person seen, or the one the viewer's operator picks)",
     )
     if every:
         p.add_argument(

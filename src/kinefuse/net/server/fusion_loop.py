@@ -100,9 +100,17 @@ class FrameFusion:
             self._lives[person] = LiveFusion(self._poses, self.options)
         return self._lives[person]
 
-    def set_subject(self, person: int, rule: str = "chosen") -> None:
-        """Make ``person`` the subject (:meth:`fuse` returns their frame from now on)."""
+    def set_subject(self, person: int, rule: str = "chosen", *, known: bool = False) -> bool:
+        """Make ``person`` the subject (:meth:`fuse` returns their frame from now on).
+
+        ``known``: only a person fused now (the operator picks among those shown); False when
+        refused for that reason."""
+        if known and person not in self.people:
+            log.warning("subject %d asked for, but no such person is fused now", person)
+            return False
         self.subject, self.subject_rule = int(person), rule
+        log.info("the subject is person %d (%s)", person, rule)
+        return True
 
     @property
     def lead_s(self) -> float:

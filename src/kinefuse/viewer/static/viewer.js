@@ -234,12 +234,18 @@ function renderLayers() {
         (isSubject(l) ? ` data-subject="1"` : "") : "";
       html += `<label${person}><input type="checkbox" data-layer="${k}" ` +
         `${S.shown[k] ? "checked" : ""}>` +
-        `<span class="swatch" style="background:${layerColour(l)}"></span>${l.name}</label>`;
+        `<span class="swatch" style="background:${layerColour(l)}"></span>${l.name}` +
+        (l.kind === KIND_PERSON && !isSubject(l) && S.hello.mode === "live" ?
+          ` <button class="pick-subject" data-pick="${l.name.slice(1)}">make subject</button>` :
+          "") + `</label>`;
     }
   }
   html += `<div class="group">scene</div><label><input type="checkbox" id="show-frustums" ` +
     `${S.showFrustums ? "checked" : ""}> sensor frustums</label>`;
   box.innerHTML = html;
+  for (const b of box.querySelectorAll("button[data-pick]")) {
+    b.onclick = (e) => { e.preventDefault(); send({cmd: "subject", person: Number(b.dataset.pick)}); };
+  }
   for (const cb of box.querySelectorAll("input[data-layer]")) {
     cb.onchange = () => { S.shown[cb.dataset.layer] = cb.checked; renderErrors(); dirty(); };
   }
