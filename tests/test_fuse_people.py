@@ -158,3 +158,19 @@ def test_fuse_refuses_a_subject_that_is_not_there(session: Path, capsys) -> None
     assert code == 2
     err = capsys.readouterr().err
     assert "--subject 1: this recording has one person, id 0" in err
+
+
+def test_analyze_analyses_the_subject(session: Path, tmp_path: Path, capsys) -> None:
+    from kinefuse.workflows.analyze import sequence_from_session
+
+    inp = sequence_from_session(session, true_calibration=True)
+    assert inp.fusion is not None
+    assert (inp.fusion["people"], inp.fusion["subject"], inp.fusion["subject_rule"]) == (
+        [0],
+        0,
+        "one person",
+    )
+    argv = ["analyze", str(session), "--true-calibration", "--no-plots", "--subject", "2"]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 2
+    assert "--subject 2: this recording has one person, id 0" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()

@@ -83,7 +83,7 @@ def test_the_operator_can_pick_only_a_person_fused_now(shared_data: Path) -> Non
     ff = FrameFusion("best-live")
     ff.set_poses(lab["poses"])
     for sid in lab["streams"]:
-        o = _observations(lab, sid, 0)
+        o = observation(lab, sid, 0)
         assert o is not None
         ff.push(sid, o)
     ff.fuse(0.0)

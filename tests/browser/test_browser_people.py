@@ -12,16 +12,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 
 from kinefuse.net.bus import FusedFrame, Publisher
 from kinefuse.net.server.fusion_loop import FrameFusion
-from kinefuse.net.server.sensor_state import Observation
 from kinefuse.viewer import live_viewer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from people_scene import RATE, two_people
+from people_scene import RATE, observation, two_people
 
 
 def _frames(shared_data: Path) -> list[FusedFrame]:
@@ -31,15 +29,10 @@ def _frames(shared_data: Path) -> list[FusedFrame]:
     ff.set_poses(lab["poses"])
     out = []
     for k in range(int(4.0 * RATE)):
-        for sid, s in lab["streams"].items():
-            rows = np.flatnonzero(s.seq == k)
-            obs = [
-                Observation(k, float(s.t_server_s[r]), float(s.t_server_s[r]), s.joints_m[r],
-                            s.states[r], None, None, int(s.body_id[r]))
-                for r in rows
-            ]  # fmt: skip
-            if obs:
-                ff.push(sid, Observation(**{**obs[0].__dict__, "others": tuple(obs[1:])}))
+        for sid in lab["streams"]:
+            o = observation(lab, sid, k)
+            if o is not None:
+                ff.push(sid, o)
         t = (k - 1) / RATE + 0.009
         if t < 1.5:
             continue
