@@ -118,7 +118,7 @@ class LiveSource:
                 if last is not None and last is not sent:
                     await ws.send_str(json.dumps(status_message(last)))
                     sent = last
-                await ws.send_bytes(fused_frame_bytes(item, method=self.method))
+                await ws.send_bytes(fused_frame_bytes(item, method=self.method, people=True))
             await ws.close()  # the publisher closed
 
         try:

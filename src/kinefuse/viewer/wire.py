@@ -125,13 +125,13 @@ def decode_frame(data: bytes) -> Frame:
     return Frame(seq, t_s, lat, tuple(layers))
 
 
-def fused_frame_bytes(frame: FusedFrame, *, method: str = "fused") -> bytes:
+def fused_frame_bytes(frame: FusedFrame, *, method: str = "fused", people: bool = False) -> bytes:
     """The binary frame of a live :class:`~kinefuse.net.bus.FusedFrame`: the fused layer (the
-    subject), then each sensor's raw skeleton (sorted by sensor id), then, with more than one
-    person, every person's (by id)."""
+    subject), then each sensor's raw skeleton (sorted by sensor id), then, when ``people`` and
+    there is more than one person, every person's (by id)."""
     layers = [Layer(FUSED, method, frame.positions_m, frame.status)]
     layers += [Layer(RAW, sid, frame.raw_m[sid]) for sid in sorted(frame.raw_m)]
-    if len(frame.people_m) > 1:
+    if people and len(frame.people_m) > 1:
         layers += [
             Layer(PERSON, person_name(pid, pid == frame.subject), frame.people_m[pid])
             for pid in sorted(frame.people_m)
