@@ -4,6 +4,7 @@ seen by three sensors of the default rig, with tracking ids that change as a Kin
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -142,3 +143,23 @@ def test_trunk_needs_a_tracked_trunk_joint(lab: dict) -> None:
     states[1] = TrackingState.NOT_TRACKED
     t = trunk_world(s.joints_m[:2], states, lab["poses"]["k0"])
     assert np.isfinite(t[0]).all() and np.isnan(t[1]).all()
+
+
+def test_bodies_without_tracking_ids_are_not_merged(lab: dict) -> None:
+    # a source that numbers nothing reports every body as 0: the first is kept, a repeat is
+    # nobody's rather than the same person twice
+    s = lab["streams"]["k1"]
+    rows = np.flatnonzero(s.seq == int(2.6 * RATE))
+    assert rows.size == 2
+    frames = [replace(s.frame(r), body_id=0) for r in rows]
+    tracker = PeopleTracker()
+    got = tracker.update(2.6, {"k1": frames}, lab["poses"])
+    assert list(got) == [("k1", 0)]
+    streams = dict(lab["streams"])
+    streams["k1"] = replace(s, body_id=np.zeros(s.n_frames, dtype=np.int64))
+    people = associate(streams, lab["poses"])
+    p = people.person["k1"]
+    first = np.r_[True, np.diff(s.seq) != 0]
+    assert (p[~first] == -1).all() and (p[first] >= 0).all()
+    for per in people.split(streams).values():
+        assert not per["k1"].multi

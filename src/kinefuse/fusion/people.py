@@ -197,7 +197,8 @@ class PeopleTracker:
         -------
         dict
             ``(sensor id, body id) -> person id`` for every body with a tracked trunk (a body
-            with none is not assigned and is left out).
+            with none is not assigned and is left out, as is a body whose tracking id an
+            earlier body of the same instant has).
         """
         t = float(t_server_s)
         opts = self.options
@@ -214,8 +215,12 @@ class PeopleTracker:
                 np.array([f.states for f in frames]),
                 poses[sid],
             )
-            seen = np.isfinite(trunks).all(axis=1)
             ids = [f.body_id for f in frames]
+            # a tracking id names one body of an instant: a repeat (a source that numbers
+            # nothing) is left out
+            seen = np.isfinite(trunks).all(axis=1) & np.array(
+                [f.body_id not in ids[:k] for k, f in enumerate(frames)]
+            )
             self._expire(t)
             if not self.multi:
                 # the one-person rule: every body is person 0's
@@ -409,7 +414,8 @@ def associate(
         got = tracker.update(t, {sid: [s.frame(k) for k in range(a, b)]}, poses)
         for k in range(a, b):
             pid = got.get((sid, int(s.body_id[k])))
-            if pid is not None and np.isfinite(trunks[sid][k]).all():
+            unique = int(s.body_id[k]) not in s.body_id[a:k]
+            if pid is not None and unique and np.isfinite(trunks[sid][k]).all():
                 person[sid][k] = pid
                 if pid not in seen:
                     seen.append(pid)
