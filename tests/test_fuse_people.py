@@ -51,6 +51,7 @@ def with_bystander(sensors: list[CalibratedSensor], walk: np.ndarray, rate_hz: f
         o = s.observations
         k = np.round((o.t_server_s - t0) * rate_hz).astype(int)
         have = (k >= 0) & (k < walk.shape[0])
+        have[have] = np.isfinite(walk[k[have]]).all(axis=(1, 2))  # the bystander is in the room
         pose = s.sensor2world
         by = (walk[k[have]] - pose[:3, 3]) @ pose[:3, :3]
         rows = np.r_[np.arange(o.n_frames), np.flatnonzero(have)]
@@ -174,3 +175,56 @@ def test_analyze_analyses_the_subject(session: Path, tmp_path: Path, capsys) -> 
     assert main([*argv, "--out", str(tmp_path / "a")]) == 2
     assert "--subject 2: this recording has one person, id 0" in capsys.readouterr().err
     assert not (tmp_path / "a").exists()
+
+
+def test_a_recording_of_two_people_exports_both(
+    session: Path, two: dict, tmp_path: Path, capsys
+) -> None:
+    """A session store holding both people's bodies (the simulated session's sensors, clocks
+    and truth; every sensor's stream replaced by its two-person form), fused with
+    ``--people all``: one C3D and one TRC per person, each loading in ezc3d and OpenSim, each on
+    its own person."""
+    import shutil
+    import sqlite3
+
+    import ezc3d
+
+    opensim = pytest.importorskip("opensim")
+    rec = tmp_path / "two.sqlite"
+    shutil.copy(session, rec)
+    con = sqlite3.connect(rec)
+    with con:  # the recorded streams go; the sensors, clocks, truth and meta stay
+        con.execute("DELETE FROM observation_bodies")
+        con.execute("DELETE FROM observations")
+    con.close()
+    with SessionStore.open(rec, writable=True) as st:
+        for s in two["multi"]:
+            o = s.observations
+            st.append_observations(o.sensor_id, o.seq, o.t_device_s, o.joints_m, o.states,
+                                   t_receive_host_s=o.t_host_s, body_id=o.body_id)  # fmt: skip
+    out = tmp_path / "people.c3d"
+    argv = ["fuse", str(rec), "--true-calibration", "--people", "all", "--out", str(out)]
+    assert main([*argv, "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["people"] == [0, 1] and info["subject_rule"] == "nearest the centre"
+    other = 1 - info["subject"]
+    assert info["written"] == [str(tmp_path / f"people_p{p}.c3d") for p in (0, 1)]
+    trc = tmp_path / "people.trc"
+    assert main(["fuse", str(rec), "--true-calibration", "--people", "all", "--out", str(trc)]) == 0
+    sb = JOINT_INDEX["SpineBase"]
+    walk = two["walk"]
+    t0 = min(float(s.t_server_s[0]) for s in two["sensors"])
+    alone = run_method(two["sensors"], frame_grid(two["sensors"]), "best")
+    for pid in (0, 1):
+        c = ezc3d.c3d(str(tmp_path / f"people_p{pid}.c3d"))
+        scale = 0.001 if c["parameters"]["POINT"]["UNITS"]["value"][0] == "mm" else 1.0
+        got = c["data"]["points"][:3, sb, :].T * scale  # (frames, 3)
+        table = opensim.TimeSeriesTableVec3(str(tmp_path / f"people_p{pid}.trc"))
+        assert table.getNumColumns() == 25 and table.getNumRows() == got.shape[0]
+        if pid == other:
+            k = np.round((alone.t_server_s - t0) * 30.0).astype(int)
+            ok = (k >= 0) & (k < walk.shape[0])
+            err = np.linalg.norm(got[ok] - walk[k[ok], sb], axis=1)
+        else:
+            err = np.linalg.norm(got - alone.positions[:, sb], axis=1)
+        assert np.isfinite(err).sum() > 30 and np.nanmedian(err) < 0.05, pid
