@@ -13,11 +13,10 @@ import numpy as np
 
 from kinefuse.net.bus import FusedFrame, Publisher
 from kinefuse.net.server.fusion_loop import FrameFusion
-from kinefuse.net.server.sensor_state import Observation
 from kinefuse.viewer import live_viewer
 from kinefuse.viewer.api import API_PATH
 from kinefuse.viewer.wire import PERSON, decode_frame
-from people_scene import RATE, two_people
+from people_scene import RATE, observation, two_people
 
 
 def _crossing_frame(shared_data: Path) -> FusedFrame:
@@ -26,15 +25,10 @@ def _crossing_frame(shared_data: Path) -> FusedFrame:
     ff.set_poses(lab["poses"])
     k_end = int(2.6 * RATE)
     for k in range(k_end + 1):
-        for sid, s in lab["streams"].items():
-            rows = np.flatnonzero(s.seq == k)
-            obs = [
-                Observation(k, float(s.t_server_s[r]), float(s.t_server_s[r]), s.joints_m[r],
-                            s.states[r], None, None, int(s.body_id[r]))
-                for r in rows
-            ]  # fmt: skip
-            if obs:
-                ff.push(sid, Observation(**{**obs[0].__dict__, "others": tuple(obs[1:])}))
+        for sid in lab["streams"]:
+            o = observation(lab, sid, k)
+            if o is not None:
+                ff.push(sid, o)
     t = (k_end - 1) / RATE + 0.009
     pos, var, status = ff.fuse(t)
     people = {p: f[0] for p, f in ff.people.items()}
