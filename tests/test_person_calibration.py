@@ -78,7 +78,7 @@ def test_a_whole_take_calibrates_good_and_as_realdata_registers_it(take45) -> No
     assert np.allclose(ref_pose[:2, 3], 0.0) and 0.5 < ref_pose[2, 3] < 2.5
     # the two sensors' relative pose is realdata's re-registration (which also takes the
     # sensors' relative latency off: 1 deg and 3 cm apart at most)
-    rep = fuse_multitrack(path)
+    rep = fuse_multitrack(path).as_dict()
     corr = make_transform(
         _rotation(rep["registration"]["correction_rotvec_deg"]),
         np.array(rep["registration"]["correction_translation_m"]),
@@ -355,3 +355,25 @@ def test_a_sensor_with_too_few_person_frames_fails_the_solve_not_the_server() ->
     out = solve_person(PersonJob(1, tracks, {"s0": np.eye(4)}, None, {}, {}))
     assert not out.ok and out.grade.grade == "failed"
     assert "no sensor could be registered" in out.message
+
+
+def test_the_person_path_keeps_the_subject_only(shared_data) -> None:
+    """Two people in view (the scene of tests/people_scene.py: the subject from the start, a
+    bystander crossing in front of them, the subject lost and found under new tracking ids): each
+    sensor keeps the subject's trunk frames and none of the bystander's."""
+    import numpy as np
+
+    from kinefuse.net.server.person import PersonCalibration
+    from people_scene import two_people
+
+    lab = two_people(shared_data)
+    pc = PersonCalibration()
+    for sid, s in lab["streams"].items():
+        for r in range(s.n_frames):
+            t = float(s.t_server_s[r])
+            pc.add_body(sid, t, t + 0.06, s.joints_m[r], int(s.body_id[r]))
+    for sid, s in lab["streams"].items():
+        kept = np.array(pc._frames[sid].p)
+        subject = s.joints_m[lab["truth"][sid] == 0]
+        assert len(kept) == len(subject)
+        assert np.allclose(kept, subject)

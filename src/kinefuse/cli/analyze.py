@@ -67,6 +67,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "hamner, rajagopal; opensim alone: hamner)",
     )
     shared.add_calibration_args(p)
+    shared.add_people_args(p, every=False)
     p.add_argument("--out", type=Path, required=True, help="fresh output folder")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (batch runs)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -132,6 +133,8 @@ def _static_window(text: str) -> tuple[float, float] | str:
 
 def run(args: argparse.Namespace) -> int:
     if len(args.inputs) == 1 and args.inputs[0].is_dir():
+        if args.subject is not None:
+            raise InputError("--subject picks a person of one session, not of a study folder")
         return run_study(args)
     for option in ("jobs", "scheduler", "force"):
         if getattr(args, option):
@@ -155,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
         static=args.static,
         static_window=args.static_window,
         names=args.names,
+        subject=args.subject,
     )
     for name, w in result.warnings:
         print(f"kinefuse: warning: {name}: {w}", file=sys.stderr)

@@ -158,3 +158,30 @@ def add_partial_arg(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="use an incomplete session (an interrupted simulation or recording) as it is",
     )
+
+
+def person_id(text: str) -> int:
+    """A person id: an integer >= 0."""
+    if not text.strip().isdigit():
+        raise argparse.ArgumentTypeError(f"expected a person id (0, 1, 2, ...), got {text!r}")
+    return int(text)
+
+
+def add_people_args(p: argparse.ArgumentParser, *, every: bool = True) -> None:
+    """``--subject ID`` and (``every``) ``--people {subject,all}``."""
+    p.add_argument(
+        "--subject",
+        type=person_id,
+        metavar="ID",
+        help="the person to give (a recording's default: the one seen in the calibration walk "
+        "or the range-of-motion phase, else the one nearest the volume's centre at the start; "
+        "live: the first person seen, or the one the viewer's operator picks)",
+    )
+    if every:
+        p.add_argument(
+            "--people",
+            choices=["subject", "all"],
+            default="subject",
+            help="the subject only (default) or every person, one file each named by id "
+            "(out.c3d -> out_p0.c3d, out_p1.c3d, ...)",
+        )

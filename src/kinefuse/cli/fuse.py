@@ -35,6 +35,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="also store the fused skeleton in the session (otherwise the session is only read)",
     )
+    shared.add_people_args(p)
     shared.add_span_args(p)
     shared.add_partial_arg(p)
     p.add_argument("--json", action="store_true", help="print JSON")
@@ -58,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
             start_s=args.start,
             end_s=args.end,
             progress=progress,
+            subject=args.subject,
+            people=args.people,
         )
     for w in said_once(list(info.warnings)):
         print(f"kinefuse: warning: {w}", file=sys.stderr)
@@ -74,8 +77,13 @@ def run(args: argparse.Namespace) -> int:
                 f"stored the fused skeleton in {args.session} (method {info.method}); "
                 f"replay it: kinefuse view {shlex.quote(str(args.session))}"
             )
-        if info.out:
-            print(f"wrote {info.out}")
+        if len(info.people) > 1:
+            print(
+                f"people {', '.join(map(str, info.people))}; the subject is person "
+                f"{info.subject} ({info.subject_rule})"
+            )
+        for w in info.written:
+            print(f"wrote {w}")
     return 0
 
 

@@ -75,6 +75,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="write the LSL stream's full description (XML) to this NEW file, for an inlet "
         "built without discovery",
     )
+    shared.add_people_args(p, every=False)
     p.add_argument("--verbose", action="store_true", help="log debug messages")
     p.set_defaults(func=run)
 
@@ -100,4 +101,5 @@ def run(args: argparse.Namespace) -> int:
         lsl_xml=args.lsl_xml,
         verbose=args.verbose,
         allow_weak_token=args.allow_weak_token,
+        subject=args.subject,
     )

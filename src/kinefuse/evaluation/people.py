@@ -12,7 +12,6 @@ This module reads the truth; nothing in the capture path may import it.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -22,11 +21,12 @@ from numpy.typing import NDArray
 
 from kinefuse.evaluation.metrics import position_errors
 from kinefuse.frames.observations import BodyFrames
+from kinefuse.fusion.people import associate, split_stream
 from kinefuse.geometry.transforms import apply_transform
 from kinefuse.io.store.session import SessionStore
 from kinefuse.occlusion.segments import detect_occlusion
 from kinefuse.pipeline.session import CalibratedSensor, run_method
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.skeleton import N_JOINTS
 
 Array = NDArray[np.float64]
 Assignment = Mapping[str, NDArray[np.int64]]
@@ -105,37 +105,17 @@ def in_true_ids(
 def system_assignment(
     streams: Mapping[str, BodyFrames], sensors: Sequence[CalibratedSensor]
 ) -> tuple[dict[str, NDArray[np.int64]], str, int]:
-    """The bodies the system gives each person, how, and the person it gives as the subject:
-    the association across sensors (``kinefuse.fusion.people.associate``) where this kinefuse
-    has it, else the one-body fusion's (:func:`first_body_assignment`, subject 0)."""
-    try:
-        people = importlib.import_module("kinefuse.fusion.people")
-    except ModuleNotFoundError:
-        return first_body_assignment(streams), "first body (the one-body fusion)", 0
-    found = people.associate(streams, {s.id: s.sensor2world for s in sensors})
+    """The bodies the system gives each person (the association across sensors,
+    :func:`kinefuse.fusion.people.associate`), how, and the person it gives as the subject."""
+    found = associate(streams, {s.id: s.sensor2world for s in sensors})
     how = f"the association (subject: person {found.subject}, {found.rule})"
     return dict(found.person), how, int(found.subject)
 
 
 def person_stream(frames: BodyFrames, assigned: NDArray[np.int64], person: int) -> BodyFrames:
-    """One person's one-row-per-seq stream of a sensor: at each instant the first row assigned
-    to ``person``, else a row with nothing tracked (the fusion's input)."""
-    mine = assigned == person
-    first = np.ones(frames.n_frames, dtype=bool)
-    first[1:] = frames.seq[1:] != frames.seq[:-1]
-    inst = np.cumsum(first) - 1  # instant of each row
-    n_inst = int(first.sum())
-    row = np.full(n_inst, -1)
-    for k in np.flatnonzero(mine)[::-1]:  # the first assigned row of each instant wins
-        row[inst[k]] = k
-    pick = np.where(row >= 0, row, np.flatnonzero(first))
-    out = frames.take(pick)
-    none = row < 0
-    joints, states = out.joints_m.copy(), out.states.copy()
-    joints[none] = np.nan
-    states[none] = TrackingState.NOT_TRACKED
-    occ = None if out.occluded is None else np.where(none[:, None], False, out.occluded)
-    return replace(out, joints_m=joints, states=states, occluded=occ)
+    """One person's one-row-per-seq stream of a sensor (the fusion's input: their body at each
+    instant, an empty one where the sensor did not give them one)."""
+    return split_stream(frames, assigned == person)
 
 
 def identity_share(

@@ -11,7 +11,7 @@ read (``--true-calibration`` hands in true poses explicitly, for evaluation only
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import pairwise
 
 import numpy as np
@@ -22,6 +22,7 @@ from kinefuse.errors import FusionError
 from kinefuse.frames.observations import BodyFrames
 from kinefuse.fusion.best import BestOptions, fuse_best
 from kinefuse.fusion.methods import METHODS
+from kinefuse.fusion.people import People, associate
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.fusion.trilateration import DEFAULT_C_THRESHOLD, trilaterate
 from kinefuse.skeleton import N_JOINTS
@@ -113,6 +114,29 @@ class MethodResult:
     #: (T, S) for ``best`` and ``best-live``: per frame, the sensors (in the order given) whose
     #: left and right labels the swap vote exchanged; None for the paper's methods (no swaps)
     mirrored: NDArray[np.bool_] | None = None
+
+
+def people_of(
+    sensors: Sequence[CalibratedSensor],
+    *,
+    subject: int | None = None,
+    phases_s: Sequence[tuple[float, float]] = (),
+) -> tuple[People, dict[int, list[CalibratedSensor]]]:
+    """The people of a session (:func:`kinefuse.fusion.people.associate` on the sensors'
+    all-bodies streams) and, per person, the sensors with that person's bodies only (one row per
+    seq: the input of :func:`run_method`). A one-person session's person 0 gets the sensors
+    given, unchanged."""
+    streams = {s.id: s.observations for s in sensors}
+    people = associate(
+        streams, {s.id: s.sensor2world for s in sensors}, subject=subject, phases_s=phases_s
+    )
+    split = people.split(streams)
+    per = {
+        pid: [s if split[pid][s.id] is s.observations else replace(s, observations=split[pid][s.id])
+              for s in sensors]
+        for pid in people.ids
+    }  # fmt: skip
+    return people, per
 
 
 def frame_grid(sensors: Sequence[CalibratedSensor], rate_hz: float = 30.0) -> Array:

@@ -49,6 +49,11 @@ class FusedFrame:
     raw_m : mapping of sensor id -> (25, 3) float
         Each calibrated sensor's latest raw skeleton in the world frame (NaN where untracked),
         for the viewer's per-sensor toggle.
+    subject : int
+        The person ``positions_m`` is (the subject the server gives by default).
+    people_m : mapping of person id -> (25, 3) float
+        Every person's fused skeleton (the subject's included), world frame; a one-person
+        session has one, person 0.
     """
 
     seq: int
@@ -58,6 +63,8 @@ class FusedFrame:
     status: NDArray[np.int8]
     latency_s: float
     raw_m: Mapping[str, Array] = field(default_factory=dict)
+    subject: int = 0
+    people_m: Mapping[int, Array] = field(default_factory=dict)
 
 
 Item = FusedFrame | Status

@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,16 +45,22 @@ __all__ = [
     "load_sensors",
     "load_usable_sensors",
     "run_method",
+    "subject_phases",
 ]
 
 
-def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[CalibratedSensor]:
+def load_sensors(
+    store: SessionStore, poses: dict[str, Array], *, bodies: Literal["first", "all"] = "first"
+) -> list[CalibratedSensor]:
     """Read every sensor's stream, estimate its clock, run the client-side occlusion test.
 
     Parameters
     ----------
     poses : dict
         ``sensor id -> sensor2world (4, 4)`` from a calibration.
+    bodies : {"first", "all"}
+        One row per seq (the first body, what every fusion method takes) or every body (the
+        all-bodies form, for :func:`kinefuse.fusion.session.people_of`).
     """
     out = []
     sensors = store.sensors()
@@ -67,7 +73,7 @@ def load_sensors(store: SessionStore, poses: dict[str, Array]) -> list[Calibrate
             "session again (kinefuse calibrate) or pass a calibration that covers every sensor"
         )
     for s in sensors:
-        out.append(_load_one(store, s, poses[s.id]))
+        out.append(_load_one(store, s, poses[s.id], bodies=bodies))
     return out
 
 
@@ -76,10 +82,13 @@ def _load_one(
     s: SensorInfo,
     pose: Array,
     drop_seq: NDArray[np.int64] | None = None,
+    *,
+    bodies: Literal["first", "all"] = "first",
 ) -> CalibratedSensor:
     """One sensor's stream on the server clock, with its occlusion flags and pose (frames whose
-    seq is in ``drop_seq`` left out before its clock is fitted)."""
-    obs = store.observations(s.id)
+    seq is in ``drop_seq`` left out before its clock is fitted); ``bodies`` as in
+    :func:`load_sensors` (the clock is fitted on one row per seq either way)."""
+    obs = store.observations(s.id, bodies=bodies)
     if drop_seq is not None and len(drop_seq):
         obs = obs.take(np.flatnonzero(~np.isin(obs.seq, drop_seq)))
     probes = store.clock_probes(s.id)
@@ -89,7 +98,8 @@ def _load_one(
             "on the server clock; record with clock sync enabled"
         )
     # device timestamps -> the client's clock (from each frame's arrival) -> the server's
-    timebase = sensor_timebase(probes, obs.t_device_s, obs.t_host_s)
+    first = obs.first_bodies()
+    timebase = sensor_timebase(probes, first.t_device_s, first.t_host_s)
     if obs.occluded is None or obs.n_crossings is None:
         if obs.n_frames:
             # the client sent none (simulated sessions): run its test here, on its data only
@@ -106,7 +116,7 @@ def _load_one(
 
 
 def load_usable_sensors(
-    store: SessionStore, poses: dict[str, Array]
+    store: SessionStore, poses: dict[str, Array], *, bodies: Literal["first", "all"] = "first"
 ) -> tuple[list[CalibratedSensor], SensorScreen]:
     """:func:`load_sensors` on the sensors that can be used, and the screen that says which were
     left out and why (``left_out``): stamps far outside the recording or no clock
@@ -133,7 +143,8 @@ def load_usable_sensors(
         )
     by_id = {s.id: s for s in infos}
     sensors = [
-        _load_one(store, by_id[sid], poses[sid], screen.stray_seq.get(sid)) for sid in screen.usable
+        _load_one(store, by_id[sid], poses[sid], screen.stray_seq.get(sid), bodies=bodies)
+        for sid in screen.usable
     ]
     return sensors, screen
 
@@ -276,6 +287,18 @@ def _live_sightings(
         reasons=("",) * n,
     )
     return LiveSightings(track, live.as_sightings(t_server), floor)
+
+
+def subject_phases(store: SessionStore) -> list[tuple[float, float]]:
+    """The session's calibration walk and range-of-motion phases (server clock, seconds): the
+    person seen in them is the subject (:func:`kinefuse.fusion.people.choose_subject`)."""
+    meta = store.meta()
+    out = []
+    for key in ("calibration_phase_server_s", "rom_phase_server_s"):
+        v = meta.get(key)
+        if isinstance(v, list) and len(v) == 2 and all(isinstance(x, int | float) for x in v):
+            out.append((float(v[0]), float(v[1])))
+    return out
 
 
 def run_method(

@@ -1,9 +1,10 @@
 """The live subscription API: a versioned WebSocket for third-party programs (``docs/api.md``).
 
-``GET /api/v1/stream[?format=json|binary]`` on the viewer's HTTP server (``kinefuse serve
---viewer-port``) upgrades to a WebSocket that carries, after an optional token handshake, a
-``welcome``, then every published status (per-sensor state and calibration poses) as JSON and
-every fused frame as JSON or as the viewer's compact binary frame (:mod:`kinefuse.viewer.wire`).
+``GET /api/v1/stream[?format=json|binary][&people=subject|all]`` on the viewer's HTTP server
+(``kinefuse serve --viewer-port``) upgrades to a WebSocket that carries, after an optional token
+handshake, a ``welcome``, then every published status (per-sensor state and calibration poses) as
+JSON and every fused frame as JSON or as the viewer's compact binary frame
+(:mod:`kinefuse.viewer.wire`): the subject's, and with ``people=all`` every person's besides.
 
 Each subscriber has a lossy subscription on the server's publisher (the newest 2 items): a slow
 one skips frames and fusion never waits. One whose socket accepts nothing for
@@ -41,6 +42,8 @@ API_NAME = "kinefuse-live"
 API_VERSION = 1
 API_PATH = f"/api/v{API_VERSION}/stream"
 FORMATS = ("json", "binary")
+#: ``?people=``: the subject only (default), or every person besides
+PEOPLE = ("subject", "all")
 #: a subscriber whose socket takes nothing for this long is disconnected (close code 4408)
 STALL_LIMIT_S = 5.0
 #: how often the stall watchdog looks at a subscriber's send buffer
@@ -98,19 +101,28 @@ def _num(x: float) -> float | None:
     return None if not math.isfinite(x) else round(float(x), 6)
 
 
-def frame_message(frame: FusedFrame) -> dict[str, Any]:
-    """A fused frame as JSON: positions in metres (world, z up; null = not solved)."""
-    return {
+def _points(positions_m: Any) -> list[list[float] | None]:
+    return [
+        [round(float(v), 6) for v in p] if bool(all(math.isfinite(v) for v in p)) else None
+        for p in positions_m
+    ]
+
+
+def frame_message(frame: FusedFrame, *, people: bool = False) -> dict[str, Any]:
+    """A fused frame as JSON: the subject's positions in metres (world, z up; null = not
+    solved); with ``people``, also the subject's id and every person's positions by id."""
+    out = {
         "type": "frame",
         "seq": frame.seq,
         "t_server_s": frame.t_server_s,
-        "positions_m": [
-            [round(float(v), 6) for v in p] if bool(all(math.isfinite(v) for v in p)) else None
-            for p in frame.positions_m
-        ],
+        "positions_m": _points(frame.positions_m),
         "status": [int(s) for s in frame.status],
         "latency_ms": _num(frame.latency_s * 1e3),
     }
+    if people:
+        out["subject"] = frame.subject
+        out["people_m"] = {str(p): _points(pos) for p, pos in sorted(frame.people_m.items())}
+    return out
 
 
 def unsent_bytes(sock: Any) -> int:
@@ -149,8 +161,12 @@ def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) ->
         if refusal is not None:
             raise web.HTTPForbidden(text=refusal)
         fmt = request.query.get("format", "json")
-        if fmt not in FORMATS or set(request.query) - {"format"}:
+        if fmt not in FORMATS or set(request.query) - {"format", "people"}:
             raise web.HTTPBadRequest(text=f"format must be one of {', '.join(FORMATS)}")
+        who = request.query.get("people", "subject")
+        if who not in PEOPLE:
+            raise web.HTTPBadRequest(text=f"people must be one of {', '.join(PEOPLE)}")
+        every = who == "all"
         # no heartbeat: its close of a peer that does not answer is a graceful one, which leaves
         # the socket to the kernel with the queued frames; the stall watchdog cuts it instead
         ws = web.WebSocketResponse(max_msg_size=1 << 14)
@@ -185,9 +201,9 @@ def api_handler(publisher: Publisher, token: str | None, *, maxsize: int = 2) ->
                     if isinstance(item, Status):
                         await ws.send_str(json.dumps(status_message(item)))
                     elif fmt == "json":
-                        await ws.send_str(json.dumps(frame_message(item)))
+                        await ws.send_str(json.dumps(frame_message(item, people=every)))
                     else:
-                        await ws.send_bytes(fused_frame_bytes(item))
+                        await ws.send_bytes(fused_frame_bytes(item, people=every))
             await ws.close()
 
         stalled = False

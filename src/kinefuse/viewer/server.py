@@ -18,7 +18,7 @@ import json
 import secrets
 import socket
 import weakref
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Callable, Iterable
 from importlib import resources
 from typing import Any, Protocol
 
@@ -67,14 +67,25 @@ class LiveSource:
         Items a page's subscription keeps while the page is busy (older ones are dropped).
     method : str
         Name shown for the fused layer.
+    on_subject : callable, optional
+        Called with a person id when the operator makes that person the subject (the page's
+        ``{"cmd": "subject", "person": ID}``); without it the command is ignored.
     """
 
-    def __init__(self, publisher: Publisher, *, maxsize: int = 2, method: str = "fused") -> None:
+    def __init__(
+        self,
+        publisher: Publisher,
+        *,
+        maxsize: int = 2,
+        method: str = "fused",
+        on_subject: Callable[[int], object] | None = None,
+    ) -> None:
         if maxsize < 1:
             raise ValueError(f"maxsize must be >= 1, got {maxsize}")
         self.publisher = publisher
         self.maxsize = maxsize
         self.method = method
+        self.on_subject = on_subject
         #: frames the pages skipped because they fell behind (sum over closed connections)
         self.dropped = 0
 
@@ -85,8 +96,13 @@ class LiveSource:
         sub = self.publisher.subscribe(maxsize=self.maxsize)
 
         async def read() -> None:
-            async for _msg in ws:  # commands mean nothing live; reading notices the close
-                pass
+            # the one live command: the operator picks the subject; reading notices the close
+            async for cmd in read_commands(ws):
+                person = cmd.get("person")
+                pick = cmd.get("cmd") == "subject" and isinstance(person, int)
+                ok = isinstance(person, int) and not isinstance(person, bool) and person >= 0
+                if pick and ok and isinstance(person, int) and self.on_subject:
+                    self.on_subject(person)
             sub.close()
 
         async def send() -> None:
@@ -102,7 +118,7 @@ class LiveSource:
                 if last is not None and last is not sent:
                     await ws.send_str(json.dumps(status_message(last)))
                     sent = last
-                await ws.send_bytes(fused_frame_bytes(item, method=self.method))
+                await ws.send_bytes(fused_frame_bytes(item, method=self.method, people=True))
             await ws.close()  # the publisher closed
 
         try:
@@ -286,6 +302,7 @@ async def live_viewer(
     token: str | None = None,
     allowed_hosts: Iterable[str] = (),
     limits: PortLimits = DEFAULT_LIMITS,
+    on_subject: Callable[[int], object] | None = None,
 ) -> AsyncIterator[int]:
     """Serve the live viewer of ``publisher`` on the running loop.
 
@@ -311,12 +328,14 @@ async def live_viewer(
         ``Host`` of every request must be one of them).
     limits : PortLimits
         The port's connection caps and header deadline (:mod:`kinefuse.viewer.guard`).
+    on_subject : callable, optional
+        Where the operator's choice of subject goes (:class:`LiveSource`).
 
     Yields
     ------
     bound_port : int
     """
-    source = LiveSource(publisher, maxsize=maxsize)
+    source = LiveSource(publisher, maxsize=maxsize, on_subject=on_subject)
     async with serve(
         source,
         host=host,

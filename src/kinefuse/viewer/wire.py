@@ -13,13 +13,16 @@ Binary frame (little-endian), one per shown frame::
     f64 t_s                 frame time, seconds (server clock; replay: session clock)
     f32 latency_ms          NaN when unknown
     n_layers x layer:
-        u8  kind            0 fused, 1 raw sensor skeleton, 2 truth
-        u8  name_len        then name_len bytes of UTF-8 (method or sensor id)
+        u8  kind            0 fused, 1 raw sensor skeleton, 2 truth, 3 person
+        u8  name_len        then name_len bytes of UTF-8 (method, sensor id, or a person's
+                            id ``p<id>``, with `` subject`` after the subject's)
         u8  has_status      1: a status block follows the positions
         25 x 3 f32          world positions, metres, z up; NaN where missing
         25 x i8             FusionStatus codes (only if has_status)
 
-A frame with the fused skeleton and 8 raw skeletons is about 2.9 kB.
+A frame with the fused skeleton and 8 raw skeletons is about 2.9 kB. With more than one person in
+the room, a live frame's fused layer is the subject and a person layer follows for every person
+(the subject's included, so that the page can label them all).
 
 Text messages are JSON objects with a ``"type"``: ``hello`` (once, on connect: mode, joint
 names, bones, status names, and for a replay the timeline), ``status`` (the server's status,
@@ -45,7 +48,7 @@ from kinefuse.skeleton import BONES, JOINT_INDEX, JOINTS, N_JOINTS
 
 FRAME = 1
 VERSION = 1
-FUSED, RAW, TRUTH = 0, 1, 2
+FUSED, RAW, TRUTH, PERSON = 0, 1, 2, 3
 
 _HEAD = struct.Struct("<BBHIdf")
 _POS_BYTES = N_JOINTS * 3 * 4
@@ -122,13 +125,24 @@ def decode_frame(data: bytes) -> Frame:
     return Frame(seq, t_s, lat, tuple(layers))
 
 
-def fused_frame_bytes(frame: FusedFrame, *, method: str = "fused") -> bytes:
-    """The binary frame of a live :class:`~kinefuse.net.bus.FusedFrame`: the fused layer,
-    then each sensor's raw skeleton (sorted by sensor id)."""
+def fused_frame_bytes(frame: FusedFrame, *, method: str = "fused", people: bool = False) -> bytes:
+    """The binary frame of a live :class:`~kinefuse.net.bus.FusedFrame`: the fused layer (the
+    subject), then each sensor's raw skeleton (sorted by sensor id), then, when ``people`` and
+    there is more than one person, every person's (by id)."""
     layers = [Layer(FUSED, method, frame.positions_m, frame.status)]
     layers += [Layer(RAW, sid, frame.raw_m[sid]) for sid in sorted(frame.raw_m)]
+    if people and len(frame.people_m) > 1:
+        layers += [
+            Layer(PERSON, person_name(pid, pid == frame.subject), frame.people_m[pid])
+            for pid in sorted(frame.people_m)
+        ]
     lat = frame.latency_s * 1e3 if math.isfinite(frame.latency_s) else math.nan
     return encode_frame(frame.seq, frame.t_server_s, lat, layers)
+
+
+def person_name(person_id: int, subject: bool) -> str:
+    """A person layer's name: ``p1``, or ``p0 subject`` for the subject."""
+    return f"p{person_id}" + (" subject" if subject else "")
 
 
 def _num(x: float) -> float | None:

@@ -70,25 +70,35 @@ def sequence_from_session(
     method: str = "best",
     calibration: Path | None = None,
     true_calibration: bool = False,
+    subject: int | None = None,
 ) -> AnalysisInput:
     """Fuse a session (read-only) with one method and return it as a skeleton sequence.
 
-    The fusion is that of ``kinefuse fuse`` (clocks, occlusion test, ``method``) with the
-    session's stored calibration, a calibration file or the true poses; the result is not
-    stored. The session's range-of-motion phase, if it has one, comes along as protocol metadata.
+    The fusion is that of ``kinefuse fuse`` (clocks, occlusion test, ``method``, the subject:
+    ``subject`` or the documented rule) with the session's stored calibration, a calibration
+    file or the true poses; the result is not stored. The session's range-of-motion phase, if it
+    has one, comes along as protocol metadata.
     """
     from kinefuse.evaluation.poses import resolve_poses
     from kinefuse.fusion.methods import METHODS
+    from kinefuse.fusion.session import people_of
     from kinefuse.io.store.session import SessionStore
     from kinefuse.pipeline.analysis import fused_limb_counts
-    from kinefuse.pipeline.session import frame_grid, load_usable_sensors, run_method
+    from kinefuse.pipeline.session import (
+        frame_grid,
+        load_usable_sensors,
+        run_method,
+        subject_phases,
+    )
 
     if method not in METHODS:
         raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
     with SessionStore.open(path) as store:
         poses, source = resolve_poses(store, calibration, true_calibration)
-        sensors, screen = load_usable_sensors(store, poses)
-        grid = frame_grid(sensors)
+        everyone, screen = load_usable_sensors(store, poses, bodies="all")
+        grid = frame_grid(everyone)
+        people, per_person = people_of(everyone, subject=subject, phases_s=subject_phases(store))
+        sensors = per_person[people.subject]
         res = run_method(sensors, grid, method)
         meta = store.meta()
     phase = meta.get("rom_phase_server_s")
@@ -118,6 +128,9 @@ def sequence_from_session(
             "calibration": source,
             "frames": int(grid.size),
             "left_out": dict(screen.left_out),
+            "people": list(people.ids),
+            "subject": people.subject,
+            "subject_rule": people.rule,
         },
         sensor_poses={k: np.asarray(v, dtype=np.float64) for k, v in poses.items()},
         limb_sensors=counts,
@@ -134,6 +147,7 @@ def load_input(
     true_calibration: bool = False,
     static: Path | None = None,
     static_window: tuple[float, float] | str | None = None,
+    subject: int | None = None,
 ) -> AnalysisInput:
     """Any input of ``kinefuse analyze`` as an :class:`AnalysisInput` (see the module doc).
 
@@ -148,6 +162,8 @@ def load_input(
         raise InputError(f"{path}: --map is for marker files (.trc, .c3d), not a {kind}")
     if kind != "session" and (calibration is not None or true_calibration):
         raise InputError(f"{path}: --calibration/--true-calibration are for sessions (.sqlite)")
+    if kind != "session" and subject is not None:
+        raise InputError(f"{path}: --subject picks a person of a session (.sqlite)")
     if kind == "session":
         if static is not None:
             raise InputError(
@@ -157,7 +173,11 @@ def load_input(
                 "--static takes a marker file's static trial"
             )
         inp = sequence_from_session(
-            path, method=method, calibration=calibration, true_calibration=true_calibration
+            path,
+            method=method,
+            calibration=calibration,
+            true_calibration=true_calibration,
+            subject=subject,
         )
         if static_window == "auto":
             if inp.stored_static_s is None:
@@ -416,6 +436,7 @@ def run_analyze(
     static: Path | None = None,
     static_window: tuple[float, float] | str | None = None,
     names: str = "kinefuse",
+    subject: int | None = None,
 ) -> AnalyzeResult:
     """Analyse one or several inputs into a fresh folder ``out``; returns what it made.
 
@@ -433,6 +454,10 @@ def run_analyze(
         raise InputError("--map is for marker files (.trc, .c3d); none of the inputs is one")
     if (calibration is not None or true_calibration) and "session" not in kinds:
         raise InputError("--calibration/--true-calibration are for sessions (.sqlite)")
+    if subject is not None and "session" not in kinds:
+        raise InputError(
+            "--subject picks a person of a session (.sqlite); none of the inputs is one"
+        )
     loaded = []
     for p, kind in zip(inputs, kinds, strict=True):
         say(f"loading {p}")
@@ -445,6 +470,7 @@ def run_analyze(
                 true_calibration=true_calibration and kind == "session",
                 static=static,
                 static_window=static_window,
+                subject=subject if kind == "session" else None,
             )
         )
     check_output_folder(out, "analysis folder")  # fail early, before any work

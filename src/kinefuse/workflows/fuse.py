@@ -10,10 +10,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.errors import InputError
 from kinefuse.evaluation.poses import resolve_poses
 from kinefuse.io.store.session import SessionStore
 
 Array = NDArray[np.float64]
+
+#: what ``--people`` takes: the subject only, or every person (one file each)
+PEOPLE = ("subject", "all")
+
+
+def person_path(path: Path, person_id: int) -> Path:
+    """The export of one person: ``people.c3d`` -> ``people_p1.c3d``."""
+    return path.with_name(f"{path.stem}_p{person_id}{path.suffix}")
 
 
 @dataclass(frozen=True)
@@ -44,6 +53,14 @@ class FuseResult:
         The sensors fused.
     left_out : dict of str to str
         The sensors left out, by id, with the reason.
+    people : tuple of int
+        The persons found (``(0,)`` for a one-person session).
+    subject : int
+        The person given by default.
+    subject_rule : str
+        How the subject was chosen (:data:`kinefuse.fusion.people.SUBJECT_RULES`).
+    written : tuple of str
+        Every file written (one per person and export with ``people="all"``).
     """
 
     method: str
@@ -57,6 +74,10 @@ class FuseResult:
     warnings: tuple[str, ...]
     sensors: tuple[str, ...]
     left_out: dict[str, str]
+    people: tuple[int, ...] = (0,)
+    subject: int = 0
+    subject_rule: str = "one person"
+    written: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """The result as JSON-able data (what ``--json`` prints)."""
@@ -72,6 +93,10 @@ class FuseResult:
             "warnings": list(self.warnings),
             "sensors": list(self.sensors),
             "left_out": [{"id": k, "reason": v} for k, v in self.left_out.items()],
+            "people": list(self.people),
+            "subject": self.subject,
+            "subject_rule": self.subject_rule,
+            "written": list(self.written),
         }
 
 
@@ -89,8 +114,17 @@ def run_fuse(
     end_s: float | None = None,
     also_out: tuple[Path, ...] = (),
     progress: Callable[[str], None] | None = None,
+    subject: int | None = None,
+    people: str = "subject",
 ) -> FuseResult:
     """Fuse a session with one method and export the result.
+
+    The session's bodies are matched to people (:func:`kinefuse.fusion.session.people_of`) and
+    each person fused from their own bodies. ``people="subject"`` (default) fuses and exports
+    the subject (``subject``: the person id chosen by hand, else the documented rule);
+    ``"all"`` every person, each export one file per person named by id (``out.c3d`` ->
+    ``out_p0.c3d``, ``out_p1.c3d``...). A one-person session has one person, 0, and its files
+    are named as given.
 
     The session is opened read-only; ``store_result`` stores the fused skeleton in it as well
     (the one case that writes to the session). The export's folder and kind are checked before
@@ -99,11 +133,20 @@ def run_fuse(
     step.
     """
     say = progress or (lambda _msg: None)
+    from kinefuse.fusion.session import people_of
     from kinefuse.fusion.status import status_counts
     from kinefuse.io.formats.export import check_export_path, export_skeleton
     from kinefuse.io.outputs import check_output_folder
-    from kinefuse.pipeline.session import clip_grid, frame_grid, load_usable_sensors, run_method
+    from kinefuse.pipeline.session import (
+        clip_grid,
+        frame_grid,
+        load_usable_sensors,
+        run_method,
+        subject_phases,
+    )
 
+    if people not in PEOPLE:
+        raise InputError(f"--people {people!r}: choose one of {', '.join(PEOPLE)}")
     outs = ([out] if out is not None else []) + list(also_out)
     for o in outs:
         check_export_path(o)
@@ -112,29 +155,40 @@ def run_fuse(
         store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
         say("reading the sensors' streams and clocks")
-        sensors, screen = load_usable_sensors(store, poses)
+        sensors, screen = load_usable_sensors(store, poses, bodies="all")
         warnings = screen.notes() + [
             f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
             for s in sensors
             if not s.observations.has_body.any()
         ]
         grid = clip_grid(frame_grid(sensors), start_s, end_s)
-        say(f"fusing {grid.size} frames with {method}")
-        res = run_method(sensors, grid, method)
+        found, per_person = people_of(sensors, subject=subject, phases_s=subject_phases(store))
+        chosen = list(found.ids) if people == "all" else [found.subject]
+        results = {}
+        for pid in chosen:
+            who = "" if len(found.ids) == 1 else f" (person {pid})"
+            say(f"fusing {grid.size} frames with {method}{who}")
+            results[pid] = run_method(per_person[pid], grid, method)
+        res = results[found.subject] if found.subject in results else results[chosen[0]]
         if store_result:
             store.write_fused(method, res.t_server_s, res.positions, res.status)
+            store.set_meta("subject", {"person": found.subject, "rule": found.rule})
+    written: list[str] = []
     for o in outs:
-        say(f"writing {o}")
-        notes: list[str] = []
-        export_skeleton(
-            o,
-            res.t_server_s,
-            res.positions,
-            residual_m=res.residual_m,
-            trc_axes=trc_axes,
-            notes=notes,
-        )
-        warnings += [f"{o.name}: {n}" for n in notes]
+        for pid, r in results.items():
+            path = o if len(found.ids) == 1 or people == "subject" else person_path(o, pid)
+            say(f"writing {path}")
+            notes: list[str] = []
+            export_skeleton(
+                path,
+                r.t_server_s,
+                r.positions,
+                residual_m=r.residual_m,
+                trc_axes=trc_axes,
+                notes=notes,
+            )
+            warnings += [f"{path.name}: {n}" for n in notes]
+            written.append(str(path))
     return FuseResult(
         method=method,
         calibration=source,
@@ -147,4 +201,8 @@ def run_fuse(
         warnings=tuple(warnings),
         sensors=tuple(s.id for s in sensors),
         left_out=dict(screen.left_out),
+        people=found.ids,
+        subject=found.subject,
+        subject_rule=found.rule,
+        written=tuple(written),
     )

@@ -134,8 +134,12 @@ def run_serve(
     lsl_xml: Path | None = None,
     verbose: bool = False,
     allow_weak_token: bool = False,
+    subject: int | None = None,
 ) -> int:
-    """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop."""
+    """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop.
+
+    ``subject``: the person the server gives (``--subject``); default the first person seen.
+    The viewer's operator can pick another."""
     from kinefuse.net.server.calibration import LiveCalibrationOptions
     from kinefuse.net.server.server import Server, ServerOptions
 
@@ -182,7 +186,12 @@ def run_serve(
             except ValueError as e:
                 raise InputError(f"--allow-host: {e}; give a DNS name or an IP address") from None
         services["viewer"] = functools.partial(
-            live_viewer, host=host, port=viewer_port, token=token, allowed_hosts=allow_hosts
+            live_viewer,
+            host=host,
+            port=viewer_port,
+            token=token,
+            allowed_hosts=allow_hosts,
+            on_subject=lambda p: the_server[0].fusion.set_subject(p, "operator", known=True),
         )
     elif allow_hosts:
         raise InputError("--allow-host names the viewer's host: give --viewer-port too")
@@ -193,6 +202,8 @@ def run_serve(
     raise_descriptor_limit()
     server = Server(options, services=services)
     the_server.append(server)
+    if subject is not None:
+        server.fusion.set_subject(subject, "chosen")
     if calibration is not None:
         from kinefuse.calibration.calib_file import read_calibration
 

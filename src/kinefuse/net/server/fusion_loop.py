@@ -44,12 +44,15 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.frames.observations import BodyFrame
 from kinefuse.fusion.live import LiveFusion, LiveOptions
 from kinefuse.fusion.methods import LIVE_METHODS
+from kinefuse.fusion.people import PeopleTracker
 from kinefuse.fusion.status import FusionStatus
 from kinefuse.net.bus import FusedFrame, Publisher
 from kinefuse.net.server.sensor_state import Observation, SensorState
@@ -66,7 +69,13 @@ METHODS = LIVE_METHODS
 class FrameFusion:
     """Fuse frame by frame from pushed observations with ``best-live`` or the paper's method.
 
-    Sensors are known by id; only sensors with a pose take part (:meth:`set_poses`).
+    Sensors are known by id; only sensors with a pose take part (:meth:`set_poses`). Every
+    body an observation carries (``obs`` and ``obs.others``) is given to a person by the causal
+    :class:`~kinefuse.fusion.people.PeopleTracker`, and each person has a fusion of their own:
+    :meth:`fuse` returns the subject's frame, :attr:`people` every person's. While no sensor
+    has reported two bodies at one instant there is one person, 0, the subject, fused exactly
+    as before. The subject is person 0 (the first person seen) until :meth:`set_subject`
+    chooses another (the operator, ``serve --subject``).
     """
 
     def __init__(self, method: str = "best-live", options: LiveOptions | None = None) -> None:
@@ -76,9 +85,32 @@ class FrameFusion:
         self.options = options if options is not None else LiveOptions()
         self.ids: list[str] = []
         self._poses = np.zeros((0, 4, 4))
-        self._live: LiveFusion | None = None
+        self._lives: dict[int, LiveFusion] = {}
         self._latest: dict[str, Observation] = {}
-        self._paper_window: dict[str, deque[Observation]] = {}
+        self._paper_windows: dict[int, dict[str, deque[Observation]]] = {}
+        self.tracker = PeopleTracker()
+        #: the person the server gives by default, and how they were chosen
+        self.subject = 0
+        self.subject_rule = "first seen"
+        #: every person's last fused frame: ``person id -> (positions, variance, status)``
+        self.people: dict[int, tuple[Array, Array, NDArray[np.int8]]] = {}
+
+    def _person_live(self, person: int) -> LiveFusion:
+        if person not in self._lives:
+            self._lives[person] = LiveFusion(self._poses, self.options)
+        return self._lives[person]
+
+    def set_subject(self, person: int, rule: str = "chosen", *, known: bool = False) -> bool:
+        """Make ``person`` the subject (:meth:`fuse` returns their frame from now on).
+
+        ``known``: only a person fused now (the operator picks among those shown); False when
+        refused for that reason."""
+        if known and person not in self.people:
+            log.warning("subject %d asked for, but no such person is fused now", person)
+            return False
+        self.subject, self.subject_rule = int(person), rule
+        log.info("the subject is person %d (%s)", person, rule)
+        return True
 
     @property
     def lead_s(self) -> float:
@@ -98,10 +130,9 @@ class FrameFusion:
             [np.asarray(poses[s] if s in poses else old[s], dtype=np.float64) for s in self.ids]
         )
         if self.method == "best-live":
-            if self._live is None:
-                self._live = LiveFusion(self._poses, self.options)
-            else:
-                self._live.set_poses(self._poses)
+            self._person_live(self.subject)
+            for live in self._lives.values():
+                live.set_poses(self._poses)
 
     def _pose(self, sid: str) -> Array:
         return self._poses[self.ids.index(sid)]
@@ -109,27 +140,67 @@ class FrameFusion:
     def push(self, sensor_id: str, obs: Observation) -> None:
         if sensor_id not in self.ids:
             return
-        self._latest[sensor_id] = obs
-        if self._live is not None:
-            self._live.push(
-                self.ids.index(sensor_id),
-                obs.t_capture_server_s,
-                obs.joints_m,
-                obs.states,
-                obs.occluded,
-            )
+        t = obs.t_capture_server_s
+        first = BodyFrame(sensor_id, obs.seq, t, obs.t_host_server_s, obs.joints_m, obs.states,
+                          obs.occluded, obs.n_crossings)  # fmt: skip
+        bodies = obs.bodies or (first,)
+        poses = {sid: self._poses[i] for i, sid in enumerate(self.ids)}
+        who = self.tracker.update(t, {sensor_id: list(bodies)}, poses)
+        if not self.tracker.multi:
+            # one person: every frame is theirs, as it always was (one without a trunk too)
+            assign = [(obs, 0)]
         else:
-            q = self._paper_window.setdefault(sensor_id, deque(maxlen=8))
-            q.append(obs)
+            assign = [
+                (self._body(obs, b), who[(sensor_id, b.body_id)])
+                for k, b in enumerate(bodies)
+                if (sensor_id, b.body_id) in who and all(o.body_id != b.body_id for o in bodies[:k])
+            ]
+            # a person this sensor does not see now gets an empty frame from it, as the offline
+            # split (People.split) gives them
+            seen = {p for _, p in assign}
+            known = set(self._lives) | set(self._paper_windows) | set(self.tracker.people)
+            if known - seen:
+                empty = replace(
+                    obs,
+                    joints_m=np.full((N_JOINTS, 3), np.nan),
+                    states=np.zeros(N_JOINTS, dtype=np.int8),
+                    occluded=None,
+                    n_crossings=None,
+                    bodies=(),
+                )
+                assign += [(empty, p) for p in sorted(known - seen)]
+        for o, person in assign:
+            if person == self.subject:
+                self._latest[sensor_id] = o
+            if self.method == "best-live":
+                self._person_live(person).push(
+                    self.ids.index(sensor_id), t, o.joints_m, o.states, o.occluded
+                )
+            else:
+                window = self._paper_windows.setdefault(person, {})
+                window.setdefault(sensor_id, deque(maxlen=8)).append(o)
+
+    @staticmethod
+    def _body(obs: Observation, b: BodyFrame) -> Observation:
+        """One body of an observation as an observation of its own (the same instant)."""
+        return replace(obs, joints_m=b.joints_m, states=b.states, occluded=b.occluded,
+                       n_crossings=b.n_crossings, bodies=())  # fmt: skip
 
     def fuse(self, t_server_s: float) -> tuple[Array, Array, NDArray[np.int8]]:
-        """``positions (25, 3)`` world, ``variance_m2 (25,)`` and ``status (25,)`` at ``T``."""
-        if self._live is not None:
-            fr = self._live.fuse(t_server_s)
-            return fr.positions, fr.variance_m2, fr.status
-        return self._fuse_paper(t_server_s)
+        """The subject's ``positions (25, 3)`` world, ``variance_m2 (25,)`` and ``status (25,)``
+        at ``T``; every person's in :attr:`people`."""
+        subject = self.subject  # (the operator may change it meanwhile, on the loop)
+        people = {}
+        for person in sorted(set(self._lives) | set(self._paper_windows) | {subject}):
+            if self.method == "best-live":
+                fr = self._person_live(person).fuse(t_server_s)
+                people[person] = (fr.positions, fr.variance_m2, fr.status)
+            else:
+                people[person] = self._fuse_paper(t_server_s, person)
+        self.people = people
+        return people[subject]
 
-    def _fuse_paper(self, t: float) -> tuple[Array, Array, NDArray[np.int8]]:
+    def _fuse_paper(self, t: float, person: int = 0) -> tuple[Array, Array, NDArray[np.int8]]:
         from kinefuse.fusion.trilateration import trilaterate
 
         n_s = len(self.ids)
@@ -139,7 +210,7 @@ class FrameFusion:
         n_int = np.zeros((1, n_s), dtype=np.int64)
         for i, sid in enumerate(self.ids):
             best = None
-            for o in self._paper_window.get(sid, ()):
+            for o in self._paper_windows.get(person, {}).get(sid, ()):
                 if t - 1.0 / 30.0 < o.t_capture_server_s <= t:
                     best = o
             if best is not None:
@@ -394,6 +465,8 @@ class FusionLoop:
             status=status,
             latency_s=latency,
             raw_m=self.fusion.raw_world(),
+            subject=self.fusion.subject,
+            people_m={p: f[0] for p, f in self.fusion.people.items()},
         )
         self.publisher.publish(frame)
         self.frames += 1

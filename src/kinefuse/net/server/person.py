@@ -68,6 +68,8 @@ WALK = "calibrating from the person: walk through the volume"
 
 _TRUNK = np.array([JOINT_INDEX[n] for n in TRUNK_JOINTS])
 _RANK = {"failed": 0, "doubtful": 1, "good": 2}
+#: a followed body unseen this long is lost (another near where it was is taken for it), s
+_GAP_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,10 @@ class PersonCalibration:
     def __init__(self, options: PersonOptions = PersonOptions()) -> None:
         self.options = options
         self._frames: dict[str, _Frames] = {}
+        #: per sensor, the bodies in view: tracking id -> (first seen, last seen, trunk)
+        self._runs: dict[str, dict[int, tuple[float, float, Array]]] = {}
+        #: per sensor, the body followed: (tracking id, last seen, trunk in the sensor frame)
+        self._followed: dict[str, tuple[int, float, Array]] = {}
         #: the person path has started (it goes on until its grade is good)
         self.active = False
         self.solving = False
@@ -126,13 +132,26 @@ class PersonCalibration:
         self._refining = True
 
     def add_body(
-        self, sensor_id: str, t_device_s: float, t_receive_s: float, joints_m: Array
+        self,
+        sensor_id: str,
+        t_device_s: float,
+        t_receive_s: float,
+        joints_m: Array,
+        body_id: int = 0,
     ) -> None:
         """Keep a body frame whose trunk is seen: its device stamp and the server time it reached
-        the sensor's PC (a repeated or out-of-order frame is not kept)."""
+        the sensor's PC (a repeated or out-of-order frame is not kept).
+
+        With several bodies in view only the subject's are kept. The sensors have no poses yet,
+        so each sensor follows one body on its own: the one it has tracked longest (the person
+        who walks through the volume to calibrate it stays; a passer-by comes and goes), and
+        after a loss the body nearest where that one was last seen (a new tracking id for the
+        same person), else again the one tracked longest."""
         if not (math.isfinite(t_device_s) and math.isfinite(t_receive_s)):
             return
         if not np.isfinite(joints_m[_TRUNK]).all():
+            return
+        if not self._follows(sensor_id, body_id, t_receive_s, joints_m):
             return
         f = self._frames.setdefault(sensor_id, _Frames())
         if f.td and t_device_s <= f.td[-1]:
@@ -144,6 +163,37 @@ class PersonCalibration:
             f.td.popleft()
             f.tr.popleft()
             f.p.popleft()
+
+    def _follows(self, sensor_id: str, body_id: int, t: float, joints_m: Array) -> bool:
+        """Whether this body is the one the sensor follows (see :meth:`add_body`)."""
+        lost = self.options.tracking_s
+        runs = self._runs.setdefault(sensor_id, {})
+        trunk = np.asarray(joints_m, dtype=np.float64)[_TRUNK].mean(axis=0)
+        start = runs[body_id][0] if body_id in runs and t - runs[body_id][1] <= lost else t
+        runs[body_id] = (start, t, trunk)
+        for b in [b for b, r in runs.items() if t - r[1] > lost]:
+            del runs[b]
+        followed = self._followed.get(sensor_id)
+        if followed is not None and followed[0] in runs and t - runs[followed[0]][1] <= _GAP_S:
+            if body_id == followed[0]:
+                self._followed[sensor_id] = (body_id, t, trunk)
+            return body_id == followed[0]
+        if followed is not None:  # lost: a body near where it was last seen is the same person
+            _, t_last, where = followed
+            gate = 0.5 + 1.0 * (t - t_last)
+            near = [
+                b
+                for b, r in runs.items()
+                if t - r[1] <= _GAP_S and np.linalg.norm(r[2] - where) <= gate
+            ]
+            if near:
+                b = min(near, key=lambda b: float(np.linalg.norm(runs[b][2] - where)))
+                self._followed[sensor_id] = (b, t, runs[b][2])
+                return body_id == b
+        here = [b for b, r in runs.items() if t - r[1] <= _GAP_S]
+        b = min(here, key=lambda b: (runs[b][0], b))  # tracked longest
+        self._followed[sensor_id] = (b, t, runs[b][2])
+        return body_id == b
 
     def tracking(self, now: float, connected: list[str]) -> list[str]:
         """The connected sensors that track a person now."""

@@ -653,7 +653,8 @@ class Server:
         t_cap = client.capture_to_server(msg.t_device_s)
         t_host = client.host_to_server(msg.t_host_s)
         bodies = _bodies(client.sensor_id, msg, joints, states)
-        self.person.add_body(client.sensor_id, msg.t_device_s, t_host, joints)
+        for b in bodies:  # (the calibration from the person keeps the subject's only)
+            self.person.add_body(client.sensor_id, msg.t_device_s, t_host, b.joints_m, b.body_id)
         if self.recorder is not None:
             self.recorder.add_observation(
                 client.sensor_id,

@@ -19,7 +19,9 @@ const S = {
   connects: 0,
   hoverJoint: -1,
 };
-const KIND_FUSED = 0, KIND_RAW = 1, KIND_TRUTH = 2;
+const KIND_FUSED = 0, KIND_RAW = 1, KIND_TRUTH = 2, KIND_PERSON = 3;
+const PERSON_COLOURS = ["#b2bec3", "#fab1a0", "#81ecec", "#ffeaa7", "#dfe6e9"];
+const HEAD = 3;  // the joint a person's id is written beside
 const SENSOR_COLOURS = ["#e8875b", "#c678dd", "#56b6c2", "#e06c9f", "#d19a66", "#98c379",
                         "#61afef", "#e5c07b", "#be5046", "#7f8c8d"];
 const METHOD_COLOURS = ["#ffffff", "#ff9f43", "#a29bfe", "#74b9ff", "#fd79a8", "#55efc4"];
@@ -145,7 +147,7 @@ function onFrame(f) {
       // first fused result and the truth on; other results and raw skeletons off
       const fusedOn = l.kind === KIND_FUSED && !f.layers.some(
         (o) => o.kind === KIND_FUSED && layerKey(o) in S.shown && S.shown[layerKey(o)]);
-      S.shown[k] = l.kind === KIND_TRUTH || fusedOn;
+      S.shown[k] = l.kind === KIND_TRUTH || l.kind === KIND_PERSON || fusedOn;
       changed = true;
     }
   }
@@ -218,8 +220,8 @@ function renderLayers() {
   const box = $("layers");
   const f = S.frame;
   if (!f) return;
-  const groups = [["fused results", KIND_FUSED], ["truth", KIND_TRUTH],
-                  ["raw sensor skeletons", KIND_RAW]];
+  const groups = [["fused results", KIND_FUSED], ["people", KIND_PERSON],
+                  ["truth", KIND_TRUTH], ["raw sensor skeletons", KIND_RAW]];
   let html = "";
   for (const [title, kind] of groups) {
     const ls = f.layers.filter((l) => l.kind === kind);
@@ -227,21 +229,36 @@ function renderLayers() {
     html += `<div class="group">${title}</div>`;
     for (const l of ls) {
       const k = layerKey(l);
-      html += `<label><input type="checkbox" data-layer="${k}" ${S.shown[k] ? "checked" : ""}>` +
-        `<span class="swatch" style="background:${layerColour(l)}"></span>${l.name}</label>`;
+      const person = l.kind === KIND_PERSON ?
+        ` data-person="${l.name.split(" ")[0].slice(1)}"` +
+        (isSubject(l) ? ` data-subject="1"` : "") : "";
+      html += `<label${person}><input type="checkbox" data-layer="${k}" ` +
+        `${S.shown[k] ? "checked" : ""}>` +
+        `<span class="swatch" style="background:${layerColour(l)}"></span>${l.name}` +
+        (l.kind === KIND_PERSON && !isSubject(l) && S.hello.mode === "live" ?
+          ` <button class="pick-subject" data-pick="${l.name.slice(1)}">make subject</button>` :
+          "") + `</label>`;
     }
   }
   html += `<div class="group">scene</div><label><input type="checkbox" id="show-frustums" ` +
     `${S.showFrustums ? "checked" : ""}> sensor frustums</label>`;
   box.innerHTML = html;
+  for (const b of box.querySelectorAll("button[data-pick]")) {
+    b.onclick = (e) => { e.preventDefault(); send({cmd: "subject", person: Number(b.dataset.pick)}); };
+  }
   for (const cb of box.querySelectorAll("input[data-layer]")) {
     cb.onchange = () => { S.shown[cb.dataset.layer] = cb.checked; renderErrors(); dirty(); };
   }
   $("show-frustums").onchange = (e) => { S.showFrustums = e.target.checked; dirty(); };
 }
 
+const isSubject = (l) => l.kind === KIND_PERSON && l.name.endsWith(" subject");
 function layerColour(l) {
   if (l.kind === KIND_RAW) return sensorColour(l.name);
+  if (isSubject(l)) return METHOD_COLOURS[0];
+  if (l.kind === KIND_PERSON) {
+    return PERSON_COLOURS[Number(l.name.slice(1)) % PERSON_COLOURS.length];
+  }
   if (l.kind === KIND_TRUTH) return "#e6e6e6";
   const fused = S.frame.layers.filter((o) => o.kind === KIND_FUSED);
   return METHOD_COLOURS[fused.indexOf(l) % METHOD_COLOURS.length];
@@ -478,6 +495,14 @@ function draw() {
   for (const l of f.layers) {
     if (l.kind !== KIND_FUSED || l === prim || !S.shown[layerKey(l)]) continue;
     drawSkeleton(l, layerColour(l), 1.6 * dpr);
+  }
+  // every person: the subject is the fused skeleton above; the others in their colours; each
+  // with its id beside the head
+  for (const l of f.layers) {
+    if (l.kind !== KIND_PERSON || !S.shown[layerKey(l)]) continue;
+    if (!isSubject(l)) drawSkeleton(l, layerColour(l), 1.6 * dpr);
+    const head = P(l.pos, HEAD);
+    if (finite(head)) label(head, l.name, layerColour(l));
   }
   if (prim) drawPrimary(prim); else renderLegend(null);
   $("method-label").textContent = prim ? "showing " + prim.name : "";
