@@ -74,8 +74,9 @@ class FrameFusion:
     :class:`~kinefuse.fusion.people.PeopleTracker`, and each person has a fusion of their own:
     :meth:`fuse` returns the subject's frame, :attr:`people` every person's. While no sensor
     has reported two bodies at one instant there is one person, 0, the subject, fused exactly
-    as before. The subject is person 0 (the first person seen) until :meth:`set_subject`
-    chooses another (the operator, ``serve --subject``).
+    as before. The subject is the first person seen (of several seen first at one instant, the
+    one nearest the centre of the sensors) until :meth:`set_subject` chooses another (the
+    operator, ``serve --subject``).
     """
 
     def __init__(self, method: str = "best-live", options: LiveOptions | None = None) -> None:
@@ -94,6 +95,21 @@ class FrameFusion:
         self.subject_rule = "first seen"
         #: every person's last fused frame: ``person id -> (positions, variance, status)``
         self.people: dict[int, tuple[Array, Array, NDArray[np.int8]]] = {}
+        self._first_seen = True
+
+    def _subject_first_seen(self, persons: set[int]) -> None:
+        """The subject by the live rule: the first person seen; of several seen first at one
+        instant, the one whose trunk is nearest the centre of the sensors (on the floor)."""
+        centre = self._poses[:, :2, 3].mean(axis=0)
+
+        def far(p: int) -> float:
+            at = self.tracker.position(p)
+            return math.inf if at is None else float(np.linalg.norm(at[:2] - centre))
+
+        self.subject = min(persons, key=lambda p: (far(p), p))
+        if len(persons) > 1:
+            self.subject_rule = "first seen, nearest the centre"
+        log.info("the subject is person %d (%s)", self.subject, self.subject_rule)
 
     def _person_live(self, person: int) -> LiveFusion:
         if person not in self._lives:
@@ -146,6 +162,10 @@ class FrameFusion:
         bodies = obs.bodies or (first,)
         poses = {sid: self._poses[i] for i, sid in enumerate(self.ids)}
         who = self.tracker.update(t, {sensor_id: list(bodies)}, poses)
+        if who and self._first_seen:
+            self._first_seen = False
+            if self.subject_rule == "first seen":
+                self._subject_first_seen(set(who.values()))
         if not self.tracker.multi:
             # one person: every frame is theirs, as it always was (one without a trunk too)
             assign = [(obs, 0)]
