@@ -15,11 +15,14 @@ import numpy as np
 import pytest
 
 from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
+from kinefuse.errors import InputError
+from kinefuse.frames.observations import BodyFrame
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.bus import FusedFrame
 from kinefuse.net.client.client import ClientOptions
 from kinefuse.net.client.fleet import replay_clients, run_clients
 from kinefuse.net.server.server import Server, ServerOptions
+from kinefuse.pipeline.sources import SessionReplay, open_source
 
 TOKEN = "people-server-token"
 SECONDS = 5.0
@@ -119,3 +122,26 @@ def test_the_subject_stays_on_the_subject_while_the_bystander_walks_between(crow
         np.linalg.norm(np.stack([p for _, p in by]) - _truth_at(crowd, 1, t_by), axis=-1), axis=1
     )
     assert np.median(err_by) < 0.08
+
+
+def test_simlive_with_a_bystander_is_the_simulated_session_live(
+    crowd: Path, shared_data: Path
+) -> None:
+    """``simlive:...&bystander=CLIP2`` generates, frame by frame, the bodies ``kinefuse simulate
+    --bystander`` stored for the same clips, rig and seed: every body, in the sensor's order."""
+    cmu = shared_data / "motion" / "cmu"
+    src = open_source(f"simlive:{cmu / '01_01.amc'}#k0?seed=2&calibration=1&seconds={SECONDS}"
+                      f"&depth_rate=5&bystander={cmu / '02_walk_a.amc'}")  # fmt: skip
+    live = [f for f in src if isinstance(f, BodyFrame)]
+    with SessionStore.open(crowd) as st:
+        stored = [f for f in SessionReplay(st, ["k0"], depth=False) if isinstance(f, BodyFrame)]
+    assert len(live) == len(stored) > 100
+    assert sum(len(f.others) for f in live) > 50  # the bystander is there
+    for x, y in zip(stored, live, strict=True):
+        assert (x.seq, x.t_device_s, x.t_host_s) == (y.seq, y.t_device_s, y.t_host_s)
+        assert [b.body_id for b in x.bodies()] == [b.body_id for b in y.bodies()]
+        for a, b in zip(x.bodies(), y.bodies(), strict=True):
+            np.testing.assert_array_equal(a.joints_m, b.joints_m)
+            np.testing.assert_array_equal(a.states, b.states)
+    with pytest.raises(InputError, match=r"nope\.amc: no such motion file"):
+        open_source(f"simlive:{cmu / '01_01.amc'}#k0?seconds=1&bystander={cmu / 'nope.amc'}")

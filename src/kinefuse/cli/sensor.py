@@ -27,7 +27,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument(
         "--source",
-        help="sim:SESSION.sqlite#SENSOR_ID, multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, "
+        help="sim:SESSION.sqlite#SENSOR_ID, simlive:CLIP#SENSOR_ID[?rig=RIG.toml&seed=N&"
+        "calibration=S&seconds=S&sensors=N&depth_rate=HZ&bystander=CLIP2] (a simulated sensor, "
+        "generated; bystander repeatable: another person, as simulate --bystander), "
+        "multitrack:FILE.csv#KINECT_ID, kinect2json:FILE, "
         "a camera (mkv:FILE.mkv, k4a:[INDEX|SERIAL], realsense:[SERIAL], "
         "realsense-file:FILE.bag, kinect2), "
         "driver:MODULE:FACTORY[?KEY=VALUE&...][#SENSOR_ID] or an installed driver NAME:ARG "

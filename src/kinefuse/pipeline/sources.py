@@ -324,15 +324,18 @@ class SimulatedSensorSource:
 
 
 def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensorSource:
-    """``simlive:CLIP#SENSOR_ID?rig=...&seed=...&calibration=...&seconds=...&sensors=...``."""
+    """``simlive:CLIP#SENSOR_ID?rig=...&seed=...&calibration=...&seconds=...&sensors=...
+    &bystander=CLIP2...``."""
     from urllib.parse import parse_qs
 
     from kinefuse.motion import load_motion
     from kinefuse.sim.lab import LabConfig
+    from kinefuse.sim.people import place_bystander
     from kinefuse.sim.rig import default_rig, load_rig, place_actor
 
-    known = {"rig", "seed", "calibration", "seconds", "sensors", "depth_rate"}
-    args = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
+    known = {"rig", "seed", "calibration", "seconds", "sensors", "depth_rate", "bystander"}
+    given = parse_qs(query, keep_blank_values=True)
+    args = {k: v[-1] for k, v in given.items()}
     bad = sorted(set(args) - known)
     if bad:
         raise InputError(
@@ -355,19 +358,26 @@ def _simlive(target: str, sensor: str, query: str, spec: str) -> SimulatedSensor
             f"{', '.join(s.id for s in rig.sensors)})"
         )
     motion = place_actor(load_motion(target), rig, seconds)
+    span = motion.duration_s if seconds is None else seconds
+    # placed as `kinefuse simulate --bystander` places them: the same session, live
+    others = [
+        place_bystander(place_actor(load_motion(clip), rig), motion, rig, i, span)
+        for i, clip in enumerate(given.get("bystander", []))
+    ]
     config = LabConfig(seed=seed, calibration_s=cal, motion_s=seconds, depth_rate_hz=depth_rate)
-    return SimulatedSensorSource(motion, rig, sensor, seed, config=config)
+    return SimulatedSensorSource(motion, rig, sensor, seed, config=config, bystanders=others)
 
 
 def open_source(spec: str) -> FrameSource:
     """A source from its command-line form: ``sim:SESSION.sqlite#SENSOR_ID``,
     ``multitrack:FILE.csv#KINECT_ID``, ``kinect2json:FILE.json`` or
-    ``simlive:CLIP#SENSOR_ID?rig=RIG.toml&seed=N&calibration=S&seconds=S&sensors=N&depth_rate=HZ``
-    (a simulated sensor generating its frames as they are asked for,
+    ``simlive:CLIP#SENSOR_ID?rig=RIG.toml&seed=N&calibration=S&seconds=S&sensors=N&depth_rate=HZ
+    &bystander=CLIP2`` (a simulated sensor generating its frames as they are asked for,
     :class:`SimulatedSensorSource`: a clip (.bvh, .amc), a rig file or the default rig of
     ``sensors`` sensors, the session's seed, the calibration phase's and the motion's length,
-    the depth frame rate; defaults as ``kinefuse simulate``: seed 0, 20 s of calibration, the
-    whole clip, 4 sensors, 10 Hz).
+    the depth frame rate, other people's clips (``bystander``, repeatable: placed and tracked as
+    ``kinefuse simulate --bystander`` does); defaults as ``kinefuse simulate``: seed 0, 20 s of
+    calibration, the whole clip, 4 sensors, 10 Hz, nobody else).
 
     A session replay opens its store read-only; it stays open as long as the source lives.
     """
