@@ -17,12 +17,15 @@ import pytest
 from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
 from kinefuse.errors import InputError
 from kinefuse.frames.observations import BodyFrame
+from kinefuse.io.store import live as store_live
 from kinefuse.io.store.session import SessionStore
 from kinefuse.net.bus import FusedFrame
 from kinefuse.net.client.client import ClientOptions
 from kinefuse.net.client.fleet import replay_clients, run_clients
 from kinefuse.net.server.server import Server, ServerOptions
 from kinefuse.pipeline.sources import SessionReplay, open_source
+from kinefuse.protocol import Status
+from kinefuse.workflows.fuse import run_fuse
 
 TOKEN = "people-server-token"
 SECONDS = 5.0
@@ -40,9 +43,14 @@ def crowd(tmp_path_factory: pytest.TempPathFactory, shared_data: Path) -> Path:
     return out
 
 
-def _serve(session: Path, record: Path | None = None) -> tuple[Server, list[FusedFrame], float]:
+def _serve(
+    session: Path, record: Path | None = None, statuses: list[Status] | None = None,
+    switch_after: int | None = None,
+) -> tuple[Server, list[FusedFrame], float]:  # fmt: skip
     """Every sensor of ``session`` played live to a server with the true poses; the frames it
-    published and the playback epoch (true time ``T`` played at monotonic ``epoch + T``)."""
+    published and the playback epoch (true time ``T`` played at monotonic ``epoch + T``).
+    ``statuses`` collects the published status messages; ``switch_after``: after that many
+    frames with two people, the operator makes the other one the subject."""
 
     async def main() -> tuple[Server, list[FusedFrame], float]:
         srv = Server(ServerOptions(port=0, token=TOKEN, record=record))
@@ -61,9 +69,16 @@ def _serve(session: Path, record: Path | None = None) -> tuple[Server, list[Fuse
         frames: list[FusedFrame] = []
 
         async def collect() -> None:
+            n_two = 0
             async for it in sub:
                 if isinstance(it, FusedFrame):
                     frames.append(it)
+                    n_two += len(it.people_m) == 2
+                    if n_two == switch_after:
+                        (other,) = set(it.people_m) - {it.subject}
+                        assert srv.fusion.set_subject(other, "operator", known=True)
+                elif statuses is not None:
+                    statuses.append(it)
 
         col = asyncio.ensure_future(collect())
         epoch = time.monotonic() + 0.5
@@ -145,3 +160,46 @@ def test_simlive_with_a_bystander_is_the_simulated_session_live(
             np.testing.assert_array_equal(a.states, b.states)
     with pytest.raises(InputError, match=r"nope\.amc: no such motion file"):
         open_source(f"simlive:{cmu / '01_01.amc'}#k0?seconds=1&bystander={cmu / 'nope.amc'}")
+
+
+def test_the_live_subject_and_the_operators_pick_are_recorded_and_fuse_gives_the_last(
+    crowd: Path, tmp_path: Path
+) -> None:
+    """The operator makes the bystander the subject half-way: the recording holds both choices
+    (with the sensors' tracking ids of the subject's body), the status says who the subject is,
+    and `fuse` on the recording gives the operator's pick by default, which the offline rule
+    alone (nearest the centre at the start) would not."""
+    rec = tmp_path / "live.sqlite"
+    statuses: list[Status] = []
+    srv, frames, epoch = _serve(crowd, rec, statuses, switch_after=45)
+    subjects = [f.subject for f in frames if np.isfinite(f.positions_m).any()]
+    assert len(set(subjects)) == 2  # the switch happened, once
+    second = subjects[-1]
+    first = subjects[0]
+    with SessionStore.open(rec) as st:
+        picks = [(t, d) for t, kind, _s, d in store_live.events(st) if kind == "subject"]
+    assert [(d["person"], d["rule"]) for _, d in picks] == [
+        (first, "first seen, nearest the centre"),
+        (second, "operator"),
+    ]
+    # the first choice is said at the first body frame (one sensor's); the operator's pick
+    # carries every sensor's tracking id of the subject then
+    assert len(picks[0][1]["body_ids"]) >= 1 and len(picks[1][1]["body_ids"]) >= 3
+    assert all(len(d["trunk_m"]) == 3 for _, d in picks)
+    said = [(s.subject, s.subject_rule) for s in statuses if s.subject is not None]
+    assert said[0] == (first, "first seen, nearest the centre") and said[-1] == (second, "operator")
+    # offline: the last pick, found by the tracking ids, fused from its own bodies
+    res = run_fuse(session=rec, method="best", out=None, calibration=None,
+                   true_calibration=False, store_result=True)  # fmt: skip
+    assert res.subject_rule == "live" and len(res.people) == 2
+    with SessionStore.open(rec) as st:
+        fused = st.fused("best")
+    assert fused is not None
+    t, pos, _ = fused
+    t_true = t + srv.t0_monotonic - epoch
+    ok = np.isfinite(pos).all(axis=(1, 2))
+    err = {
+        p: np.nanmedian(np.linalg.norm(pos[ok] - _truth_at(crowd, p, t_true[ok]), axis=-1))
+        for p in (0, 1)
+    }
+    assert err[1] < 0.08 and err[0] > 0.3, err  # the bystander (true person 1), not the subject

@@ -45,12 +45,14 @@ from kinefuse.skeleton import JOINT_INDEX, TrackingState
 Array = NDArray[np.float64]
 
 __all__ = [
+    "PICK_WINDOW_S",
     "SUBJECT_RULES",
     "People",
     "PeopleOptions",
     "PeopleTracker",
     "associate",
     "choose_subject",
+    "live_subject",
     "trunk_world",
 ]
 
@@ -58,7 +60,9 @@ __all__ = [
 TRUNK_JOINTS = tuple(JOINT_INDEX[j] for j in ("SpineBase", "SpineMid", "HipLeft", "HipRight"))
 
 #: how the subject was chosen, in the order the rule tries them
-SUBJECT_RULES = ("one person", "chosen", "calibration phase", "nearest the centre")
+SUBJECT_RULES = ("one person", "chosen", "live", "calibration phase", "nearest the centre")
+#: how far from a live pick's time a recorded body is looked for, seconds
+PICK_WINDOW_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -168,6 +172,14 @@ class PeopleTracker:
     def people(self) -> tuple[int, ...]:
         """The ids of the persons currently tracked."""
         return tuple(t.id for t in self._tracks)
+
+    def body_ids(self, person_id: int) -> dict[str, int]:
+        """Per sensor, the tracking id of the body last given to a tracked person (empty for a
+        person not tracked)."""
+        for t in self._tracks:
+            if t.id == person_id:
+                return dict(t.body_ids)
+        return {}
 
     def position(self, person_id: int) -> Array | None:
         """The last trunk position of a tracked person (world, metres), or None."""
@@ -366,6 +378,7 @@ def associate(
     phases_s: Sequence[tuple[float, float]] = (),
     centre_xy_m: ArrayLike | None = None,
     options: PeopleOptions | None = None,
+    picks: Sequence[tuple[float, Mapping[str, int]]] = (),
 ) -> People:
     """Replay :class:`PeopleTracker` over recorded streams and choose the subject.
 
@@ -377,7 +390,7 @@ def associate(
         ``sensor id -> sensor2world (4, 4)``.
     subject : int, optional
         The subject chosen by hand (``--subject``, the operator); must be a person found.
-    phases_s, centre_xy_m
+    phases_s, centre_xy_m, picks
         For the rule (:func:`choose_subject`).
     options : PeopleOptions, optional
     """
@@ -425,8 +438,9 @@ def associate(
             [np.asarray(p, dtype=np.float64)[:2, 3] for p in poses.values()], axis=0
         )
     pid, rule = choose_subject(
-        person, streams, trunks, ids, subject=subject, phases_s=phases_s, centre_xy_m=centre_xy_m
-    )
+        person, streams, trunks, ids, subject=subject, phases_s=phases_s,
+        centre_xy_m=centre_xy_m, picks=picks,
+    )  # fmt: skip
     return People(person, ids, pid, rule)
 
 
@@ -440,15 +454,18 @@ def choose_subject(
     phases_s: Sequence[tuple[float, float]] = (),
     centre_xy_m: ArrayLike = (0.0, 0.0),
     first_s: float = 3.0,
+    picks: Sequence[tuple[float, Mapping[str, int]]] = (),
 ) -> tuple[int, str]:
     """The subject and the rule that chose them.
 
-    In order: the person chosen by hand (``subject``); else the person seen in the most sensor
-    frames during the calibration walk or range-of-motion phases (``phases_s``, server clock);
-    else the person whose trunk stood nearest the volume's centre (``centre_xy_m``, the floor
-    point) over the recording's first ``first_s`` seconds (the median over every sensor's frames
-    of that time, a frame in which the sensor did not see the person counting as infinitely far:
-    someone who walks in later is not the subject).
+    In order: the person chosen by hand (``subject``); else the live server's last subject
+    (``picks``: each ``(t_server_s, {sensor id: tracking id})``, the tracking ids the sensors
+    gave the live subject when it was chosen, :func:`live_subject`); else the person seen in
+    the most sensor frames during the calibration walk or range-of-motion phases
+    (``phases_s``, server clock); else the person whose trunk stood nearest the volume's
+    centre (``centre_xy_m``, the floor point) over the recording's first ``first_s`` seconds
+    (the median over every sensor's frames of that time, a frame in which the sensor did not
+    see the person counting as infinitely far: someone who walks in later is not the subject).
     """
     if not ids:
         raise InputError("people: no body with a tracked trunk in the recording: nobody to fuse")
@@ -459,6 +476,10 @@ def choose_subject(
                 f"{', '.join(str(i) for i in ids)}"
             )
         return int(subject), "chosen"
+    for t_pick, body_ids in reversed(picks):
+        pid = live_subject(person, streams, t_pick, body_ids)
+        if pid is not None:
+            return pid, "live"
     if phases_s:
         counts = dict.fromkeys(ids, 0)
         for sid, s in streams.items():
@@ -491,3 +512,33 @@ def choose_subject(
         for p, d in dist.items()
     }
     return min(ids, key=lambda p: (med[p], p)), "nearest the centre"
+
+
+def live_subject(
+    person: Mapping[str, NDArray[np.int64]],
+    streams: Mapping[str, BodyFrames],
+    t_pick_s: float,
+    body_ids: Mapping[str, int],
+) -> int | None:
+    """The person of a recording who is the live server's subject picked at ``t_pick_s``: the
+    person the association gives the bodies with those sensors' tracking ids ``body_ids``
+    nearest that time (within :data:`PICK_WINDOW_S`), by majority over the sensors (the lowest
+    id on a tie); None when no such body was recorded. The association offline numbers people
+    as the live one does only when it sees the bodies in the same order, so a live pick is
+    carried by the sensors' own tracking ids, not by its person id."""
+    votes: dict[int, int] = {}
+    for sid, bid in body_ids.items():
+        s = streams.get(sid)
+        if s is None or not s.n_frames:
+            continue
+        rows = np.flatnonzero((s.body_id == int(bid)) & (person[sid] >= 0))
+        if rows.size == 0:
+            continue
+        k = rows[np.argmin(np.abs(s.t_server_s[rows] - t_pick_s))]
+        if abs(float(s.t_server_s[k]) - t_pick_s) <= PICK_WINDOW_S:
+            pid = int(person[sid][k])
+            votes[pid] = votes.get(pid, 0) + 1
+    if not votes:
+        return None
+    top = max(votes.values())
+    return min(p for p, v in votes.items() if v == top)

@@ -10,7 +10,7 @@ read (``--true-calibration`` hands in true poses explicitly, for evaluation only
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from itertools import pairwise
 
@@ -121,6 +121,7 @@ def people_of(
     *,
     subject: int | None = None,
     phases_s: Sequence[tuple[float, float]] = (),
+    picks: Sequence[tuple[float, Mapping[str, int]]] = (),
 ) -> tuple[People, dict[int, list[CalibratedSensor]]]:
     """The people of a session (:func:`kinefuse.fusion.people.associate` on the sensors'
     all-bodies streams) and, per person, the sensors with that person's bodies only (one row per
@@ -128,8 +129,9 @@ def people_of(
     given, unchanged."""
     streams = {s.id: s.observations for s in sensors}
     people = associate(
-        streams, {s.id: s.sensor2world for s in sensors}, subject=subject, phases_s=phases_s
-    )
+        streams, {s.id: s.sensor2world for s in sensors}, subject=subject, phases_s=phases_s,
+        picks=picks,
+    )  # fmt: skip
     split = people.split(streams)
     per = {
         pid: [s if split[pid][s.id] is s.observations else replace(s, observations=split[pid][s.id])

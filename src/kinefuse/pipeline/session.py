@@ -46,6 +46,7 @@ __all__ = [
     "load_usable_sensors",
     "run_method",
     "subject_phases",
+    "subject_picks",
 ]
 
 
@@ -298,6 +299,23 @@ def subject_phases(store: SessionStore) -> list[tuple[float, float]]:
         v = meta.get(key)
         if isinstance(v, list) and len(v) == 2 and all(isinstance(x, int | float) for x in v):
             out.append((float(v[0]), float(v[1])))
+    return out
+
+
+def subject_picks(store: SessionStore) -> list[tuple[float, dict[str, int]]]:
+    """The live server's subject and each change of it, from a live recording's ``subject``
+    events: ``(t_server_s, {sensor id: tracking id})`` in order, the tracking ids the sensors
+    gave the subject's body when the server chose them (empty for any other session). The
+    subject :func:`kinefuse.fusion.people.choose_subject` gives is the last of them."""
+    out = []
+    for t, kind, _sid, detail in store_live.events(store):
+        ids = detail.get("body_ids")
+        when = detail.get("t_capture_server_s", t)
+        if kind != "subject" or not isinstance(ids, dict) or not isinstance(when, int | float):
+            continue
+        picked = {str(k): int(v) for k, v in ids.items() if isinstance(v, int)}
+        if picked:
+            out.append((float(when), picked))
     return out
 
 

@@ -483,7 +483,10 @@ class Status(Message):
     ``calibration_grade``: "good", "doubtful", "failed" or nil; ``fused_fps`` Hz;
     ``frames_fused``: fused frames published so far; ``recording``: the store path or nil;
     ``calibration_message`` (since 1.2): what the operator has to know or do about the
-    calibration (e.g. "calibrating from the person: walk through the volume"), or nil.
+    calibration (e.g. "calibrating from the person: walk through the volume"), or nil;
+    ``subject`` and ``subject_rule`` (since 1.3): the person the server gives by default and
+    how they were chosen ("first seen", "first seen, nearest the centre", "chosen" by
+    ``--subject``, "operator"), nil before anyone is seen and from older servers.
     """
 
     TYPE: ClassVar[str] = "status"
@@ -499,6 +502,8 @@ class Status(Message):
     method: str = _f(Str(max_len=32), "")
     recording: str | None = _f(Optional(Str(max_len=4096)), None)
     calibration_message: str | None = _f(Optional(_TEXT), None)
+    subject: int | None = _f(Optional(_SEQ), None)
+    subject_rule: str | None = _f(Optional(Str(max_len=64)), None)
 
 
 @dataclass(frozen=True, eq=False)

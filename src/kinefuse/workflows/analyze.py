@@ -89,6 +89,7 @@ def sequence_from_session(
         load_usable_sensors,
         run_method,
         subject_phases,
+        subject_picks,
     )
 
     if method not in METHODS:
@@ -97,7 +98,9 @@ def sequence_from_session(
         poses, source = resolve_poses(store, calibration, true_calibration)
         everyone, screen = load_usable_sensors(store, poses, bodies="all")
         grid = frame_grid(everyone)
-        people, per_person = people_of(everyone, subject=subject, phases_s=subject_phases(store))
+        people, per_person = people_of(
+            everyone, subject=subject, phases_s=subject_phases(store), picks=subject_picks(store)
+        )
         sensors = per_person[people.subject]
         res = run_method(sensors, grid, method)
         meta = store.meta()

@@ -143,6 +143,7 @@ def run_fuse(
         load_usable_sensors,
         run_method,
         subject_phases,
+        subject_picks,
     )
 
     if people not in PEOPLE:
@@ -162,7 +163,9 @@ def run_fuse(
             if not s.observations.has_body.any()
         ]
         grid = clip_grid(frame_grid(sensors), start_s, end_s)
-        found, per_person = people_of(sensors, subject=subject, phases_s=subject_phases(store))
+        found, per_person = people_of(
+            sensors, subject=subject, phases_s=subject_phases(store), picks=subject_picks(store)
+        )
         chosen = list(found.ids) if people == "all" else [found.subject]
         results = {}
         for pid in chosen:

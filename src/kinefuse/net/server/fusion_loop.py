@@ -96,6 +96,11 @@ class FrameFusion:
         #: every person's last fused frame: ``person id -> (positions, variance, status)``
         self.people: dict[int, tuple[Array, Array, NDArray[np.int8]]] = {}
         self._first_seen = True
+        #: called with ``(t_server_s, detail)`` once the subject (first, or each change) is
+        #: tracked: ``person``, ``rule``, ``body_ids`` (per sensor, the tracking id of the
+        #: subject's body then), ``trunk_m`` (world); the server records it
+        self.on_subject: Callable[[float, dict[str, object]], None] | None = None
+        self._subject_said = False
 
     def _subject_first_seen(self, persons: set[int]) -> None:
         """The subject by the live rule: the first person seen; of several seen first at one
@@ -125,8 +130,26 @@ class FrameFusion:
             log.warning("subject %d asked for, but no such person is fused now", person)
             return False
         self.subject, self.subject_rule = int(person), rule
+        self._subject_said = False
         log.info("the subject is person %d (%s)", person, rule)
         return True
+
+    @property
+    def subject_known(self) -> bool:
+        """Whether the subject has been seen (since the last change)."""
+        return self._subject_said
+
+    def _say_subject(self, t: float) -> None:
+        """Tell :attr:`on_subject` who the subject is, once they are tracked."""
+        at = self.tracker.position(self.subject)
+        if at is None:
+            return
+        self._subject_said = True
+        if self.on_subject is not None:
+            detail = {"person": self.subject, "rule": self.subject_rule, "t_capture_server_s": t,
+                      "body_ids": self.tracker.body_ids(self.subject),
+                      "trunk_m": [float(v) for v in at]}  # fmt: skip
+            self.on_subject(t, detail)
 
     @property
     def lead_s(self) -> float:
@@ -166,6 +189,8 @@ class FrameFusion:
             self._first_seen = False
             if self.subject_rule == "first seen":
                 self._subject_first_seen(set(who.values()))
+        if who and not self._subject_said:
+            self._say_subject(t)
         if not self.tracker.multi:
             # one person: every frame is theirs, as it always was (one without a trunk too)
             assign = [(obs, 0)]

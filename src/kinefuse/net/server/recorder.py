@@ -478,6 +478,8 @@ def _status_detail(s: Status) -> dict[str, Any]:
         "calibration_grade": s.calibration_grade,
         "calibration_message": s.calibration_message,
         "fused_fps": s.fused_fps,
+        "subject": s.subject,
+        "subject_rule": s.subject_rule,
         "sensors": [
             {
                 "id": x.sensor_id,

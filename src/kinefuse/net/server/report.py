@@ -52,6 +52,8 @@ def server_status(srv: Server) -> Status:
         method=srv.options.method,
         recording=str(srv.options.record) if srv.options.record else None,
         calibration_message=srv.person.message,
+        subject=srv.fusion.subject if srv.fusion.subject_known else None,
+        subject_rule=srv.fusion.subject_rule if srv.fusion.subject_known else None,
     )
 
 

@@ -187,6 +187,8 @@ class Server:
         self.publisher = Publisher()
         live = LiveOptions()
         self.fusion = FrameFusion(options.method, live)
+        # the subject and each change of it go into the recording (an event `fuse` reads)
+        self.fusion.on_subject = lambda _t, detail: self._event("subject", None, **detail)
         self.loop = FusionLoop(
             self.fusion, self.clients, self.publisher, self.clock, wait_s=options.latency_budget_s
         )
