@@ -180,3 +180,61 @@ def test_lsl_stream_of_a_live_run_stays_on_loopback(tmp_path: Path, session: Pat
     assert r["max_abs_time_error_s"] < 1e-3
     assert abs(r["offset_minus_server_t0_monotonic_s"]) < 1e-3
     assert abs(r["monotonic_minus_local_clock_s"]) < 1e-3
+
+
+PEOPLE_RUN = Path(__file__).resolve().parent / "lsl_people_run.py"
+
+
+@pytest.fixture(scope="module")
+def crowd(tmp_path_factory: pytest.TempPathFactory, shared_data: Path) -> Path:
+    """4 sensors, 5 s of the subject with one bystander walking between them and a sensor."""
+    from kinefuse.workflows.simulate import run_simulate
+
+    out = tmp_path_factory.mktemp("lsl_people") / "crowd.sqlite"
+    cmu = shared_data / "motion" / "cmu"
+    run_simulate(clip=cmu / "01_01.amc", out=out, seconds=5.0, calibration_s=1.0,
+                 depth_rate_hz=5.0, seed=2, bystanders=(cmu / "02_walk_a.amc",))  # fmt: skip
+    return out
+
+
+@pytest.mark.slow
+def test_lsl_people_all_gives_one_stream_per_person_on_loopback(
+    tmp_path: Path, crowd: Path
+) -> None:
+    """``serve --lsl --people all``: the subject's stream as before and one stream per person,
+    named by id, each sample the person's fused frame, nothing leaving loopback."""
+    pytest.importorskip("pylsl")
+    why = _namespace_problem()
+    if why is not None:
+        pytest.skip(why)
+    trace, out = tmp_path / "strace.log", tmp_path / "result.json"
+    work = tmp_path / "work"
+    work.mkdir()
+    cmd = [
+        "unshare", "-rn", "sh", "-c", 'ip link set lo up && exec "$@"', "sh",
+        "strace", "-f", "-qq", "--seccomp-bpf", "-e", TRACE, "-o", str(trace),
+        sys.executable, str(PEOPLE_RUN), "--session", str(crowd), "--work", str(work),
+        "--out", str(out),
+    ]  # fmt: skip
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    r = json.loads(out.read_text())
+    print(json.dumps(r, indent=1))  # the figures
+    assert outside_loopback(trace.read_text(errors="replace")) == []
+    assert r["config_loaded"] and r["sensor_rcs"] == [0, 0, 0, 0]
+    name = "kinefuse-people-test"
+    assert r["outlets"] == [name, f"{name}_p0", f"{name}_p1"]
+    assert r["frames_with_two_people"] > 60
+    s = r["streams"]
+    assert [s[k]["name"] for k in ("subject", "p0", "p1")] == r["outlets"]
+    for k in ("subject", "p0", "p1"):
+        # every sample is its person's fused frame, bit for bit (float32), at its frame's time
+        assert s[k]["not_matching"] == 0 and s[k]["not_a_frame"] == 0, (k, s[k])
+        assert s[k]["with_positions"] > 60, (k, s[k])
+
+
+def test_serve_refuses_people_all_without_lsl_and_a_name_too_long_for_it() -> None:
+    run = _serve("--people", "all")
+    assert run.returncode == 2 and "give --lsl too" in run.stderr, run.stderr
+    run = _serve("--lsl", "x" * 60, "--people", "all")
+    assert run.returncode == 2 and "at most 59 characters" in run.stderr, run.stderr

@@ -76,6 +76,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "built without discovery",
     )
     shared.add_people_args(p, every=False)
+    p.add_argument(
+        "--people",
+        choices=["subject", "all"],
+        default="subject",
+        help="with --lsl: the subject's stream only (default), or also one stream per person "
+        "named by id (NAME_p0, NAME_p1, ...), created when the person appears",
+    )
     p.add_argument("--verbose", action="store_true", help="log debug messages")
     p.set_defaults(func=run)
 
@@ -102,4 +109,5 @@ def run(args: argparse.Namespace) -> int:
         verbose=args.verbose,
         allow_weak_token=args.allow_weak_token,
         subject=args.subject,
+        people=args.people,
     )

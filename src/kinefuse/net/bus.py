@@ -54,6 +54,8 @@ class FusedFrame:
     people_m : mapping of person id -> (25, 3) float
         Every person's fused skeleton (the subject's included), world frame; a one-person
         session has one, person 0.
+    people_status : mapping of person id -> (25,) int8
+        Every person's status codes (as ``status`` for the subject).
     """
 
     seq: int
@@ -65,6 +67,7 @@ class FusedFrame:
     raw_m: Mapping[str, Array] = field(default_factory=dict)
     subject: int = 0
     people_m: Mapping[int, Array] = field(default_factory=dict)
+    people_status: Mapping[int, NDArray[np.int8]] = field(default_factory=dict)
 
 
 Item = FusedFrame | Status

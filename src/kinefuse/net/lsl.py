@@ -4,7 +4,10 @@ A service on the server's publisher (:mod:`kinefuse.net.bus`), handed to the ser
 ``workflows/serve.py`` like the viewer; the server does not import it. One stream of type
 ``MoCap``: 25 joints x (x, y, z) in metres, then one status channel per joint (the
 :class:`~kinefuse.fusion.status.FusionStatus` code), ``float32``, nominal rate 30 Hz, with the
-XDF channel metadata (``docs/lsl.md``).
+XDF channel metadata (``docs/lsl.md``). The stream is the subject's (the person the server gives
+by default); with ``people="all"`` (``serve --lsl --people all``) every person also has a stream
+of their own, ``NAME_pID`` (``kinefuse_p0``, ``kinefuse_p1``, ...; the same channels), created
+when the person first appears in a fused frame.
 
 Time stamps: each frame's time on the server clock is mapped onto the LSL clock
 (``pylsl.local_clock()``) as ``t_lsl = t_server + offset``. Both clocks count the same
@@ -33,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from kinefuse.errors import InputError
+from kinefuse.fusion.status import FusionStatus
 from kinefuse.io.outputs import (
     atomic_write_text,
     check_output_folder,
@@ -55,6 +59,8 @@ __all__ = [
     "channel_labels",
     "check_stream_name",
     "lsl_outlet",
+    "person_stream_name",
+    "person_xml_path",
     "require_pylsl",
     "sample_of",
 ]
@@ -126,11 +132,31 @@ def channel_labels() -> list[str]:
     return pos + [f"{j}_Status" for j in JOINTS]
 
 
-def sample_of(frame: FusedFrame) -> list[float]:
-    """One LSL sample of ``frame``: the positions (NaN where not solved), then the codes."""
-    return [float(v) for v in np.asarray(frame.positions_m, float).ravel()] + [
-        float(s) for s in np.asarray(frame.status).ravel()
+def sample_of(frame: FusedFrame, person: int | None = None) -> list[float]:
+    """One LSL sample of ``frame``: the positions (NaN where not solved), then the codes; of
+    the subject, or of ``person`` (:attr:`FusedFrame.people_m`)."""
+    status: Any = frame.status
+    pos = frame.positions_m
+    if person is not None and person != frame.subject:
+        pos = frame.people_m[person]
+        status = frame.people_status.get(person)
+        if status is None:  # (a frame without the codes: only solved or not)
+            nan = np.isnan(np.asarray(pos, float)).any(axis=1)
+            status = np.where(nan, FusionStatus.NO_DATA, FusionStatus.OK)
+    return [float(v) for v in np.asarray(pos, float).ravel()] + [
+        float(s) for s in np.asarray(status).ravel()
     ]
+
+
+def person_stream_name(name: str, person: int) -> str:
+    """The stream of one person under ``--people all``: ``NAME_pID``."""
+    return f"{name}_p{person}"
+
+
+def person_xml_path(path: Path, person: int) -> Path:
+    """Where ``--lsl-xml FILE`` puts one person's description: ``FILE_pID`` before the
+    suffix (``stream.xml`` -> ``stream_p1.xml``)."""
+    return path.with_name(f"{path.stem}_p{person}{path.suffix}")
 
 
 @dataclass(frozen=True)
@@ -203,13 +229,16 @@ class LslOutlet:
         #: frames pushed, and frames the subscription dropped (the outlet fell behind)
         self.pushed = 0
         self.dropped = 0
+        #: ``--people all``: each person's own outlet, by person id
+        self.people: dict[int, LslOutlet] = {}
 
     @property
     def offset_uncertainty_s(self) -> float:
         return self.clock.uncertainty_s
 
-    def push(self, frame: FusedFrame) -> None:
-        self.outlet.push_sample(sample_of(frame), self.clock.to_lsl(frame.t_server_s), True)
+    def push(self, frame: FusedFrame, person: int | None = None) -> None:
+        sample = sample_of(frame, person)
+        self.outlet.push_sample(sample, self.clock.to_lsl(frame.t_server_s), True)
         self.pushed += 1
 
     def xml(self) -> str:
@@ -225,18 +254,25 @@ async def lsl_outlet(
     server_clock: Callable[[], float],
     source_id: str | None = None,
     xml_path: Path | None = None,
+    people: str = "subject",
 ) -> AsyncIterator[LslOutlet]:
     """Publish every fused frame of ``publisher`` on an LSL outlet while the context is open.
 
     ``server_clock`` is the server's clock (the frames' ``t_server_s``); ``source_id``
     (default ``kinefuse-NAME``) lets LSL recorders reconnect to the same stream after a
     restart. ``xml_path``: write the outlet's full description there (``--lsl-xml``), from
-    which an inlet can be built without discovery (``docs/lsl.md``).
+    which an inlet can be built without discovery (``docs/lsl.md``). ``people="all"``: every
+    person also on an outlet of their own (:func:`person_stream_name`), created when they first
+    appear, in the yielded outlet's ``people`` (person id -> :class:`LslOutlet`); their
+    descriptions go to :func:`person_xml_path` of ``xml_path``.
     """
     pylsl = require_pylsl()
     check_stream_name(name)
+    if people not in ("subject", "all"):
+        raise InputError(f"--people {people!r}: choose subject or all")
     clock = ClockMap.measure(server_clock, pylsl.local_clock)
-    out = LslOutlet(pylsl, name, clock, source_id or f"kinefuse-{name}")
+    source = source_id or f"kinefuse-{name}"
+    out = LslOutlet(pylsl, name, clock, source)
     if xml_path is not None:
         atomic_write_text(
             xml_path, out.xml(), what="LSL stream description", recognizer=never_replace
@@ -246,10 +282,26 @@ async def lsl_outlet(
              name, STREAM_TYPE, CHANNELS, NOMINAL_RATE_HZ, clock.offset_s,
              clock.uncertainty_s * 1e6)  # fmt: skip
 
+    def person_outlet(pid: int) -> LslOutlet:
+        one = LslOutlet(pylsl, person_stream_name(name, pid), clock, f"{source}-p{pid}")
+        out.people[pid] = one
+        log.info("LSL outlet %r for person %d", one.name, pid)
+        if xml_path is not None:
+            try:
+                where = person_xml_path(xml_path, pid)
+                what = "LSL stream description"
+                atomic_write_text(where, one.xml(), what=what, recognizer=never_replace)
+            except InputError as e:  # the stream runs; only its description is not written
+                log.warning("LSL outlet %r: %s", one.name, e)
+        return one
+
     async def pump() -> None:
         async for item in sub:
             if isinstance(item, FusedFrame):
                 out.push(item)
+                if people == "all":
+                    for pid in sorted(item.people_m):
+                        (out.people.get(pid) or person_outlet(pid)).push(item, pid)
             out.dropped = sub.dropped
 
     task = asyncio.create_task(pump())
@@ -262,3 +314,5 @@ async def lsl_outlet(
         out.dropped = sub.dropped
         log.info("LSL outlet %r: %d frames pushed, %d dropped", name, out.pushed, out.dropped)
         del out.outlet
+        for one in out.people.values():
+            del one.outlet

@@ -135,11 +135,13 @@ def run_serve(
     verbose: bool = False,
     allow_weak_token: bool = False,
     subject: int | None = None,
+    people: str = "subject",
 ) -> int:
     """Run the server until SIGINT/SIGTERM or a control peer's Shutdown; 0 on a clean stop.
 
     ``subject``: the person the server gives (``--subject``); default the first person seen.
-    The viewer's operator can pick another."""
+    The viewer's operator can pick another. ``people="all"``: the LSL outlet also publishes one
+    stream per person (:func:`kinefuse.net.lsl.lsl_outlet`)."""
     from kinefuse.net.server.calibration import LiveCalibrationOptions
     from kinefuse.net.server.server import Server, ServerOptions
 
@@ -164,18 +166,35 @@ def run_serve(
     services: dict[str, Any] = {}
     the_server: list[Server] = []
     if lsl is not None:  # the LSL outlet, on the server's publisher (checked before we listen)
-        from kinefuse.net.lsl import check_stream_name, check_xml_path, lsl_outlet, require_pylsl
+        from kinefuse.net.lsl import (
+            MAX_NAME_CHARS,
+            check_stream_name,
+            check_xml_path,
+            lsl_outlet,
+            require_pylsl,
+        )
 
         check_stream_name(lsl)
+        if people == "all" and len(lsl) > MAX_NAME_CHARS - 5:
+            raise InputError(
+                f"--lsl {lsl!r} --people all: each person's stream is NAME_pID; use a name of "
+                f"at most {MAX_NAME_CHARS - 5} characters"
+            )
         require_pylsl()
         if lsl_xml is not None:
             check_xml_path(lsl_xml)
         # (the frames' clock is the server's own, known once it exists: read at start)
         services["lsl"] = lambda pub: lsl_outlet(
-            pub, name=lsl, server_clock=lambda: the_server[0].clock(), xml_path=lsl_xml
-        )
+            pub, name=lsl, server_clock=lambda: the_server[0].clock(), xml_path=lsl_xml,
+            people=people,
+        )  # fmt: skip
     elif lsl_xml is not None:
         raise InputError("--lsl-xml writes the LSL stream's description: give --lsl too")
+    elif people == "all":
+        raise InputError(
+            "--people all publishes one LSL stream per person: give --lsl too (the viewer and "
+            "the live API give every person already)"
+        )
     if viewer_port is not None:  # the live web viewer, on the server's publisher
         from kinefuse.viewer import live_viewer
         from kinefuse.viewer.guard import host_name

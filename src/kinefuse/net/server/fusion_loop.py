@@ -512,6 +512,7 @@ class FusionLoop:
             raw_m=self.fusion.raw_world(),
             subject=self.fusion.subject,
             people_m={p: f[0] for p, f in self.fusion.people.items()},
+            people_status={p: f[2] for p, f in self.fusion.people.items()},
         )
         self.publisher.publish(frame)
         self.frames += 1
