@@ -164,8 +164,8 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     """The clip's default-pose frame, the ROM phase and its truth, the (standing +) ROM + walk +
     2 s hold motion and the walk's span (motion time, seconds). ``static_s``: a standing phase
     (static trial) of that many seconds before the ROM, as ``simulate --static`` makes it."""
+    from kinefuse.analysis.rom import stand_before
     from kinefuse.motion import load_motion
-    from kinefuse.workflows.analyze import stand_before
 
     clip = load_motion(CLIP)
     d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))

@@ -88,9 +88,9 @@ def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
 
 
 def test_rom_phase_is_placed_where_the_clip_starts(shared_data: Path) -> None:
+    from kinefuse.analysis.rom import add_rom_phase
     from kinefuse.motion import facing_direction, load_motion, place
     from kinefuse.skeleton import JOINT_INDEX
-    from kinefuse.workflows.analyze import add_rom_phase
 
     clip = place(load_motion(shared_data / "motion/cmu/02_walk_b.amc"), (1.0, -0.5), 75.0)
     rom = add_rom_phase(clip, 60.0, seed=3)

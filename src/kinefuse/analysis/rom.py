@@ -23,6 +23,7 @@ parameterizes, so the true angles are comparable one to one.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,8 +31,10 @@ from numpy.typing import ArrayLike, NDArray
 from kinefuse.analysis import anatomy
 from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS, LIMBS
 from kinefuse.analysis.normalize import body_frame, limb_frame_from_body
+from kinefuse.analysis.sequence import SkeletonSequence
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import rodrigues, unit
+from kinefuse.geometry.rotations import rodrigues, rot_z, unit
+from kinefuse.motion.retarget import facing_direction
 from kinefuse.motion.types import Motion
 from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
 
@@ -386,7 +389,6 @@ def standing_pose(pose: ArrayLike, /) -> Array:
         ``pose`` is not ``(25, 3)`` or lacks a joint (NaN).
     """
     from kinefuse.geometry.rotations import minimal_rotation
-    from kinefuse.motion.retarget import facing_direction
 
     p = np.array(pose, dtype=np.float64)
     if p.shape != (N_JOINTS, 3) or not np.isfinite(p).all():
@@ -423,3 +425,134 @@ def standing_pose(pose: ArrayLike, /) -> Array:
     feet = [j[f"{f}{s}"] for f in ("Ankle", "Foot") for s in ("Left", "Right")]
     out[:, 2] += floor_z - out[feet, 2].min()
     return out
+
+
+# ------------------------------------------------------------------ simulate --rom
+
+
+@dataclass(frozen=True, eq=False)
+class RomPhase:
+    """A standing phase and/or a range-of-motion phase put before a clip (for ``kinefuse
+    simulate --static/--rom``)."""
+
+    motion: Any  # kinefuse.motion.types.Motion: standing, the ROM, the blend, then the clip
+    rom_s: float  # length of the ROM phase itself, seconds (the blend follows it); 0: none
+    blend_s: float
+    truth: dict[str, Any]  # JSON-able truth (true axes, rest, twist over time ...)
+    static_s: float = 0.0  # length of the standing phase before the ROM, seconds; 0: none
+    rom_start_s: float = 0.0  # where the ROM starts in ``motion`` (after standing and a blend)
+
+
+#: Postural sway of the simulated standing phase: the whole body moves horizontally by a slow
+#: wobble of about this RMS (quiet standing sways a few millimetres; Prieto et al. 1996 report
+#: 4-6 mm RMS of the centre of pressure), metres.
+STANDING_SWAY_M = 0.004
+
+
+def standing_motion(pose: Any, seconds: float, rate_hz: float, rng: Any) -> Any:
+    """``pose (25, 3)`` held for ``seconds`` at ``rate_hz``, the whole body swaying slowly
+    (:data:`STANDING_SWAY_M` RMS, 0.05-0.5 Hz): a static trial's standing."""
+    n = int(np.floor(seconds * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+    sway = np.zeros((n, 3))
+    for k in range(2):
+        f = rng.uniform(0.05, 0.5, size=3)
+        ph = rng.uniform(0.0, 2.0 * np.pi, size=3)
+        sway[:, k] = np.sin(2.0 * np.pi * f[:, None] * t + ph[:, None]).sum(0)
+    sway *= STANDING_SWAY_M / np.sqrt(1.5) / np.sqrt(2.0)
+    sway -= sway[-1]  # ends where it stands, so the next phase starts from the pose itself
+    pos = np.asarray(pose, dtype=np.float64)[None] + sway[:, None, :]
+    return Motion(positions=pos, rate_hz=float(rate_hz), source=f"standing {seconds:g} s")
+
+
+def stand_before(
+    motion: Any, pose: Any, seconds: float, rng: Any, blend_s: float = 1.0
+) -> tuple[Any, float, float]:
+    """``motion`` with a static trial before it: the subject standing upright
+    (:func:`kinefuse.analysis.rom.standing_pose` of ``pose (25, 3)``; a default pose can be a
+    moment of a stride) for ``seconds`` with postural sway (:func:`standing_motion`), then a
+    blend of ``blend_s`` into ``motion``'s first frame. Returns the motion, the standing
+    phase's length and where ``motion`` now starts (seconds)."""
+    stand = standing_motion(standing_pose(pose), seconds, motion.rate_hz, rng)
+    both = prepend_rom(stand, motion, blend_s=blend_s)
+    return both, stand.duration_s, (both.n_frames - motion.n_frames) / motion.rate_hz
+
+
+def add_rom_phase(
+    clip: Any,
+    rom_s: float | None,
+    *,
+    seed: int = 0,
+    blend_s: float = 1.0,
+    static_s: float | None = None,
+) -> RomPhase:
+    """A generated range-of-motion phase of ``rom_s`` seconds before ``clip`` (placed), and
+    before it a standing phase of ``static_s`` seconds (a static trial: the subject stands
+    upright, :func:`kinefuse.analysis.rom.standing_pose` of the default pose, with postural sway,
+    :func:`standing_motion`, then blends into the ROM's first pose in ``blend_s``). Either may be
+    None (not both).
+
+    The subject's default pose is the clip's default-pose frame
+    (:func:`kinefuse.analysis.find_default_pose`), moved (translation, rotation about z) to
+    where the clip starts and facing its first frame's way, so that the blend into the clip only
+    changes the pose. Randomness comes from ``seed`` (its own stream, not the simulator's).
+    """
+    from kinefuse.analysis import find_default_pose
+    from kinefuse.skeleton import JOINT_INDEX
+
+    if rom_s is None and static_s is None:
+        raise InputError(
+            "give a range-of-motion phase (--rom), a standing phase (--static) or both"
+        )
+    if rom_s is not None and not (np.isfinite(rom_s) and rom_s > 0):
+        raise InputError(f"--rom must be a positive number of seconds, got {rom_s!r}")
+    if static_s is not None and not (np.isfinite(static_s) and static_s >= 1.0):
+        raise InputError(
+            f"--static must be at least 1 second (a static trial needs frames to average), "
+            f"got {static_s!r}"
+        )
+    seq = SkeletonSequence.from_motion(clip)
+    k = find_default_pose(seq)
+    pose = clip.positions[k]
+    f_pose, f_0 = facing_direction(pose), facing_direction(clip.positions[0])
+    turn = float(np.arctan2(f_0[1], f_0[0]) - np.arctan2(f_pose[1], f_pose[0]))
+    root = JOINT_INDEX["SpineBase"]
+    pivot = pose[root] * np.array([1.0, 1.0, 0.0])
+    placed = (pose - pivot) @ rot_z(turn).T
+    placed[:, :2] += clip.positions[0, root, :2]
+    info: dict[str, Any] = {}
+    if rom_s is not None:
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x524F4D]))  # "ROM"
+        rom, truth = make_rom_motion(placed, rom_s, rng)
+        motion = prepend_rom(rom, clip, blend_s=blend_s)
+        t_rom = np.arange(rom.n_frames) / rom.rate_hz
+        info = {
+            "note": "range-of-motion phase of kinefuse simulate --rom: true axes and rest "
+            "directions in the parent limb's normalized frame at the default pose (JCS order, "
+            "ISB signs), true angles and twists (radians) at t_s (seconds from the phase's "
+            "start)",
+            "default_pose_frame_of_clip": int(k),
+            "axes_parent": {n: v.tolist() for n, v in truth.axes.items()},
+            "axes_world": {n: v.tolist() for n, v in truth.axes_world.items()},
+            "rest_parent": {n: v.tolist() for n, v in truth.rest.items()},
+            "movements": [list(m) for m in truth.movements],
+            "t_s": np.round(t_rom, 6).tolist(),
+            "twist_rad": {n: np.round(v, 6).tolist() for n, v in truth.twist.items()},
+            "angles_rad": {n: np.round(v, 6).tolist() for n, v in truth.angles.items()},
+        }
+        start = rom.positions[0]
+    else:
+        motion = clip
+        start = placed
+    static_len = lead = 0.0
+    if static_s is not None:  # standing upright, a blend into the ROM (or the clip)
+        rng_s = np.random.default_rng(np.random.SeedSequence([int(seed), 0x535441]))  # "STA"
+        motion, static_len, lead = stand_before(motion, start, static_s, rng_s, blend_s)
+    return RomPhase(
+        motion=motion,
+        rom_s=0.0 if rom_s is None else float(rom.duration_s),
+        blend_s=blend_s,
+        truth=info,
+        static_s=static_len,
+        rom_start_s=lead,
+    )

@@ -141,7 +141,7 @@ def run_simulate(
     whole, so an interrupted or failed run leaves any old ``out`` byte-identical. ``force``
     replaces an existing simulated session, never another file or a live recording. ``rom_s``:
     a range-of-motion calibration phase of that many seconds before the motion
-    (:func:`kinefuse.workflows.analyze.add_rom_phase`), performed at the rig's ``[actor]``
+    (:func:`kinefuse.analysis.rom.add_rom_phase`), performed at the rig's ``[actor]``
     position, else at the centre of the sensors' common volume
     (:func:`kinefuse.sim.rig.common_volume_centre`), whatever the clip's path; the clip then
     starts from there (a clip that leaves the volume is warned about by the coverage check).
@@ -194,7 +194,7 @@ def run_simulate(
     motion = place_actor(motion, the_rig, seconds)
     rom = None
     if rom_s is not None or static_s is not None:
-        from kinefuse.workflows.analyze import add_rom_phase
+        from kinefuse.analysis.rom import add_rom_phase
 
         rom = add_rom_phase(motion, rom_s, seed=seed, static_s=static_s)
         if seconds is not None:

@@ -74,7 +74,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse.errors import InputError
-from kinefuse.io.formats.markers import MarkerData, MarkerResolver, up_rotation
+from kinefuse.frames.marker_data import MarkerData, MarkerResolver, up_rotation
 from kinefuse.motion.maps import alternatives, parse_term
 from kinefuse.skeleton import JOINTS
 

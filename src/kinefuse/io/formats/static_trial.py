@@ -38,13 +38,13 @@ from numpy.typing import NDArray
 from kinefuse.analysis import anatomical as an
 from kinefuse.analysis.limbs import limb
 from kinefuse.errors import InputError
+from kinefuse.frames.marker_data import MarkerData, MarkerResolver
 from kinefuse.io.formats.marker_maps import (
     JointRule,
     MarkerMap,
     apply_marker_map,
     rule_points,
 )
-from kinefuse.io.formats.markers import MarkerData, MarkerResolver
 
 Array = NDArray[np.float64]
 
