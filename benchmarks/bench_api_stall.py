@@ -34,11 +34,15 @@ from pathlib import Path
 import aiohttp
 import numpy as np
 
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration, write_calibration
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.io.store.live import live_fused
-from kinefuse.io.store.session import SessionStore
-from kinefuse.viewer.api import API_PATH, STALL_LIMIT_S, api_mac
+from kinefuse.capture.calibration.calib_file import (
+    CalibrationFile,
+    SensorCalibration,
+    write_calibration,
+)
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.formats.store.live_tables import live_fused
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.viewer.subscription_api import API_PATH, STALL_LIMIT_S, api_mac
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_hostile  # the two well-behaved sensors and the poses

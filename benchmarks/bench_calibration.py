@@ -26,20 +26,20 @@ from collections.abc import Callable
 
 import numpy as np
 
-from kinefuse.calibration.common import WandDetection
-from kinefuse.calibration.compare import pose_errors
-from kinefuse.calibration.floor import FloorPlane
-from kinefuse.calibration.register import register_full
-from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-from kinefuse.calibration.wand_paper import detect_wand_paper
-from kinefuse.calibration.wand_robust import detect_wand
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.camera.wand import Wand
-from kinefuse.geometry.transforms import invert_transform
+from kinefuse.capture.calibration.common import WandDetection
+from kinefuse.capture.calibration.compare import pose_errors
+from kinefuse.capture.calibration.floor import FloorPlane
+from kinefuse.capture.calibration.register import register_full
+from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.capture.calibration.wand_paper import detect_wand_paper
+from kinefuse.capture.calibration.wand_robust import detect_wand
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.geometry.transforms import invert_transform
+from kinefuse.core.skeleton import JOINTS
 from kinefuse.sim.choreography import holding_poses, make_wand_path
 from kinefuse.sim.depth import Scene, render_depth
 from kinefuse.sim.rig import default_rig
-from kinefuse.skeleton import JOINTS
 
 if hasattr(os, "sched_setaffinity"):
     os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})

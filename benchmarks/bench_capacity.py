@@ -6,8 +6,8 @@ runs). Per N: simulates a session of N sensors without a wand phase (the demo cl
 default ring, 24 two rings), writes its true poses as a calibration file, starts a real
 ``kinefuse serve --token-file ... --calibration ... --record ...`` process on 127.0.0.1, and
 plays every sensor's recorded body frames at 30 Hz from this process: N real
-:class:`~kinefuse.net.client.client.SensorClient` s multiplexed on one event loop
-(:mod:`kinefuse.net.client.fleet`), each its own authenticated TCP connection, its own emulated
+:class:`~kinefuse.live.client.client.SensorClient` s multiplexed on one event loop
+(:mod:`kinefuse.live.client.fleet`), each its own authenticated TCP connection, its own emulated
 host clock synchronized by the server's probes, the occlusion test, no depth work.
 
 After ``WARM_S`` seconds (clock sync, first frames) it measures for ``S`` seconds:
@@ -41,14 +41,18 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration, write_calibration
-from kinefuse.io.outputs import atomic_write_text, json_recognizer
-from kinefuse.io.store.live import live_fused
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.client.client import ClientOptions
-from kinefuse.net.client.fleet import replay_clients, run_clients, stop_all
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.capture.calibration.calib_file import (
+    CalibrationFile,
+    SensorCalibration,
+    write_calibration,
+)
+from kinefuse.core.outputs import atomic_write_text, json_recognizer
+from kinefuse.formats.store.live_tables import live_fused
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.client.client import ClientOptions
+from kinefuse.live.client.fleet import replay_clients, run_clients, stop_all
 from kinefuse.sim.rig import Rig, SensorSpec, default_rig, rig_to_toml
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
 
 SWEEP = (4, 8, 12, 16, 24)
 MARK = {"benchmark": "bench_capacity"}

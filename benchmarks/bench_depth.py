@@ -4,7 +4,7 @@ Run: ``python benchmarks/bench_depth.py [--smoke]`` (``--smoke``: 3 frames and o
 to check that it runs; too few to quote). Prints the median ms per frame over 30 frames on one
 core for the noisy ``render_depth`` (target: under 50 ms), the noise-free ``render_depth_m``, the
 first frame of a new sensor pose (the room is cast once per pose and cached), and a naive
-baseline that tests all pixels against all capsules with ``kinefuse.geometry.raycast`` in the
+baseline that tests all pixels against all capsules with ``kinefuse.core.geometry.raycast`` in the
 same run, with the ratio and the largest depth difference between the two.
 """
 
@@ -21,9 +21,10 @@ import time
 
 import numpy as np
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.geometry.raycast import ray_capsules, ray_plane
-from kinefuse.geometry.transforms import look_at
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.raycast import ray_capsules, ray_plane
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.skeleton import JOINT_INDEX, standing_pose
 from kinefuse.sim import depth_raycast
 from kinefuse.sim.depth import (
     Scene,
@@ -31,7 +32,6 @@ from kinefuse.sim.depth import (
     render_depth_m,
     render_geometry,
 )
-from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 FRAMES = 30
 BASELINE_FRAMES = 3

@@ -28,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from kinefuse.io.store.session import SessionStore
+from kinefuse.formats.store.session_store import SessionStore
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig, place_actor
 
@@ -102,7 +102,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     args = ap.parse_args()
     durations = SMOKE_SECONDS if args.smoke else SECONDS
-    base_mb, _ = child_peak_mb(["-c", "import numpy, kinefuse.cli.main"])
+    base_mb, _ = child_peak_mb(["-c", "import numpy, kinefuse.app.cli.main"])
     peaks: dict[str, list[float]] = {}
     walls: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as d:

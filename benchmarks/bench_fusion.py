@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig, place_actor
 
@@ -89,7 +89,7 @@ def main() -> None:
 def live_frame_times(sensors, grid, clock=time.perf_counter) -> np.ndarray:  # type: ignore[no-untyped-def]
     """Seconds per ``LiveFusion.fuse`` call, its pushes included, over ``grid`` (``clock``: wall
     time, or ``time.process_time`` for this process's CPU time)."""
-    from kinefuse.fusion.live import LiveFusion, LiveOptions
+    from kinefuse.capture.fusion.live import LiveFusion, LiveOptions
 
     opt = LiveOptions()
     fusion = LiveFusion(np.stack([s.sensor2world for s in sensors]), opt)

@@ -44,11 +44,16 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration, write_calibration
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.io.store.live import live_fused
-from kinefuse.io.store.session import SessionStore
-from kinefuse.protocol import (
+from kinefuse.capture.calibration.calib_file import (
+    CalibrationFile,
+    SensorCalibration,
+    write_calibration,
+)
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.formats.store.live_tables import live_fused
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.protocol import (
     AuthReply,
     BodyFrameMessage,
     ClockProbe,
@@ -60,8 +65,7 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol.auth import compute_mac
 
 TOKEN = "e1f3a5b7c9d0e2f4a6b8c1d3e5f7a9b0c2d4e6f8a1b3c5d7e9f0a2b4c6d8e1f3"  # serve takes 128+ bits
 

@@ -37,7 +37,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from kinefuse.workflows.demo import DEMO_CALIBRATION_S
+from kinefuse.app.workflows.demo import DEMO_CALIBRATION_S
 
 #: how long the demo gets to stop its processes after SIGTERM before it is killed, seconds (its
 #: own clean stop, then kill, of a child takes up to 25 s: STOP_TIMEOUT_S + KILL_TIMEOUT_S)

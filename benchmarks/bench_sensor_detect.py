@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.calibration.wand_paper import detect_wand_paper
-from kinefuse.calibration.wand_robust import detect_wand
-from kinefuse.camera.wand import Wand
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.client.parts import fit_floor
-from kinefuse.net.client.playback import SimTimeline
-from kinefuse.occlusion.segments import detect_occlusion
-from kinefuse.workflows.simulate import run_simulate
+from kinefuse.app.workflows.simulate import run_simulate
+from kinefuse.capture.calibration.wand_paper import detect_wand_paper
+from kinefuse.capture.calibration.wand_robust import detect_wand
+from kinefuse.capture.occlusion.segments import detect_occlusion
+from kinefuse.core.camera.wand import Wand
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.client.parts import fit_floor
+from kinefuse.live.client.playback import SimTimeline
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT.parent / "shared" / "data" / "motion" / "cmu" / "02_walk_a.amc"

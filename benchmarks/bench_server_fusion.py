@@ -3,7 +3,7 @@
 Run: ``python benchmarks/bench_server_fusion.py [--sensors 4] [--seconds 5] [--smoke]``
 (``--smoke``: 2 sensors, 2 s, a shorter wand phase: checks that it runs). Simulates a
 session, calibrates it offline (``full``), then feeds every observation to the server's
-:class:`kinefuse.net.server.fusion_loop.FrameFusion` as the fusion loop does (observations captured
+:class:`kinefuse.live.server.fusion_loop.FrameFusion` as the fusion loop does (observations captured
 up to ``T + lead`` before frame ``T``) and times ``fuse`` per frame, for ``best-live`` and the
 paper's chain. Prints ms per frame and the share of the frame period: the fusion runs on the
 event loop, so this is also how long a clock-probe reply can wait to be stamped; and, as the
@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.poses import resolve_poses
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.server.fusion_loop import FrameFusion
-from kinefuse.net.server.sensor_state import Observation
-from kinefuse.pipeline.session import frame_grid, load_sensors
-from kinefuse.workflows.calibrate import run_calibrate
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.calibrate import run_calibrate
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.poses import resolve_poses
+from kinefuse.live.server.fusion_loop import FrameFusion
+from kinefuse.live.server.sensor_state import Observation
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors
 
 
 def main() -> None:

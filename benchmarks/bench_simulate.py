@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.motion import load_motion
-from kinefuse.motion.types import Motion
+from kinefuse.app.workflows.simulate import demo_clip_path
+from kinefuse.core.frames.motion import Motion
+from kinefuse.formats.motion import load_motion
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig, place_actor
-from kinefuse.workflows.simulate import demo_clip_path
 
 SECONDS = 60.0
 TARGET_S = 20.0

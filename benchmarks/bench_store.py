@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.evaluation.inspect import inspect_session
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.inspect import inspect_session
 
 SENSORS = 4
 FRAMES = 10 * 60 * 30  # 10 minutes at 30 Hz
@@ -29,10 +29,10 @@ def depth_codec(n_poses: int = 8) -> None:
     """KFD1 against plain zlib of the image, on depth frames rendered with the ToF noise model."""
     import zlib
 
-    from kinefuse.geometry.transforms import look_at
-    from kinefuse.io.store.session import decode_depth, encode_depth
+    from kinefuse.core.geometry.transforms import look_at
+    from kinefuse.core.skeleton import standing_pose
+    from kinefuse.formats.store.session_store import decode_depth, encode_depth
     from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
-    from kinefuse.skeleton import standing_pose
 
     rng = np.random.default_rng(1)
     scene = Scene.from_pose(standing_pose(), 1.75)

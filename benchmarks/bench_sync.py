@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
+from kinefuse.capture.sync import OnlineClock, estimate_clock
 from kinefuse.sim.probes import NETWORKS, asymmetric_probes, random_clock, replay
-from kinefuse.sync import OnlineClock, estimate_clock
 
 SEEDS = 10
 SESSION_S = 300.0

@@ -29,15 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.k4a_calibration import calibration_from_k4a_json
 from kinefuse.devices.pose.model import BlazePoseModel
 from kinefuse.devices.pose.tracker import PoseTracker, body_from_landmarks
 from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.devices.worker import TrackerWorker
-from kinefuse.evaluation.pose_lift import DetectorNoise, true_landmarks
-from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.motion.load import load_motion
+from kinefuse.formats.motion.load import load_motion
+from kinefuse.lab.pose_lift import DetectorNoise, true_landmarks
 from kinefuse.sim.depth import Scene, render_depth
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -27,11 +27,16 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.fusion.trilateration import sensor_centres, solve_linear, solve_nonlinear, trilaterate
-from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.occlusion.segments import detect_occlusion_sensors
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.capture.fusion.trilateration import (
+    sensor_centres,
+    solve_linear,
+    solve_nonlinear,
+    trilaterate,
+)
+from kinefuse.capture.occlusion.segments import detect_occlusion_sensors
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import invert_transform, look_at
+from kinefuse.core.skeleton import N_JOINTS
 
 RATE_HZ = 30.0
 WALKER = (

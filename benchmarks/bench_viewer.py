@@ -4,9 +4,9 @@
                                       [--client browser|ws] [--json FILE] [--smoke]
 
 A 30 Hz "server" loop publishes fused frames (the fused skeleton plus ``--sensors`` raw
-skeletons, the size a real 8-sensor frame has) through :class:`kinefuse.net.bus.Publisher`
+skeletons, the size a real 8-sensor frame has) through :class:`kinefuse.live.bus.Publisher`
 on one asyncio loop, with a lossless recorder subscription (as the real server's recorder) and
-the live viewer (:func:`kinefuse.viewer.live_viewer`) serving on loopback. Phases without and
+the live viewer (:func:`kinefuse.live.viewer.live_viewer`) serving on loopback. Phases without and
 with a connected viewer alternate (``--rounds`` times each, ``--phase-s`` seconds each) in the
 same run; the viewer is a real chromium page (``--client browser``, default; falls back to
 ``ws`` if /usr/bin/chromium is missing) or a real WebSocket client decoding every frame
@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.net.bus import FusedFrame, Publisher, SensorInfo, Status
-from kinefuse.skeleton import N_JOINTS, standing_pose
-from kinefuse.viewer import live_viewer
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.bus import FusedFrame, Publisher, SensorInfo, Status
+from kinefuse.live.viewer import live_viewer
 
 CHROMIUM = Path("/usr/bin/chromium")
 
@@ -99,7 +99,7 @@ def encode_cost_us(n_sensors: int, n: int = 2000) -> float:
     """CPU time of one page's frame encoding on the loop (fused + raw skeletons), microseconds."""
     import time
 
-    from kinefuse.viewer.wire import fused_frame_bytes
+    from kinefuse.live.viewer.wire import fused_frame_bytes
 
     f = _frames(n_sensors)[0]
     frame = FusedFrame(0, 0.0, f["fused"], np.full(N_JOINTS, 1e-4), np.zeros(N_JOINTS, np.int8),
@@ -112,7 +112,7 @@ def encode_cost_us(n_sensors: int, n: int = 2000) -> float:
 
 _WS_CHILD = """
 import asyncio, sys, aiohttp
-from kinefuse.viewer.wire import decode_frame
+from kinefuse.live.viewer.wire import decode_frame
 async def main():
     async with aiohttp.ClientSession() as s:
         async with s.ws_connect(sys.argv[1]) as ws:
@@ -226,7 +226,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
 def real_server(args: argparse.Namespace) -> dict[str, Any]:
     """The same comparison on the real system: ``kinefuse serve --viewer-port`` with
     ``--sensors`` real ``kinefuse sensor`` processes playing a simulated session (the live demo's
-    processes, :func:`kinefuse.workflows.demo.run_live`); during the motion phase a viewer (a
+    processes, :func:`kinefuse.app.workflows.demo.run_live`); during the motion phase a viewer (a
     WebSocket client decoding every frame, in its own process) connects and leaves in turns.
     Measured from the recording: the latency of every fused frame the server published (client
     host receive -> published, on the server clock), by whether a viewer was connected."""
@@ -235,14 +235,14 @@ def real_server(args: argparse.Namespace) -> dict[str, Any]:
     import threading
     import time
 
-    from kinefuse.io.store.live import live_fused
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.workflows.demo import run_live
-    from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+    from kinefuse.app.workflows.demo import run_live
+    from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+    from kinefuse.formats.store.live_tables import live_fused
+    from kinefuse.formats.store.session_store import SessionStore
 
     cal_s = 15.0
     settle_s = 4.0  # after the motion starts: calibration done, fusion warmed up
-    from kinefuse.motion import load_motion
+    from kinefuse.formats.motion import load_motion
 
     clip_s = load_motion(demo_clip_path()).duration_s
     seconds = min(clip_s, settle_s + 2 * args.rounds * (args.phase_s + 1.0) + 2.0)

@@ -60,7 +60,7 @@ RATE_HZ = 30.0
 
 def ring_poses(n: int, centre: np.ndarray, radius_m: float = 3.0) -> np.ndarray:
     """``(n, 4, 4)`` sensor-to-world poses on a ring around ``centre``, at 0.8-1.2 m height."""
-    from kinefuse.geometry.transforms import look_at
+    from kinefuse.core.geometry.transforms import look_at
 
     out = []
     for k in range(n):
@@ -74,7 +74,7 @@ def ring_poses(n: int, centre: np.ndarray, radius_m: float = 3.0) -> np.ndarray:
 def walk_in_world() -> tuple[np.ndarray, np.ndarray]:
     """The real walk as world joints ``(T, 25, 3)`` (z up, NaN untracked) and states ``(T, 25)``:
     the walker's camera put 1 m high, looking along +y."""
-    from kinefuse.pipeline.sources import Kinect2TrackingReplay
+    from kinefuse.pipeline.frame_sources import Kinect2TrackingReplay
 
     frames = list(Kinect2TrackingReplay(WALKER))
     j = np.stack([f.joints_m for f in frames])  # sensor frame: x right, y down, z forward
@@ -122,9 +122,9 @@ def queue_depths(server: Any) -> dict[str, Any]:
 
 
 def serve_child(port_file: Path, record: Path, cal: Path, interval: float) -> int:
-    from kinefuse.calibration.calib_file import read_calibration
-    from kinefuse.net.server.server import Server, ServerOptions
-    from kinefuse.viewer import live_viewer
+    from kinefuse.capture.calibration.calib_file import read_calibration
+    from kinefuse.live.server.server import Server, ServerOptions
+    from kinefuse.live.viewer import live_viewer
 
     holder: dict[str, Server] = {}
 
@@ -173,8 +173,8 @@ def serve_child(port_file: Path, record: Path, cal: Path, interval: float) -> in
 async def one_sensor(
     port: int, sid: str, joints: np.ndarray, states: np.ndarray, h0: float, until: float
 ) -> int:
-    from kinefuse.camera.intrinsics import Intrinsics
-    from kinefuse.protocol import (
+    from kinefuse.core.camera.intrinsics import Intrinsics
+    from kinefuse.live.protocol import (
         BodyFrameMessage,
         ClockProbe,
         ClockReply,
@@ -239,7 +239,7 @@ async def one_sensor(
 
 
 def sensors_child(port: int, n: int, seconds: float, cal: Path) -> int:
-    from kinefuse.calibration.calib_file import read_calibration
+    from kinefuse.capture.calibration.calib_file import read_calibration
 
     c = read_calibration(cal)
     world, states = walk_in_world()
@@ -394,8 +394,8 @@ def check_recording(
     late_dropped: dict[str, int],
 ) -> dict[str, Any]:
     """Open the recording read-only; is it complete?"""
-    from kinefuse.io.store.live import live_fused
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.formats.store.live_tables import live_fused
+    from kinefuse.formats.store.session_store import SessionStore
 
     with SessionStore.open(rec) as st:
         complete = bool(st.complete)
@@ -469,7 +469,7 @@ def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from kinefuse.io.outputs import atomic_file, is_png
+    from kinefuse.core.outputs import atomic_file, is_png
 
     t = np.array([s["t_s"] for s in samples]) / 60
     fig, ax = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
@@ -498,12 +498,12 @@ def plot(samples: list[dict[str, Any]], path: Path, title: str) -> None:
 
 
 def write_calibration_file(path: Path, n: int) -> None:
-    from kinefuse.calibration.calib_file import (
+    from kinefuse.capture.calibration.calib_file import (
         CalibrationFile,
         SensorCalibration,
         write_calibration,
     )
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     world, _ = walk_in_world()
     centre = np.nanmean(world.reshape(-1, 3), axis=0)
@@ -616,7 +616,7 @@ def main() -> None:
         plot(run["samples"], a.plot, title)
         print(f"plot: {a.plot}")
     if a.json is not None:
-        from kinefuse.io.outputs import atomic_write_text
+        from kinefuse.core.outputs import atomic_write_text
 
         body = {"figures": figures, "recording": recording, "checks": checks, **run}
         atomic_write_text(

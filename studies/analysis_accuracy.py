@@ -60,20 +60,20 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from kinefuse import analysis as an  # noqa: E402
-from kinefuse.analysis.consistency import (  # noqa: E402
+from kinefuse import biomech as an  # noqa: E402
+from kinefuse.app.cli.args import error_parts  # noqa: E402
+from kinefuse.biomech.kinematics import joint_angles, reconstruction_error  # noqa: E402
+from kinefuse.biomech.normalize import BODY_JOINTS  # noqa: E402
+from kinefuse.biomech.parameterize import learn_axes  # noqa: E402
+from kinefuse.biomech.rom import make_rom_motion, prepend_rom  # noqa: E402
+from kinefuse.biomech.side_consistency import (  # noqa: E402
     angle_rmse_deg,
     axis_errors_deg,
     normalization_consistency,
     true_axes_in_normalization,
     twist_errors_deg,
 )
-from kinefuse.analysis.kinematics import joint_angles, reconstruction_error  # noqa: E402
-from kinefuse.analysis.normalize import BODY_JOINTS  # noqa: E402
-from kinefuse.analysis.parameterize import learn_axes  # noqa: E402
-from kinefuse.analysis.rom import make_rom_motion, prepend_rom  # noqa: E402
-from kinefuse.cli.args import error_parts  # noqa: E402
-from kinefuse.motion.types import Motion  # noqa: E402
+from kinefuse.core.frames.motion import Motion  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("dj", "pca", "em")
@@ -97,16 +97,16 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
     the frames in which two or more sensors tracked each limb (``"seen"`` ``(T, L)``, as
     ``kinefuse analyze`` counts them: its axes are learned from those). ``errors_off``: parts
     of the tracker's error model switched off (``kinefuse.sim.tracker_params.ERROR_PARTS``)."""
-    from kinefuse.evaluation.fusion import calibration_alignment
-    from kinefuse.evaluation.poses import resolve_poses
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.analysis import SEEN_MIN_SENSORS, fused_limb_counts
-    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+    from kinefuse.app.workflows.calibrate import run_calibrate
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.lab.fusion_truth import calibration_alignment
+    from kinefuse.lab.poses import resolve_poses
+    from kinefuse.pipeline.analysis_chain import SEEN_MIN_SENSORS, fused_limb_counts
+    from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
     from kinefuse.sim.lab import LabConfig, _seeds, simulate_session
     from kinefuse.sim.rig import place_actor
     from kinefuse.sim.tracker_body import _body_axes
     from kinefuse.sim.tracker_params import without_parts
-    from kinefuse.workflows.calibrate import run_calibrate
 
     placed = place_actor(combined, rig)
     rot = _kabsch_rot(combined.positions[0], placed.positions[0])
@@ -141,7 +141,7 @@ def simulate_take(rig, combined, out: Path, seed: int, cal_s: float, subject_see
 def world_axis_errors(model, norm, true_world, frame):  # type: ignore[no-untyped-def]
     """Learned axes taken into the world by the fused parent frame at ``frame`` (the rest pose
     at the start of the calibration phase) against the true axes there, degrees."""
-    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
+    from kinefuse.biomech.limbs import LIMB_INDEX, LIMB_PARENTS
 
     vals = []
     for name, a in true_world.items():
@@ -164,8 +164,8 @@ def calibration_motion(rom_s: float, seed: int, static_s: float = 0.0):  # type:
     """The clip's default-pose frame, the ROM phase and its truth, the (standing +) ROM + walk +
     2 s hold motion and the walk's span (motion time, seconds). ``static_s``: a standing phase
     (static trial) of that many seconds before the ROM, as ``simulate --static`` makes it."""
-    from kinefuse.analysis.rom import stand_before
-    from kinefuse.motion import load_motion
+    from kinefuse.biomech.rom import stand_before
+    from kinefuse.formats.motion import load_motion
 
     clip = load_motion(CLIP)
     d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
@@ -232,7 +232,7 @@ def saved_takes(
 
 
 def accuracy(args: argparse.Namespace) -> dict[str, object]:
-    from kinefuse.pipeline.analysis import skeleton_anatomy
+    from kinefuse.pipeline.analysis_chain import skeleton_anatomy
     from kinefuse.sim.rig import default_rig, load_rig
 
     static_s = args.static_s
@@ -426,7 +426,7 @@ ANATOMICAL_ROWS = ("knee_flexion", "hip_flexion", "hip_adduction", "hip_internal
 
 def _included_knee(seq, side: str) -> np.ndarray:  # type: ignore[no-untyped-def]
     """The knee's included angle (180 - hip-knee-ankle, degrees) of ``seq`` per frame."""
-    from kinefuse.pipeline.analysis import hinge_angle_deg
+    from kinefuse.pipeline.analysis_chain import hinge_angle_deg
 
     s = side.capitalize()
     return hinge_angle_deg(seq.kinect_positions(), f"Hip{s}", f"Knee{s}", f"Ankle{s}")
@@ -458,11 +458,11 @@ def fusion_ablation(kept, true_seq, floor_seq, static_window, walk_frames):  # t
     knee's included angle (180° minus hip-knee-ankle) against the floor's (RMSE and mean signed
     difference: positive where the fused knee is more bent) and the knee position error against
     the floor, over the walk frames."""
+    from kinefuse.capture.fusion.options import BestOptions
+    from kinefuse.core.skeleton import JOINT_INDEX
     from kinefuse.errors import InputError
-    from kinefuse.fusion.options import BestOptions
-    from kinefuse.pipeline.analysis import skeleton_anatomy
-    from kinefuse.pipeline.session import run_method
-    from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.pipeline.analysis_chain import skeleton_anatomy
+    from kinefuse.pipeline.store_inputs import run_method
 
     norm_t = an.normalize(true_seq)
     anat_t, _ = skeleton_anatomy(true_seq, norm_t, static_window, "standing")
@@ -594,8 +594,8 @@ def _segment_offsets(joints: np.ndarray, norm: an.Normalization, body_offsets: n
     """Offsets ``(T, 25, 3)`` fixed in the frame of the limb each joint ends (the pelvis for
     the spine base and hips, the trunk for the shoulders and neck, the forearm for the hand
     joints), equal to the body-frame offsets at the default pose."""
-    from kinefuse.analysis.limbs import LIMBS
-    from kinefuse.skeleton import JOINT_INDEX, JOINTS
+    from kinefuse.biomech.limbs import LIMBS
+    from kinefuse.core.skeleton import JOINT_INDEX, JOINTS
 
     owner = {lb.distal_index: i for i, lb in reversed(list(enumerate(LIMBS)))}
     for name in ("SpineBase", "HipLeft", "HipRight"):
@@ -687,7 +687,7 @@ FLEXION = ("knee_flexion_left", "knee_flexion_right", "hip_flexion_left", "hip_f
 def _speed_sequence(n_frames: int, seed: int) -> tuple[an.SkeletonSequence, float]:
     """A full body: a ROM phase on the real clip's default pose, then the clip's walk and the
     ROM again, repeated to ``n_frames`` at 30 Hz, with 4 mm of noise per joint."""
-    from kinefuse.motion import load_motion
+    from kinefuse.formats.motion import load_motion
 
     clip = load_motion(CLIP)
     d = an.find_default_pose(an.SkeletonSequence.from_motion(clip))
@@ -703,10 +703,10 @@ def _speed_sequence(n_frames: int, seed: int) -> tuple[an.SkeletonSequence, floa
 
 
 def speed(args: argparse.Namespace) -> dict[str, object]:
-    from kinefuse.analysis.normalize import propagate
+    from kinefuse.biomech.normalize import propagate
 
     seq, rom_s = _speed_sequence(args.frames, 0)
-    from kinefuse.pipeline.analysis import skeleton_anatomy
+    from kinefuse.pipeline.analysis_chain import skeleton_anatomy
 
     # each part timed --repeat times, the fastest kept (the shared machine's other jobs and a
     # first call's imports only ever add time); the anatomical angles from a standing window at

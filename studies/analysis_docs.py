@@ -27,9 +27,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from kinefuse.cli import main as cli
+from kinefuse.app.cli import main as cli
+from kinefuse.app.workflows.analyze import run_analyze
 from kinefuse.errors import KinefuseError
-from kinefuse.workflows.analyze import run_analyze
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -43,7 +43,7 @@ def small_png(src: Path, dst: Path, colors: int = 48) -> None:
     Written atomically; it replaces an earlier figure (a PNG), never a file of another kind."""
     from PIL import Image
 
-    from kinefuse.io.outputs import atomic_file, is_png
+    from kinefuse.core.outputs import atomic_file, is_png
 
     with Image.open(src) as im, atomic_file(dst, what="docs figure", recognizer=is_png,
                                             suffix=".png") as tmp:  # fmt: skip
@@ -255,10 +255,10 @@ def markdown(fig: dict[str, Any]) -> str:
 
 def true_motion_consistency(takes: Sequence[Path]) -> dict[str, Any]:
     """The same consistency on the true motion of the takes (what the sensors cost)."""
-    from kinefuse.analysis.consistency import normalization_consistency
-    from kinefuse.analysis.normalize import normalize
-    from kinefuse.evaluation.analysis import true_sequence
-    from kinefuse.workflows.analyze import load_input
+    from kinefuse.app.workflows.analyze import load_input
+    from kinefuse.biomech.normalize import normalize
+    from kinefuse.biomech.side_consistency import normalization_consistency
+    from kinefuse.lab.analysis_truth import true_sequence
 
     norms = []
     for s in takes:

@@ -46,10 +46,10 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from kinefuse.cli.args import error_parts  # noqa: E402
+from kinefuse.app.cli.args import error_parts  # noqa: E402
+from kinefuse.app.workflows.analyze import run_analyze  # noqa: E402
+from kinefuse.app.workflows.simulate import run_simulate  # noqa: E402
 from kinefuse.errors import InputError  # noqa: E402
-from kinefuse.workflows.analyze import run_analyze  # noqa: E402
-from kinefuse.workflows.simulate import run_simulate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "motion" / "cmu"
@@ -219,15 +219,15 @@ def floor_figures(
     removes it), analysed and scored as the fused take is (``analysis_accuracy.py floor`` does the
     same for ``subject_seed`` subjects; here the subject is the session's own, drawn from its
     seed)."""
-    from kinefuse.analysis.kinematics import reconstruction_error
-    from kinefuse.analysis.sequence import SkeletonSequence
-    from kinefuse.evaluation.analysis import truth_figures
-    from kinefuse.evaluation.fusion import truth_at
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.analysis import AnalysisInput, analyse_sequence
+    from kinefuse.app.workflows.simulate import tracker_model
+    from kinefuse.biomech.kinematics import reconstruction_error
+    from kinefuse.biomech.sequence import SkeletonSequence
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.lab.analysis_truth import truth_figures
+    from kinefuse.lab.fusion_truth import truth_at
+    from kinefuse.pipeline.analysis_chain import AnalysisInput, analyse_sequence
     from kinefuse.sim.lab import ErrorModel, LabConfig, _seeds
     from kinefuse.sim.tracker_body import _body_axes
-    from kinefuse.workflows.simulate import tracker_model
 
     with SessionStore.open(path) as store:
         a, b = store.meta()["rom_phase_server_s"]  # type: ignore[misc]
@@ -256,8 +256,8 @@ def floor_figures(
 
 def _limb_rec_mm(angles: Any, model: Any, name: str) -> Any:
     """One limb's minimal-parameter reconstruction error per frame, mm."""
-    from kinefuse.analysis._vec import mv
-    from kinefuse.analysis.parameterize import _swing_matrices
+    from kinefuse.biomech._vec import mv
+    from kinefuse.biomech.parameterize import _swing_matrices
 
     lm = model.limbs[name]
     x = mv(_swing_matrices(lm, angles.angles[name], None, None), lm.rest)
@@ -271,12 +271,12 @@ def breakdown(path: Path) -> str:
     tracked the limb and its parent; the same on the true motion; the DJ axis error (deg) and
     the share of the phase the limb was seen in.
     What docs/analysis_measured.md says about where the reconstruction error comes from."""
-    from kinefuse.analysis.kinematics import reconstruction_error
-    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_PARENTS
-    from kinefuse.evaluation.analysis import true_sequence, truth_figures
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.analysis import analyse_sequence, phase_seen
-    from kinefuse.workflows.analyze import load_input
+    from kinefuse.app.workflows.analyze import load_input
+    from kinefuse.biomech.kinematics import reconstruction_error
+    from kinefuse.biomech.limbs import LIMB_INDEX, LIMB_PARENTS
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.lab.analysis_truth import true_sequence, truth_figures
+    from kinefuse.pipeline.analysis_chain import analyse_sequence, phase_seen
 
     inp = load_input(path, true_calibration=True)
     with SessionStore.open(path) as store:

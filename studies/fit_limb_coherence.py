@@ -6,7 +6,7 @@
 For each candidate ``rho`` this simulates every KinectMultiTrack take of the chosen
 participants (each take its own simulated subjects, as ``python studies/realism.py --population``)
 and compares, per layout, the median over takes of the two sensors' knee and elbow angle
-disagreement (``limb_angle_median_deg`` of :func:`kinefuse.evaluation.realism_takes.pair_figures`)
+disagreement (``limb_angle_median_deg`` of :func:`kinefuse.lab.realism_takes.pair_figures`)
 with the real one. The chosen value is the candidate with the smallest mean ``|log(sim / real)|``
 over the three layouts. The median position disagreement is printed beside it: ``rho`` leaves
 each joint's own error unchanged, so it should barely move (the Kabsch fit absorbs a little more
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.realism import load_walk
-from kinefuse.evaluation.realism_person import population_seeds
-from kinefuse.evaluation.realism_population import population_summary
-from kinefuse.evaluation.realism_takes import compare_take
+from kinefuse.lab.realism import load_walk
+from kinefuse.lab.realism_person import population_seeds
+from kinefuse.lab.realism_population import population_summary
+from kinefuse.lab.realism_takes import compare_take
 from kinefuse.sim.tracker_params import TrackerParams
 
 ROOT = Path(__file__).resolve().parents[1]

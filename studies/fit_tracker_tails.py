@@ -5,7 +5,7 @@
 
 Reads every take of the KinectMultiTrack population (participants 0-9,
 ``../shared/data/kinect/kinect_multitrack_population``), prints per take and per layout what the
-gross failures look like (:mod:`kinefuse.evaluation.realism_tails`), simulates every take with
+gross failures look like (:mod:`kinefuse.lab.realism_tails`), simulates every take with
 the new processes switched off (``--seeds`` seeds: what the model makes without them), and prints
 the values of ``TrackerParams.gross_*`` and ``person_*`` that the data asks for, with how each was
 obtained. Thrown arms and thrown legs differ (arms rarer, longer, further): their rates, lengths
@@ -32,16 +32,19 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.realism import disagreement
-from kinefuse.evaluation.realism_person import (
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.formats.motion import load_motion
+from kinefuse.lab.realism import disagreement
+from kinefuse.lab.realism_person import (
     person_log_sigma,
     person_outliers,
     subject_seed,
     two_way_fit,
 )
-from kinefuse.evaluation.realism_population import layout_key
-from kinefuse.evaluation.realism_tails import GROSS_M, Tails, take_tails
-from kinefuse.evaluation.realism_takes import (
+from kinefuse.lab.realism_population import layout_key
+from kinefuse.lab.realism_tails import GROSS_M, Tails, take_tails
+from kinefuse.lab.realism_takes import (
     EXTRA_KEYS,
     FIGURE_KEYS,
     StreamPair,
@@ -52,10 +55,7 @@ from kinefuse.evaluation.realism_takes import (
     still_frames,
     take_layout,
 )
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.motion import load_motion
 from kinefuse.sim.tracker_params import TrackerParams, light_tracker
-from kinefuse.skeleton import JOINT_INDEX
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

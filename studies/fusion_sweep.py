@@ -7,8 +7,8 @@ from the true sensor poses. Per session it prints the MAE of both methods, their
 half second of each (a mirrored skeleton shows there as 30-50 cm); then the summary over all
 sessions. ``paper_comparison.py`` and ``live_vs_offline.py`` run seeds 0-2 on two rigs. This sweep
 found offline ``best``'s old swap consensus (a vote per second,
-:func:`kinefuse.fusion.best.correct_swaps`, which has no continuity) mirroring whole seconds where
-every view was ambiguous (four sensors that all see the walking body obliquely): 15 of the 63
+:func:`kinefuse.capture.fusion.best.correct_swaps`, which has no continuity) mirroring whole seconds
+where every view was ambiguous (four sensors that all see the walking body obliquely): 15 of the 63
 default sessions had a half second over 15 cm. ``best`` now uses ``best-live``'s causal vote
 (docs/fusion_live.md).
 """
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.fusion import truth_at
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.workflows.simulate import run_simulate
+from kinefuse.app.workflows.simulate import run_simulate
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.fusion_truth import truth_at
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from analysis_accuracy import SMOKE_TAKES, calibration_motion, smoke_takes
-from kinefuse.evaluation.poses import resolve_poses
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.analysis import hinge_angle_deg
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.skeleton import MIRROR_INDEX
-from kinefuse.sync.assembly import interpolate
+from kinefuse.capture.sync.assembly import interpolate
+from kinefuse.core.skeleton import MIRROR_INDEX
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.poses import resolve_poses
+from kinefuse.pipeline.analysis_chain import hinge_angle_deg
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -20,19 +20,19 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.realism import load_walk
-from kinefuse.evaluation.realism_person import population_seeds
-from kinefuse.evaluation.realism_population import layout_key
-from kinefuse.evaluation.realism_takes import (
+from kinefuse.app.workflows.simulate import tracker_model
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.lab.realism import load_walk
+from kinefuse.lab.realism_person import population_seeds
+from kinefuse.lab.realism_population import layout_key
+from kinefuse.lab.realism_takes import (
     StreamPair,
     layout_angle_deg,
     real_pair,
     simulated_pair,
     take_layout,
 )
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.pipeline.analysis import hinge_angle_deg
-from kinefuse.workflows.simulate import tracker_model
+from kinefuse.pipeline.analysis_chain import hinge_angle_deg
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from analysis_accuracy import saved_takes_arguments, saved_takes_of
-from kinefuse.evaluation.poses import resolve_poses
-from kinefuse.fusion.options import BestOptions
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.analysis import hinge_angle_deg
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.skeleton import JOINT_INDEX
+from kinefuse.capture.fusion.options import BestOptions
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.poses import resolve_poses
+from kinefuse.pipeline.analysis_chain import hinge_angle_deg
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -14,9 +14,9 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from kinefuse.workflows.calibrate import run_calibrate
-from kinefuse.workflows.evaluate import EvaluateResult, run_evaluate
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.calibrate import run_calibrate
+from kinefuse.app.workflows.evaluate import EvaluateResult, run_evaluate
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

@@ -34,8 +34,8 @@ WALKS = (
 
 def run(data: Path, out: Path, which: str = "gait2354") -> dict[str, dict[str, float]]:
     """Analyse one shared walk into ``out`` and compare it with its OpenSim IK."""
-    from kinefuse.evaluation.opensim_ik import compare_with_ik
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.lab.opensim_ik import compare_with_ik
 
     _, walk, static, ik, names = next(w for w in WALKS if w[0] == which)
     run_analyze([data / walk], out=out, static=data / static, names=names, plots=False)
@@ -48,8 +48,8 @@ def lumbar_limit(mot: Path, ik: Path) -> str:
     and the pelvis's sagittal angles in the lab (their difference is lumbar_extension)."""
     import numpy as np
 
-    from kinefuse.evaluation.opensim_ik import compare_angles
-    from kinefuse.io.formats.angles import read_angles_mot
+    from kinefuse.formats.angles import read_angles_mot
+    from kinefuse.lab.opensim_ik import compare_angles
 
     (t_o, a_o, _), (t_i, a_i, _) = read_angles_mot(mot), read_angles_mot(ik)
     ref = a_i["lumbar_extension"]
@@ -76,7 +76,7 @@ def plot(mot: Path, ik: Path, png: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from kinefuse.io.formats.angles import read_angles_mot
+    from kinefuse.formats.angles import read_angles_mot
 
     t_o, a_o, _ = read_angles_mot(mot)
     t_i, a_i, _ = read_angles_mot(ik)
@@ -94,14 +94,14 @@ def plot(mot: Path, ik: Path, png: Path) -> None:
     fig.suptitle("Gait2354 subject01 walk1: kinefuse vs OpenSim inverse kinematics")
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
-    from kinefuse.io.outputs import atomic_file, is_png
+    from kinefuse.core.outputs import atomic_file, is_png
 
     with atomic_file(png, what="plot", recognizer=is_png, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=80, format="png")
 
 
 def main(argv: list[str] | None = None) -> int:
-    from kinefuse.evaluation.opensim_ik import arm_trunk_failures, format_comparison
+    from kinefuse.lab.opensim_ik import arm_trunk_failures, format_comparison
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")

@@ -6,7 +6,7 @@ Run: ``python studies/paper_comparison.py [--seeds 0 1 2] [--clips ...] [--rigs 
 in docs/fusion.md). Reads the clips from ``../shared/data`` beside the project.
 
 Every gain comes with a 95 % interval (paired block bootstrap over frames,
-:func:`kinefuse.evaluation.metrics.gain_ci`): a difference whose interval holds 0 is one the
+:func:`kinefuse.lab.metrics.gain_ci`): a difference whose interval holds 0 is one the
 session cannot tell from chance. Three parts:
 
 1. the methods and the ablation of ``best`` on the sessions as simulated;
@@ -26,18 +26,18 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.fusion import ABLATION, COMPARISONS, evaluate, truth_at
-from kinefuse.evaluation.metrics import gain_ci
-from kinefuse.fusion.best import BestOptions
-from kinefuse.fusion.methods import METHODS
-from kinefuse.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
-from kinefuse.geometry.rotations import rot_z
-from kinefuse.geometry.transforms import make_transform
-from kinefuse.io.store.session import SessionStore
-from kinefuse.motion import load_motion
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+from kinefuse.app.workflows.simulate import run_simulate
+from kinefuse.capture.fusion.best import BestOptions
+from kinefuse.capture.fusion.methods import METHODS
+from kinefuse.capture.fusion.trilateration import solve_geometric, solve_linear, solve_nonlinear
+from kinefuse.core.geometry.rotations import rot_z
+from kinefuse.core.geometry.transforms import make_transform
+from kinefuse.formats.motion import load_motion
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.fusion_truth import ABLATION, COMPARISONS, evaluate, truth_at
+from kinefuse.lab.metrics import gain_ci
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 from kinefuse.sim.rig import load_rig, place_actor
-from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIPS = ("02_walk_a.amc", "02_walk_b.amc", "131_01_scaled_metres.bvh")

@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.evaluation.fusion import evaluate
-from kinefuse.evaluation.people import all_bodies, evaluate_people, true_assignment
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import load_usable_sensors
-from kinefuse.skeleton import JOINT_INDEX
-from kinefuse.workflows.simulate import run_simulate
+from kinefuse.app.workflows.simulate import run_simulate
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.fusion_truth import evaluate
+from kinefuse.lab.people import all_bodies, evaluate_people, true_assignment
+from kinefuse.pipeline.store_inputs import load_usable_sensors
 
 ROOT = Path(__file__).resolve().parents[1]
 #: subject clip -> the bystander's clip

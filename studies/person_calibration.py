@@ -4,7 +4,7 @@
     python studies/person_calibration.py --live Study_7_Kinect_0 Study_5_Kinect_2
 
 ``--offline``: every two-Kinect take of ``../shared/data/kinect/kinect_multitrack_population``
-calibrated from the person (:func:`kinefuse.calibration.body.calibrate_from_body`, at the
+calibrated from the person (:func:`kinefuse.capture.calibration.body.calibrate_from_body`, at the
 capture times ``kinefuse realdata`` fits) on its first 20, 30, 40 and 60 s: the grade, the trunk
 residual, the spread of the path, the split-half figure, and the RMS distance between where
 this calibration and the whole take's put the person's path (every trunk centre of the take):
@@ -28,16 +28,16 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.calibration.body import calibrate_from_body
-from kinefuse.geometry.rotations import rotation_vector_deg
-from kinefuse.geometry.transforms import apply_transform, invert_transform, kabsch
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack, unique_frames
-from kinefuse.io.store.live import events, live_fused, obs_times
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import JOINT_INDEX, TRUNK_JOINTS
-from kinefuse.sync.assembly import interpolate
-from kinefuse.sync.envelope import fit_clock_lower_envelope
-from kinefuse.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.capture.calibration.body import calibrate_from_body
+from kinefuse.capture.sync.assembly import interpolate
+from kinefuse.capture.sync.envelope import fit_clock_lower_envelope
+from kinefuse.core.geometry.rotations import rotation_vector_deg
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform, kabsch
+from kinefuse.core.skeleton import JOINT_INDEX, TRUNK_JOINTS
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack, unique_frames
+from kinefuse.formats.store.live_tables import events, live_fused, obs_times
+from kinefuse.formats.store.session_store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 POPULATION = ROOT.parent / "shared" / "data" / "kinect" / "kinect_multitrack_population"
@@ -90,7 +90,7 @@ def realdata_agreement(rec: Path, log: Path) -> dict[str, object]:
     """The live fused skeleton against ``kinefuse realdata``'s (its ``best`` fusion of every
     scenario) on the same frames, after the rigid alignment of the two worlds; distances in m
     as ``(median, p95)`` over all joints and over the trunk."""
-    import kinefuse.workflows.realdata as rf
+    import kinefuse.app.workflows.realdata as rf
 
     fused: list[tuple[np.ndarray, np.ndarray]] = []
     real = rf.consistency

@@ -7,7 +7,7 @@ walk, ``../shared/data/motion/cmu/131_01_scaled_metres.bvh``), rig (the default 
 seed, simulated three times: with the simulated Kinect v2 tracker (``kinefuse simulate``'s), and
 with the pose tracker's stages after its 2D model on every sensor's rendered body depth at
 30 Hz, from landmarks projected from the true joints, exact and with a detector's pixel noise
-(:class:`kinefuse.evaluation.pose_lift.DetectorNoise`). Each session is fused with ``best`` and
+(:class:`kinefuse.lab.pose_lift.DetectorNoise`). Each session is fused with ``best`` and
 scored against the truth (``kinefuse evaluate --true-calibration --methods best``): the MAE over
 the joints fused, the coverage, the 95th percentile.
 """
@@ -18,12 +18,12 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from kinefuse.evaluation.pose_lift import DetectorNoise, pose_observations
-from kinefuse.io.store.session import SessionStore
-from kinefuse.motion.load import load_motion
+from kinefuse.app.workflows.evaluate import run_evaluate
+from kinefuse.formats.motion.load import load_motion
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.pose_lift import DetectorNoise, pose_observations
 from kinefuse.sim.lab import LabConfig, simulate_session
 from kinefuse.sim.rig import default_rig, place_actor
-from kinefuse.workflows.evaluate import run_evaluate
 
 ROOT = Path(__file__).resolve().parents[1]
 WALK = ROOT.parent / "shared" / "data" / "motion" / "cmu" / "131_01_scaled_metres.bvh"

@@ -6,7 +6,7 @@ sensor, a few frames, to check that it runs; too few to quote). A real CMU walk
 each sensor renders the actor's capsule body with the Kinect v2 depth error model
 (:meth:`kinefuse.sim.lab.SensorSimulation.body_depth_frames`); 2D landmarks are the true joints
 projected into that camera, exact and with a detector's pixel noise
-(:class:`kinefuse.evaluation.pose_lift.DetectorNoise`: BlazePose Full's published PCK@0.2 as a
+(:class:`kinefuse.lab.pose_lift.DetectorNoise`: BlazePose Full's published PCK@0.2 as a
 Gaussian); the tracker's stages after its 2D model lift, map and gate them. Prints, per joint,
 the median and 95th percentile error where the joint is visible, where it is hidden (the
 rendered surface at its pixel well in front of it), and the share of hidden joints not
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.evaluation.pose_lift import DetectorNoise, LiftScore, score_lifting
-from kinefuse.motion.load import load_motion
+from kinefuse.formats.motion.load import load_motion
+from kinefuse.lab.pose_lift import DetectorNoise, LiftScore, score_lifting
 from kinefuse.sim.lab import LabConfig, SensorSimulation
 from kinefuse.sim.rig import default_rig, place_actor
 

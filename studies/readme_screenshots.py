@@ -7,7 +7,7 @@ calibrates (``full``), fuses with ``best``, ``paper`` and ``best-live`` (stored 
 then, with Debian's chromium (/usr/bin/chromium) driven by Playwright:
 
 * ``viewer.png``: the live viewer of a Publisher fed at 30 Hz from that session
-  (:func:`kinefuse.viewer.feed.publish_session`), two sensors' raw skeletons switched on;
+  (:func:`kinefuse.live.viewer.feed.publish_session`), two sensors' raw skeletons switched on;
 * ``replay.png``: ``kinefuse view`` of the session, paused mid-clip, truth overlaid;
 * ``report.png``: the top of the ``report.html`` that ``kinefuse evaluate --out`` writes.
 
@@ -24,14 +24,14 @@ import tempfile
 import threading
 from pathlib import Path
 
-from kinefuse.cli import main as cli
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import Publisher
-from kinefuse.viewer import live_viewer, serve
-from kinefuse.viewer.feed import publish_session
-from kinefuse.viewer.replay import ReplaySource
-from kinefuse.viewer.session_data import load_session_view
-from kinefuse.workflows.simulate import demo_clip_path
+from kinefuse.app.cli import main as cli
+from kinefuse.app.workflows.simulate import demo_clip_path
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import Publisher
+from kinefuse.live.viewer import live_viewer, serve
+from kinefuse.live.viewer.feed import publish_session
+from kinefuse.live.viewer.replay import ReplaySource
+from kinefuse.live.viewer.session_data import load_session_view
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"

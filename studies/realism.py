@@ -24,22 +24,22 @@ from pathlib import Path
 
 import numpy as np
 
+from kinefuse.app.workflows.simulate import tracker_model
 from kinefuse.errors import InputError
-from kinefuse.evaluation.realism import (
+from kinefuse.lab.realism import (
     DEFAULT_HEADINGS,
     default_walk_path,
     load_walk,
     walking_passes,
 )
-from kinefuse.evaluation.realism_person import population_seeds
-from kinefuse.evaluation.realism_population import (
+from kinefuse.lab.realism_person import population_seeds
+from kinefuse.lab.realism_population import (
     format_population,
     population_failures,
     population_summary,
 )
-from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
-from kinefuse.evaluation.realism_takes import compare_take, format_take, format_take_joints
-from kinefuse.workflows.simulate import tracker_model
+from kinefuse.lab.realism_single import format_single, single_sensor_realism
+from kinefuse.lab.realism_takes import compare_take, format_take, format_take_joints
 
 #: ../shared/data beside the project checkout (where the repository's data lives)
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

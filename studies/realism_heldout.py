@@ -8,7 +8,7 @@ each half (the thrown-limb fixed-point step and ``person_log_sigma``); the defau
 are the means of the two. This simulates the takes of the *other* participants with those values
 and prints the same per-layout comparison as ``python studies/realism.py --population``.
 Every take gets its own simulated subjects (seeds ``subject_seed(file, 0..N-1)``,
-:func:`kinefuse.evaluation.realism_person.subject_seed`): with seeds ``0..N-1`` for every take,
+:func:`kinefuse.lab.realism_person.subject_seed`): with seeds ``0..N-1`` for every take,
 as the CLI has them, all takes of a layout share the same N person-level draws. About 10 minutes
 with ``--seeds 2`` on the shared machine.
 ``--smoke``: fitted on 0-4 (unless told), two judged takes, one seed (CI runs it).
@@ -20,10 +20,10 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from kinefuse.evaluation.realism import load_walk
-from kinefuse.evaluation.realism_person import subject_seed
-from kinefuse.evaluation.realism_population import format_population, population_summary
-from kinefuse.evaluation.realism_takes import compare_take
+from kinefuse.lab.realism import load_walk
+from kinefuse.lab.realism_person import subject_seed
+from kinefuse.lab.realism_population import format_population, population_summary
+from kinefuse.lab.realism_takes import compare_take
 from kinefuse.sim.tracker_params import TrackerParams
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,17 +21,17 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from kinefuse.evaluation.realism_population import layout_key
-from kinefuse.evaluation.realism_tails import take_tails
-from kinefuse.evaluation.realism_takes import (
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.formats.motion import load_motion
+from kinefuse.lab.realism_population import layout_key
+from kinefuse.lab.realism_tails import take_tails
+from kinefuse.lab.realism_takes import (
     layout_angle_deg,
     pair_figures,
     real_pair,
     simulated_pair,
     take_layout,
 )
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.motion import load_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -39,7 +39,7 @@ DATA = ROOT.parent / "shared" / "data"
 
 def _save(fig: Any, path: Path) -> None:
     """Through a temporary file and a rename; replaces an earlier figure, never another file."""
-    from kinefuse.io.outputs import atomic_file, is_png
+    from kinefuse.core.outputs import atomic_file, is_png
 
     with atomic_file(path, what="figure", recognizer=is_png, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")

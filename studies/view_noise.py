@@ -23,14 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from analysis_accuracy import CLIP, ROOT, _resample, simulate_take
-from kinefuse import analysis as an
-from kinefuse.analysis.consistency import angle_rmse_deg
-from kinefuse.analysis.kinematics import joint_angles
-from kinefuse.analysis.parameterize import learn_axes
-from kinefuse.analysis.rom import make_rom_motion, prepend_rom
-from kinefuse.fusion.best import BestOptions
-from kinefuse.motion import load_motion
-from kinefuse.motion.types import Motion
+from kinefuse import biomech as an
+from kinefuse.biomech.kinematics import joint_angles
+from kinefuse.biomech.parameterize import learn_axes
+from kinefuse.biomech.rom import make_rom_motion, prepend_rom
+from kinefuse.biomech.side_consistency import angle_rmse_deg
+from kinefuse.capture.fusion.best import BestOptions
+from kinefuse.core.frames.motion import Motion
+from kinefuse.formats.motion import load_motion
 
 _ANGLES = ("hip_flexion_left", "hip_flexion_right", "knee_flexion_left", "knee_flexion_right")
 
@@ -57,9 +57,9 @@ def _take(rig_name: str, heading: float, seed: int, subject_seed: int, path: Pat
 
 
 def _fuse(path: Path, options: BestOptions) -> an.SkeletonSequence:
-    from kinefuse.evaluation.poses import resolve_poses
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.lab.poses import resolve_poses
+    from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
     with SessionStore.open(path) as store:
         poses, _ = resolve_poses(store, None, False)

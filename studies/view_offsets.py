@@ -40,14 +40,14 @@ from typing import Any
 import numpy as np
 
 from analysis_accuracy import saved_takes_arguments, saved_takes_of
-from kinefuse import analysis as an
-from kinefuse.analysis.consistency import angle_rmse_deg
-from kinefuse.evaluation.poses import resolve_poses
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.analysis import skeleton_anatomy
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.skeleton import JOINT_INDEX, TrackingState
-from kinefuse.sync.assembly import interpolate
+from kinefuse import biomech as an
+from kinefuse.biomech.side_consistency import angle_rmse_deg
+from kinefuse.capture.sync.assembly import interpolate
+from kinefuse.core.skeleton import JOINT_INDEX, TrackingState
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.poses import resolve_poses
+from kinefuse.pipeline.analysis_chain import skeleton_anatomy
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -95,9 +95,9 @@ def main() -> int:
         return 1
     import pylsl
 
-    from kinefuse.io.store.live import live_fused
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
+    from kinefuse.app.workflows.demo import ChildProcesses, parse_listening, sensor_args
+    from kinefuse.formats.store.live_tables import live_fused
+    from kinefuse.formats.store.session_store import SessionStore
 
     result["monotonic_minus_local_clock_s"] = min(
         (time.monotonic() - pylsl.local_clock() for _ in range(20)), key=abs

@@ -52,13 +52,13 @@ def main() -> int:
         return 1
     import pylsl
 
-    from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.net.bus import FusedFrame
-    from kinefuse.net.client.client import ClientOptions
-    from kinefuse.net.client.fleet import replay_clients, run_clients
-    from kinefuse.net.lsl import lsl_outlet, person_xml_path, sample_of
-    from kinefuse.net.server.server import Server, ServerOptions
+    from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.live.bus import FusedFrame
+    from kinefuse.live.client.client import ClientOptions
+    from kinefuse.live.client.fleet import replay_clients, run_clients
+    from kinefuse.live.lsl import lsl_outlet, person_xml_path, sample_of
+    from kinefuse.live.server.server import Server, ServerOptions
 
     xml = a.work / "stream.xml"
     paths = {None: xml, 0: person_xml_path(xml, 0), 1: person_xml_path(xml, 1)}

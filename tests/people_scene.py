@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.motion.load import load_motion
-from kinefuse.motion.retarget import place
+from kinefuse.biomech.retarget import place
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.skeleton import JOINT_INDEX, TrackingState
+from kinefuse.formats.motion.load import load_motion
 from kinefuse.sim.rig import default_rig
-from kinefuse.skeleton import JOINT_INDEX, TrackingState
 
 RATE = 30.0
 
@@ -85,10 +85,10 @@ def two_people(shared_data: Path) -> dict:
 
 
 def observation(lab: dict, sid: str, k: int) -> object | None:
-    """The server's :class:`~kinefuse.net.server.sensor_state.Observation` of sensor ``sid`` at
+    """The server's :class:`~kinefuse.live.server.sensor_state.Observation` of sensor ``sid`` at
     instant ``k`` (every body in ``bodies``, the first listed first), or None when the sensor
     saw nobody then."""
-    from kinefuse.net.server.sensor_state import Observation
+    from kinefuse.live.server.sensor_state import Observation
 
     s = lab["streams"][sid]
     rows = np.flatnonzero(s.seq == k)

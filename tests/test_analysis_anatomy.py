@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis import anatomy
-from kinefuse.analysis.rom import make_rom_motion
-from kinefuse.geometry.rotations import rodrigues
-from kinefuse.motion import load_motion
+from kinefuse import biomech as an
+from kinefuse.biomech import anatomy
+from kinefuse.biomech.rom import make_rom_motion
+from kinefuse.core.geometry.rotations import rodrigues
+from kinefuse.formats.motion import load_motion
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,11 @@
-"""The movement filter (kinefuse.analysis.axes): its speed threshold and its runs."""
+"""The movement filter (kinefuse.biomech.axes): its speed threshold and its runs."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kinefuse.analysis.axes import movement_mask, speed_threshold
+from kinefuse.biomech.axes import movement_mask, speed_threshold
 
 
 def _fused_like_speeds(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

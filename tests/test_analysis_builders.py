@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.app.workflows.analyze import load_input, prepare_out
 from kinefuse.errors import InputError, OutputError
-from kinefuse.io.formats.sequences import sequence_from_markers, sequence_from_motion_file
-from kinefuse.io.store.session import SessionStore
-from kinefuse.workflows.analyze import load_input, prepare_out
+from kinefuse.formats.sequences import sequence_from_markers, sequence_from_motion_file
+from kinefuse.formats.store.session_store import SessionStore
 
 
 def _bone_in_limb_frame(seq, limb: str, a: str, b: str) -> np.ndarray:  # type: ignore[no-untyped-def]
@@ -88,9 +88,9 @@ def test_inputs_and_output_folder_are_checked(tmp_path: Path) -> None:
 
 
 def test_rom_phase_is_placed_where_the_clip_starts(shared_data: Path) -> None:
-    from kinefuse.analysis.rom import add_rom_phase
-    from kinefuse.motion import facing_direction, load_motion, place
-    from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.biomech.rom import add_rom_phase
+    from kinefuse.core.skeleton import JOINT_INDEX
+    from kinefuse.formats.motion import facing_direction, load_motion, place
 
     clip = place(load_motion(shared_data / "motion/cmu/02_walk_b.amc"), (1.0, -0.5), 75.0)
     rom = add_rom_phase(clip, 60.0, seed=3)

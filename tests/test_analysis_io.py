@@ -8,9 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from kinefuse.errors import InputError, MotionFormatError, OutputError
-from kinefuse.io.formats.angles import read_angles_mot, write_angles_csv, write_angles_mot
-from kinefuse.io.formats.marker_maps import (
+from kinefuse.biomech.marker_maps import (
     apply_marker_map,
     hip_joint_centres,
     load_marker_map,
@@ -18,8 +16,10 @@ from kinefuse.io.formats.marker_maps import (
     select_marker_map,
     shipped_marker_maps,
 )
-from kinefuse.io.formats.markers import parse_trc, read_c3d, read_markers, read_trc, up_rotation
-from kinefuse.motion import read_amc, read_bvh
+from kinefuse.errors import InputError, MotionFormatError, OutputError
+from kinefuse.formats.angles import read_angles_mot, write_angles_csv, write_angles_mot
+from kinefuse.formats.markers import parse_trc, read_c3d, read_markers, read_trc, up_rotation
+from kinefuse.formats.motion import read_amc, read_bvh
 
 WALK = "markers/opensim/Pipelines_Rajagopal_ExpData_motion_capture_walk.trc"
 STATIC = "markers/opensim/Pipelines_Rajagopal_ExpData_static_walk_1.trc"
@@ -313,7 +313,7 @@ def test_mot_with_gaps_loads_whole_in_storage(
 ) -> None:
     """Short gaps are filled, long ones cut out: Storage reads every written row."""
     opensim = pytest.importorskip("opensim", reason="opensim (the test extra) is not installed")
-    from kinefuse.io.formats.angles import plan_mot
+    from kinefuse.formats.angles import plan_mot
 
     monkeypatch.chdir(tmp_path)
     t = np.arange(100) / 50.0  # 50 Hz, 2 s
@@ -358,7 +358,7 @@ def test_writing_into_a_read_only_folder_fails_with_the_path_and_reason(
 
 
 def test_marker_clusters_give_limb_orientations(shared_data: Path) -> None:
-    from kinefuse.io.formats.sequences import sequence_from_markers
+    from kinefuse.formats.sequences import sequence_from_markers
 
     s = sequence_from_markers(shared_data / STATIC)
     assert set(s.orientation_limbs) == {  # every [clusters] entry of the rajagopal map
@@ -377,7 +377,7 @@ def test_marker_clusters_give_limb_orientations(shared_data: Path) -> None:
         name="t",
         origin="t.toml",
     )
-    from kinefuse.io.formats.marker_maps import cluster_orientations
+    from kinefuse.biomech.marker_maps import cluster_orientations
 
     with pytest.raises(InputError, match="thigh_left: A, B"):
         cluster_orientations(read_trc(shared_data / STATIC), mm)

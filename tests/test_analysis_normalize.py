@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis.normalize import body_frame, propagate
-from kinefuse.analysis.rom import make_rom_motion
+from kinefuse import biomech as an
+from kinefuse.biomech.normalize import body_frame, propagate
+from kinefuse.biomech.rom import make_rom_motion
+from kinefuse.core.geometry.rotations import rodrigues
+from kinefuse.core.skeleton import standing_pose
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import rodrigues
-from kinefuse.motion import load_motion
-from kinefuse.skeleton import standing_pose
+from kinefuse.formats.motion import load_motion
 
 
 @pytest.fixture(scope="module")

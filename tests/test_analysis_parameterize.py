@@ -9,13 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis.consistency import axis_errors_deg, true_axes_in_normalization
-from kinefuse.analysis.kinematics import edit_pose, joint_angles, reconstruct, reconstruction_error
-from kinefuse.analysis.parameterize import learn_axes, swing_angles
-from kinefuse.analysis.rom import make_rom_motion
+from kinefuse import biomech as an
+from kinefuse.biomech.kinematics import edit_pose, joint_angles, reconstruct, reconstruction_error
+from kinefuse.biomech.parameterize import learn_axes, swing_angles
+from kinefuse.biomech.rom import make_rom_motion
+from kinefuse.biomech.side_consistency import axis_errors_deg, true_axes_in_normalization
 from kinefuse.errors import InputError
-from kinefuse.motion import load_motion
+from kinefuse.formats.motion import load_motion
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +72,7 @@ def test_two_axis_angles_round_trip(rom, rng) -> None:  # type: ignore[no-untype
     seq, norm, _ = rom
     lm = learn_axes(seq, norm).limbs["thigh_left"]
     t = rng.uniform(-np.radians(60), np.radians(60), size=(500, 2))
-    from kinefuse.analysis.kinematics import _swing_matrices
+    from kinefuse.biomech.kinematics import _swing_matrices
 
     u = np.einsum("tij,j->ti", _swing_matrices(lm, t, None, None), lm.rest)
     back, off = swing_angles(lm, u)
@@ -171,8 +171,8 @@ def test_second_axis_far_from_perpendicular_is_flagged_and_replaced(rom) -> None
     """The left thigh's ab-/adduction seen distorted (its plane leaning 45° towards flexion, as
     fused from the held-out walkway's start mark): DJ learns a second axis 45° off perpendicular
     and 45° off the truth. It must be flagged, and replaced by one near the truth."""
-    from kinefuse.geometry.rotations import rodrigues
-    from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.core.geometry.rotations import rodrigues
+    from kinefuse.core.skeleton import JOINT_INDEX
 
     seq, norm, truth = rom
     a0w, a1w = truth.axes_world["thigh_left"]
@@ -207,15 +207,15 @@ def test_hinge_leaving_its_plane_gets_a_second_axis(rom) -> None:  # type: ignor
     position budget, so the shank gets a second axis, perpendicular to the hinge and the rest,
     and its minimal reconstruction is exact again; the hinge axis stays the learned one, and the
     decision says which test decided."""
-    from kinefuse.analysis._vec import mv
-    from kinefuse.analysis.kinematics import _swing_matrices
-    from kinefuse.analysis.parameterize import (
+    from kinefuse.biomech._vec import mv
+    from kinefuse.biomech.kinematics import _swing_matrices
+    from kinefuse.biomech.parameterize import (
         _learn_limb,
         _phase_frames,
         limb_samples,
         swing_and_undefined,
     )
-    from kinefuse.geometry.rotations import rodrigues
+    from kinefuse.core.geometry.rotations import rodrigues
 
     seq, norm, truth = rom
     vec = limb_samples(seq, norm, "shank_left")
@@ -245,9 +245,9 @@ def test_two_axis_rest_is_where_the_limb_stands(rom) -> None:  # type: ignore[no
     standing carry different slow sensor offsets): the learned axis planes meet 6° off the
     standing pose. The rest is where the limb stands, so standing reads zero; the paper's rest,
     where the planes meet, read the 6° as every angle's zero."""
-    from kinefuse.analysis.axes import movement_mask
-    from kinefuse.analysis.parameterize import _learn_limb, _phase_frames, limb_samples
-    from kinefuse.geometry.rotations import rodrigues
+    from kinefuse.biomech.axes import movement_mask
+    from kinefuse.biomech.parameterize import _learn_limb, _phase_frames, limb_samples
+    from kinefuse.core.geometry.rotations import rodrigues
 
     seq, norm, truth = rom
     vec = limb_samples(seq, norm, "thigh_left")
@@ -274,8 +274,8 @@ def test_axes_are_learned_from_the_frames_the_sensors_saw(rom) -> None:  # type:
     fusion's prediction: here a quarter of the phase, in 1.5 s runs, with the left knee 8 cm off
     to the side. Left out by ``seen_frames``, the thigh's axes (in the pelvis's frame, which the
     knee does not move) are the truth's; kept, they tilt."""
-    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
-    from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.biomech.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.core.skeleton import JOINT_INDEX
 
     seq, _, truth = rom
     p = seq.kinect_positions().copy()
@@ -302,8 +302,8 @@ def test_axes_are_learned_from_the_frames_the_sensors_saw(rom) -> None:  # type:
 def test_a_limb_seen_only_away_from_its_rest_keeps_its_rest(rom) -> None:  # type: ignore[no-untyped-def]
     """A limb that one sensor sees where it stands and two see once it moves away (a tilted
     rig's shank): its axes come from the seen movement, its rest from where it stands."""
-    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
-    from kinefuse.analysis.parameterize import limb_samples
+    from kinefuse.biomech.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.biomech.parameterize import limb_samples
 
     seq, norm, truth = rom
     rest = learn_axes(seq, norm).limbs["shank_right"].rest

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis.plausibility import LENGTH, OFF_AXIS, RANGE
-from kinefuse.analysis.rom import make_rom_motion
-from kinefuse.motion import load_motion
+from kinefuse import biomech as an
+from kinefuse.biomech.angle_plausibility import LENGTH, OFF_AXIS, RANGE
+from kinefuse.biomech.rom import make_rom_motion
+from kinefuse.formats.motion import load_motion
 
 
 @pytest.fixture(scope="module")

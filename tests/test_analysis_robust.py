@@ -12,13 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis.consistency import angle_rmse_deg
-from kinefuse.analysis.kinematics import joint_angles
-from kinefuse.analysis.normalize import TWIST_NOISE_MAX_DEG
-from kinefuse.analysis.parameterize import learn_axes
-from kinefuse.analysis.rom import make_rom_motion, prepend_rom
-from kinefuse.motion import load_motion
+from kinefuse import biomech as an
+from kinefuse.biomech.kinematics import joint_angles
+from kinefuse.biomech.normalize import TWIST_NOISE_MAX_DEG
+from kinefuse.biomech.parameterize import learn_axes
+from kinefuse.biomech.rom import make_rom_motion, prepend_rom
+from kinefuse.biomech.side_consistency import angle_rmse_deg
+from kinefuse.formats.motion import load_motion
 
 NOISE_M = 0.01  # white noise per joint and axis, metres
 RATE_HZ = 30.0  # a depth sensor's rate
@@ -56,7 +56,7 @@ def truth_and_noisy(clip_and_rom):  # type: ignore[no-untyped-def]
 
 
 def _length(pos, a, b):  # type: ignore[no-untyped-def]
-    from kinefuse.skeleton import JOINT_INDEX
+    from kinefuse.core.skeleton import JOINT_INDEX
 
     return float(
         np.nanmedian(np.linalg.norm(pos[:, JOINT_INDEX[b]] - pos[:, JOINT_INDEX[a]], axis=-1))

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis.rom import MOVEMENTS, make_rom_motion, prepend_rom, standing_pose
+from kinefuse import biomech as an
+from kinefuse.biomech.rom import MOVEMENTS, make_rom_motion, prepend_rom, standing_pose
+from kinefuse.core.skeleton import JOINT_INDEX, bone_index_array
 from kinefuse.errors import InputError
-from kinefuse.motion import facing_direction, load_motion
-from kinefuse.skeleton import JOINT_INDEX, bone_index_array
+from kinefuse.formats.motion import facing_direction, load_motion
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.analysis import SkeletonSequence, kinect_parents
+from kinefuse.biomech import SkeletonSequence, kinect_parents
+from kinefuse.core.skeleton import JOINTS, PARENTS, standing_pose
 from kinefuse.errors import InputError
-from kinefuse.skeleton import JOINTS, PARENTS, standing_pose
 
 
 def _seq(t: int = 10) -> SkeletonSequence:

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.io.formats.angles import read_angles_mot
+from kinefuse.app.cli import main
+from kinefuse.formats.angles import read_angles_mot
 
 MOTION = [
     "motion/cmu/131_01_scaled_metres.bvh",

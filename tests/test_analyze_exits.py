@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.evaluation.marker_placement import marker_trial, write_trc
+from kinefuse.app.cli.main import main
+from kinefuse.lab.marker_placement import marker_trial, write_trc
 
 WALK = "motion/cmu/02_walk_a.amc"
 

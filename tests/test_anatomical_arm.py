@@ -1,14 +1,14 @@
 """Issue 20 item 3: the shoulder and elbow anatomical angles (ISB 2005: elevation plane,
 elevation, axial rotation; the JCS flexion, adduction, internal rotation; elbow flexion) on a
 synthetic arm whose angles are known, both sides, with their documented signs and zeros
-(kinefuse.analysis.anatomical.ANATOMICAL_ANGLES; docs/analysis.md)."""
+(kinefuse.biomech.anatomical.ANATOMICAL_ANGLES; docs/analysis.md)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kinefuse.analysis.anatomical import anatomical_angles, frame_from_long_axis, shoulder_yxy
+from kinefuse.biomech.anatomical import anatomical_angles, frame_from_long_axis, shoulder_yxy
 
 X, Y, Z = np.eye(3)  # ISB trunk frame = the world here: X anterior, Y up, Z right
 TRUNK = np.eye(3)[None]

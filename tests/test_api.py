@@ -20,9 +20,9 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from kinefuse.viewer.api import API_PATH, api_mac
-from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening, sensor_args
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.live.viewer.subscription_api import API_PATH, api_mac
 
 TOKEN = "9d2e4f6a8b0c1d3e5f7a9b1c3d5e7f9a0b2c4d6e8f0a1b3c5d7e9f1a2b4c6d8e"  # 256 bits
 CLIENT = Path(__file__).resolve().parents[1] / "docs" / "api_client.py"

@@ -11,11 +11,11 @@ from pathlib import Path
 import aiohttp
 import numpy as np
 
-from kinefuse.net.bus import FusedFrame, Publisher
-from kinefuse.net.server.fusion_loop import FrameFusion
-from kinefuse.viewer import live_viewer
-from kinefuse.viewer.api import API_PATH
-from kinefuse.viewer.wire import PERSON, decode_frame
+from kinefuse.live.bus import FusedFrame, Publisher
+from kinefuse.live.server.fusion_loop import FrameFusion
+from kinefuse.live.viewer import live_viewer
+from kinefuse.live.viewer.subscription_api import API_PATH
+from kinefuse.live.viewer.wire import PERSON, decode_frame
 from people_scene import RATE, observation, two_people
 
 

@@ -17,7 +17,7 @@ GAIT = "markers/opensim/Pipelines_Gait2354_Simbody_"
 
 @pytest.fixture(scope="module")
 def rajagopal(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
 
     out = tmp_path_factory.mktemp("raj") / "out"
     run_analyze([shared_data / f"{RAJ}ExpData_motion_capture_walk.trc"], out=out,
@@ -31,8 +31,8 @@ def rajagopal_epicondyles(shared_data: Path, tmp_path_factory: pytest.TempPathFa
     """The walk with every knee's axis from its static trial's epicondyle markers, however far
     from the axis the knee flexes about (the left one is 29 deg from it: docs/analysis.md):
     what an ISB-only reading gives."""
-    from kinefuse.io.formats import static_trial
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.biomech import static_trial
 
     out = tmp_path_factory.mktemp("raj_epi") / "out"
     with pytest.MonkeyPatch.context() as mp:
@@ -44,7 +44,7 @@ def rajagopal_epicondyles(shared_data: Path, tmp_path_factory: pytest.TempPathFa
 
 
 def _compare(out: Path, shared_data: Path) -> dict[str, dict[str, float]]:
-    from kinefuse.evaluation.opensim_ik import compare_with_ik
+    from kinefuse.lab.opensim_ik import compare_with_ik
 
     return compare_with_ik(out / "angles.mot", shared_data / f"{RAJ}OpenSimIK_walk.mot")
 
@@ -77,8 +77,8 @@ def _gait2354(shared_data: Path, tmp_path: Path, how: str, window: tuple[float, 
               ) -> dict[str, dict[str, float]]:  # fmt: skip
     """The Gait2354 walk (as is, or left-right mirrored with its IK) with --names
     opensim:gait2354 against OpenSim's IK of it."""
-    from kinefuse.evaluation.opensim_ik import compare_with_ik, mirror_trc_text
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.lab.opensim_ik import compare_with_ik, mirror_trc_text
 
     walk = shared_data / f"{GAIT}subject01_walk1.trc"
     static = shared_data / f"{GAIT}subject01_static.trc"
@@ -124,8 +124,8 @@ def test_without_the_template_markers_the_isb_frames_stand(
 ) -> None:
     """The Rajagopal walk has none of the Gait2354 set's torso markers: under gait2354's names
     its pelvis and lumbar coordinates are the ISB ones, as under Rajagopal's."""
-    from kinefuse.io.formats.angles import read_angles_mot
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.formats.angles import read_angles_mot
 
     run_analyze([shared_data / f"{RAJ}ExpData_motion_capture_walk.trc"], out=tmp_path / "o",
                 static=shared_data / f"{RAJ}ExpData_static_walk_1.trc",
@@ -142,7 +142,7 @@ def test_model_body_offsets_recover_a_posed_template(rng: np.random.Generator) -
     the static trial lacks is left out."""
     from scipy.spatial.transform import Rotation
 
-    from kinefuse.analysis.anatomical import GAIT2354_TEMPLATES, model_body_offsets
+    from kinefuse.biomech.anatomical import GAIT2354_TEMPLATES, model_body_offsets
 
     body = {k: Rotation.random(random_state=rng).as_matrix() for k in ("pelvis", "trunk")}
     isb = {k: Rotation.random(random_state=rng).as_matrix() for k in ("pelvis", "trunk")}
@@ -163,8 +163,8 @@ def test_model_body_offsets_recover_a_posed_template(rng: np.random.Generator) -
 def test_the_model_decides_the_knee_sign(rajagopal: Path, shared_data: Path) -> None:
     """The same angles under gait2354's convention disagree with Rajagopal's IK: the check can
     fail, and --names picks the convention."""
-    from kinefuse.analysis.anatomical import opensim_angles, opensim_model
-    from kinefuse.io.formats.angles import read_angles_mot
+    from kinefuse.biomech.anatomical import opensim_angles, opensim_model
+    from kinefuse.formats.angles import read_angles_mot
 
     _, ours, _ = read_angles_mot(rajagopal / "angles.mot")
     _, ik, _ = read_angles_mot(shared_data / f"{RAJ}OpenSimIK_walk.mot")
@@ -179,7 +179,7 @@ def test_the_model_decides_the_knee_sign(rajagopal: Path, shared_data: Path) -> 
 
 
 def test_unknown_names_are_refused_before_any_work(shared_data: Path, tmp_path: Path) -> None:
-    from kinefuse.cli import main
+    from kinefuse.app.cli import main
 
     code = main(["analyze", str(shared_data / f"{GAIT}subject01_walk1.trc"), "--names",
                  "opensim:nope", "--out", str(tmp_path / "o")])  # fmt: skip
@@ -191,7 +191,7 @@ def test_status_is_in_the_csv_the_json_and_the_report(rajagopal_epicondyles: Pat
     (varus) reaches 34 deg in swing, outside its range on 15 % of the frames (the cross-talk of
     knee flexion into an axis 29 deg off): implausible, with the reason, in all three places;
     the knee's flexion is ok."""
-    from kinefuse.workflows.analyze_one import format_report
+    from kinefuse.app.workflows.analyze_one import format_report
 
     rajagopal = rajagopal_epicondyles
     rows = [ln.split(",") for ln in (rajagopal / "angles.csv").read_text().splitlines()]
@@ -213,7 +213,7 @@ def test_status_is_in_the_csv_the_json_and_the_report(rajagopal_epicondyles: Pat
 def test_a_wrapped_elbow_is_implausible(rajagopal: Path) -> None:
     """The real elbow curve read about a reversed flexion axis (what a flipped upper-arm frame
     gives: -171..176 deg) wraps and leaves the range; the curve itself is ok."""
-    from kinefuse.analysis.plausibility import angle_status
+    from kinefuse.biomech.angle_plausibility import angle_status
 
     rows = [ln.split(",") for ln in (rajagopal / "angles.csv").read_text().splitlines()[1:]]
     mine = [r for r in rows if r[2] == "elbow_flexion_right" and r[3] == "anatomical" and r[4]]
@@ -237,8 +237,8 @@ def test_pronation_where_the_forearm_has_two_styloids(
 ) -> None:
     """The Gait2354 set (two wrist markers) placed on a real clip gives back the clip's forearm
     pronation and its elbow as a hinge; the Rajagopal set (one wrist marker) has no pronation."""
-    from kinefuse.evaluation.marker_placement import gait2354_trial, write_trc
-    from kinefuse.workflows.analyze import load_input
+    from kinefuse.app.workflows.analyze import load_input
+    from kinefuse.lab.marker_placement import gait2354_trial, write_trc
 
     tr = gait2354_trial(shared_data / clip)
     t_static = np.arange(tr.static.shape[0]) / tr.rate_hz
@@ -257,7 +257,7 @@ def test_pronation_where_the_forearm_has_two_styloids(
 
 def test_the_html_report_has_the_status_column(rajagopal_epicondyles: Path) -> None:
     """report.html's angle table: the walk's real curves, one implausible (with why), one ok."""
-    from kinefuse.report.html import angle_status_table
+    from kinefuse.lab.report.html import angle_status_table
 
     out = rajagopal_epicondyles
     rows = [ln.split(",") for ln in (out / "angles.csv").read_text().splitlines()[1:]]
@@ -285,8 +285,8 @@ def test_held_out_variants_hold_the_arm_targets(
     :func:`test_rajagopal_arm_and_trunk_targets_that_hold`. The one at its margin:
     ``elbow_flex_l``'s offset, -4.98 deg with the whole static trial, -5.04 / -5.07 deg with
     its halves (docs/analysis.md); that offset is asserted with the whole trial only."""
-    from kinefuse.evaluation.opensim_ik import arm_trunk_failures, compare_with_ik, mirror_trc_text
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.lab.opensim_ik import arm_trunk_failures, compare_with_ik, mirror_trc_text
 
     walk = shared_data / f"{RAJ}ExpData_motion_capture_walk.trc"
     static = shared_data / f"{RAJ}ExpData_static_walk_1.trc"
@@ -309,8 +309,8 @@ def test_held_out_variants_hold_the_arm_targets(
 def test_hinge_axis_recovers_the_flexion_axis(rng: np.random.Generator) -> None:
     """A forearm turned about the humerus's Z by a, at a carrying angle b: the hinge axis from
     the two long axes and b is that Z, and the humerus frame built on it reads a back."""
-    from kinefuse.analysis.anatomical import hinge_axis, humerus_from_forearm, jcs_zxy
-    from kinefuse.geometry.rotations import rot_x, rot_z
+    from kinefuse.biomech.anatomical import hinge_axis, humerus_from_forearm, jcs_zxy
+    from kinefuse.core.geometry.rotations import rot_x, rot_z
 
     for _ in range(20):
         hum = rot_z(rng.uniform(-1, 1)) @ rot_x(rng.uniform(-1, 1))

@@ -16,18 +16,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.floor import FloorPlane
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.capture.calibration.floor import FloorPlane
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.inputs import read_text
+from kinefuse.core.skeleton import N_JOINTS
 from kinefuse.errors import InputError, MotionFormatError
-from kinefuse.io.formats.markers import read_markers
-from kinefuse.io.inputs import read_text
-from kinefuse.io.store.live import SightingRow
-from kinefuse.io.store.session import SessionStore
-from kinefuse.motion.bvh import read_bvh
-from kinefuse.net.server.recorder import Recorder
-from kinefuse.pipeline.sources import open_source
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.formats.markers import read_markers
+from kinefuse.formats.motion.bvh import read_bvh
+from kinefuse.formats.store.live_tables import SightingRow
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.server.recorder import Recorder
+from kinefuse.pipeline.frame_sources import open_source
 
 
 def run(capsys, *argv: object) -> tuple[int, str, str]:
@@ -212,7 +212,7 @@ def sparse(path: Path, size: int) -> Path:
 
 def test_a_sparse_2gb_trc_is_refused_by_its_size(tmp_path, capsys) -> None:
     big = sparse(tmp_path / "take.trc", 2 * 2**30)
-    import kinefuse.workflows.analyze  # noqa: F401  (its imports are not the file's bytes)
+    import kinefuse.app.workflows.analyze  # noqa: F401  (its imports are not the file's bytes)
 
     before = bytes_read()
     code, _, err = run(capsys, "analyze", big, "--out", tmp_path / "a")
@@ -564,7 +564,7 @@ def test_a_huge_file_at_an_output_path_is_refused_unread(session, tmp_path, caps
     """Whether kinefuse wrote the file it would replace is told from its first bytes: a 2 GiB
     hole is refused without being read (ezc3d alone spent a minute on one)."""
     out = sparse(tmp_path / f"take{suffix}", 2 * 2**30)
-    import kinefuse.io.formats.export  # noqa: F401  (its imports are not the file's bytes)
+    import kinefuse.formats.export  # noqa: F401  (its imports are not the file's bytes)
 
     before = bytes_read()
     code, _, err = run(capsys, "fuse", session, "--true-calibration", "--out", out)
@@ -579,8 +579,8 @@ def test_a_forged_stored_wand_is_one_line_for_the_sensor(tmp_path: Path, shared_
     import subprocess
     import sys
 
-    from kinefuse.cli import main
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.app.cli import main
+    from kinefuse.formats.store.session_store import SessionStore
 
     session = tmp_path / "s.sqlite"
     clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"

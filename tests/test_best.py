@@ -7,23 +7,23 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.fusion.best import (
+from kinefuse.capture.fusion.best import (
     BestOptions,
     correct_swaps,
     enforce_bone_lengths,
     fuse_best,
 )
-from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
-from kinefuse.sim.rig import default_rig
-from kinefuse.skeleton import (
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform
+from kinefuse.core.skeleton import (
     JOINT_INDEX,
     MIRROR_INDEX,
     TrackingState,
     bone_index_array,
     standing_pose,
 )
+from kinefuse.sim.clock import ClockParams, capture_times, draw_clock
+from kinefuse.sim.rig import default_rig
 
 J = JOINT_INDEX
 
@@ -216,10 +216,10 @@ def test_offline_best_is_not_mirrored_where_every_view_is_ambiguous(shared_data,
     walking direction) keeps it right. Sessions of ``studies/fusion_sweep.py``."""
     from pathlib import Path
 
-    from kinefuse.evaluation.fusion import truth_at
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-    from kinefuse.workflows.simulate import run_simulate
+    from kinefuse.app.workflows.simulate import run_simulate
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.lab.fusion_truth import truth_at
+    from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
     out = tmp_path / "s.sqlite"
     rig = Path(__file__).resolve().parents[1] / "rigs" / "level4.toml"

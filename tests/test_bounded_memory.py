@@ -2,7 +2,7 @@
 ones, bit for bit, whatever the chunk size.
 
 The range methods solve the grid a chunk at a time; ``best``'s smoother runs backwards over a
-:class:`~kinefuse.fusion.model.FilterTape`, recomputing each block's filter moments from a
+:class:`~kinefuse.capture.fusion.model.FilterTape`, recomputing each block's filter moments from a
 checkpoint; the replay prepares its measurements a chunk at a time. Each test runs the same
 fusion with chunks of one size and another and compares every array exactly."""
 
@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.fusion import live
-from kinefuse.fusion import session as fusion_session
-from kinefuse.fusion.best import BestOptions, fuse_best
-from kinefuse.fusion.live import LiveOptions, replay_streams
-from kinefuse.fusion.model import rts_smooth, rts_smooth_tape
-from kinefuse.geometry.transforms import apply_transform, invert_transform
+from kinefuse.capture.fusion import fusion_run as fusion_session
+from kinefuse.capture.fusion import live
+from kinefuse.capture.fusion.best import BestOptions, fuse_best
+from kinefuse.capture.fusion.live import LiveOptions, replay_streams
+from kinefuse.capture.fusion.model import rts_smooth, rts_smooth_tape
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform
+from kinefuse.core.skeleton import TrackingState, standing_pose
 from kinefuse.sim.rig import default_rig
-from kinefuse.skeleton import TrackingState, standing_pose
 
 
 def _streams(
@@ -96,12 +96,12 @@ def test_smoother_over_the_tape_equals_the_smoother_over_every_moment(rng, monke
 @pytest.fixture(scope="module")
 def sensors_and_grid(tmp_path_factory):
     """A simulated 12 s 4-sensor session's sensors as the commands load them."""
-    from kinefuse.io.store.session import SessionStore
-    from kinefuse.motion import load_motion
-    from kinefuse.pipeline.session import frame_grid, load_sensors
+    from kinefuse.app.workflows.simulate import demo_clip_path
+    from kinefuse.formats.motion import load_motion
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.pipeline.store_inputs import frame_grid, load_sensors
     from kinefuse.sim.lab import LabConfig, simulate_session
     from kinefuse.sim.rig import place_actor
-    from kinefuse.workflows.simulate import demo_clip_path
 
     rig = default_rig(4)
     motion = place_actor(load_motion(demo_clip_path()), rig)

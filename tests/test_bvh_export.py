@@ -11,16 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.core.skeleton import JOINTS, PARENTS, standing_pose
 from kinefuse.errors import OutputError
-from kinefuse.io.formats.export import export_skeleton
-from kinefuse.motion.bvh import read_bvh
-from kinefuse.motion.bvh_pose import (
+from kinefuse.formats.export import export_skeleton
+from kinefuse.formats.motion.bvh import read_bvh
+from kinefuse.formats.motion.bvh_pose import (
     BVH_NAMES,
     bvh_to_world,
     forward_kinematics,
     solve_pose,
 )
-from kinefuse.skeleton import JOINTS, PARENTS, standing_pose
 
 RATE = 30.0
 
@@ -29,8 +29,8 @@ RATE = 30.0
 def fused(tmp_path_factory) -> tuple[Path, np.ndarray, list[str]]:
     """An 8 s simulated session of the bundled clip, 4 sensors, fused with best: the BVH, the
     fused joints (from the CSV written from the same fusion) and the fuse's warnings."""
-    from kinefuse.workflows.fuse import run_fuse
-    from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+    from kinefuse.app.workflows.fuse import run_fuse
+    from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 
     d = tmp_path_factory.mktemp("bvh")
     session = d / "s.sqlite"
@@ -206,7 +206,7 @@ def test_missing_limb_holds_its_last_rotation_and_says_so(tmp_path) -> None:
 def test_bvh_into_a_read_only_folder_or_over_a_foreign_file_is_refused(
     tmp_path, readonly_folder, fused, capsys
 ) -> None:
-    from kinefuse.cli import main
+    from kinefuse.app.cli import main
 
     p = _turning_pose(10)
     t = np.arange(10) / RATE

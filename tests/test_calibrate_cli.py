@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import loads_calibration, read_calibration
-from kinefuse.cli import main
-from kinefuse.io.store.session import SessionStore
+from kinefuse.app.cli import main
+from kinefuse.capture.calibration.calib_file import loads_calibration, read_calibration
+from kinefuse.formats.store.session_store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -12,22 +12,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.common import WandDetection
-from kinefuse.calibration.wand_paper import (
+from kinefuse.capture.calibration.common import WandDetection
+from kinefuse.capture.calibration.wand_paper import (
     binarize_nearest,
     detect_wand_paper,
     detect_wand_paper_sequence,
     paper_filter,
     standardize_depth_cm,
 )
-from kinefuse.calibration.wand_robust import RobustDetectorParams, detect_wand, detect_wand_sequence
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.camera.wand import Wand
+from kinefuse.capture.calibration.wand_robust import (
+    RobustDetectorParams,
+    detect_wand,
+    detect_wand_sequence,
+)
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.geometry.transforms import invert_transform, look_at
+from kinefuse.core.skeleton import JOINTS
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.sim.choreography import holding_poses
 from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
-from kinefuse.skeleton import JOINTS
 
 INTR = Intrinsics()
 WAND = Wand()

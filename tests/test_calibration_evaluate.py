@@ -7,25 +7,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.compare import align_worlds, pose_errors
-from kinefuse.calibration.register import register_full
-from kinefuse.calibration.synthetic import (
+from kinefuse.capture.calibration.compare import align_worlds, pose_errors
+from kinefuse.capture.calibration.register import register_full
+from kinefuse.capture.calibration.synthetic import (
     make_rig,
     simulate_sightings,
     true_wand_in_sensor,
     wand_waving,
 )
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.rotations import rot_x, rot_z
+from kinefuse.core.geometry.transforms import make_transform
 from kinefuse.errors import InputError
-from kinefuse.evaluation.calibration import (
+from kinefuse.lab.calibration_truth import (
     binned,
     error_vs_sightings,
     mapped_wand_errors,
     plot_calibration_errors,
     wand_errors,
 )
-from kinefuse.geometry.rotations import rot_x, rot_z
-from kinefuse.geometry.transforms import make_transform
 
 INTR = Intrinsics()
 

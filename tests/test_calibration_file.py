@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import (
+from kinefuse.capture.calibration.calib_file import (
     CalibrationFile,
     calibration_from_registration,
     dumps_calibration,
@@ -18,9 +18,9 @@ from kinefuse.calibration.calib_file import (
     read_calibration,
     write_calibration,
 )
-from kinefuse.calibration.register import Registration, register_full
-from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.capture.calibration.register import Registration, register_full
+from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 
 INTR = Intrinsics()

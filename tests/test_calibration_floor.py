@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.capture.calibration.floor import FloorPlane, fit_floor_plane
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import invert_transform, look_at
 from kinefuse.errors import CalibrationError, InputError
-from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.sim.depth import DepthNoiseParams, Scene, render_depth
 
 INTR = Intrinsics()

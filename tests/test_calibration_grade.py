@@ -1,8 +1,8 @@
 """The calibration grade's split-half check (issue 23): a calibration worse than its residuals
 say (few sightings, sightings whose times are off) is doubtful or failed, not good.
 
-Simulated wand sightings with known truth (:mod:`kinefuse.calibration.synthetic`) solved by the
-server's live calibration (pure state, no sockets); the truth is used only to check the grade,
+Simulated wand sightings with known truth (:mod:`kinefuse.capture.calibration.synthetic`) solved by
+the server's live calibration (pure state, no sockets); the truth is used only to check the grade,
 never by it.
 """
 
@@ -11,17 +11,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration.compare import pose_errors
-from kinefuse.calibration.grade import (
+from kinefuse.capture.calibration.compare import pose_errors
+from kinefuse.capture.calibration.grade import (
     HALVES_DOUBTFUL_M,
     HalvesCheck,
     grade_calibration,
     split_halves,
 )
-from kinefuse.calibration.register import Registration, Sightings
-from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.server.calibration import LiveCalibration, LiveCalibrationOptions
+from kinefuse.capture.calibration.register import Registration, Sightings
+from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.live.server.live_calibration import LiveCalibration, LiveCalibrationOptions
 
 IDS = ("a", "b", "c", "d")
 

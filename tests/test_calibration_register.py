@@ -1,8 +1,8 @@
 """Registration of the sensors from wand sightings: full 6 DoF with gravity, and the paper's method.
 
-Sightings are synthetic (``kinefuse.calibration.synthetic``): unsynchronized 30 Hz sensors, a few
-mm of detection noise growing with distance, 1 % gross outliers, 5 % dropouts, 1 ms residual sync
-error. Floors are fitted on depth frames rendered by the simulator.
+Sightings are synthetic (``kinefuse.capture.calibration.synthetic``): unsynchronized 30 Hz sensors,
+a few mm of detection noise growing with distance, 1 % gross outliers, 5 % dropouts, 1 ms residual
+sync error. Floors are fitted on depth frames rendered by the simulator.
 """
 
 from __future__ import annotations
@@ -10,18 +10,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration.compare import pose_errors
-from kinefuse.calibration.floor import FloorPlane, fit_floor_plane
-from kinefuse.calibration.register import (
+from kinefuse.capture.calibration.compare import pose_errors
+from kinefuse.capture.calibration.floor import FloorPlane, fit_floor_plane
+from kinefuse.capture.calibration.register import (
     Sightings,
     paper_positions_from_sightings,
     register_full,
     register_paper,
 )
-from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import invert_transform, look_at
 from kinefuse.errors import CalibrationError, InputError
-from kinefuse.geometry.transforms import invert_transform, look_at
 from kinefuse.sim.depth import Scene, render_depth
 
 INTR = Intrinsics()

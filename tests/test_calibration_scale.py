@@ -13,16 +13,16 @@ import math
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import (
+from kinefuse.capture.calibration.calib_file import (
     CalibrationFile,
     SensorCalibration,
     dumps_calibration,
     loads_calibration,
 )
-from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
-from kinefuse.net.server.calibration import LiveCalibration
+from kinefuse.live.server.live_calibration import LiveCalibration
 
 IDS = ("a", "b", "c", "d")
 F = 1.01  # the fixed sensors' world was scaled by this (1 %: 3 cm at 3 m)
@@ -137,8 +137,8 @@ def test_an_old_file_without_the_field_gets_its_scale_from_what_kinefuse_wrote()
 
 
 def test_the_registration_carries_the_factor_it_was_scaled_by() -> None:
-    from kinefuse.calibration.register import Registration
-    from kinefuse.calibration.session import scale_registration
+    from kinefuse.capture.calibration.calibration_run import scale_registration
+    from kinefuse.capture.calibration.register import Registration
 
     reg = Registration(
         "full", ("a",), np.eye(4)[None] + 0.0, np.zeros(1), np.ones(1, np.int64), 0.0, "w"

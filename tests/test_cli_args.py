@@ -6,8 +6,8 @@ import argparse
 
 import pytest
 
-from kinefuse.cli import args
-from kinefuse.cli.main import main
+from kinefuse.app.cli import args
+from kinefuse.app.cli.main import main
 
 
 @pytest.mark.parametrize("text", ["inf", "-inf", "nan", "1e999"])

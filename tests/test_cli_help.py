@@ -7,7 +7,7 @@ import argparse
 
 import pytest
 
-from kinefuse.cli.main import COMMANDS, build_parser
+from kinefuse.app.cli.main import COMMANDS, build_parser
 
 
 def _commands() -> dict[str, argparse.ArgumentParser]:

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.register import Sightings, register_full
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.capture.calibration.register import Sightings, register_full
 from kinefuse.errors import CalibrationError, RigError
 from kinefuse.sim.rig import load_rig
 

@@ -14,13 +14,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.frames.observations import BodyFrame as SourceBody
-from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
-from kinefuse.net.client.clocks import HostClock, real_host_clock
-from kinefuse.net.client.playback import SourceTimeline
-from kinefuse.occlusion.segments import detect_occlusion
-from kinefuse.protocol import (
+from kinefuse.capture.occlusion.segments import detect_occlusion
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import BodyFrame as SourceBody
+from kinefuse.core.skeleton import N_JOINTS
+from kinefuse.live.client.client import ClientOptions, ClientRefused, SensorClient, backoff_delay
+from kinefuse.live.client.clocks import HostClock, real_host_clock
+from kinefuse.live.client.playback import SourceTimeline
+from kinefuse.live.protocol import (
     PROTOCOL_VERSION,
     AuthReply,
     BodyFrameMessage,
@@ -37,7 +38,6 @@ from kinefuse.protocol import (
     auth,
     encode,
 )
-from kinefuse.skeleton import N_JOINTS
 
 LIMIT_S = 30.0  # no test of this module may take longer (a hang fails instead of blocking)
 

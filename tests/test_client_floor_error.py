@@ -14,13 +14,12 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.frames.observations import DepthFrame
-from kinefuse.net.client.client import ClientOptions, SensorClient
-from kinefuse.net.client.clocks import HostClock
-from kinefuse.net.client.playback import SourceTimeline
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.protocol import (
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import DepthFrame
+from kinefuse.live.client.client import ClientOptions, SensorClient
+from kinefuse.live.client.clocks import HostClock
+from kinefuse.live.client.playback import SourceTimeline
+from kinefuse.live.protocol import (
     Decoder,
     Heartbeat,
     Hello,
@@ -30,7 +29,8 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.codec import from_wire, to_wire
+from kinefuse.live.protocol.codec import from_wire, to_wire
+from kinefuse.live.server.server import Server, ServerOptions
 
 LIMIT_S = 30.0
 

@@ -17,15 +17,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.wand_robust import detect_wand
-from kinefuse.camera.wand import Wand
+from kinefuse.capture.calibration.wand_robust import detect_wand
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.frames.observations import DepthFrame
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import DepthFrame
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.client.client import ClientOptions, SensorClient
-from kinefuse.net.client.clocks import HostClock
-from kinefuse.net.client.playback import SimTimeline, open_timeline
-from kinefuse.protocol import (
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.client.client import ClientOptions, SensorClient
+from kinefuse.live.client.clocks import HostClock
+from kinefuse.live.client.playback import SimTimeline, open_timeline
+from kinefuse.live.protocol import (
     BodyFrameMessage,
     CalibrationStop,
     ClockProbe,
@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def session(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """2 sensors, a 3 s wand phase (depth at 10 Hz), then 1 s of walking."""
-    from kinefuse.workflows.simulate import run_simulate
+    from kinefuse.app.workflows.simulate import run_simulate
 
     out = tmp_path_factory.mktemp("clientsim") / "s.sqlite"
     run_simulate(
@@ -237,7 +237,7 @@ def test_sigterm_is_a_clean_stop_and_the_sidecar_holds_the_truth(session: Path, 
 
 
 def test_every_sensor_option_is_documented():
-    from kinefuse.cli import build_parser
+    from kinefuse.app.cli import build_parser
 
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     sensor = sub.choices["sensor"]  # type: ignore[attr-defined]
@@ -276,8 +276,8 @@ def test_wrong_token_exits_3_with_a_clear_message(session: Path):
 DRIVER = '''
 import math, time
 import numpy as np
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.frames.observations import BodyFrame
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import BodyFrame
 
 class FakeKinect:
     """A driver: frames when the device delivers them, host stamps on time.monotonic()."""
@@ -352,7 +352,7 @@ def test_bad_driver_specs_say_what_is_wrong(tmp_path: Path, monkeypatch, spec, m
 
 def test_a_real_kinect_multitrack_log_goes_through_the_live_path(shared_data: Path):
     log = shared_data / "kinect" / "kinect_multitrack" / "Study_4_Kinect_1_Time_1_22_06_PM.csv"
-    from kinefuse.pipeline.sources import open_source
+    from kinefuse.pipeline.frame_sources import open_source
 
     ref = [f for _, f in zip(range(40), open_source(f"multitrack:{log}"), strict=False)]
 

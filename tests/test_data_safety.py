@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.core.outputs import DIR_MARKER, atomic_dir, atomic_file
 from kinefuse.errors import OutputError
-from kinefuse.io.outputs import DIR_MARKER, atomic_dir, atomic_file
-from kinefuse.io.store.session import SessionStore
+from kinefuse.formats.store.session_store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -394,7 +394,7 @@ def test_demo_output_is_ignored_by_git() -> None:
 def test_depth_codec_is_lossless_and_smaller_than_zlib(session) -> None:
     import zlib
 
-    from kinefuse.io.store.session import decode_depth, encode_depth
+    from kinefuse.formats.store.session_store import decode_depth, encode_depth
 
     with SessionStore.open(session) as st:
         _, _, frames = next(st.iter_depth_frames("k0", batch=4))

@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 
-from kinefuse.calibration.calib_file import read_calibration
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.capture.calibration.calib_file import read_calibration
 
 
 def test_demo_runs_the_whole_pipeline(tmp_path, capsys) -> None:

@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.camera.wand import Wand
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.geometry.raycast import ray_capsules, ray_plane
+from kinefuse.core.geometry.transforms import apply_transform, look_at, make_transform
+from kinefuse.core.skeleton import JOINT_INDEX, standing_pose
 from kinefuse.errors import InputError
-from kinefuse.geometry.raycast import ray_capsules, ray_plane
-from kinefuse.geometry.transforms import apply_transform, look_at, make_transform
 from kinefuse.sim.depth import (
     DEFAULT_DEPTH_NOISE,
     DepthNoiseParams,
@@ -26,7 +27,6 @@ from kinefuse.sim.depth import (
     render_geometry,
     systematic_offset_m,
 )
-from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DOCS = Path(__file__).resolve().parents[1] / "docs"

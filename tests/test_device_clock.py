@@ -10,23 +10,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.app.workflows.simulate import run_simulate
+from kinefuse.capture.sync import (
+    DeviceClockEstimate,
+    estimate_clock,
+    estimate_device_clock,
+    sensor_timebase,
+)
+from kinefuse.capture.sync.device import NOMINAL_LATENCY_S
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError, SyncError
-from kinefuse.io.store.session import SessionStore
+from kinefuse.formats.store.session_store import SessionStore
 from kinefuse.sim.clock import (
     ClockParams,
     capture_times,
     clock_probes,
     draw_sensor_clocks,
 )
-from kinefuse.sync import (
-    DeviceClockEstimate,
-    estimate_clock,
-    estimate_device_clock,
-    sensor_timebase,
-)
-from kinefuse.sync.device import NOMINAL_LATENCY_S
-from kinefuse.workflows.simulate import run_simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -146,7 +146,7 @@ class TruthRead(RuntimeError):
 
 def _forbid_truth(mp: pytest.MonkeyPatch) -> None:
     """Every way into the truth raises: the store's accessor and every method of ``Truth``."""
-    from kinefuse.io.store.session import Truth
+    from kinefuse.formats.store.session_store import Truth
 
     def refuse(*_args: object, **_kwargs: object) -> None:
         raise TruthRead("calibration or fusion asked for the ground truth")
@@ -193,10 +193,10 @@ def sim_and_blind(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -
 
 def _calibrate_and_fuse(path: Path) -> dict[str, dict[str, np.ndarray]]:
     """Both calibrations, and every fusion method on the ``full`` one, through the library."""
-    from kinefuse.calibration.session import calibrate
-    from kinefuse.fusion.methods import METHODS
-    from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-    from kinefuse.pipeline.session import gather_calibration as gather
+    from kinefuse.capture.calibration.calibration_run import calibrate
+    from kinefuse.capture.fusion.methods import METHODS
+    from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
+    from kinefuse.pipeline.store_inputs import gather_calibration as gather
 
     out: dict[str, dict[str, np.ndarray]] = {}
     with SessionStore.open(path) as store:
@@ -219,7 +219,7 @@ def test_calibration_and_fusion_never_read_the_truth(
 ) -> None:
     """Issue 10: with every truth table emptied and the truth accessor raising, both
     calibrations and every fusion method give bit-identical results."""
-    from kinefuse.fusion.methods import METHODS
+    from kinefuse.capture.fusion.methods import METHODS
 
     session, blind = sim_and_blind
     seen = _calibrate_and_fuse(session)
@@ -244,7 +244,7 @@ def test_calibration_and_fusion_never_read_the_truth(
 def _cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> dict:
     import json
 
-    from kinefuse.cli import main as cli_main
+    from kinefuse.app.cli import main as cli_main
 
     rc = cli_main([*args, "--json"])
     out, err = capsys.readouterr()
@@ -262,7 +262,7 @@ def test_the_commands_give_the_same_files_without_the_truth(
     """``kinefuse calibrate --out`` and ``kinefuse fuse --out x.csv`` (every method) write
     byte-identical files from the session and from its blind copy with the truth forbidden;
     the printed figures differ only by the errors against the truth, which need it."""
-    from kinefuse.fusion.methods import METHODS
+    from kinefuse.capture.fusion.methods import METHODS
 
     session, blind = sim_and_blind
 

@@ -15,12 +15,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from kinefuse.core.frames.observations import DepthFrame
+from kinefuse.core.skeleton import JOINTS, N_JOINTS, TrackingState
 from kinefuse.devices.k4abt import K4ABT_TO_KINECT_V2, skeleton_to_body, state_of_confidence
 from kinefuse.devices.kinect2 import bodies_to_result
 from kinefuse.devices.sources import list_sources, open_camera_source
-from kinefuse.frames.observations import DepthFrame
-from kinefuse.net.client.playback import open_timeline
-from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
+from kinefuse.live.client.playback import open_timeline
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ def _kinefuse(*args: str, block: str = "") -> subprocess.CompletedProcess[str]:
     code = (
         "import sys\n"
         + (f"sys.modules[{block!r}] = None\n" if block else "")
-        + "from kinefuse.cli import main\nsys.exit(main(sys.argv[1:]))\n"
+        + "from kinefuse.app.cli import main\nsys.exit(main(sys.argv[1:]))\n"
     )
     return subprocess.run(
         [sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, timeout=60

@@ -14,16 +14,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.core.frames.observations import BodyFrame, DepthFrame
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.k4a_calibration import calibration_from_k4a_json
 from kinefuse.devices.mkv import MkvRecording
 from kinefuse.devices.sources import CameraFrameSource, open_camera_source
 from kinefuse.devices.trackers import TrackedBody, TrackerResult
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame, DepthFrame
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.formats.store.session_store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,14 +10,14 @@ import json
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.skeleton import JOINT_INDEX, TrackingState, capsule_radii, standing_pose
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import look_at
-from kinefuse.io.store.session import SessionStore
+from kinefuse.formats.store.session_store import SessionStore
 from kinefuse.sim.tracker import draw_subject_bias, simulate_tracker
 from kinefuse.sim.tracker_params import ERROR_PARTS, TrackerParams, without_parts
-from kinefuse.skeleton import JOINT_INDEX, TrackingState, capsule_radii, standing_pose
 
 SHARED = ("subject", "view", "inferred", "swap")
 

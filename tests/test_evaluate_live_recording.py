@@ -9,10 +9,10 @@ import json
 
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.io.store.session import SessionStore
-from kinefuse.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.app.cli import main
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.formats.store.session_store import SessionStore
 
 
 def test_evaluate_a_live_recording_of_a_real_log(tmp_path, shared_data, capsys) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.cli.main import main
+from kinefuse.app.cli.main import main
 
 RIG = """
 [[sensor]]

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.evaluation.live_consistency import recording_consistency
-from kinefuse.io.store.session import SessionStore
-from kinefuse.report.html import is_kinefuse_report
+from kinefuse.app.cli import main
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.live_consistency import recording_consistency
+from kinefuse.lab.report.html import is_kinefuse_report
 from test_live_consistency import _log, _record
 
 TRUTH_ONLY = ("accuracy", "time", "trajectories", "occlusion")
@@ -201,7 +201,7 @@ def test_inspect_of_a_depth_only_session_says_how_to_add_a_tracker(depth_only) -
 
 def test_inspect_of_a_real_recording_gives_no_rig_file_advice(real, tmp_path) -> None:
     """A sensor of a real recording that never saw the body: not the simulated lab's advice."""
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     rec = tmp_path / "three.sqlite"
     rec.write_bytes(real.read_bytes())
@@ -231,7 +231,7 @@ def test_evaluate_with_one_sensor_seeing_the_body(real, tmp_path) -> None:
 
 def test_inspect_of_a_live_sensor_with_depth_only_says_to_add_a_tracker(real, tmp_path) -> None:
     """A live sensor that streamed depth only (a camera with no --tracker): how to add one."""
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     rec = tmp_path / "depth.sqlite"
     rec.write_bytes(real.read_bytes())

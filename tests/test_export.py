@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kinefuse.core.skeleton import JOINTS
 from kinefuse.errors import InputError
-from kinefuse.io.formats.export import export_skeleton
-from kinefuse.skeleton import JOINTS
+from kinefuse.formats.export import export_skeleton
 
 
 @pytest.fixture
@@ -73,7 +73,7 @@ def _opensim():
 @pytest.mark.parametrize("axes", ["y-up", "z-up"])
 def test_trc_loads_in_opensim_with_every_frame_and_marker(tmp_path, axes) -> None:
     opensim = _opensim()
-    from kinefuse.skeleton import standing_pose
+    from kinefuse.core.skeleton import standing_pose
 
     t = (90 + np.arange(40)) / 30.0  # seconds from the session's start, frames on the grid
     p = np.repeat(standing_pose()[None], 40, axis=0)

@@ -1,4 +1,4 @@
-"""Many light sensor clients on one event loop (net/client/fleet.py, the capacity benchmark's
+"""Many light sensor clients on one event loop (live/client/fleet.py, the capacity benchmark's
 sensors) against a real server on 127.0.0.1: each its own authenticated connection and clock."""
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
-from kinefuse.frames.observations import BodyFrame, DepthFrame
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame
-from kinefuse.net.client.client import ClientOptions, ClientRefused
-from kinefuse.net.client.fleet import replay_clients, run_clients
-from kinefuse.net.client.playback import SimTimeline
-from kinefuse.net.server.server import Server, ServerOptions
+from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+from kinefuse.core.frames.observations import BodyFrame, DepthFrame
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import FusedFrame
+from kinefuse.live.client.client import ClientOptions, ClientRefused
+from kinefuse.live.client.fleet import replay_clients, run_clients
+from kinefuse.live.client.playback import SimTimeline
+from kinefuse.live.server.server import Server, ServerOptions
 
 TOKEN = "fleet-test-token"
 IDS = ["k0", "k1", "k2"]
@@ -27,7 +27,7 @@ IDS = ["k0", "k1", "k2"]
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """3 sensors, a 1 s wand phase (depth frames the fleet must not play), 3 s of motion."""
-    from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+    from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 
     out = tmp_path_factory.mktemp("fleet") / "s.sqlite"
     run_simulate(

@@ -11,22 +11,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.fusion.people import trunk_world
-from kinefuse.fusion.session import CalibratedSensor, people_of
-from kinefuse.io.formats.export import export_skeleton
-from kinefuse.io.store.session import SessionStore
-from kinefuse.motion.load import load_motion
-from kinefuse.motion.retarget import place
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.skeleton import JOINT_INDEX, TrackingState
-from kinefuse.workflows.fuse import person_path
+from kinefuse.app.cli.main import main
+from kinefuse.app.workflows.fuse import person_path
+from kinefuse.biomech.retarget import place
+from kinefuse.capture.fusion.fusion_run import CalibratedSensor, people_of
+from kinefuse.capture.fusion.people import trunk_world
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.skeleton import JOINT_INDEX, TrackingState
+from kinefuse.formats.export import export_skeleton
+from kinefuse.formats.motion.load import load_motion
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory) -> Path:
-    from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+    from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 
     d = tmp_path_factory.mktemp("people")
     s = d / "s.sqlite"
@@ -36,7 +36,7 @@ def session(tmp_path_factory) -> Path:
 
 
 def _true_poses(store: SessionStore) -> dict[str, np.ndarray]:
-    from kinefuse.evaluation.poses import resolve_poses
+    from kinefuse.lab.poses import resolve_poses
 
     return resolve_poses(store, None, True)[0]
 
@@ -162,7 +162,7 @@ def test_fuse_refuses_a_subject_that_is_not_there(session: Path, capsys) -> None
 
 
 def test_analyze_analyses_the_subject(session: Path, tmp_path: Path, capsys) -> None:
-    from kinefuse.workflows.analyze import sequence_from_session
+    from kinefuse.app.workflows.analyze import sequence_from_session
 
     inp = sequence_from_session(session, true_calibration=True)
     assert inp.fusion is not None

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.cli.fuse import said_once
-from kinefuse.io.formats.export import export_skeleton
-from kinefuse.io.formats.sequences import sequence_from_motion_file
+from kinefuse.app.cli.fuse import said_once
+from kinefuse.formats.export import export_skeleton
+from kinefuse.formats.sequences import sequence_from_motion_file
 
 
 def test_bvh_held_joints_are_one_warning(shared_data: Path, tmp_path: Path) -> None:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from kinefuse.fusion.live import LiveFusion
-from kinefuse.fusion.model import KalmanState, kalman_step
-from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
+from kinefuse.capture.fusion.live import LiveFusion
+from kinefuse.capture.fusion.model import KalmanState, kalman_step
+from kinefuse.core.geometry.transforms import invert_transform, look_at
+from kinefuse.core.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
 
 TRACKED = np.full(N_JOINTS, TrackingState.TRACKED, dtype=np.int8)
 SIDES = [JOINT_INDEX[n] for n in ("HipLeft", "HipRight", "KneeLeft", "KneeRight",

@@ -1,4 +1,5 @@
-"""The view-dependent measurement noise (kinefuse.fusion.view): a side view weighs less."""
+"""The view-dependent measurement noise (kinefuse.capture.fusion.view_noise): a side view weighs
+less."""
 
 from __future__ import annotations
 
@@ -7,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from kinefuse.fusion.best import BestOptions
-from kinefuse.fusion.live import LiveFusion, LiveOptions, replay
-from kinefuse.fusion.model import world_measurements
-from kinefuse.fusion.view import VIEW_JOINTS, side_view, view_variance
-from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import frame_grid, load_sensors
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.capture.fusion.best import BestOptions
+from kinefuse.capture.fusion.live import LiveFusion, LiveOptions, replay
+from kinefuse.capture.fusion.model import world_measurements
+from kinefuse.capture.fusion.view_noise import VIEW_JOINTS, side_view, view_variance
+from kinefuse.core.geometry.transforms import invert_transform, look_at
+from kinefuse.core.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors
 
 J = JOINT_INDEX
 BODY = [J[n] for n in VIEW_JOINTS]

@@ -38,9 +38,14 @@ import msgpack
 import numpy as np
 
 import test_server_safety as safety
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration, write_calibration
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.protocol import (
+from kinefuse.capture.calibration.calib_file import (
+    CalibrationFile,
+    SensorCalibration,
+    write_calibration,
+)
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol import (
     MESSAGE_TYPES,
     AuthReply,
     BodyFrameMessage,
@@ -63,9 +68,8 @@ from kinefuse.protocol import (
     WireError,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.protocol.codec import HEADER, to_wire
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol.auth import compute_mac
+from kinefuse.live.protocol.codec import HEADER, to_wire
 
 SEED = 20261123
 N_DECODER = 96_000
@@ -519,7 +523,7 @@ def test_the_real_server_survives_fuzzing_and_keeps_fusing(tmp_path) -> None:
         if server.poll() is None:
             server.kill()
             server.wait(10)
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.formats.store.session_store import SessionStore
 
     with SessionStore.open(rec) as st:
         assert st.complete

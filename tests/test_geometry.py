@@ -7,9 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.geometry.raycast import ray_capsules, ray_capsules_batched, ray_plane, ray_spheres
-from kinefuse.geometry.rotations import rotation_angle_deg, rotation_vector_deg
-from kinefuse.geometry.transforms import (
+from kinefuse.core.geometry.raycast import (
+    ray_capsules,
+    ray_capsules_batched,
+    ray_plane,
+    ray_spheres,
+)
+from kinefuse.core.geometry.rotations import rotation_angle_deg, rotation_vector_deg
+from kinefuse.core.geometry.transforms import (
     apply_transform,
     invert_transform,
     kabsch,
@@ -106,9 +111,9 @@ def test_look_at_points_the_optical_axis_and_keeps_x_level() -> None:
 
 
 def test_check_rigid_finds_what_is_not_rigid() -> None:
+    from kinefuse.core.geometry.rotations import rot_z
+    from kinefuse.core.geometry.transforms import check_rigid, make_transform
     from kinefuse.errors import InputError
-    from kinefuse.geometry.rotations import rot_z
-    from kinefuse.geometry.transforms import check_rigid, make_transform
 
     good = make_transform(rot_z(0.3), [1.0, 2.0, 3.0])
     np.testing.assert_array_equal(check_rigid(good), good)
@@ -154,7 +159,7 @@ DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "markers
 def _walk_markers() -> tuple[np.ndarray, np.ndarray]:
     """The Gait2354 walk's right foot markers over time (a near-rigid cluster of four), one of
     them dropped from every 7th frame, and the first frame."""
-    from kinefuse.io.formats.markers import read_trc
+    from kinefuse.formats.markers import read_trc
 
     m = read_trc(DATA / "Pipelines_Gait2354_Simbody_subject01_walk1.trc")
     cluster = [m.names.index(n) for n in ("R.Heel", "R.Midfoot.Sup", "R.Midfoot.Lat", "R.Toe.Tip")]
@@ -164,7 +169,7 @@ def _walk_markers() -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_rigid_fit_is_kabsch_per_frame_on_real_markers() -> None:
-    from kinefuse.geometry.transforms import rigid_fit
+    from kinefuse.core.geometry.transforms import rigid_fit
 
     template, moving = _walk_markers()
     template = moving[1]  # a frame with every marker
@@ -182,8 +187,8 @@ def test_rigid_fit_is_kabsch_per_frame_on_real_markers() -> None:
 
 
 def test_fit_plane_through_origin_on_real_directions() -> None:
-    from kinefuse.geometry.rotations import unit
-    from kinefuse.geometry.transforms import fit_plane
+    from kinefuse.core.geometry.rotations import unit
+    from kinefuse.core.geometry.transforms import fit_plane
 
     _, moving = _walk_markers()
     d = unit(moving[:, 2] - moving[:, 1])  # a real segment direction over the walk
@@ -199,7 +204,7 @@ def test_fit_plane_through_origin_on_real_directions() -> None:
 
 
 def test_unit_zero_and_missing() -> None:
-    from kinefuse.geometry.rotations import unit
+    from kinefuse.core.geometry.rotations import unit
 
     v = np.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0], [np.nan, 1.0, 0.0]])
     np.testing.assert_allclose(unit(v)[0], [0.6, 0.0, 0.8])

@@ -1,7 +1,8 @@
-"""kinefuse.geometry.rotations against the closed forms it replaced, and near 0 and 180 degrees.
+"""kinefuse.core.geometry.rotations against the closed forms it replaced, and near 0 and 180
+degrees.
 
-The ``old_*`` functions are the package's implementations before the move (analysis/_vec.py,
-geometry/transforms.py, motion/source.py), kept here as the reference.
+The ``old_*`` functions are the package's implementations before the move (biomech/_vec.py,
+core/geometry/transforms.py, core/frames/source_motion.py), kept here as the reference.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kinefuse.geometry.rotations import (
+from kinefuse.core.geometry.rotations import (
     axis_rotations,
     chordal_mean,
     euler_rotations,

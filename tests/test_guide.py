@@ -199,8 +199,8 @@ def test_the_guide_builds_strict(tmp_path: Path) -> None:
 
 
 def test_the_cli_reference_lists_every_command() -> None:
-    from kinefuse.cli.main import COMMANDS
-    from kinefuse.cli.reference import render
+    from kinefuse.app.cli.cli_reference import render
+    from kinefuse.app.cli.main import COMMANDS
 
     page = render()
     for module in COMMANDS:

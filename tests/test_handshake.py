@@ -1,4 +1,4 @@
-"""The sans-I/O handshake state machine alone (protocol/handshake.py): a server side and a peer
+"""The sans-I/O handshake state machine alone (live/protocol/handshake.py): a server side and a peer
 side talk to each other through the real codec (bytes in between), every legal path ends
 welcomed, and every message the table does not allow is refused with its message."""
 
@@ -8,8 +8,8 @@ import itertools
 
 import pytest
 
-from kinefuse.camera import Intrinsics
-from kinefuse.protocol import (
+from kinefuse.core.camera import Intrinsics
+from kinefuse.live.protocol import (
     AuthReply,
     Challenge,
     Decoder,
@@ -21,9 +21,9 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac, compute_server_mac
-from kinefuse.protocol.errors import AuthError, OutOfOrder, RemoteError, VersionError
-from kinefuse.protocol.handshake import TRANSITIONS, Handshake, State, TokenRequired
+from kinefuse.live.protocol.auth import compute_mac, compute_server_mac
+from kinefuse.live.protocol.handshake import TRANSITIONS, Handshake, State, TokenRequired
+from kinefuse.live.protocol.wire_errors import AuthError, OutOfOrder, RemoteError, VersionError
 
 TOKEN = "a-shared-token-for-the-handshake-tests-0123456789abcdef"
 HELLO = Hello(role="sensor", sensor_id="k0", intrinsics=Intrinsics())

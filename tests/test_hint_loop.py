@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.workflows.view import run_view
+from kinefuse.app.cli.main import main
+from kinefuse.app.workflows.view import run_view
 
 ROOT = Path(__file__).resolve().parents[1]
 WALK = "motion/cmu/02_walk_a.amc"

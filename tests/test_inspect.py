@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import JOINTS, N_JOINTS, TrackingState
 from kinefuse.errors import InputError, StoreError
-from kinefuse.evaluation.inspect import format_inspect, inspect_session
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import JOINTS, N_JOINTS, TrackingState
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.inspect import format_inspect, inspect_session
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 WALKER = DATA / "kinect" / "kinect2_tracking" / "walker.json"

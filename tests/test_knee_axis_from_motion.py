@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.analysis.anatomical import rigid_fit
-from kinefuse.evaluation.marker_placement import gait2354_trial, write_trc
-from kinefuse.io.formats import static_trial
-from kinefuse.io.formats.static_trial import functional_hinge_axis
-from kinefuse.workflows.analyze import load_input
+from kinefuse.app.workflows.analyze import load_input
+from kinefuse.biomech import static_trial
+from kinefuse.biomech.anatomical import rigid_fit
+from kinefuse.biomech.static_trial import functional_hinge_axis
+from kinefuse.lab.marker_placement import gait2354_trial, write_trc
 
 WALK = "motion/cmu/02_walk_a.amc"
 RAJ = "markers/opensim/Pipelines_Rajagopal_"
@@ -109,8 +109,8 @@ def test_the_rajagopal_walks_legs_meet_the_targets(
     hinge (the right's: within 15 deg); read about the hinge, hip and knee meet issue 43's
     targets on both sides against OpenSim's IK, and so does the mirrored walk (the misplaced
     marker then on the right)."""
-    from kinefuse.evaluation.opensim_ik import compare_with_ik, mirror_trc_text
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.lab.opensim_ik import compare_with_ik, mirror_trc_text
 
     walk = shared_data / f"{RAJ}ExpData_motion_capture_walk.trc"
     static = shared_data / f"{RAJ}ExpData_static_walk_1.trc"

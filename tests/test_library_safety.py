@@ -1,5 +1,5 @@
 """The library keeps the CLI's rule: a writer never replaces a file kinefuse did not make, writes
-through a temporary file renamed into place, and fails loudly (kinefuse.io.outputs).
+through a temporary file renamed into place, and fails loudly (kinefuse.core.outputs).
 
 The CLI checks before it calls the library (tests/test_data_safety.py); these tests call the
 library writers directly, with their ``overwrite`` options, on files that are not theirs."""
@@ -15,10 +15,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS
 from kinefuse.errors import InputError, OutputError
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.formats.store.session_store import SessionStore
 
 SMALL = Intrinsics(width=8, height=6, fx=5.0, fy=5.0, cx=3.5, cy=2.5)
 
@@ -58,7 +58,7 @@ def live_recording(path: Path) -> str:
 @pytest.fixture(scope="module")
 def tiny(shared_data):
     """A placed 0.3 s walk and a 2-sensor rig: a session simulates in about a second."""
-    from kinefuse.motion import load_motion
+    from kinefuse.formats.motion import load_motion
     from kinefuse.sim.lab import LabConfig
     from kinefuse.sim.rig import default_rig, place_actor
 
@@ -129,7 +129,7 @@ def test_store_create_overwrite_refuses_what_it_did_not_make(tmp_path, kind) -> 
 
 @pytest.mark.parametrize("name", ["angles.csv", "angles.mot"])
 def test_angle_writers_overwrite_only_their_own_files(tmp_path, name) -> None:
-    from kinefuse.io.formats.angles import write_angles_csv, write_angles_mot
+    from kinefuse.formats.angles import write_angles_csv, write_angles_mot
 
     t = np.arange(3) / 10.0
 
@@ -161,7 +161,7 @@ def test_angle_writers_overwrite_only_their_own_files(tmp_path, name) -> None:
 
 @pytest.mark.parametrize("fmt", ["csv", "trc", "c3d"])
 def test_exporters_called_directly_refuse_foreign_files(tmp_path, fmt) -> None:
-    from kinefuse.io.formats import export
+    from kinefuse.formats import export
 
     writer = getattr(export, f"export_{fmt}")
     t = np.arange(4) / 30.0
@@ -181,8 +181,8 @@ def test_exporters_called_directly_refuse_foreign_files(tmp_path, fmt) -> None:
 
 
 def test_tables_and_plots_never_replace_an_existing_file(tmp_path) -> None:
-    from kinefuse.evaluation.calibration import WandErrors, plot_calibration_errors
-    from kinefuse.evaluation.fusion import _write_table, plot_trajectories
+    from kinefuse.lab.calibration_truth import WandErrors, plot_calibration_errors
+    from kinefuse.lab.fusion_truth import _write_table, plot_trajectories
 
     victim = tmp_path / "table1.md"
     before = foreign(victim, b"my notes\n")
@@ -208,7 +208,7 @@ def test_tables_and_plots_never_replace_an_existing_file(tmp_path) -> None:
 
 
 def test_child_process_logs_never_replace_a_file(tmp_path) -> None:
-    from kinefuse.workflows.demo import ChildProcesses, ProcessError
+    from kinefuse.app.workflows.demo import ChildProcesses, ProcessError
 
     logs = tmp_path / "logs"
     logs.mkdir()
@@ -222,7 +222,7 @@ def test_child_process_logs_never_replace_a_file(tmp_path) -> None:
 
 
 def test_a_figure_replaces_only_a_png(tmp_path: Path) -> None:
-    from kinefuse.io.outputs import atomic_file, is_png
+    from kinefuse.core.outputs import atomic_file, is_png
 
     png, notes = tmp_path / "fig.png", tmp_path / "notes.png"
     png.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 8)

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from scipy.linalg import sqrtm
 
-from kinefuse.fusion.model import (
+from kinefuse.capture.fusion.model import (
     LIMBS,
     limb_correlation_matrices,
     robust_combine,
     sqrt3_sym,
 )
-from kinefuse.fusion.options import BestOptions
-from kinefuse.pipeline.analysis import hinge_angle_deg
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, standing_pose
+from kinefuse.capture.fusion.options import BestOptions
+from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS, standing_pose
+from kinefuse.pipeline.analysis_chain import hinge_angle_deg
 
 J = JOINT_INDEX
 LEG = [J[n] for n in LIMBS[3]]  # HipLeft, KneeLeft, AnkleLeft, FootLeft

@@ -11,11 +11,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from kinefuse.frames.observations import BodyFrame
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.server.sensor_state import latest_bodies
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.protocol import BodyFrameMessage, Goodbye, Welcome
+from kinefuse.core.frames.observations import BodyFrame
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.protocol import BodyFrameMessage, Goodbye, Welcome
+from kinefuse.live.server.sensor_state import latest_bodies
+from kinefuse.live.server.server import Server, ServerOptions
 from test_client import TestServer, WalkSource, _client, run
 
 N = 30

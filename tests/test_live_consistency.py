@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import BodyFrame
 from kinefuse.errors import InputError
-from kinefuse.evaluation.live_consistency import recording_consistency
-from kinefuse.frames.observations import BodyFrame
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.sources import MultitrackReplay
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.live_consistency import recording_consistency
+from kinefuse.pipeline.frame_sources import MultitrackReplay
 
 HOST_AHEAD_S = 40.0  # the pretend client PCs' clocks run 40 s ahead of the server's
 
@@ -32,7 +32,7 @@ def _log(shared_data: Path, pattern: str) -> Path:
 
 
 def _record(path: Path, out: Path) -> list[str]:
-    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
 
     ids = [s.sensor_id for s in read_kinect_multitrack(path).streams]
     with SessionStore.create(out) as st:

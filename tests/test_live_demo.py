@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
 
 
 def _processes_mentioning(text: str) -> list[str]:

@@ -12,10 +12,10 @@ import json
 import numpy as np
 import pytest
 
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 from kinefuse.errors import InputError
-from kinefuse.evaluation.live import clock_errors, playback_truth, write_live_truth
-from kinefuse.io.store.session import SessionStore
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.live_truth import clock_errors, playback_truth, write_live_truth
 
 SERVER_T0 = 5000.0  # CLOCK_MONOTONIC instant the (pretend) server started, s
 EPOCH = 5003.5  # the clients' common playback epoch, s
@@ -102,7 +102,7 @@ def test_clock_error_is_zero_for_symmetric_delays_and_half_the_asymmetry_otherwi
 
 
 def test_recorded_estimates_are_preferred_and_each_epoch_warms_up(tmp_path, sim) -> None:
-    from kinefuse.io.store.live import append_clock, create_live_tables
+    from kinefuse.formats.store.live_tables import append_clock, create_live_tables
 
     rec, sides = _recording(tmp_path, sim, probes_delays=(0.001, 0.001))
     write_live_truth(rec, sim, sides)

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.io.store.session import SessionStore
-from kinefuse.protocol import codec
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.protocol.messages import AuthReply, Challenge, Error, Hello, Message
-from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening, sensor_args
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.protocol import codec
+from kinefuse.live.protocol.auth import compute_mac
+from kinefuse.live.protocol.messages import AuthReply, Challenge, Error, Hello, Message
 
 CAL_S = 6.0  # the wand phase of the test sessions, s
 MOTION_S = 9.0  # their motion, s (a restarted client has several seconds left to stream)
@@ -76,14 +76,14 @@ def _server_t0(rec: Path) -> float:
 
 
 def _events(rec: Path) -> list[tuple[float, str, str | None, dict]]:
-    from kinefuse.io.store.live import events
+    from kinefuse.formats.store.live_tables import events
 
     with SessionStore.open(rec) as st:
         return events(st)
 
 
 def test_a_killed_client_rejoins_with_its_pose_and_fusion_goes_on(tmp_path, session) -> None:
-    from kinefuse.io.store.live import live_fused
+    from kinefuse.formats.store.live_tables import live_fused
 
     rec = tmp_path / "rec.sqlite"
     with ChildProcesses(tmp_path / "logs") as procs:
@@ -119,7 +119,7 @@ def test_a_killed_client_rejoins_with_its_pose_and_fusion_goes_on(tmp_path, sess
 
 
 def test_sigkill_of_the_server_loses_at_most_half_a_second(tmp_path, session) -> None:
-    from kinefuse.io.store.live import live_fused
+    from kinefuse.formats.store.live_tables import live_fused
 
     rec = tmp_path / "rec.sqlite"
     with ChildProcesses(tmp_path / "logs") as procs:
@@ -174,7 +174,7 @@ def _raw_peer(port: int, send: list[Message] | bytes, *, reply: bool = False) ->
 
 
 def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> None:
-    from kinefuse.io.store.live import live_fused
+    from kinefuse.formats.store.live_tables import live_fused
 
     rec = tmp_path / "rec.sqlite"
     intr = Intrinsics()
@@ -226,7 +226,7 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
     during = t[(t > t_bad - t0 - 1.0) & (t < t_done - t0 + 1.0)]
     assert during.size > 45 and np.diff(during).max() < 0.1  # and fused frames kept coming
     # and what was fused is right, with two sensors (best-live's facing is no tie any more)
-    from kinefuse.evaluation.live import live_vs_offline, write_live_truth
+    from kinefuse.lab.live_truth import live_vs_offline, write_live_truth
 
     write_live_truth(rec, session, {sid: tmp_path / f"{sid}.json" for sid in ("k0", "k1")})
     with SessionStore.open(rec) as st:
@@ -235,8 +235,8 @@ def test_bad_peers_are_refused_and_the_session_goes_on(tmp_path, session) -> Non
 
 
 def test_a_real_log_replayed_by_two_sensor_processes(tmp_path, shared_data) -> None:
-    from kinefuse.evaluation.live_consistency import recording_consistency
-    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.lab.live_consistency import recording_consistency
 
     logs = sorted((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_1_*.csv"))
     if not logs:

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.fusion.live import LiveFusion, LiveOptions, replay
-from kinefuse.fusion.status import FusionStatus
-from kinefuse.geometry.transforms import invert_transform, look_at
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
+from kinefuse.app.cli import main
+from kinefuse.capture.fusion.live import LiveFusion, LiveOptions, replay
+from kinefuse.capture.fusion.status import FusionStatus
+from kinefuse.core.geometry.transforms import invert_transform, look_at
+from kinefuse.core.skeleton import JOINT_INDEX, MIRROR_INDEX, N_JOINTS, TrackingState, standing_pose
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 J = JOINT_INDEX
 TRACKED = np.full(N_JOINTS, TrackingState.TRACKED, dtype=np.int8)
@@ -99,7 +99,7 @@ def test_one_frame_bone_sweep_equals_the_batched_one() -> None:
     """A live frame is projected onto the bone lengths with plain floats, a replay's frames in
     numpy batches: the same bits (random skeletons, with bones that may not move, coincident
     joints, missing joints, signed zeros and lopsided shares)."""
-    from kinefuse.fusion.model import project_bones
+    from kinefuse.capture.fusion.model import project_bones
 
     rng = np.random.default_rng(11)
     n_t, n_b = 400, 24
@@ -120,8 +120,8 @@ def test_one_frame_bone_sweep_equals_the_batched_one() -> None:
 
 
 def test_best_live_is_close_to_offline_best_and_far_below_paper(session, sensors) -> None:
-    from kinefuse.evaluation.fusion import truth_at
-    from kinefuse.evaluation.metrics import position_errors
+    from kinefuse.lab.fusion_truth import truth_at
+    from kinefuse.lab.metrics import position_errors
 
     grid = frame_grid(sensors)
     with SessionStore.open(session) as st:
@@ -235,7 +235,7 @@ def test_fuse_and_evaluate_part_of_a_take(session, tmp_path, capsys) -> None:
 
 
 def test_the_clients_own_occlusion_flags_are_used_when_recorded(session, tmp_path) -> None:
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     with SessionStore.open(session) as st:
         o = st.observations("k0")

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import frame_grid, load_sensors, run_method
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.store_inputs import frame_grid, load_sensors, run_method
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_a_turn_on_the_spot_is_not_mirrored_by_the_walking_vote(shared_data, tmp
     at 3.6 s the person turns round while the pelvis moves backwards at 1 m/s, and every sensor's
     view is ambiguous. The walking vote mirrored the skeleton for 0.5 s (29-46 cm; best-live
     6.2 cm against best's 4.3 cm over the clip)."""
-    from kinefuse.evaluation.fusion import truth_at
+    from kinefuse.lab.fusion_truth import truth_at
 
     root = Path(__file__).resolve().parents[1]
     out = tmp_path / "turn.sqlite"
@@ -113,7 +113,7 @@ def test_agreeing_back_views_do_not_overturn_a_confirmed_facing(shared_data, tmp
     for 1.5 s: 44 cm over the worst half second, 14.8 cm over the walk. Ambiguous views that
     agree tell on which side the sensors stand, not which way the body faces: their weight is
     capped (``LiveOptions.ambiguous_vote_cap``)."""
-    from kinefuse.evaluation.fusion import truth_at
+    from kinefuse.lab.fusion_truth import truth_at
 
     ring = []
     for i in range(5):  # studies/analysis_sweep.py's held-out ring5

@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.io.store.live import events, live_fused, obs_times
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.server.person import WALK
-from kinefuse.skeleton import JOINT_INDEX, TRUNK_JOINTS
-from kinefuse.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.core.skeleton import JOINT_INDEX, TRUNK_JOINTS
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.formats.store.live_tables import events, live_fused, obs_times
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.server.person import WALK
 
 _TRUNK = np.array([JOINT_INDEX[n] for n in TRUNK_JOINTS])
 
@@ -101,7 +101,7 @@ def test_two_real_kinect_logs_calibrate_from_the_person_live(tmp_path, shared_da
     t_med, t_p95 = ag["trunk"]  # type: ignore[misc]
     assert med < 0.04 and t_med < 0.03 and t_p95 < 0.10, ag
     # and the recording fuses offline with the calibration it holds
-    from kinefuse.cli import main
+    from kinefuse.app.cli import main
 
     copy = tmp_path / "copy.sqlite"
     shutil.copyfile(rec, copy)

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
+from kinefuse.core.skeleton import JOINTS
 from kinefuse.errors import InputError
-from kinefuse.net.lsl import CHANNELS, channel_labels, check_stream_name
-from kinefuse.skeleton import JOINTS
+from kinefuse.live.lsl import CHANNELS, channel_labels, check_stream_name
 
 RUN = Path(__file__).resolve().parent / "lsl_loopback_run.py"
 TRACE = "trace=connect,sendto,sendmsg,setsockopt"
@@ -94,7 +94,7 @@ def test_odd_stream_names_are_refused(name: str, says: str) -> None:
 
 
 def _serve(*args: str, pre: str = "") -> subprocess.CompletedProcess[str]:
-    code = f"{pre}import sys; from kinefuse.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    code = f"{pre}import sys; from kinefuse.app.cli.main import main; sys.exit(main(sys.argv[1:]))"
     return subprocess.run(
         [sys.executable, "-c", code, "serve", "--port", "0", *args],
         capture_output=True, text=True, timeout=60,
@@ -130,7 +130,7 @@ def _namespace_problem() -> str | None:
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+    from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 
     out = tmp_path_factory.mktemp("lsl") / "sim.sqlite"
     run_simulate(clip=demo_clip_path(), out=out, sensors=3, seconds=20.0, calibration_s=9.0)
@@ -188,7 +188,7 @@ PEOPLE_RUN = Path(__file__).resolve().parent / "lsl_people_run.py"
 @pytest.fixture(scope="module")
 def crowd(tmp_path_factory: pytest.TempPathFactory, shared_data: Path) -> Path:
     """4 sensors, 5 s of the subject with one bystander walking between them and a sensor."""
-    from kinefuse.workflows.simulate import run_simulate
+    from kinefuse.app.workflows.simulate import run_simulate
 
     out = tmp_path_factory.mktemp("lsl_people") / "crowd.sqlite"
     cmu = shared_data / "motion" / "cmu"

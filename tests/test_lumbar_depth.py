@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from kinefuse.analysis.anatomical import (
+from kinefuse.biomech.anatomical import (
     MODEL_PELVIS_DEPTH_M,
     lumbar_joint_centre,
     pelvis_frame,
 )
-from kinefuse.io.formats.markers import read_markers
+from kinefuse.formats.markers import read_markers
 
 STATIC = "markers/opensim/Pipelines_Rajagopal_ExpData_static_walk_1.trc"
 #: The scaled model's back joint behind its ASIS markers, metres: (-0.1007 * 1.2446) - 0.0162.

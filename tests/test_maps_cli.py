@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.evaluation.marker_placement import marker_trial, write_trc
-from kinefuse.io.formats.marker_maps import shipped_marker_maps
+from kinefuse.app.cli.main import main
+from kinefuse.biomech.marker_maps import shipped_marker_maps
+from kinefuse.lab.marker_placement import marker_trial, write_trc
 
 WALK = "motion/cmu/02_walk_a.amc"
 #: ISB landmarks under names no shipped set knows: the knees and acromions.

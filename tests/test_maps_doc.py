@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.cli.main import main
+from kinefuse.app.cli.main import main
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "maps.md"
 

@@ -3,7 +3,7 @@ start-walk-stop and jumps with turns: motions other than the shared OpenSim walk
 joint centres and anatomical angles known; ``analyze``'s marker chain (TRC axes and units,
 clusters, landmarks carried from the static trial, Harrington's hip centres, the
 joint-constrained cluster fit, ISB frames, joint coordinate systems, the lab frame) must give
-them back (kinefuse.evaluation.marker_placement)."""
+them back (kinefuse.lab.marker_placement)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.evaluation.marker_placement import gait2354_trial, marker_trial, write_trc
-from kinefuse.workflows.analyze import load_input
+from kinefuse.app.workflows.analyze import load_input
+from kinefuse.lab.marker_placement import gait2354_trial, marker_trial, write_trc
 
 CLIPS = ["motion/cmu/02_walk_a.amc", "motion/cmu/131_01_scaled_metres.bvh", "motion/cmu/01_01.bvh"]
 LEGS = ("hip_flexion", "hip_adduction", "hip_internal_rotation", "knee_flexion",

@@ -1,6 +1,6 @@
 """Marker sets known by name: each shipped set, under the names different labs and systems give
 its markers (subject prefixes, case, separators, side as prefix or suffix, synonyms), placed on
-real CMU clips (kinefuse.evaluation.marker_placement) and read without ``--map``: the set is
+real CMU clips (kinefuse.lab.marker_placement) and read without ``--map``: the set is
 chosen by the names and gives back the clip's true joint centres."""
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.evaluation.marker_placement import marker_trial, write_trc
-from kinefuse.io.formats.markers import marker_key
-from kinefuse.workflows.analyze import load_input
+from kinefuse.app.cli.main import main
+from kinefuse.app.workflows.analyze import load_input
+from kinefuse.formats.markers import marker_key
+from kinefuse.lab.marker_placement import marker_trial, write_trc
 
 WALK = "motion/cmu/02_walk_a.amc"
 START_STOP = "motion/cmu/131_01_scaled_metres.bvh"

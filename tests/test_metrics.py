@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.evaluation.metrics import bias_noise, gain, gain_ci, position_errors, verdict
+from kinefuse.lab.metrics import bias_noise, gain, gain_ci, position_errors, verdict
 
 
 @pytest.fixture
@@ -101,7 +101,7 @@ def test_bias_and_noise_split_a_fixed_offset_from_the_spread(rng, truth) -> None
 
 
 def test_block_bootstrap_indices_as_the_inline_code_they_replaced() -> None:
-    from kinefuse.evaluation.metrics import block_bootstrap_indices
+    from kinefuse.lab.metrics import block_bootstrap_indices
 
     for n, block in [(1, 30), (7, 3), (100, 30), (95, 30), (10, 0)]:
         idx = block_bootstrap_indices(n, block=block, n_boot=50, seed=4)
@@ -119,8 +119,8 @@ def test_block_bootstrap_sums_equal_the_whole_gather_in_any_batch(monkeypatch) -
     """The bootstrap's sums are gathered a few resamples at a time (bounded memory on long
     sessions): the same numbers, bit for bit, as gathering every resample at once, for every
     batch size, for per-frame and per-joint values and for counts."""
-    from kinefuse.evaluation import metrics
-    from kinefuse.evaluation.metrics import block_bootstrap_indices, block_bootstrap_sums
+    from kinefuse.lab import metrics
+    from kinefuse.lab.metrics import block_bootstrap_indices, block_bootstrap_sums
 
     rng = np.random.default_rng(2)
     for n, shape in [(1, ()), (7, ()), (3000, ()), (95, (25,)), (1200, (25,))]:

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kinefuse.errors import MotionFormatError
-from kinefuse.motion import parse_amc, parse_asf, read_amc, read_asf
+from kinefuse.formats.motion import parse_amc, parse_asf, read_amc, read_asf
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "motion" / "cmu"
 

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kinefuse.errors import MotionFormatError
-from kinefuse.motion import parse_bvh, read_bvh
+from kinefuse.formats.motion import parse_bvh, read_bvh
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "motion" / "cmu"
 CLIP_131 = DATA / "131_01_scaled_metres.bvh"

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.motion import (
+from kinefuse.core.skeleton import JOINT_INDEX, JOINTS
+from kinefuse.formats.motion import (
     Motion,
     SourceMotion,
     estimate_height_m,
@@ -20,7 +21,6 @@ from kinefuse.motion import (
     read_bvh,
     retarget,
 )
-from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "motion" / "cmu"
 pytestmark = pytest.mark.skipif(

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError, MotionFormatError, RetargetError
-from kinefuse.motion import BUILTIN_MAPS, find_asf_for, load_motion, load_name_map
+from kinefuse.formats.motion import BUILTIN_MAPS, find_asf_for, load_motion, load_name_map
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "motion" / "cmu"
 needs_data = pytest.mark.skipif(

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.core.skeleton import JOINT_INDEX, JOINTS
 from kinefuse.errors import InputError, RetargetError
-from kinefuse.motion import (
+from kinefuse.formats.motion import (
     BUILTIN_MAPS,
     Motion,
     SourceMotion,
@@ -24,7 +25,6 @@ from kinefuse.motion import (
     resample,
     retarget,
 )
-from kinefuse.skeleton import JOINT_INDEX, JOINTS
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "motion" / "cmu"
 CLIP = DATA / "131_01_scaled_metres.bvh"

@@ -22,14 +22,14 @@ import msgpack
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import BodyFrame as SourceBody
+from kinefuse.core.skeleton import N_JOINTS
 from kinefuse.errors import KinefuseError
-from kinefuse.frames.observations import BodyFrame as SourceBody
-from kinefuse.net.client.client import ClientOptions, ClientRefused, SensorClient
-from kinefuse.net.client.clocks import HostClock
-from kinefuse.net.client.playback import SourceTimeline
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.protocol import (
+from kinefuse.live.client.client import ClientOptions, ClientRefused, SensorClient
+from kinefuse.live.client.clocks import HostClock
+from kinefuse.live.client.playback import SourceTimeline
+from kinefuse.live.protocol import (
     AuthReply,
     BodyFrameMessage,
     CalibrationStart,
@@ -41,8 +41,8 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac, new_nonce
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.live.protocol.auth import compute_mac, new_nonce
+from kinefuse.live.server.server import Server, ServerOptions
 
 TOKEN = "s3cret-token"
 SID = "m0"
@@ -245,7 +245,7 @@ def test_a_sensor_with_a_token_sends_no_body_frame_to_an_impostor(mode):
 
 @pytest.mark.parametrize("mode", ["no_proof", "reflected", "welcome"])
 def test_a_control_peer_with_a_token_refuses_an_impostor_too(mode):
-    from kinefuse.workflows.serve import _control_calibrate
+    from kinefuse.app.workflows.serve import _control_calibrate
 
     async def go() -> tuple[Impostor, BaseException | None]:
         imp = await make_impostor(mode)
@@ -265,7 +265,12 @@ def test_a_control_peer_with_a_token_refuses_an_impostor_too(mode):
 
 
 def test_the_proofs_of_the_two_directions_never_stand_in_for_each_other():
-    from kinefuse.protocol.auth import AuthError, compute_server_mac, verify_mac, verify_server_mac
+    from kinefuse.live.protocol.auth import (
+        AuthError,
+        compute_server_mac,
+        verify_mac,
+        verify_server_mac,
+    )
 
     cn, sn = new_nonce(), new_nonce()
     proof = compute_server_mac(TOKEN, cn, sn, role="sensor", sensor_id=SID)

@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from kinefuse.core.frames.observations import BodyFrame, BodyFrames
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame, BodyFrames
-from kinefuse.skeleton import N_JOINTS, TrackingState
 
 
 def _frames(rng, n: int, *, occlusion: bool) -> list[BodyFrame]:

@@ -9,11 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.errors import InputError
-from kinefuse.geometry.raycast import ray_capsules
-from kinefuse.geometry.rotations import rot_y
-from kinefuse.occlusion.segments import (
+from kinefuse.capture.occlusion.segments import (
     crossing_parameters,
     detect_occlusion,
     detect_occlusion_sensors,
@@ -21,8 +17,11 @@ from kinefuse.occlusion.segments import (
     occlusion_precision_recall,
     segments_intersect,
 )
-from kinefuse.occlusion.select import select_sensors
-from kinefuse.skeleton import (
+from kinefuse.capture.occlusion.select import select_sensors
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.raycast import ray_capsules
+from kinefuse.core.geometry.rotations import rot_y
+from kinefuse.core.skeleton import (
     BONES,
     JOINT_INDEX,
     N_JOINTS,
@@ -30,6 +29,7 @@ from kinefuse.skeleton import (
     bone_index_array,
     capsule_radii,
 )
+from kinefuse.errors import InputError
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 WALKER = DATA / "kinect" / "kinect2_tracking" / "walker.json"
@@ -357,8 +357,8 @@ def test_selection_validates_input():
 def test_the_default_bone_pairs_are_computed_once_and_give_the_same_flags():
     """detect_occlusion keeps the 24 bones' non-adjacent pairs (a live client calls it per
     frame); the flags are those of the pairs built anew; the kept arrays cannot be changed."""
-    from kinefuse.occlusion.segments import _default_bones, detect_occlusion
-    from kinefuse.skeleton import bone_index_array, standing_pose
+    from kinefuse.capture.occlusion.segments import _default_bones, detect_occlusion
+    from kinefuse.core.skeleton import bone_index_array, standing_pose
 
     b, pairs = _default_bones()
     assert np.array_equal(b, bone_index_array())

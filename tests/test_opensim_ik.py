@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.analysis import anatomical as an
+from kinefuse.biomech import anatomical as an
+from kinefuse.core.geometry.rotations import rot_x, rot_y, rot_z
 from kinefuse.errors import InputError
-from kinefuse.geometry.rotations import rot_x, rot_y, rot_z
 
 GAIT = "markers/opensim/Pipelines_Gait2354_Simbody_"
 
@@ -52,7 +52,7 @@ def test_hip_signs_follow_isb_on_both_sides() -> None:
 
 
 def _analyse(shared_data: Path, tmp_path: Path, walk: str, static: str, **kw: object) -> Path:
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
 
     out = tmp_path / "out"
     run_analyze([shared_data / walk], out=out, static=shared_data / static, plots=False, **kw)
@@ -64,8 +64,8 @@ def test_gait2354_walk_against_opensim_ik(
 ) -> None:
     """Issue 20's thresholds; nothing is fitted to this walk (ISB, Harrington, OpenSim's axes)."""
     opensim = pytest.importorskip("opensim", reason="opensim (the test extra) is not installed")
-    from kinefuse.evaluation.opensim_ik import compare_with_ik
-    from kinefuse.io.formats.angles import read_angles_mot
+    from kinefuse.formats.angles import read_angles_mot
+    from kinefuse.lab.opensim_ik import compare_with_ik
 
     out = _analyse(shared_data, tmp_path, f"{GAIT}subject01_walk1.trc",
                    f"{GAIT}subject01_static.trc", names="opensim")  # fmt: skip
@@ -96,7 +96,7 @@ def test_gait2354_walk_against_opensim_ik(
 def test_walk_without_its_static_trial_names_the_missing_knee_markers(
     shared_data: Path,
 ) -> None:
-    from kinefuse.io.formats.sequences import sequence_from_markers
+    from kinefuse.formats.sequences import sequence_from_markers
 
     with pytest.raises(InputError, match=r"R\.Knee\.Lat.*static trial"):
         sequence_from_markers(shared_data / f"{GAIT}subject01_walk1.trc", marker_map="gait2354")
@@ -113,9 +113,9 @@ def test_static_trial_of_another_marker_set_names_the_rule_and_markers(
 
 
 def test_a_moving_static_trial_is_refused_with_the_motion(shared_data: Path) -> None:
-    from kinefuse.io.formats.marker_maps import shipped_marker_maps
-    from kinefuse.io.formats.markers import read_markers
-    from kinefuse.io.formats.static_trial import check_static
+    from kinefuse.biomech.marker_maps import shipped_marker_maps
+    from kinefuse.biomech.static_trial import check_static
+    from kinefuse.formats.markers import read_markers
 
     walk = read_markers(shared_data / f"{GAIT}subject01_walk1.trc", up="+y")
     static = read_markers(shared_data / f"{GAIT}subject01_static.trc", up="+y")
@@ -134,9 +134,9 @@ def test_held_out_variants_of_the_walk_hold_the_thresholds(
 ) -> None:
     """Issue 20 item 4: the left-right mirrored trial (markers mirrored and renamed, the IK
     mirrored: sides swapped, pelvis list and rotation negated) and each half of the static
-    trial as the static window hold the same thresholds (kinefuse.evaluation.opensim_ik)."""
-    from kinefuse.evaluation.opensim_ik import compare_with_ik, mirror_trc_text, threshold_failures
-    from kinefuse.workflows.analyze import run_analyze
+    trial as the static window hold the same thresholds (kinefuse.lab.opensim_ik)."""
+    from kinefuse.app.workflows.analyze import run_analyze
+    from kinefuse.lab.opensim_ik import compare_with_ik, mirror_trc_text, threshold_failures
 
     walk, static = (
         shared_data / f"{GAIT}subject01_walk1.trc",
@@ -158,7 +158,7 @@ def test_held_out_variants_of_the_walk_hold_the_thresholds(
 
 
 def test_mirror_trc_text_swaps_names_and_negates_the_lateral_axis() -> None:
-    from kinefuse.evaluation.opensim_ik import mirror_ik, mirror_trc_text
+    from kinefuse.lab.opensim_ik import mirror_ik, mirror_trc_text
 
     text = ("PathFileType\t4\t(X/Y/Z)\tx.trc\nDataRate\tNumFrames\n60\t1\n"
             "Frame#\tTime\tR.ASIS\t\t\tV.Sacral\t\t\n\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
@@ -177,9 +177,9 @@ def test_a_static_trial_of_another_subject_is_refused_with_the_lengths(shared_da
     pelvis) is another subject: the segment lengths differ by more than 10 %."""
     from dataclasses import replace
 
-    from kinefuse.io.formats.marker_maps import shipped_marker_maps
-    from kinefuse.io.formats.markers import read_markers
-    from kinefuse.io.formats.static_trial import check_static
+    from kinefuse.biomech.marker_maps import shipped_marker_maps
+    from kinefuse.biomech.static_trial import check_static
+    from kinefuse.formats.markers import read_markers
 
     walk = read_markers(shared_data / f"{GAIT}subject01_walk1.trc", up="+y")
     static = read_markers(shared_data / f"{GAIT}subject01_static.trc", up="+y")
@@ -197,9 +197,9 @@ def test_rajagopal_walk_with_its_static_trial(shared_data: Path) -> None:
     """The shipped ``rajagopal`` map's static-trial part (issue 20 item 2): chosen by the marker
     names, every segment gets its anatomical frame, the knee and ankle centres are the static
     trial's own KneeJoint/AnkleJoint virtual markers, and the walk's curves look like a walk."""
-    from kinefuse.io.formats.markers import read_markers
-    from kinefuse.io.formats.static_trial import with_landmarks
-    from kinefuse.workflows.analyze import load_input
+    from kinefuse.app.workflows.analyze import load_input
+    from kinefuse.biomech.static_trial import with_landmarks
+    from kinefuse.formats.markers import read_markers
 
     raj = "markers/opensim/Pipelines_Rajagopal_ExpData_"
     inp = load_input(shared_data / f"{raj}motion_capture_walk.trc",
@@ -211,7 +211,7 @@ def test_rajagopal_walk_with_its_static_trial(shared_data: Path) -> None:
     for s in ("left", "right"):
         assert 50.0 < np.nanmax(a[f"knee_flexion_{s}"]) < 80.0  # degrees: swing-phase peak
         assert 30.0 < np.ptp(a[f"hip_flexion_{s}"][np.isfinite(a[f"hip_flexion_{s}"])]) < 60.0
-    from kinefuse.io.formats.marker_maps import shipped_marker_maps
+    from kinefuse.biomech.marker_maps import shipped_marker_maps
 
     static = read_markers(shared_data / f"{raj}static_walk_1.trc", up="+y")
     aug, _ = with_landmarks(static, shipped_marker_maps()["rajagopal"])

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.io.formats.angles import read_angles_mot
-from kinefuse.io.formats.markers import read_markers
+from kinefuse.app.cli import main
+from kinefuse.formats.angles import read_angles_mot
+from kinefuse.formats.markers import read_markers
 
 TENNIS = "markers/c3d/kinematics_tennis_serve.c3d"
 WALK = "markers/opensim/Pipelines_Rajagopal_ExpData_motion_capture_walk.trc"

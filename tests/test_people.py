@@ -1,4 +1,4 @@
-"""People matched across sensors and over time (:mod:`kinefuse.fusion.people`), on two real
+"""People matched across sensors and over time (:mod:`kinefuse.capture.fusion.people`), on two real
 clips (CMU 131_01 as the subject, CMU 02_walk_a as a bystander crossing close in front of them)
 seen by three sensors of the default rig, with tracking ids that change as a Kinect's do."""
 
@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.capture.fusion.best import fuse_best
+from kinefuse.capture.fusion.people import PeopleTracker, associate, trunk_world
+from kinefuse.core.skeleton import JOINT_INDEX, TrackingState
 from kinefuse.errors import InputError
-from kinefuse.fusion.best import fuse_best
-from kinefuse.fusion.people import PeopleTracker, associate, trunk_world
 from kinefuse.sim.rig import default_rig
-from kinefuse.skeleton import JOINT_INDEX, TrackingState
 from people_scene import RATE, two_people
 
 

@@ -1,4 +1,4 @@
-"""The server's per-person live fusion (:class:`kinefuse.net.server.fusion_loop.FrameFusion`):
+"""The server's per-person live fusion (:class:`kinefuse.live.server.fusion_loop.FrameFusion`):
 the hand-made two-person scene of :mod:`people_scene` pushed observation by observation, every
 body of an instant in one observation; the subject's fused frames stay on the subject while the
 bystander crosses close in front of them."""
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.net.server.fusion_loop import FrameFusion
+from kinefuse.live.server.fusion_loop import FrameFusion
 from people_scene import RATE, observation, two_people
 
 

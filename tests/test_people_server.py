@@ -14,18 +14,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
+from kinefuse.app.workflows.fuse import run_fuse
+from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+from kinefuse.core.frames.observations import BodyFrame
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame
-from kinefuse.io.store import live as store_live
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame
-from kinefuse.net.client.client import ClientOptions
-from kinefuse.net.client.fleet import replay_clients, run_clients
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.pipeline.sources import SessionReplay, open_source
-from kinefuse.protocol import Status
-from kinefuse.workflows.fuse import run_fuse
+from kinefuse.formats.store import live_tables as store_live
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import FusedFrame
+from kinefuse.live.client.client import ClientOptions
+from kinefuse.live.client.fleet import replay_clients, run_clients
+from kinefuse.live.protocol import Status
+from kinefuse.live.server.server import Server, ServerOptions
+from kinefuse.pipeline.frame_sources import SessionReplay, open_source
 
 TOKEN = "people-server-token"
 SECONDS = 5.0
@@ -34,7 +34,7 @@ SECONDS = 5.0
 @pytest.fixture(scope="module")
 def crowd(tmp_path_factory: pytest.TempPathFactory, shared_data: Path) -> Path:
     """4 sensors, a 1 s wand phase, 5 s of the subject with one bystander walking past."""
-    from kinefuse.workflows.simulate import run_simulate
+    from kinefuse.app.workflows.simulate import run_simulate
 
     out = tmp_path_factory.mktemp("people_server") / "crowd.sqlite"
     cmu = shared_data / "motion" / "cmu"

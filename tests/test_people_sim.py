@@ -9,8 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.evaluation.people import (
+from kinefuse.app.cli import main
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.skeleton import (
+    JOINT_INDEX,
+    N_JOINTS,
+    TrackingState,
+    capsule_radii,
+    standing_pose,
+)
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.lab.people import (
     all_bodies,
     evaluate_people,
     first_body_assignment,
@@ -18,12 +27,9 @@ from kinefuse.evaluation.people import (
     match_people,
     true_assignment,
 )
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.session import clip_grid, frame_grid, load_usable_sensors
+from kinefuse.pipeline.store_inputs import clip_grid, frame_grid, load_usable_sensors
 from kinefuse.sim.people import ID_BASE, ID_STRIDE, tracking_ids
 from kinefuse.sim.tracker import hidden_by_others, simulate_tracker
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState, capsule_radii, standing_pose
 
 SIM = ["--seconds", "5", "--calibration-seconds", "1", "--depth-rate", "5", "--seed", "2"]
 
@@ -129,7 +135,7 @@ def _person(x: float, y: float, n: int = 20) -> np.ndarray:
 
 
 def test_a_person_in_front_hides_and_is_lost_one_beside_changes_nothing() -> None:
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     s2w = np.eye(4)
     # a sensor at x = 3 m, 1 m high, looking along -x (z forward, y down)
@@ -237,7 +243,7 @@ def test_a_missing_bystander_clip_is_refused(tmp_path, shared_data, capsys) -> N
 
 
 def test_store_round_trip_of_every_body(tmp_path) -> None:
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     j = np.ones((5, N_JOINTS, 3))
     st_ = np.full((5, N_JOINTS), TrackingState.TRACKED, dtype=np.int8)
@@ -259,7 +265,7 @@ def test_store_round_trip_of_every_body(tmp_path) -> None:
 
 @pytest.fixture(scope="module")
 def lab(shared_data):  # type: ignore[no-untyped-def]
-    from kinefuse.motion.load import load_motion
+    from kinefuse.formats.motion.load import load_motion
     from kinefuse.sim.lab import LabConfig
     from kinefuse.sim.people import place_bystander
     from kinefuse.sim.rig import default_rig, place_actor
@@ -304,8 +310,8 @@ def test_body_frames_hand_every_body_over(lab) -> None:  # type: ignore[no-untyp
 
 
 def test_a_live_simulated_sensor_delivers_every_body(lab) -> None:  # type: ignore[no-untyped-def]
-    from kinefuse.frames.observations import BodyFrame
-    from kinefuse.pipeline.sources import SimulatedSensorSource
+    from kinefuse.core.frames.observations import BodyFrame
+    from kinefuse.pipeline.frame_sources import SimulatedSensorSource
 
     subject, rig, config, other = lab
     source = SimulatedSensorSource(subject, rig, "k0", 5, config=config, depth=False,

@@ -9,16 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.body import calibrate_from_body
-from kinefuse.calibration.grade import Grade
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.geometry.rotations import rotation_vector_deg
-from kinefuse.geometry.transforms import invert_transform, make_transform
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack, unique_frames
-from kinefuse.net.server.calibration import LiveCalibration
-from kinefuse.net.server.person import WALK, PersonCalibration, PersonOptions, solve_person
-from kinefuse.sync.envelope import fit_clock_lower_envelope
-from kinefuse.workflows.realdata import fuse_multitrack
+from kinefuse.app.workflows.realdata import fuse_multitrack
+from kinefuse.capture.calibration.body import calibrate_from_body
+from kinefuse.capture.calibration.grade import Grade
+from kinefuse.capture.sync.envelope import fit_clock_lower_envelope
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.rotations import rotation_vector_deg
+from kinefuse.core.geometry.transforms import invert_transform, make_transform
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack, unique_frames
+from kinefuse.live.server.live_calibration import LiveCalibration
+from kinefuse.live.server.person import WALK, PersonCalibration, PersonOptions, solve_person
 
 Tracks = dict[str, tuple[np.ndarray, np.ndarray]]
 
@@ -145,8 +145,8 @@ def _rows(path: Path) -> Rows:
     """Every logged row of both sensors as a client sends it: ``(receive time, sensor, device
     time, joints)`` in receive order, from 0 s (a row repeats a sensor's latest skeleton when
     the other sensor's frame triggered it, and rows come out of capture order)."""
-    from kinefuse.frames.observations import BodyFrame
-    from kinefuse.pipeline.sources import MultitrackReplay
+    from kinefuse.core.frames.observations import BodyFrame
+    from kinefuse.pipeline.frame_sources import MultitrackReplay
 
     rows = []
     for s in read_kinect_multitrack(path).streams:
@@ -250,7 +250,7 @@ def test_a_sensor_that_joins_later_is_registered_onto_the_poses_in_force(take45,
     one is registered onto them. It is the second sensor's stream seen from a frame moved by a
     known rigid transform (30 deg, 0.5 m), so its pose must come out as that sensor's pose times
     the inverse."""
-    from kinefuse.geometry.rotations import rot_z
+    from kinefuse.core.geometry.rotations import rot_z
 
     _, tracks = take45
     ids = sorted(tracks)
@@ -284,8 +284,8 @@ def test_a_sensor_that_joins_later_is_registered_onto_the_poses_in_force(take45,
 
 
 def test_the_calibration_message_crosses_the_wire_and_reaches_the_viewer() -> None:
-    from kinefuse.protocol import Status, codec
-    from kinefuse.viewer.wire import status_message
+    from kinefuse.live.protocol import Status, codec
+    from kinefuse.live.viewer.wire import status_message
 
     st = Status(calibration_message=f"{WALK} (sensors a and b saw the person over 3 cm)")
     (back,) = codec.Decoder().feed(codec.encode(st))
@@ -313,8 +313,8 @@ def test_a_wand_calibration_without_sightings_gives_way_to_the_person(take45, ro
 def test_a_wand_calibration_in_force_stops_the_person_path(take45, rows45) -> None:
     """The person path runs (doubtful), then the operator calibrates with the wand: the person
     path stops refining over it and the status no longer asks to walk."""
-    from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
-    from kinefuse.net.server.calibration import CalibrationOutcome
+    from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+    from kinefuse.live.server.live_calibration import CalibrationOutcome
 
     _, tracks = take45
     ids = sorted(tracks)
@@ -342,8 +342,8 @@ def test_a_sensor_with_too_few_person_frames_fails_the_solve_not_the_server() ->
     """A sensor with a pose (from a file) and a newcomer that sent three frames of nothing (as a
     fuzzing peer with the token does): the solve fails with a reason; it used to raise (numpy's
     "need at least one array to stack") and end the server."""
-    from kinefuse.net.server.person import PersonJob, solve_person
-    from kinefuse.skeleton import standing_pose
+    from kinefuse.core.skeleton import standing_pose
+    from kinefuse.live.server.person import PersonJob, solve_person
 
     pose = np.asarray(standing_pose(), dtype=float)
     t = [k / 30 for k in range(60)]
@@ -363,7 +363,7 @@ def test_the_person_path_keeps_the_subject_only(shared_data) -> None:
     sensor keeps the subject's trunk frames and none of the bystander's."""
     import numpy as np
 
-    from kinefuse.net.server.person import PersonCalibration
+    from kinefuse.live.server.person import PersonCalibration
     from people_scene import two_people
 
     lab = two_people(shared_data)

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.cli import main
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.app.cli import main
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS
+from kinefuse.formats.store.session_store import SessionStore
 
 REAL = ("k0", "k1", "k2")
 FUZZ = ("fz0", "fz1", "fz2", "fz3")

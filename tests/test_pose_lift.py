@@ -8,17 +8,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform, look_at
+from kinefuse.core.skeleton import JOINT_INDEX, JOINTS, TrackingState, standing_pose
 from kinefuse.devices.pose.gates import check_body
 from kinefuse.devices.pose.landmarks import LM
 from kinefuse.devices.pose.tracker import body_from_landmarks
-from kinefuse.evaluation.pose_lift import DetectorNoise, score_lifting, true_landmarks
-from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.motion.load import load_motion
+from kinefuse.formats.motion.load import load_motion
+from kinefuse.lab.pose_lift import DetectorNoise, score_lifting, true_landmarks
 from kinefuse.sim.depth import Scene, render_depth
 from kinefuse.sim.lab import LabConfig, SensorSimulation
 from kinefuse.sim.rig import default_rig, place_actor
-from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState, standing_pose
 
 #: joints the model has (not derived), whose error bounds are stated in docs/tracker.md
 DIRECT = ("Head", "ShoulderLeft", "ShoulderRight", "ElbowLeft", "ElbowRight", "WristLeft",
@@ -140,10 +140,10 @@ def test_a_session_tracked_by_the_pose_tracker_fuses_and_evaluates(
 ) -> None:
     """The whole chain on a simulated session: every sensor's body observations made by the
     pose tracker on its rendered body depth, fused by `best`, scored against the truth."""
-    from kinefuse.evaluation.pose_lift import pose_observations
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.app.workflows.evaluate import run_evaluate
+    from kinefuse.formats.store.session_store import SessionStore
+    from kinefuse.lab.pose_lift import pose_observations
     from kinefuse.sim.lab import simulate_session
-    from kinefuse.workflows.evaluate import run_evaluate
 
     rig = default_rig(2)
     motion = place_actor(load_motion(shared_data / "motion" / "cmu" / "131_01_scaled_metres.bvh"),

@@ -5,9 +5,9 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-from kinefuse.cli import main
-from kinefuse.workflows.evaluate import run_evaluate
-from kinefuse.workflows.progress import TerminalProgress
+from kinefuse.app.cli import main
+from kinefuse.app.workflows.evaluate import run_evaluate
+from kinefuse.app.workflows.progress import TerminalProgress
 
 
 class FakeTerminal(io.StringIO):

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.protocol import (
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.live.protocol import (
     MAX_FRAME_BYTES,
     MESSAGE_TYPES,
     AuthReply,
@@ -48,9 +48,9 @@ from kinefuse.protocol import (
     WireError,
     encode,
 )
-from kinefuse.protocol.codec import to_wire
-from kinefuse.protocol.fields import Array
-from kinefuse.protocol.messages import message_fields
+from kinefuse.live.protocol.codec import to_wire
+from kinefuse.live.protocol.fields import Array
+from kinefuse.live.protocol.messages import message_fields
 
 
 def _examples() -> list[Message]:

@@ -7,8 +7,8 @@ import hmac
 
 import pytest
 
-from kinefuse.protocol import AuthError, AuthReply, Challenge, Decoder, encode
-from kinefuse.protocol.auth import NONCE_BYTES, compute_mac, new_nonce, verify_mac
+from kinefuse.live.protocol import AuthError, AuthReply, Challenge, Decoder, encode
+from kinefuse.live.protocol.auth import NONCE_BYTES, compute_mac, new_nonce, verify_mac
 
 
 def test_the_right_token_verifies():

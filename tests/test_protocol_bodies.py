@@ -9,7 +9,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from kinefuse.protocol import (
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol import (
     MAX_BODIES,
     PROTOCOL_VERSION,
     BodyFrameMessage,
@@ -19,8 +20,7 @@ from kinefuse.protocol import (
     OtherBody,
     encode,
 )
-from kinefuse.protocol.codec import HEADER, decode_body, to_wire
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol.codec import HEADER, decode_body, to_wire
 
 
 def _frame(n_others: int, *, ids: list[int] | None = None) -> BodyFrameMessage:

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from kinefuse.protocol import MESSAGE_TYPES, errors
-from kinefuse.protocol.reference import BEGIN, END, render
+from kinefuse.live.protocol import MESSAGE_TYPES
+from kinefuse.live.protocol import wire_errors as errors
+from kinefuse.live.protocol.wire_reference import BEGIN, END, render
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 
@@ -15,7 +16,7 @@ def test_the_message_reference_in_the_doc_is_the_generated_one():
     body = text.split(BEGIN + "\n", 1)[1].split(END, 1)[0]
     assert body == render(), (
         "docs/protocol.md is stale: replace the text between its messages marks with the "
-        "output of python -m kinefuse.protocol.reference"
+        "output of python -m kinefuse.live.protocol.wire_reference"
     )
     for cls in MESSAGE_TYPES.values():
         assert f"### `{cls.TYPE}` ({cls.__name__})" in text

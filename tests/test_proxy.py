@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError
-from kinefuse.net.proxy import FaultProxy, LinkProfile, LinkSchedule, ProxyThread, jitter_profiles
+from kinefuse.live.proxy import FaultProxy, LinkProfile, LinkSchedule, ProxyThread, jitter_profiles
 
 TIMEOUT_S = 20.0  # no test may hang: every one runs under this bound
 

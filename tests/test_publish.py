@@ -6,7 +6,7 @@ import asyncio
 
 import numpy as np
 
-from kinefuse.net.bus import FusedFrame, Publisher, Status
+from kinefuse.live.bus import FusedFrame, Publisher, Status
 
 
 def _frame(seq: int) -> FusedFrame:

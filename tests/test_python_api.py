@@ -56,7 +56,7 @@ def test_analyze_returns_the_angles_it_wrote(shared_data: Path, tmp_path: Path) 
 
 
 def test_fuse_a_simulated_session_and_export(shared_data: Path, tmp_path: Path) -> None:
-    from kinefuse.cli import main
+    from kinefuse.app.cli import main
 
     session = tmp_path / "s.sqlite"
     clip = shared_data / "motion" / "cmu" / "02_walk_a.amc"

@@ -9,8 +9,8 @@ import json
 
 import numpy as np
 
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack, unique_frames
-from kinefuse.pipeline.sources import Kinect2TrackingReplay, MultitrackReplay
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack, unique_frames
+from kinefuse.pipeline.frame_sources import Kinect2TrackingReplay, MultitrackReplay
 
 
 def _multitrack(shared_data):

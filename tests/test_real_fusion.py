@@ -10,26 +10,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.body import (
+from kinefuse.app.cli import main
+from kinefuse.app.workflows.realdata import format_report, fuse_multitrack
+from kinefuse.capture.calibration.body import (
     FloorFit,
     fit_foot_plane,
     refine_registration,
     world_from_floor,
 )
-from kinefuse.cli import main
-from kinefuse.errors import InputError, SyncError
-from kinefuse.evaluation.consistency import consistency
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.io.formats.kinect_multitrack import (
-    kmt_rotation,
-    multitrack_sensor,
-    read_kinect_multitrack,
-    reference_sensor,
-    sensor_poses,
-    unique_frames,
-)
-from kinefuse.skeleton import (
+from kinefuse.capture.sync.assembly import interpolate
+from kinefuse.capture.sync.envelope import fit_clock_lower_envelope, residual_lag_s
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform, look_at
+from kinefuse.core.skeleton import (
     JOINT_INDEX,
     JOINTS,
     MIRROR_INDEX,
@@ -37,9 +30,16 @@ from kinefuse.skeleton import (
     bone_index_array,
     standing_pose,
 )
-from kinefuse.sync.assembly import interpolate
-from kinefuse.sync.envelope import fit_clock_lower_envelope, residual_lag_s
-from kinefuse.workflows.realdata import format_report, fuse_multitrack
+from kinefuse.errors import InputError, SyncError
+from kinefuse.formats.kinect_multitrack import (
+    kmt_rotation,
+    multitrack_sensor,
+    read_kinect_multitrack,
+    reference_sensor,
+    sensor_poses,
+    unique_frames,
+)
+from kinefuse.lab.consistency import consistency
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MT_DIR = SHARED / "kinect" / "kinect_multitrack"
@@ -58,7 +58,7 @@ def real_runs() -> dict[str, tuple[dict, list]]:
     """Both real files fused once (about 2 s each), with what each scenario's fusion was given
     and gave: ``(report, [(streams, grid, consistency result), ...])``. The recorder passes every
     call through to the real :func:`consistency` unchanged."""
-    import kinefuse.workflows.realdata as rf
+    import kinefuse.app.workflows.realdata as rf
 
     out: dict[str, tuple[dict, list]] = {}
     real_consistency = rf.consistency
@@ -473,8 +473,8 @@ def test_best_live_does_not_mirror_the_real_walks(real_runs) -> None:
     own no-swap version; the walking direction now only breaks a tie."""
     from dataclasses import replace
 
-    from kinefuse.fusion.best import BestOptions
-    from kinefuse.fusion.live import LiveOptions, replay_streams
+    from kinefuse.capture.fusion.best import BestOptions
+    from kinefuse.capture.fusion.live import LiveOptions, replay_streams
 
     off = LiveOptions(best=replace(BestOptions(), lr_swap=False))
     for name, (_report, calls) in real_runs.items():

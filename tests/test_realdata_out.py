@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.io.formats.markers import read_trc
-from kinefuse.skeleton import JOINTS
+from kinefuse.app.cli.main import main
+from kinefuse.core.skeleton import JOINTS
+from kinefuse.formats.markers import read_trc
 
 LOG = "kinect/kinect_multitrack/Study_4_Kinect_0_Time_1_17_51_PM.csv"
 

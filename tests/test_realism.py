@@ -7,8 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.core.frames.motion import Motion
+from kinefuse.core.geometry.rotations import rot_z
+from kinefuse.core.geometry.transforms import apply_transform, make_transform
+from kinefuse.core.skeleton import JOINT_INDEX, MIRROR_INDEX
 from kinefuse.errors import InputError
-from kinefuse.evaluation.realism import (
+from kinefuse.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
+from kinefuse.lab.realism import (
     DEFAULT_HEADINGS,
     FACING_FRONT,
     PairLayout,
@@ -20,12 +25,7 @@ from kinefuse.evaluation.realism import (
     real_disagreement,
     walking_passes,
 )
-from kinefuse.evaluation.realism_single import format_single, single_sensor_realism
-from kinefuse.geometry.rotations import rot_z
-from kinefuse.geometry.transforms import apply_transform, make_transform
-from kinefuse.io.formats.kinect_multitrack import MultitrackRecording, read_kinect_multitrack
-from kinefuse.motion.types import Motion
-from kinefuse.skeleton import JOINT_INDEX, MIRROR_INDEX
+from kinefuse.lab.realism_single import format_single, single_sensor_realism
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 KMT = DATA / "kinect" / "kinect_multitrack"
@@ -60,7 +60,7 @@ def recordings() -> dict[int, MultitrackRecording]:
 def walk() -> Motion:
     if not WALK.is_file():
         pytest.skip(f"real motion not found at {WALK}")
-    from kinefuse.motion import load_motion
+    from kinefuse.formats.motion import load_motion
 
     return load_motion(WALK)
 
@@ -310,7 +310,7 @@ def test_single_sensor_realism(walk: Motion) -> None:
 
 
 def test_failures_reports_what_is_missed() -> None:
-    from kinefuse.evaluation.realism_single import SingleSensorRealism
+    from kinefuse.lab.realism_single import SingleSensorRealism
 
     bad = SingleSensorRealism(
         median_of_joint_medians_m=0.2,

@@ -1,4 +1,4 @@
-"""The person-level estimator of issue 21 (kinefuse.evaluation.realism_person)."""
+"""The person-level estimator of issue 21 (kinefuse.lab.realism_person)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kinefuse.errors import InputError
-from kinefuse.evaluation.realism_person import (
+from kinefuse.lab.realism_person import (
     person_log_sigma,
     person_outliers,
     qn_scale,
@@ -108,7 +108,7 @@ def test_subject_seeds_differ_per_take() -> None:
 
 
 def test_iqr_band_is_a_coin_toss_on_five_takes() -> None:
-    from kinefuse.evaluation.realism_person import iqr_band_pass_rate
+    from kinefuse.lab.realism_person import iqr_band_pass_rate
 
     assert iqr_band_pass_rate(5, 10, draws=4000) < 0.8
     assert iqr_band_pass_rate(25, 50, draws=4000) > 0.9
@@ -118,7 +118,7 @@ def test_population_seeds_are_the_participants_own() -> None:
     """`python studies/realism.py --population`: one participant's takes share their simulated
     subjects (the person level is the person's at every layout), two participants never do, and
     a file not named as KinectMultiTrack names its takes still gets seeds of its own."""
-    from kinefuse.evaluation.realism_person import population_seeds
+    from kinefuse.lab.realism_person import population_seeds
 
     a0 = population_seeds("Study_3_Kinect_0_Time_1.csv", 2)
     a1 = population_seeds("Study_3_Kinect_1_Time_2.csv", 2)

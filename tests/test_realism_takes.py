@@ -1,4 +1,4 @@
-"""Real against simulated figures per KinectMultiTrack take (kinefuse.evaluation.realism_takes)."""
+"""Real against simulated figures per KinectMultiTrack take (kinefuse.lab.realism_takes)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.core.frames.motion import Motion
+from kinefuse.core.skeleton import JOINT_INDEX, standing_pose
 from kinefuse.errors import InputError
-from kinefuse.evaluation.realism import PairLayout
-from kinefuse.evaluation.realism_takes import (
+from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+from kinefuse.lab.realism import PairLayout
+from kinefuse.lab.realism_takes import (
     BANDS,
     FACTORS,
     FIGURE_KEYS,
@@ -28,10 +31,7 @@ from kinefuse.evaluation.realism_takes import (
     take_layout,
     take_passes,
 )
-from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
-from kinefuse.motion.types import Motion
 from kinefuse.sim.tracker_params import TrackerParams, light_tracker
-from kinefuse.skeleton import JOINT_INDEX, standing_pose
 
 #: the real per-take figures of the population (tests/test_tracker_failures.py checks them)
 POPULATION_CACHE = Path(__file__).resolve().parent / "data" / "realism_population_real.json"
@@ -52,7 +52,7 @@ def takes(shared_data: Path) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def walk(shared_data: Path) -> Motion:
-    from kinefuse.motion import load_motion
+    from kinefuse.formats.motion import load_motion
 
     return load_motion(shared_data / "motion" / "cmu" / "02_walk_a.amc")
 
@@ -103,9 +103,9 @@ def test_limb_angle_disagreement_is_frame_free_and_ignores_mirroring() -> None:
     one knee bent further in one stream counts half (the mean over the sides)."""
     from scipy.spatial.transform import Rotation
 
-    from kinefuse.evaluation.realism_takes import limb_angle_disagreement_deg
-    from kinefuse.pipeline.analysis import hinge_angle_deg
-    from kinefuse.skeleton import MIRROR_INDEX
+    from kinefuse.core.skeleton import MIRROR_INDEX
+    from kinefuse.lab.realism_takes import limb_angle_disagreement_deg
+    from kinefuse.pipeline.analysis_chain import hinge_angle_deg
 
     k, a = JOINT_INDEX["KneeLeft"], JOINT_INDEX["AnkleLeft"]
 
@@ -158,7 +158,7 @@ def _independent_distances(pair: StreamPair) -> np.ndarray:
 def _limb_bone_cv(joints: np.ndarray, t_sensor_s: np.ndarray, group: np.ndarray) -> float:
     """Median over the limb bones (upper and lower arms and legs) of each bone length's
     coefficient of variation over the distinct frames (a repeated row is not a frame)."""
-    from kinefuse.skeleton import BONES
+    from kinefuse.core.skeleton import BONES
 
     new = np.ones(t_sensor_s.size, dtype=bool)
     for g in np.unique(group):
@@ -412,7 +412,7 @@ def test_a_standing_leg_reads_as_straight_as_on_the_real_front_sensors(
     offsets (each joint's definition offset drawn on its own) read it about 12° bent in the
     median; drawn coherently along the limb (`limb_coherence`, fitted on the sensors' angle
     disagreement, not on this) they give the real figure."""
-    from kinefuse.evaluation.realism_person import population_seeds
+    from kinefuse.lab.realism_person import population_seeds
 
     folder = shared_data / "kinect" / "kinect_multitrack_population"
     firsts: dict[str, Path] = {}

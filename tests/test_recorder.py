@@ -10,13 +10,13 @@ import time
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS
 from kinefuse.errors import OutputError
-from kinefuse.io.store import live as store_live
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame, Publisher
-from kinefuse.net.server.recorder import Recorder
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.formats.store import live_tables as store_live
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import FusedFrame, Publisher
+from kinefuse.live.server.recorder import Recorder
 
 
 def rows_now(path) -> tuple[int, int]:

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.report.html import is_kinefuse_report, mae_intervals
+from kinefuse.app.cli import main
+from kinefuse.lab.report.html import is_kinefuse_report, mae_intervals
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

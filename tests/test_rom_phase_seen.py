@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.geometry.transforms import look_at
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.analysis import SEEN_MIN_FRACTION, analyse_sequence
+from kinefuse.app.cli import main
+from kinefuse.app.workflows.analyze import load_input
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.analysis_chain import SEEN_MIN_FRACTION, analyse_sequence
 from kinefuse.sim.rig import Rig, SensorSpec, common_volume_centre, load_rig, sensors_seeing
-from kinefuse.skeleton import JOINT_INDEX
-from kinefuse.workflows.analyze import load_input
 
 #: A walk (about 3.7 m in 2.5 s): its own path is far from where the phase must happen.
 WALK = "motion/cmu/02_walk_a.amc"
@@ -288,10 +288,10 @@ def test_analyze_a_phase_no_sensor_saw_fails_clearly(
 def test_an_unseen_arm_gets_no_shoulder_elevation(shared_data: Path) -> None:
     # elevation and plane of elevation need no learned axes, but an arm the sensors did not see
     # in the phase is not analysed: none of its angles is reported; the other arm keeps them
-    from kinefuse.analysis import SkeletonSequence, normalize
-    from kinefuse.analysis.kinematics import joint_angles
-    from kinefuse.analysis.parameterize import learn_axes
-    from kinefuse.motion import load_motion
+    from kinefuse.biomech import SkeletonSequence, normalize
+    from kinefuse.biomech.kinematics import joint_angles
+    from kinefuse.biomech.parameterize import learn_axes
+    from kinefuse.formats.motion import load_motion
 
     clip = load_motion(shared_data / "motion/cmu/131_01_scaled_metres.bvh")
     seq = SkeletonSequence.from_motion(clip)
@@ -315,8 +315,8 @@ def test_a_limb_whose_parent_was_not_seen_is_not_seen() -> None:
     # sensors tracked throughout a phase in which its shank was hardly seen teaches nothing
     # (a walkway whose [actor] mark was at its edge: feet seen 94 %, shanks 6-16 %, foot axes
     # 18-61° off); the same for everything below an unseen pelvis
-    from kinefuse.analysis.limbs import LIMB_INDEX, LIMB_NAMES
-    from kinefuse.pipeline.analysis import phase_seen
+    from kinefuse.biomech.limbs import LIMB_INDEX, LIMB_NAMES
+    from kinefuse.pipeline.analysis_chain import phase_seen
 
     t = np.arange(300) / 30.0
     counts = np.full((300, len(LIMB_NAMES)), 3, dtype=np.int64)
@@ -339,9 +339,9 @@ def test_the_pelvis_is_tracked_only_with_its_hips() -> None:
     # the pelvis's frame comes from SpineMid, SpineBase and both hips (its tilt from the hips'
     # midpoint to SpineMid): a sensor that tracks the spine but guesses the hips (a walkway's
     # edge, seen from the side) does not track it (phase_seen then refuses the limbs below it)
-    from kinefuse.analysis.limbs import LIMB_INDEX
-    from kinefuse.pipeline.analysis import limb_sensor_counts
-    from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+    from kinefuse.biomech.limbs import LIMB_INDEX
+    from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+    from kinefuse.pipeline.analysis_chain import limb_sensor_counts
 
     t = np.arange(10) / 30.0
     states = np.full((10, N_JOINTS), TrackingState.TRACKED, dtype=np.int8)
@@ -358,9 +358,9 @@ def test_a_mirrored_sensor_tracks_the_limbs_under_their_true_names() -> None:
     # vote mirrors it back, and the counts must follow, or the leg it only guessed counts as
     # tracked (131_01 on a 5-sensor ring: 2 s of one sensor's INFERRED right leg, 90° of knee
     # error, were scored as tracked frames)
-    from kinefuse.analysis.limbs import LIMB_INDEX
-    from kinefuse.pipeline.analysis import limb_sensor_counts
-    from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+    from kinefuse.biomech.limbs import LIMB_INDEX
+    from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
+    from kinefuse.pipeline.analysis_chain import limb_sensor_counts
 
     t = np.arange(10) / 30.0
     states = np.full((10, N_JOINTS), TrackingState.TRACKED, dtype=np.int8)
@@ -382,8 +382,8 @@ def test_the_fusion_says_which_sensors_it_mirrored(
 ) -> None:
     # best and best-live hand their swap decisions to the analysis (limb_sensor_counts); a ring
     # of four has a sensor behind a walking body
-    from kinefuse.evaluation.poses import resolve_poses
-    from kinefuse.pipeline.session import frame_grid, load_usable_sensors, run_method
+    from kinefuse.lab.poses import resolve_poses
+    from kinefuse.pipeline.store_inputs import frame_grid, load_usable_sensors, run_method
 
     s = tmp_path / "ring.sqlite"
     code, _, err = run(capsys, "simulate", "--clip", str(shared_data / WALK), "--seconds", "2",

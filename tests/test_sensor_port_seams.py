@@ -28,15 +28,15 @@ import pytest
 
 import test_mutual_auth as mutual
 import test_server_safety as safety
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.cli.main import main
-from kinefuse.io.store import live as store_live
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame
-from kinefuse.net.client.client import ClientRefused
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.protocol import (
+from kinefuse.app.cli.main import main
+from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.formats.store import live_tables as store_live
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import FusedFrame
+from kinefuse.live.client.client import ClientRefused
+from kinefuse.live.protocol import (
     AuthReply,
     BodyFrameMessage,
     Challenge,
@@ -51,8 +51,8 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol.auth import compute_mac
+from kinefuse.live.server.server import Server, ServerOptions
 
 TOKEN = "6c1e3a5f7b9d0e2c4a6f8b1d3e5a7c9f0b2d4e6a8c1f3b5d7e9a0c2e4f6b8d1a"
 Peer = safety.Peer

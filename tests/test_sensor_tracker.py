@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.core.frames.observations import BodyFrame, DepthFrame
 from kinefuse.devices.mkv import MkvRecording
 from kinefuse.devices.sources import open_camera_source
-from kinefuse.frames.observations import BodyFrame, DepthFrame
-from kinefuse.io.store.session import SessionStore
-from kinefuse.viewer.wire import status_message
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.viewer.wire import status_message
 
 pytest.importorskip("av")
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.io.store.session import SessionStore
+from kinefuse.app.cli import main
+from kinefuse.formats.store.session_store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 

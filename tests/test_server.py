@@ -17,16 +17,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import loads_calibration
-from kinefuse.calibration.session import calibrate
-from kinefuse.cli import main
-from kinefuse.io.store import live as store_live
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame
-from kinefuse.net.server.calibration import LiveCalibrationOptions
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.pipeline.session import gather_calibration as gather
-from kinefuse.protocol import (
+from kinefuse.app.cli import main
+from kinefuse.capture.calibration.calib_file import loads_calibration
+from kinefuse.capture.calibration.calibration_run import calibrate
+from kinefuse.capture.sync import sensor_timebase
+from kinefuse.capture.sync.device import NOMINAL_LATENCY_S
+from kinefuse.formats.store import live_tables as store_live
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import FusedFrame
+from kinefuse.live.protocol import (
     AuthReply,
     BodyFrameMessage,
     CalibrationStart,
@@ -44,9 +43,10 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.sync import sensor_timebase
-from kinefuse.sync.device import NOMINAL_LATENCY_S
+from kinefuse.live.protocol.auth import compute_mac
+from kinefuse.live.server.live_calibration import LiveCalibrationOptions
+from kinefuse.live.server.server import Server, ServerOptions
+from kinefuse.pipeline.store_inputs import gather_calibration as gather
 
 CAL_S = 8.0  # wand phase of the simulated session, s
 MOTION_S = 4.0
@@ -437,8 +437,8 @@ def test_the_recording_reopens_and_offline_commands_work_on_it(live_run, tmp_pat
 
 
 def test_offline_best_live_agrees_with_the_live_frames(live_run) -> None:
-    from kinefuse.evaluation.poses import resolve_poses
-    from kinefuse.pipeline.session import load_sensors, run_method
+    from kinefuse.lab.poses import resolve_poses
+    from kinefuse.pipeline.store_inputs import load_sensors, run_method
 
     with SessionStore.open(live_run["record"]) as st:
         poses, _ = resolve_poses(st, None, False)
@@ -459,7 +459,7 @@ def test_a_sensor_that_joins_later_is_registered_against_the_calibrated_ones(sim
     with SessionStore.open(sim) as st:
         off = calibrate(gather(st), "full")
         intr = {s.id: s.intrinsics for s in st.sensors()}
-    from kinefuse.calibration.calib_file import calibration_from_registration
+    from kinefuse.capture.calibration.calib_file import calibration_from_registration
 
     full = calibration_from_registration(off, intr)
     two = replace(full, sensors=full.sensors[:2])  # the world, its scale and the rest kept

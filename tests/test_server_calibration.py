@@ -1,6 +1,6 @@
 """Live calibration on the server (pure state): register, add a sensor later, end rules (issue 11).
 
-Synthetic wand sightings with known truth (:mod:`kinefuse.calibration.synthetic`), as the
+Synthetic wand sightings with known truth (:mod:`kinefuse.capture.calibration.synthetic`), as the
 clients would send them; no sockets here (tests/test_server.py runs the whole flow).
 """
 
@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import invert_transform
 from kinefuse.errors import CalibrationError
-from kinefuse.geometry.transforms import invert_transform
-from kinefuse.net.server.calibration import LiveCalibration, LiveCalibrationOptions
+from kinefuse.live.server.live_calibration import LiveCalibration, LiveCalibrationOptions
 
 IDS = ("a", "b", "c", "d")
 
@@ -104,8 +104,8 @@ def test_when_a_calibration_ends(wand) -> None:
 
 
 def test_the_scale_is_fixed_from_the_protocol_only_when_its_holds_were_seen(wand) -> None:
-    from kinefuse.calibration.floor import FloorPlane
-    from kinefuse.calibration.register import Sightings
+    from kinefuse.capture.calibration.floor import FloorPlane
+    from kinefuse.capture.calibration.register import Sightings
 
     truth, sights = wand
     floors = {}

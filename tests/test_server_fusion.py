@@ -7,12 +7,12 @@ import asyncio
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.fusion.status import FusionStatus
-from kinefuse.net.bus import FusedFrame, Publisher
-from kinefuse.net.server.fusion_loop import FrameFusion, FusionLoop
-from kinefuse.net.server.sensor_state import Observation, SensorState, sanitize_joints
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.capture.fusion.status import FusionStatus
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.bus import FusedFrame, Publisher
+from kinefuse.live.server.fusion_loop import FrameFusion, FusionLoop
+from kinefuse.live.server.sensor_state import Observation, SensorState, sanitize_joints
 
 
 def rig(n: int = 4) -> dict[str, np.ndarray]:

@@ -19,8 +19,9 @@ import msgpack
 import numpy as np
 
 import test_server_safety as safety
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.protocol import (
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS
+from kinefuse.live.protocol import (
     AuthReply,
     BodyFrameMessage,
     Challenge,
@@ -31,8 +32,7 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.skeleton import N_JOINTS
+from kinefuse.live.protocol.auth import compute_mac
 
 TOKEN, Peer = safety.TOKEN, safety.Peer
 running = safety.running  # the fixture: a server with a token and a sensor streaming
@@ -189,8 +189,8 @@ def test_refusals_are_bounded_in_the_log_the_recording_and_memory(running, tmp_p
     assert total == 151 and kept <= 100
     closing = [r.getMessage() for r in caplog.records if r.getMessage().startswith("closing")]
     assert len(closing) <= 10  # one window's worth; the rest are summarized
-    from kinefuse.io.store.live import events
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.formats.store.live_tables import events
+    from kinefuse.formats.store.session_store import SessionStore
 
     with SessionStore.open(rec) as st:
         ev = events(st)
@@ -263,11 +263,11 @@ def test_a_stalled_sensors_backlog_is_dropped_not_fused_late(tmp_path) -> None:
     the resume are as fresh as before it."""
     import datetime as _dt
 
-    from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
-    from kinefuse.net.bus import FusedFrame
-    from kinefuse.net.server.server import Server, ServerOptions
-    from kinefuse.protocol import ClockProbe, ClockReply
-    from kinefuse.skeleton import standing_pose
+    from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+    from kinefuse.core.skeleton import standing_pose
+    from kinefuse.live.bus import FusedFrame
+    from kinefuse.live.protocol import ClockProbe, ClockReply
+    from kinefuse.live.server.server import Server, ServerOptions
 
     async def main():
         srv = Server(ServerOptions(port=0, timeout_s=5.0, record=tmp_path / "rec.sqlite"))
@@ -360,7 +360,7 @@ def test_a_stalled_sensors_backlog_is_dropped_not_fused_late(tmp_path) -> None:
     assert abs(fit_error) < 0.02, fit_error
     assert dropped >= 30 * (PAUSE_S - 0.5) - 5  # the backlog older than 0.5 s, counted
     # kept out of the fusion but recorded: no frame that reached the server is lost
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.formats.store.session_store import SessionStore
 
     with SessionStore.open(tmp_path / "rec.sqlite") as st:
         assert st.observation_count("s") == sent

@@ -17,12 +17,12 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kinefuse.calibration.calib_file import CalibrationFile, SensorCalibration
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.fusion.status import FusionStatus
-from kinefuse.net.bus import FusedFrame
-from kinefuse.net.server.server import Server, ServerOptions, is_loopback
-from kinefuse.protocol import (
+from kinefuse.capture.calibration.calib_file import CalibrationFile, SensorCalibration
+from kinefuse.capture.fusion.status import FusionStatus
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.bus import FusedFrame
+from kinefuse.live.protocol import (
     AuthReply,
     BodyFrameMessage,
     Challenge,
@@ -34,8 +34,8 @@ from kinefuse.protocol import (
     Welcome,
     encode,
 )
-from kinefuse.protocol.auth import compute_mac
-from kinefuse.skeleton import N_JOINTS, standing_pose
+from kinefuse.live.protocol.auth import compute_mac
+from kinefuse.live.server.server import Server, ServerOptions, is_loopback
 
 TOKEN = "s3cret-token"
 

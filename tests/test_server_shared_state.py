@@ -19,13 +19,13 @@ from typing import Any
 import numpy as np
 
 import test_server_safety as safety
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.net.bus import FusedFrame
-from kinefuse.net.server.server import Server, ServerOptions
-from kinefuse.protocol import (
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import standing_pose
+from kinefuse.live.bus import FusedFrame
+from kinefuse.live.protocol import (
     Welcome,
 )
-from kinefuse.skeleton import standing_pose
+from kinefuse.live.server.server import Server, ServerOptions
 
 LIMIT_S = 30.0
 
@@ -150,9 +150,9 @@ def test_a_floor_arriving_while_the_calibration_is_solved_in_a_thread():
     be reading the floors the loop adds to (it iterated them: the task group stopped the
     server), the floor is kept for the next calibration, and the state machine is the
     calibration's own: "solving" until the loop applies the outcome, reported as "collecting"."""
-    from kinefuse.calibration.floor import FloorPlane
-    from kinefuse.calibration.synthetic import make_rig, simulate_sightings, wand_waving
-    from kinefuse.protocol import FloorPlaneMessage as FloorMsg
+    from kinefuse.capture.calibration.floor import FloorPlane
+    from kinefuse.capture.calibration.synthetic import make_rig, simulate_sightings, wand_waving
+    from kinefuse.live.protocol import FloorPlaneMessage as FloorMsg
 
     ids = ("a", "b", "c")
     rng = np.random.default_rng(7)
@@ -215,9 +215,9 @@ def test_the_calibration_owns_its_state_machine():
     """Solving is a state of LiveCalibration's own (not a string the server writes into it):
     begin_solve (on the loop) enters it, the outcome computed from the snapshot alone changes
     nothing, apply (on the loop) leaves it; the status strings stay the protocol's."""
-    from kinefuse.calibration.floor import FloorPlane
+    from kinefuse.capture.calibration.floor import FloorPlane
     from kinefuse.errors import CalibrationError
-    from kinefuse.net.server.calibration import (
+    from kinefuse.live.server.live_calibration import (
         CalibrationState,
         LiveCalibration,
         solve_calibration,

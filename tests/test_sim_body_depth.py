@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.motion.load import load_motion
+from kinefuse.core.skeleton import CAPSULE_RADII_M, JOINT_INDEX
+from kinefuse.formats.motion.load import load_motion
 from kinefuse.sim.lab import LabConfig, SensorSimulation
 from kinefuse.sim.rig import default_rig, place_actor
-from kinefuse.skeleton import CAPSULE_RADII_M, JOINT_INDEX
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import JOINTS, TrackingState
+from kinefuse.app.cli import main
+from kinefuse.core.skeleton import JOINTS, TrackingState
+from kinefuse.formats.store.session_store import SessionStore
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:

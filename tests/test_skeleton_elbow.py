@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.motion import load_motion
-from kinefuse.pipeline.analysis import hinge_angle_deg, skeleton_anatomy
-from kinefuse.skeleton import JOINT_INDEX
+from kinefuse import biomech as an
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.motion import load_motion
+from kinefuse.pipeline.analysis_chain import hinge_angle_deg, skeleton_anatomy
 
 RATE = 30.0
 STAND_S = 3.0

@@ -9,18 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.core.frames.observations import BodyFrame, DepthFrame
+from kinefuse.core.frames.source import FrameSource
+from kinefuse.core.skeleton import TrackingState
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrame, DepthFrame
-from kinefuse.frames.source import FrameSource
-from kinefuse.io.store.session import SessionStore
-from kinefuse.pipeline.sources import (
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.pipeline.frame_sources import (
     Kinect2TrackingReplay,
     MultitrackReplay,
     SessionReplay,
     open_source,
 )
-from kinefuse.skeleton import TrackingState
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +79,7 @@ def test_one_sensor_of_a_session_and_bad_names(session) -> None:
 
 
 def test_a_real_multitrack_log_replays_as_one_sensor(shared_data) -> None:
-    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
 
     path = next((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_0_*.csv"))
     rec = read_kinect_multitrack(path)

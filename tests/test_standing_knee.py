@@ -8,13 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse import analysis as an
-from kinefuse.analysis.limbs import LIMB_INDEX
-from kinefuse.analysis.rom import standing_pose
-from kinefuse.geometry.rotations import rodrigues, rotation_angle_deg
-from kinefuse.motion import facing_direction, load_motion
-from kinefuse.pipeline.analysis import skeleton_anatomy
-from kinefuse.skeleton import JOINT_INDEX
+from kinefuse import biomech as an
+from kinefuse.biomech.limbs import LIMB_INDEX
+from kinefuse.biomech.rom import standing_pose
+from kinefuse.core.geometry.rotations import rodrigues, rotation_angle_deg
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.motion import facing_direction, load_motion
+from kinefuse.pipeline.analysis_chain import skeleton_anatomy
 
 RATE = 30.0
 

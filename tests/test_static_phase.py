@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import JOINT_INDEX
+from kinefuse.app.cli import main
+from kinefuse.core.skeleton import JOINT_INDEX
+from kinefuse.formats.store.session_store import SessionStore
 
 WALK = "motion/cmu/02_walk_a.amc"
 

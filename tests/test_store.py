@@ -12,10 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
 from kinefuse.errors import InputError, StoreError
-from kinefuse.io.store.session import SCHEMA_VERSION, Observations, SensorInfo, SessionStore
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.formats.store.session_store import (
+    SCHEMA_VERSION,
+    Observations,
+    SensorInfo,
+    SessionStore,
+)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 WALKER = DATA / "kinect" / "kinect2_tracking" / "walker.json"
@@ -276,8 +281,8 @@ def test_crash_keeps_committed_appends(tmp_path: Path) -> None:
     script = textwrap.dedent(
         f"""
         import os, numpy as np
-        from kinefuse.io.store.session import SessionStore
-        from kinefuse.camera.intrinsics import Intrinsics
+        from kinefuse.formats.store.session_store import SessionStore
+        from kinefuse.core.camera.intrinsics import Intrinsics
         s = SessionStore.create({str(path)!r})
         s.add_sensor("k0", "A", Intrinsics())
         st = np.full((20, 25), 2, np.int8)
@@ -574,7 +579,7 @@ def test_real_kinect_frames_round_trip(tmp_path: Path) -> None:
 
 
 def test_client_occlusion_flags_and_reading_since_a_sequence(tmp_path, rng) -> None:
-    from kinefuse.skeleton import N_JOINTS
+    from kinefuse.core.skeleton import N_JOINTS
 
     with SessionStore.create(tmp_path / "s.sqlite") as st:
         st.add_sensor("k0", "S0", Intrinsics())

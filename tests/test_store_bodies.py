@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import BodyFrames
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import BodyFrames
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.formats.store.session_store import SessionStore
 
 
 def _rows(rng: np.random.Generator, n: int, seq: np.ndarray, occluded: bool):
@@ -141,7 +141,7 @@ def test_a_stream_in_all_bodies_form_round_trips(tmp_path, rng):
 def test_a_stored_session_replays_every_body(tmp_path, rng):
     """What a replayed session (``sim:`` and ``session:`` sources) hands its client: each frame
     once, with its other bodies."""
-    from kinefuse.pipeline.sources import SessionReplay
+    from kinefuse.pipeline.frame_sources import SessionReplay
 
     seq = np.array([0, 0, 1, 2, 2, 2])
     t, j, st, _, _ = _rows(rng, 6, seq, False)

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.analysis.gait import CYCLE_S, cycle_curves, foot_strikes
-from kinefuse.cli import main
+from kinefuse.app.cli import main
+from kinefuse.app.workflows.study import find_trials, run_study
+from kinefuse.biomech.gait import CYCLE_S, cycle_curves, foot_strikes
 from kinefuse.errors import InputError
-from kinefuse.workflows.study import find_trials, run_study
 
 OPENSIM = (
     "Pipelines_Rajagopal_ExpData_motion_capture_walk.trc",
@@ -159,7 +159,7 @@ def test_options_of_one_trial_are_refused_for_a_study(
 
 
 def test_foot_strikes_on_a_real_walk_and_none_on_a_static_trial(shared_data: Path) -> None:
-    from kinefuse.workflows.analyze import load_input
+    from kinefuse.app.workflows.analyze import load_input
 
     walk = load_input(shared_data / "motion" / "cmu" / "02_walk_a.amc")
     events = foot_strikes(walk.seq)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kinefuse.capture.sync import assemble_latest, estimate_clock, probe_offsets
+from kinefuse.capture.sync.assembly import interp_neighbours, interpolate, latest_in_window
 from kinefuse.errors import SyncError
 from kinefuse.sim.clock import ClockParams, capture_times, clock_probes, draw_clock
-from kinefuse.sync import assemble_latest, estimate_clock, probe_offsets
-from kinefuse.sync.assembly import interp_neighbours, interpolate, latest_in_window
 
 
 def test_probe_formulas_match_the_paper() -> None:

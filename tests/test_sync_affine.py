@@ -1,4 +1,4 @@
-"""kinefuse.sync.affine.AffineClock: the one affine clock map, and the classes that hold it.
+"""kinefuse.core.affine_clock.AffineClock: the one affine clock map, and the classes that hold it.
 
 The equivalence tests write out each holder's formula as it was before the holder delegated to
 :class:`AffineClock`, and check the holder against it on seeded random clocks and times: bit for
@@ -11,14 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.evaluation.live import PlaybackTruth
-from kinefuse.net.client.clocks import HostClock
+from kinefuse.capture.sync.device import DeviceClockEstimate, SensorTimebase
+from kinefuse.capture.sync.envelope import ClockFit
+from kinefuse.capture.sync.ntp import ClockEstimate
+from kinefuse.capture.sync.online import OnlineClock, OnlineEstimate
+from kinefuse.core.affine_clock import AffineClock
+from kinefuse.lab.live_truth import PlaybackTruth
+from kinefuse.live.client.clocks import HostClock
 from kinefuse.sim.clock import SensorClock, SensorClocks
-from kinefuse.sync.affine import AffineClock
-from kinefuse.sync.device import DeviceClockEstimate, SensorTimebase
-from kinefuse.sync.envelope import ClockFit
-from kinefuse.sync.ntp import ClockEstimate
-from kinefuse.sync.online import OnlineClock, OnlineEstimate
 
 N_CASES = 50
 

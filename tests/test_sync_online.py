@@ -13,10 +13,10 @@ import re
 import numpy as np
 import pytest
 
+from kinefuse.capture.sync import OnlineClock, OnlineClockParams, ProbeStatus, estimate_clock
 from kinefuse.errors import SyncError
 from kinefuse.sim.clock import ClockParams, SensorClock, clock_probes, draw_clock
 from kinefuse.sim.probes import NETWORKS, asymmetric_probes, random_clock, replay
-from kinefuse.sync import OnlineClock, OnlineClockParams, ProbeStatus, estimate_clock
 
 WARMUP_S = 5.0
 

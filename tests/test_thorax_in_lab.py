@@ -1,7 +1,7 @@
 """A capture without a pelvis (the upper-limb ISB set) gets trunk angles: ISB's thorax relative
 to the lab (``thorax_extension``, ``thorax_lateral_bend``, ``thorax_rotation``; the vertical and
 the thorax's heading at the start of the motion), and its status says so. The set is placed on
-real CMU clips (kinefuse.evaluation.marker_placement), whose true thorax motion is known."""
+real CMU clips (kinefuse.lab.marker_placement), whose true thorax motion is known."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.cli.main import main
-from kinefuse.evaluation.marker_placement import marker_trial, write_trc
-from kinefuse.workflows.analyze import load_input
+from kinefuse.app.cli.main import main
+from kinefuse.app.workflows.analyze import load_input
+from kinefuse.lab.marker_placement import marker_trial, write_trc
 from test_marker_sets import START_STOP, THORAX_2, WALK, prefixed, write_trial
 
 THORAX = ("thorax_extension", "thorax_lateral_bend", "thorax_rotation")

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from kinefuse.cli.main import build_parser
+from kinefuse.app.cli.main import build_parser
+from kinefuse.app.workflows.serve import token_from
 from kinefuse.errors import InputError
-from kinefuse.workflows.serve import token_from
 
 
 def test_the_token_is_read_from_a_file_or_the_environment(tmp_path, monkeypatch) -> None:

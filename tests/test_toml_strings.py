@@ -13,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.toml import toml_str
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import look_at
-from kinefuse.io.toml import toml_str
 from kinefuse.sim.rig import Rig, SensorSpec, parse_rig, rig_to_toml
 
 NASTY = [
@@ -104,7 +104,7 @@ def test_rig_to_toml_round_trips_any_id(ids: list[str], serial: str) -> None:
 def test_calibration_file_round_trips_any_id_serial_method_and_world(
     ids: list[str], serial: str, method: str, world: str
 ) -> None:
-    from kinefuse.calibration.calib_file import (
+    from kinefuse.capture.calibration.calib_file import (
         CalibrationFile,
         SensorCalibration,
         dumps_calibration,
@@ -139,7 +139,7 @@ def test_calibration_file_round_trips_any_id_serial_method_and_world(
 
 
 def test_retarget_hint_quotes_source_joint_names() -> None:
-    from kinefuse.motion.retarget import _spec_toml
+    from kinefuse.biomech.retarget import _spec_toml
 
     names = ['Hip"s', "back\\slash", "new\nline"]
     for term in (

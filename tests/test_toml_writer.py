@@ -16,16 +16,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kinefuse.calibration.calib_file import (
+from kinefuse.capture.calibration.calib_file import (
     CalibrationFile,
     SensorCalibration,
     dumps_calibration,
     read_calibration,
 )
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.toml import dumps_toml
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import look_at
-from kinefuse.io.toml import dumps_toml
 from kinefuse.sim.rig import load_rig, parse_rig, rig_to_toml
 
 DATA = Path(__file__).parent / "data"

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.app.workflows.track import track_recordings
+from kinefuse.core.skeleton import TrackingState
 from kinefuse.devices.mkv import MkvRecording
 from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.errors import InputError
-from kinefuse.io.store.session import SessionStore
-from kinefuse.skeleton import TrackingState
-from kinefuse.workflows.track import track_recordings
+from kinefuse.formats.store.session_store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = ROOT / "tests" / "plugins"
@@ -167,8 +167,8 @@ def test_motion_lag_recovers_a_clock_offset_from_the_trunk_speed_alone() -> None
 
     from scipy.spatial.transform import Rotation
 
-    from kinefuse.motion import load_motion
-    from kinefuse.workflows.track import motion_lag_s
+    from kinefuse.app.workflows.track import motion_lag_s
+    from kinefuse.formats.motion import load_motion
 
     m = load_motion(str(files("kinefuse") / "data" / "01_01.amc.gz"))
     rng = np.random.default_rng(11)

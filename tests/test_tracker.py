@@ -8,10 +8,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.raycast import ray_capsules, ray_capsules_batched
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform, look_at
+from kinefuse.core.skeleton import (
+    JOINT_INDEX,
+    JOINTS,
+    MIRROR_INDEX,
+    N_JOINTS,
+    TrackingState,
+    capsule_radii,
+)
 from kinefuse.errors import InputError
-from kinefuse.geometry.raycast import ray_capsules, ray_capsules_batched
-from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.sim.tracker import (
     JOINT_GROUPS,
     SessionLatent,
@@ -23,14 +31,6 @@ from kinefuse.sim.tracker import (
     draw_subject_bias,
     per_joint,
     simulate_tracker,
-)
-from kinefuse.skeleton import (
-    JOINT_INDEX,
-    JOINTS,
-    MIRROR_INDEX,
-    N_JOINTS,
-    TrackingState,
-    capsule_radii,
 )
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -72,8 +72,8 @@ def walk() -> np.ndarray:
     """Real walking motion (CMU 02_walk_a) at 30 Hz, centred on the lab origin, walking +x."""
     if not WALK.is_file():
         pytest.skip(f"real motion not found at {WALK}")
-    from kinefuse.evaluation.realism import walking_passes
-    from kinefuse.motion import load_motion
+    from kinefuse.formats.motion import load_motion
+    from kinefuse.lab.realism import walking_passes
 
     m = walking_passes(load_motion(WALK), [0.0], half_length_m=1.0)[0]
     return m.at(np.arange(0.0, m.duration_s, 1.0 / 30.0))
@@ -380,7 +380,7 @@ def test_coherent_errors_bend_the_knee_less(walk: np.ndarray) -> None:
     """The same per-joint error, coherent along the leg: the knee is as far off, its angle is
     not (the real sensors' knee and elbow angles agree 2-3x better than independent per-joint
     errors allow, docs/realism.md)."""
-    from kinefuse.pipeline.analysis import hinge_angle_deg
+    from kinefuse.pipeline.analysis_chain import hinge_angle_deg
 
     s2w = sensor_at(2.5, 0.0)
     steps = np.concatenate([walk, walk[::-1]] * 20)  # 1,480 frames: the knee bent and straight

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.geometry.transforms import look_at
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.skeleton import JOINT_INDEX, capsule_radii, standing_pose
 from kinefuse.sim.tracker import draw_subject_bias, simulate_tracker
 from kinefuse.sim.tracker_failures import LIMB_CHAINS, ROOT_WEIGHT, draw_quality, gross_failures
 from kinefuse.sim.tracker_params import LIGHT, TrackerParams, light_tracker
-from kinefuse.skeleton import JOINT_INDEX, capsule_radii, standing_pose
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "tests" / "data" / "realism_population_real.json"
@@ -140,8 +140,8 @@ def test_a_subject_seed_keeps_its_quality_across_sessions() -> None:
 
 
 def test_the_cached_real_figures_match_the_data(shared_data: Path) -> None:
-    from kinefuse.evaluation.realism_takes import pair_figures, real_pair
-    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.lab.realism_takes import pair_figures, real_pair
 
     folder = shared_data / "kinect" / "kinect_multitrack_population"
     if not folder.is_dir():
@@ -157,9 +157,9 @@ def test_the_cached_real_figures_match_the_data(shared_data: Path) -> None:
 def test_real_tails_of_a_take(shared_data: Path) -> None:
     """The measurement on one real take: thrown limbs about once a second, mostly short, one
     sensor alone at the onset more often than not."""
-    from kinefuse.evaluation.realism_tails import GROSS_M, take_tails
-    from kinefuse.evaluation.realism_takes import real_pair
-    from kinefuse.io.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.formats.kinect_multitrack import read_kinect_multitrack
+    from kinefuse.lab.realism_tails import GROSS_M, take_tails
+    from kinefuse.lab.realism_takes import real_pair
 
     path = next((shared_data / "kinect" / "kinect_multitrack").glob("Study_4_Kinect_0_*.csv"))
     t = take_tails(real_pair(read_kinect_multitrack(path)))

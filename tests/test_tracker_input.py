@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform, look_at
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.k4abt import K4abtTracker
 from kinefuse.devices.mkv import MkvRecording
@@ -24,9 +25,8 @@ from kinefuse.devices.pose.tracker import PoseTracker
 from kinefuse.devices.sources import CameraFrameSource
 from kinefuse.devices.trackers import TrackerResult
 from kinefuse.devices.undistort import distort_normalized, undistort_pixels
-from kinefuse.evaluation.pose_lift import true_landmarks
-from kinefuse.geometry.transforms import apply_transform, invert_transform, look_at
-from kinefuse.motion.load import load_motion
+from kinefuse.formats.motion.load import load_motion
+from kinefuse.lab.pose_lift import true_landmarks
 from kinefuse.sim.depth import Scene, render_depth
 
 pytest.importorskip("av")

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.trackers import TrackerResult
 from kinefuse.devices.worker import TrackerWorker

@@ -5,10 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.errors import InputError
-from kinefuse.fusion.status import FusionStatus, is_solved, status_counts
-from kinefuse.fusion.trilateration import (
+from kinefuse.capture.fusion.status import FusionStatus, is_solved, status_counts
+from kinefuse.capture.fusion.trilateration import (
     METHODS,
     fuse_geometric,
     fuse_linear,
@@ -22,8 +20,10 @@ from kinefuse.fusion.trilateration import (
     to_world,
     trilaterate,
 )
-from kinefuse.geometry.transforms import invert_transform, look_at, make_transform
-from kinefuse.skeleton import N_JOINTS, TrackingState
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import invert_transform, look_at, make_transform
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
+from kinefuse.errors import InputError
 
 SPREAD = (0.5, 2.0, 1.0, 2.4)  # sensor heights, metres: well out of one plane
 LEVEL = (1.0, 1.07, 1.13, 1.2)  # a typical level rig: nearly coplanar
@@ -203,7 +203,7 @@ def test_paper_detects_occlusion_with_intrinsics():
     selection written out here and scipy's least squares on the selected spheres."""
     from scipy.optimize import least_squares
 
-    from kinefuse.occlusion.segments import detect_occlusion_sensors
+    from kinefuse.capture.occlusion.segments import detect_occlusion_sensors
 
     rng = np.random.default_rng(17)
     s2w = rig(SPREAD)

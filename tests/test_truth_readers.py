@@ -1,14 +1,14 @@
 """Only the evaluation reads the simulator's truth.
 
 A simulated session keeps its ground truth in the ``truth_*`` tables, read through
-``SessionStore.truth()`` (:mod:`kinefuse.io.store.truth`). Three rooms may touch it: the store
+``SessionStore.truth()`` (:mod:`kinefuse.formats.store.truth`). Three rooms may touch it: the store
 that holds it (``io.store``), the simulator that writes it and plays its sensors back from it
 (``sim``), and the evaluation that scores against it (``evaluation``). Anything else that read it
 would measure itself against the answer. ``has_truth()`` (whether a session is a simulation) is
 not a read: it lets a command hand the session to the evaluation.
 
 The check reads every module's source (AST): a call ``x.truth()``, an import of
-``kinefuse.io.store.truth`` or of its ``Truth``, or a SQL string naming a ``truth_`` table.
+``kinefuse.formats.store.truth`` or of its ``Truth``, or a SQL string naming a ``truth_`` table.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "kinefuse"
-ALLOWED = ("kinefuse.evaluation", "kinefuse.sim", "kinefuse.io.store")
+ALLOWED = ("kinefuse.lab", "kinefuse.sim", "kinefuse.formats.store")
 _SQL = re.compile(r"\b(FROM|JOIN|INTO|UPDATE)\s+truth_\w+", re.IGNORECASE)
 
 
@@ -43,16 +43,16 @@ def truth_reads(source: str) -> list[str]:
             found.append(f"{line}: calls .truth()")
         elif isinstance(node, ast.ImportFrom) and node.module:
             names = {a.name for a in node.names}
-            if node.module == "kinefuse.io.store.truth" or (
-                node.module == "kinefuse.io.store" and "truth" in names
+            if node.module == "kinefuse.formats.store.truth" or (
+                node.module == "kinefuse.formats.store" and "truth" in names
             ):
                 found.append(f"{line}: imports {node.module}")
-            elif "Truth" in names and node.module.startswith("kinefuse.io.store"):
+            elif "Truth" in names and node.module.startswith("kinefuse.formats.store"):
                 found.append(f"{line}: imports Truth")
         elif isinstance(node, ast.Import) and any(
-            a.name == "kinefuse.io.store.truth" for a in node.names
+            a.name == "kinefuse.formats.store.truth" for a in node.names
         ):
-            found.append(f"{line}: imports kinefuse.io.store.truth")
+            found.append(f"{line}: imports kinefuse.formats.store.truth")
         elif (
             isinstance(node, ast.Constant)
             and isinstance(node.value, str)
@@ -74,7 +74,7 @@ def test_no_truth_read_outside_evaluation_sim_and_the_store() -> None:
 
 def test_the_allowed_rooms_do_read_it() -> None:
     """The check sees real reads: the evaluation's and the simulator's are found."""
-    for rel in ("evaluation/fusion.py", "sim/clock.py"):
+    for rel in ("lab/fusion_truth.py", "sim/clock.py"):
         assert truth_reads((SRC / rel).read_text(encoding="utf-8")), rel
 
 
@@ -82,9 +82,9 @@ def test_the_allowed_rooms_do_read_it() -> None:
     "planted",
     [
         "def f(store):\n    return store.truth().motion()\n",
-        "from kinefuse.io.store.truth import Truth\n",
-        "from kinefuse.io.store import truth\n",
-        "import kinefuse.io.store.truth\n",
+        "from kinefuse.formats.store.truth import Truth\n",
+        "from kinefuse.formats.store import truth\n",
+        "import kinefuse.formats.store.truth\n",
         'Q = "SELECT t_s FROM truth_motion ORDER BY t_s"\n',
     ],
 )

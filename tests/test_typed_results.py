@@ -1,5 +1,5 @@
 """Every command's workflow returns a typed result, never a bare dict: each ``run_*`` of
-``workflows/`` and ``pipeline/`` (and ``track_recordings``, ``fuse_multitrack``: the entries of
+``app/workflows/`` and ``pipeline/`` (and ``track_recordings``, ``fuse_multitrack``: the entries of
 ``kinefuse track`` and ``kinefuse realdata``) has a return annotation, and it is not
 ``dict``/``Mapping``."""
 
@@ -35,7 +35,7 @@ def bare_dict_returns(source: str, where: str) -> list[str]:
 
 
 def test_no_workflow_returns_a_bare_dict() -> None:
-    files = sorted([*SRC.glob("workflows/*.py"), *SRC.glob("pipeline/*.py")])
+    files = sorted([*SRC.glob("app/workflows/*.py"), *SRC.glob("pipeline/*.py")])
     assert len(files) > 15
     bad = [b for f in files for b in bare_dict_returns(f.read_text(encoding="utf-8"), f.name)]
     assert bad == []

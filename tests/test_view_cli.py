@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.cli.main import main
+from kinefuse.app.cli.main import main
 
 TIMEOUT_S = 30.0
 

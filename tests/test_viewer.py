@@ -12,14 +12,14 @@ import aiohttp
 import numpy as np
 import pytest
 
-from kinefuse.cli import main
-from kinefuse.fusion.status import FusionStatus
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import FusedFrame, Publisher, SensorInfo, Status
-from kinefuse.viewer import live_viewer, serve
-from kinefuse.viewer.replay import ReplaySource
-from kinefuse.viewer.session_data import load_session_view
-from kinefuse.viewer.wire import FUSED, RAW, TRUTH, Layer, decode_frame, encode_frame
+from kinefuse.app.cli import main
+from kinefuse.capture.fusion.status import FusionStatus
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import FusedFrame, Publisher, SensorInfo, Status
+from kinefuse.live.viewer import live_viewer, serve
+from kinefuse.live.viewer.replay import ReplaySource
+from kinefuse.live.viewer.session_data import load_session_view
+from kinefuse.live.viewer.wire import FUSED, RAW, TRUTH, Layer, decode_frame, encode_frame
 
 TIMEOUT_S = 10.0
 
@@ -88,7 +88,7 @@ def _status(n: int = 4) -> Status:
 
 def test_frame_round_trips_and_stays_small(rng) -> None:
     f = _frame(7, sensors=8, rng=rng)
-    from kinefuse.viewer.wire import fused_frame_bytes
+    from kinefuse.live.viewer.wire import fused_frame_bytes
 
     data = fused_frame_bytes(f, method="best-live")
     assert len(data) < 3000  # a few kB at 30 Hz: 8 sensors + fused, about 2.9 kB
@@ -328,8 +328,8 @@ def test_view_prints_its_url_and_stops_cleanly_on_ctrl_c(session) -> None:
 
 def test_the_status_message_shows_stale_frames_and_floor_errors() -> None:
     """What the operator must act on reaches the page and the API, not only the log."""
-    from kinefuse.protocol.messages import SensorInfo, Status
-    from kinefuse.viewer.wire import status_message
+    from kinefuse.live.protocol.messages import SensorInfo, Status
+    from kinefuse.live.viewer.wire import status_message
 
     info = SensorInfo("k0", True, 1.0, 0.1, 0.01, 30.0, 5.0, 0.9, None, "no plane", 7)
     msg = status_message(Status(sensors=(info,), recording="/srv/data/take.sqlite"))

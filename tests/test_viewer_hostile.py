@@ -24,10 +24,10 @@ from pathlib import Path
 import aiohttp
 
 import test_server_safety as safety
-from kinefuse.net.bus import Publisher
-from kinefuse.protocol import Welcome
-from kinefuse.viewer import live_viewer
-from kinefuse.viewer.api import API_PATH
+from kinefuse.live.bus import Publisher
+from kinefuse.live.protocol import Welcome
+from kinefuse.live.viewer import live_viewer
+from kinefuse.live.viewer.subscription_api import API_PATH
 
 ROOT = Path(__file__).resolve().parents[1]
 _VIEWER = re.compile(r"viewer at http://127\.0\.0\.1:(\d+)/")
@@ -201,9 +201,9 @@ def test_accept_failures_are_counted_in_one_line_not_a_traceback_each(tmp_path) 
     code = f"""
 import asyncio, logging, resource, sys
 sys.path.insert(0, {str(ROOT / "src")!r})
-from kinefuse.net.bus import Publisher
-from kinefuse.viewer import live_viewer
-from kinefuse.viewer.guard import PortLimits
+from kinefuse.live.bus import Publisher
+from kinefuse.live.viewer import live_viewer
+from kinefuse.live.viewer.port_limits import PortLimits
 logging.basicConfig(stream=sys.stderr, format="%(message)s")
 resource.setrlimit(resource.RLIMIT_NOFILE, (64, 64))
 async def main():

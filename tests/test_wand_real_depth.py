@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kinefuse.calibration.wand_robust import detect_wand
-from kinefuse.camera.wand import Wand
+from kinefuse.capture.calibration.wand_robust import detect_wand
+from kinefuse.core.camera.wand import Wand
 from kinefuse.devices.mkv import MkvRecording
 from kinefuse.sim.depth import Scene, SurfaceLabel, render_depth, render_geometry
 

@@ -2,7 +2,7 @@
 
 from mkdocs.structure.files import File
 
-from kinefuse.cli.reference import render
+from kinefuse.app.cli.cli_reference import render
 
 
 def on_files(files, config):  # noqa: ANN001, ANN201 (mkdocs' hook signature)

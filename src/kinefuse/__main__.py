@@ -1,5 +1,5 @@
 """`python -m kinefuse`: the same as the `kinefuse` command."""
 
-from kinefuse.cli.main import main
+from kinefuse.app.cli.main import main
 
 raise SystemExit(main())

@@ -20,9 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse import _API
+from kinefuse.core.skeleton import JOINTS
 from kinefuse.errors import InputError
-from kinefuse.io.formats.markers import MarkerData
-from kinefuse.skeleton import JOINTS
+from kinefuse.formats.markers import MarkerData
 
 __all__ = [*_API]  # the names the package re-exports, listed once there
 
@@ -40,9 +40,9 @@ class Skeleton:
     positions_m : (T, J, 3) float
         Joint centres, metres, z-up world; NaN where a joint is missing.
     joint_names : tuple of str
-        The ``J`` joints (``kinefuse.skeleton.JOINTS`` order).
+        The ``J`` joints (``kinefuse.core.skeleton.JOINTS`` order).
     status : (T, J) int8 or None
-        The fusion's per-joint status (``kinefuse.fusion.status.FusionStatus``) for a fused
+        The fusion's per-joint status (``kinefuse.capture.fusion.status.FusionStatus``) for a fused
         session; None for a clip.
     source : str
         Where it came from (the file, the method, the calibration).
@@ -68,7 +68,7 @@ class Skeleton:
         """Write the skeleton as ``.c3d``, ``.trc``, ``.csv`` or ``.bvh`` (by the extension),
         through a temporary file and an atomic rename; a file kinefuse did not write is never
         replaced. TRC files are Y up for OpenSim unless ``trc_axes="z-up"``."""
-        from kinefuse.io.formats.export import check_export_path, export_skeleton
+        from kinefuse.formats.export import check_export_path, export_skeleton
 
         out = check_export_path(path)
         export_skeleton(out, self.t_s, self.positions_m, trc_axes=trc_axes)
@@ -82,7 +82,7 @@ class Session:
     """
 
     def __init__(self, path: str | Path) -> None:
-        from kinefuse.io.store.session import SessionStore
+        from kinefuse.formats.store.session_store import SessionStore
 
         self.path = Path(path)
         self._store = SessionStore.open(self.path)
@@ -117,9 +117,9 @@ class Session:
         allow_incomplete: bool = False,
     ) -> Skeleton:
         """One skeleton from all sensors (``kinefuse fuse``), as ``fuse``."""
-        from kinefuse.evaluation.poses import resolve_poses
-        from kinefuse.fusion.methods import METHODS
-        from kinefuse.pipeline.session import (
+        from kinefuse.capture.fusion.methods import METHODS
+        from kinefuse.lab.poses import resolve_poses
+        from kinefuse.pipeline.store_inputs import (
             clip_grid,
             frame_grid,
             load_usable_sensors,
@@ -187,7 +187,7 @@ def fuse(
 
 def load_clip(path: str | Path, *, skeleton: str | Path | None = None) -> Skeleton:
     """A motion clip (``.bvh``, or ``.amc`` with its ``.asf``) retargeted onto the 25 joints."""
-    from kinefuse.motion.load import load_motion
+    from kinefuse.formats.motion.load import load_motion
 
     motion = load_motion(path, skeleton=skeleton)
     t_s = np.arange(motion.positions.shape[0]) / motion.rate_hz
@@ -196,7 +196,7 @@ def load_clip(path: str | Path, *, skeleton: str | Path | None = None) -> Skelet
 
 def load_markers(path: str | Path) -> MarkerData:
     """Marker trajectories from a ``.trc`` or ``.c3d`` file, in metres in a z-up world."""
-    from kinefuse.io.formats.markers import read_markers
+    from kinefuse.formats.markers import read_markers
 
     return read_markers(path)
 
@@ -286,7 +286,7 @@ def analyze(
     ``static``: a static trial (marker files) for the anatomical (ISB) angles; ``names``:
     ``"opensim"`` for OpenSim's coordinate names and signs in ``angles.mot``.
     """
-    from kinefuse.workflows.analyze import run_analyze
+    from kinefuse.app.workflows.analyze import run_analyze
 
     inputs: Sequence[Path] = [Path(path)]
     result = run_analyze(

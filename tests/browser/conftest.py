@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
 
 CHROMIUM = Path("/usr/bin/chromium")
 

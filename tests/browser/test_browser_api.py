@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.viewer.api import API_PATH
-from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening, sensor_args
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.live.viewer.subscription_api import API_PATH
 
 TOKEN = "5b7d9f1a3c5e7a9b2d4f6a8c0e1b3d5f7a9c2e4b6d8f0a1c3e5b7d9f2a4c6e8b"  # 256 bits
 _VIEWER = re.compile(r"viewer at (http://\S+)/")

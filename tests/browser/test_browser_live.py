@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from kinefuse.workflows.demo import ChildProcesses, parse_listening, sensor_args
-from kinefuse.workflows.simulate import demo_clip_path, run_simulate
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening, sensor_args
+from kinefuse.app.workflows.simulate import demo_clip_path, run_simulate
 
 _VIEWER = re.compile(r"viewer at (http://\S+)")
 

@@ -14,9 +14,9 @@ from typing import Any
 
 import pytest
 
-from kinefuse.net.bus import FusedFrame, Publisher
-from kinefuse.net.server.fusion_loop import FrameFusion
-from kinefuse.viewer import live_viewer
+from kinefuse.live.bus import FusedFrame, Publisher
+from kinefuse.live.server.fusion_loop import FrameFusion
+from kinefuse.live.viewer import live_viewer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from people_scene import RATE, observation, two_people

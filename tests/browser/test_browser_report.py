@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
 
 
 def test_report_opens_offline_with_every_image_loaded(calibrated_session, tmp_path, page) -> None:

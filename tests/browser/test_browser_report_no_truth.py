@@ -7,7 +7,7 @@ import json
 import shutil
 import sqlite3
 
-from kinefuse.cli import main
+from kinefuse.app.cli import main
 
 
 def test_consistency_report_opens_offline(calibrated_session, tmp_path, page) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from kinefuse.workflows.demo import ChildProcesses, parse_listening
+from kinefuse.app.workflows.demo import ChildProcesses, parse_listening
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "plugins"))

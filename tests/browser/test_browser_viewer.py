@@ -9,12 +9,12 @@ from typing import Any
 
 import pytest
 
-from kinefuse.io.store.session import SessionStore
-from kinefuse.net.bus import Publisher
-from kinefuse.viewer import live_viewer, serve
-from kinefuse.viewer.feed import publish_session
-from kinefuse.viewer.replay import ReplaySource
-from kinefuse.viewer.session_data import load_session_view
+from kinefuse.formats.store.session_store import SessionStore
+from kinefuse.live.bus import Publisher
+from kinefuse.live.viewer import live_viewer, serve
+from kinefuse.live.viewer.feed import publish_session
+from kinefuse.live.viewer.replay import ReplaySource
+from kinefuse.live.viewer.session_data import load_session_view
 
 
 class LiveRig:

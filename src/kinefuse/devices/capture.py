@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
 
 __all__ = ["CameraCalibration", "Capture"]
 

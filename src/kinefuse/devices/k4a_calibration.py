@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration
 from kinefuse.errors import InputError
 

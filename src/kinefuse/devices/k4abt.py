@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from kinefuse.core.skeleton import TrackingState
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.k4a_calibration import COLOR_MODES, DEPTH_MODES
 from kinefuse.devices.trackers import TrackedBody, TrackerResult, TrackerUnavailable
 from kinefuse.errors import InputError
-from kinefuse.skeleton import TrackingState
 
 __all__ = ["K4ABT_TO_KINECT_V2", "K4abtTracker", "make", "skeleton_to_body", "state_of_confidence"]
 

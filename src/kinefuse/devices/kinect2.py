@@ -19,17 +19,17 @@ from typing import Any
 
 import numpy as np
 
-from kinefuse.camera.intrinsics import (
+from kinefuse.core.camera.intrinsics import (
     KINECT_V2_DEPTH_HEIGHT,
     KINECT_V2_DEPTH_WIDTH,
     KINECT_V2_MAX_RANGE_M,
     KINECT_V2_MIN_RANGE_M,
     Intrinsics,
 )
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.trackers import TrackedBody, TrackerResult
 from kinefuse.errors import InputError
-from kinefuse.skeleton import N_JOINTS, TrackingState
 
 __all__ = ["KINECT_CAMERA_TO_SENSOR", "Kinect2Camera", "bodies_to_result", "open_kinect2"]
 

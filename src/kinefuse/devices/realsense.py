@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.errors import InputError
 

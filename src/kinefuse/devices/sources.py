@@ -1,5 +1,5 @@
 """Cameras as sensor sources: a camera (live or a recording) plus an optional body tracker
-becomes the :class:`~kinefuse.frames.source.FrameSource` a sensor client plays.
+becomes the :class:`~kinefuse.core.frames.source.FrameSource` a sensor client plays.
 
 A *camera* is what a device module opens (:class:`Camera`: its calibration, serial, whether it
 is live, and its captures). Camera kinds are entry points of the group ``kinefuse.cameras``
@@ -33,7 +33,9 @@ from urllib.parse import parse_qsl
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.frames.observations import MAX_BODIES, BodyFrame, DepthFrame, Frame
+from kinefuse.core.skeleton import N_JOINTS, TrackingState
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.trackers import (
     TrackedBody,
@@ -45,8 +47,6 @@ from kinefuse.devices.trackers import (
 from kinefuse.devices.undistort import DepthUndistorter
 from kinefuse.devices.worker import TrackerWorker
 from kinefuse.errors import InputError
-from kinefuse.frames.observations import MAX_BODIES, BodyFrame, DepthFrame, Frame
-from kinefuse.skeleton import N_JOINTS, TrackingState
 
 __all__ = [
     "CAMERA_GROUP",
@@ -242,7 +242,7 @@ def nearest_body(result: TrackerResult) -> TrackedBody | None:
 def frame_bodies(result: TrackerResult) -> tuple[TrackedBody, ...]:
     """Every body of a tracker result that has a present joint: the nearest first (the body
     kinefuse has always taken, :func:`nearest_body`), then the others in the tracker's order;
-    at most :data:`~kinefuse.frames.observations.MAX_BODIES`."""
+    at most :data:`~kinefuse.core.frames.observations.MAX_BODIES`."""
     first = nearest_body(result)
     if first is None:
         return ()

@@ -46,10 +46,10 @@ class TrackedBody:
     body_id : int
         The tracker's own id for this body (kept while it tracks it; a new id after a loss).
     joints_m : (25, 3) float
-        The 25 Kinect v2 joints (:data:`kinefuse.skeleton.JOINTS` order) in the depth camera's
+        The 25 Kinect v2 joints (:data:`kinefuse.core.skeleton.JOINTS` order) in the depth camera's
         frame (x right, y down, z forward), metres; NaN where not tracked.
     states : (25,) int8
-        :class:`~kinefuse.skeleton.TrackingState` per joint.
+        :class:`~kinefuse.core.skeleton.TrackingState` per joint.
     confidence : (25,) float or None
         The tracker's own per-joint confidence in [0, 1], when it has one.
     """

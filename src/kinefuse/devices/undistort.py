@@ -1,6 +1,6 @@
 """Depth images resampled to the undistorted pinhole camera kinefuse works with.
 
-kinefuse models a depth camera as a pinhole (:class:`~kinefuse.camera.intrinsics.Intrinsics`);
+kinefuse models a depth camera as a pinhole (:class:`~kinefuse.core.camera.intrinsics.Intrinsics`);
 a device whose lens is distorted (the Azure Kinect: its factory calibration's Brown-Conrady
 model with rational radial terms) gives images in which a pixel's ray is not the pinhole's.
 :class:`DepthUndistorter` builds, once per calibration, for every pixel of the pinhole image
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.devices.capture import CameraCalibration
 
 __all__ = ["DepthUndistorter", "distort_normalized", "undistort_pixels"]

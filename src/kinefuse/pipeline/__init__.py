@@ -1,7 +1,10 @@
-"""The batch path: a stored session -> the core's inputs -> results (``session.py``: load the
-sensors with their clocks and occlusion flags, gather the calibration phase, run a method), frame
-sources by spec (``sources.py``: a stored session, a real log, a simulated sensor) and the analysis
-chain as the commands run it (``analysis.py``).
+"""The batch path: a stored session -> the capture core's inputs -> results.
 
-May import every room below it (the core, ``io``, ``sim``); read by evaluation, net and
-workflows."""
+``store_inputs.py`` loads the sensors with their clocks and occlusion flags, gathers the
+calibration phase and runs a method; ``frame_sources.py`` opens frame sources by spec (a stored
+session, a real log, a simulated sensor); ``analysis_chain.py`` is the analysis chain as the
+commands run it; ``screen.py`` screens the sensors of a session.
+
+May import every room below it (core, capture, biomech, formats, sim, devices); read by lab,
+live and app.
+"""

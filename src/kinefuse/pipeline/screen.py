@@ -5,10 +5,10 @@ calibrated, a client whose clock was never set, frames stamped 1e12 s from the r
 that may stop the offline commands from working on the sensors that recorded properly. This
 module screens a store's sensors on their time stamps alone (nothing else is read): each
 sensor's capture times are put on the server clock as every command does (device -> host ->
-server, :func:`kinefuse.sync.sensor_timebase`) and compared with the span the server itself saw
-the recording take (its own stamps: the clock probes' send and receive times, the frames' arrival
-times, the phases in the metadata). A sensor whose frames lie mostly outside that span is left
-out, named with the reason; a usable sensor's few stray frames are dropped and counted.
+server, :func:`kinefuse.capture.sync.sensor_timebase`) and compared with the span the server itself
+saw the recording take (its own stamps: the clock probes' send and receive times, the frames'
+arrival times, the phases in the metadata). A sensor whose frames lie mostly outside that span is
+left out, named with the reason; a usable sensor's few stray frames are dropped and counted.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.capture.sync import sensor_timebase
 from kinefuse.errors import KinefuseError
-from kinefuse.io.store.session import SessionStore
-from kinefuse.sync import sensor_timebase
+from kinefuse.formats.store.session_store import SessionStore
 
 Array = NDArray[np.float64]
 

@@ -1,7 +1,9 @@
-"""Sensor models (intrinsics, poses, error models) and the simulated capture lab.
+"""The simulated lab: virtual depth sensors watching real motion capture (the ground truth).
 
-The simulated lab: rigs, device and host clocks, depth rendering with ToF noise, the body-
-tracker error model, the calibration choreography, and the session simulator that writes a
-store.  May import the core and ``io.store`` (it writes sessions); nothing above (formats,
-pipeline, evaluation, net, workflows).
+Rigs, device and host clocks, depth rendering with ToF noise, the body-tracker error model, the
+calibration choreography, and the session simulator that writes a store.
+
+May import the rooms below it (:mod:`kinefuse.core`, :mod:`kinefuse.capture`,
+:mod:`kinefuse.biomech`, :mod:`kinefuse.formats`); nothing above (devices, pipeline, lab, live,
+app).
 """

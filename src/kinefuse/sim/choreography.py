@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.wand import Wand
-from kinefuse.geometry.raycast import ray_capsules
-from kinefuse.geometry.rotations import rot_z
-from kinefuse.skeleton import JOINT_INDEX, bone_index_array, capsule_radii
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.geometry.raycast import ray_capsules
+from kinefuse.core.geometry.rotations import rot_z
+from kinefuse.core.skeleton import JOINT_INDEX, bone_index_array, capsule_radii
 
 Array = NDArray[np.float64]
 

@@ -16,8 +16,8 @@ real Kinect v2 has two clocks that matter, as here:
   between units.
 
 Both stamps are recorded (``t_sensor_s``, ``t_receive_host_s``), as a real client can; the sync
-maps device time to host time from them (:mod:`kinefuse.sync.device`) and host time to server
-time from the probes. Every parameter is in :class:`ClockParams` with its unit and source.
+maps device time to host time from them (:mod:`kinefuse.capture.sync.device`) and host time to
+server time from the probes. Every parameter is in :class:`ClockParams` with its unit and source.
 """
 
 from __future__ import annotations
@@ -29,11 +29,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.core.affine_clock import OffsetDriftClock
 from kinefuse.errors import InputError
-from kinefuse.sync.affine import OffsetDriftClock
 
 if TYPE_CHECKING:
-    from kinefuse.io.store.session import SessionStore
+    from kinefuse.formats.store.session_store import SessionStore
 
 Array = NDArray[np.float64]
 

@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
 from kinefuse.errors import InputError
 from kinefuse.sim.depth_noise import (
     DEFAULT_DEPTH_NOISE,

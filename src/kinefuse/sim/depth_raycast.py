@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.transforms import check_rigid
 from kinefuse.errors import InputError
-from kinefuse.geometry.transforms import check_rigid
 from kinefuse.sim.depth_noise import (
     DEFAULT_DEPTH_NOISE,
     DepthNoiseParams,

@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kinefuse.camera.wand import Wand
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.skeleton import N_JOINTS, bone_index_array, capsule_radii
+from kinefuse.core.skeleton.kinect_v2 import REFERENCE_HEIGHT_M
 from kinefuse.errors import InputError
-from kinefuse.skeleton import N_JOINTS, bone_index_array, capsule_radii
-from kinefuse.skeleton.kinect_v2 import REFERENCE_HEIGHT_M
 
 Array = NDArray[np.float64]
 
@@ -148,7 +148,7 @@ class Scene:
         Parameters
         ----------
         joints_world : (25, 3) float
-            Kinect v2 joints in the world frame, metres (``kinefuse.skeleton.JOINTS`` order).
+            Kinect v2 joints in the world frame, metres (``kinefuse.core.skeleton.JOINTS`` order).
         height_m : float
             The subject's height; scales the capsule radii.
         wand : Wand, optional

@@ -21,14 +21,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinefuse import __version__
-from kinefuse.camera.intrinsics import Intrinsics
-from kinefuse.camera.wand import Wand
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.wand import Wand
+from kinefuse.core.frames.motion import Motion
+from kinefuse.core.frames.observations import BodyFrame, BodyFrames
+from kinefuse.core.geometry.transforms import apply_transform, invert_transform
+from kinefuse.core.outputs import atomic_file
+from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS, capsule_radii
 from kinefuse.errors import InputError, StoreError
-from kinefuse.frames.observations import BodyFrame, BodyFrames
-from kinefuse.geometry.transforms import apply_transform, invert_transform
-from kinefuse.io.outputs import atomic_file
-from kinefuse.io.store.session import SessionStore, is_simulated_session
-from kinefuse.motion.types import Motion
+from kinefuse.formats.store.session_store import SessionStore, is_simulated_session
 from kinefuse.sim.choreography import WandPath, WandProtocol, holding_poses, make_wand_path
 from kinefuse.sim.clock import (
     CaptureTimes,
@@ -47,7 +48,6 @@ from kinefuse.sim.tracker import (
     draw_subject_bias,
     simulate_tracker,
 )
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, capsule_radii
 
 Array = NDArray[np.float64]
 
@@ -200,7 +200,7 @@ class BodyDepthFrame:
 class SensorSimulation:
     """One simulated sensor of a session, frame by frame: what :func:`simulate_session` writes
     for it, and what a live simulated sensor
-    (:class:`kinefuse.pipeline.sources.SimulatedSensorSource`) delivers. The same ``motion``,
+    (:class:`kinefuse.pipeline.frame_sources.SimulatedSensorSource`) delivers. The same ``motion``,
     ``rig``, sensor and ``config`` give the same numbers either
     way (the random streams are the session's: seeded by ``config.seed`` and the sensor's place
     in the rig, consumed in the same order).
@@ -444,10 +444,10 @@ def simulate_session(
 
     Writes one SQLite session store at ``out`` and returns its path. The store is built in a
     temporary file beside ``out`` and renamed into place only when it is whole
-    (:func:`kinefuse.io.outputs.atomic_file`). An existing file is only replaced with
+    (:func:`kinefuse.core.outputs.atomic_file`). An existing file is only replaced with
     ``overwrite=True``, and then only when it is a simulated kinefuse session
-    (:func:`kinefuse.io.store.session.is_simulated_session`): never a recording without ground truth
-    (a live session cannot be simulated again), nor any other file.
+    (:func:`kinefuse.formats.store.session_store.is_simulated_session`): never a recording without
+    ground truth (a live session cannot be simulated again), nor any other file.
     Deterministic: the same inputs and ``config.seed`` give the same observation rows.
 
     ``bystanders`` (already placed, :func:`kinefuse.sim.people.place_bystander`) are persons

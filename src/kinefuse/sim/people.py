@@ -30,10 +30,10 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.core.frames.motion import Motion
+from kinefuse.core.skeleton import JOINT_INDEX
 from kinefuse.errors import InputError
-from kinefuse.motion.types import Motion
 from kinefuse.sim.rig import Rig
-from kinefuse.skeleton import JOINT_INDEX
 
 Array = NDArray[np.float64]
 

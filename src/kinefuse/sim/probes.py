@@ -7,7 +7,7 @@ bound). :func:`asymmetric_probes`: the client's clock is any map of true -> clie
 0.4 ms plus an exponential queueing delay, with the server-to-client direction the worse one by
 default (mean 3 ms against 1 ms), and 5 % of the requests queued 20-50 ms more (congestion). A
 burst is 6 probes 20 ms apart, one burst a second; the client's turnaround is 0.1 ms +
-exponential 0.2 ms. :func:`replay` feeds them to an :class:`~kinefuse.sync.OnlineClock`; the
+exponential 0.2 ms. :func:`replay` feeds them to an :class:`~kinefuse.capture.sync.OnlineClock`; the
 error of a check is the estimated offset at a reply's arrival time minus the true offset then.
 """
 
@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from kinefuse.capture.sync import OnlineClock
 from kinefuse.sim.clock import SensorClock
-from kinefuse.sync import OnlineClock
 
 #: true time -> client time
 Client = Callable[[np.ndarray], np.ndarray]

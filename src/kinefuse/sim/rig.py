@@ -33,14 +33,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinefuse.core.geometry.transforms import look_at
+from kinefuse.core.skeleton import JOINT_INDEX
 from kinefuse.errors import RigError
-from kinefuse.geometry.transforms import look_at
-from kinefuse.skeleton import JOINT_INDEX
 
 if TYPE_CHECKING:
-    from kinefuse.motion.types import Motion
-from kinefuse.io.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
-from kinefuse.io.toml import dumps_toml, toml_error
+    from kinefuse.core.frames.motion import Motion
+from kinefuse.core.inputs import MAX_SMALL_TEXT_BYTES, check_text_file
+from kinefuse.core.toml import dumps_toml, toml_error
 
 Array = NDArray[np.float64]
 
@@ -269,7 +269,7 @@ def _um(x: float) -> float:
 
 def rig_to_toml(rig: Rig) -> str:
     """TOML text of a rig (positions and look-at points of its sensors' poses, to 6 decimals),
-    through :func:`kinefuse.io.toml.dumps_toml`."""
+    through :func:`kinefuse.core.toml.dumps_toml`."""
     sensors = []
     for s in rig.sensors:
         pos = s.sensor2world[:3, 3]
@@ -313,7 +313,7 @@ def sensors_seeing(
     """How many of the rig's sensors see a standing body at floor positions ``xy_m (n, 2)``:
     every height of ``heights_m`` above the position inside the sensor's image and depth range
     (default Kinect v2 depth intrinsics). Returns ``(n,)`` int."""
-    from kinefuse.camera.intrinsics import Intrinsics
+    from kinefuse.core.camera.intrinsics import Intrinsics
 
     intr = Intrinsics()
     xy = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
@@ -356,7 +356,7 @@ def place_actor(motion: Motion, rig: Rig, seconds: float | None = None) -> Motio
     frame, or, when the rig names none, the path of the part that is simulated (the first
     ``seconds``, default all) centred on the origin; facing the rig's heading at the first
     frame; feet on the floor."""
-    from kinefuse.motion import place
+    from kinefuse.formats.motion import place
 
     if rig.actor_position_m is not None:
         return place(motion, offset_m=rig.actor_position_m, heading_deg=rig.actor_heading_deg)

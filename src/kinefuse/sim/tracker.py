@@ -57,9 +57,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.geometry.raycast import ray_capsules_batched
+from kinefuse.core.skeleton import (
+    JOINT_INDEX,
+    MIRROR_INDEX,
+    N_JOINTS,
+    TrackingState,
+    bone_index_array,
+)
 from kinefuse.errors import InputError
-from kinefuse.geometry.raycast import ray_capsules_batched
 from kinefuse.sim.people import MOSTLY_HIDDEN_FRACTION
 from kinefuse.sim.tracker_body import (
     _body_axes,
@@ -81,13 +88,6 @@ from kinefuse.sim.tracker_params import (
     TrackerParams,
     describe_params,
     per_joint,
-)
-from kinefuse.skeleton import (
-    JOINT_INDEX,
-    MIRROR_INDEX,
-    N_JOINTS,
-    TrackingState,
-    bone_index_array,
 )
 
 __all__ = [
@@ -264,7 +264,7 @@ class TrackerOutput:
         Reported joints in the sensor frame (x right, y down, z forward), metres, in the labels
         the tracker gave them (mirrored in swapped frames); NaN where ``NOT_TRACKED``.
     states : (T, 25) int8
-        :class:`kinefuse.skeleton.TrackingState` per reported joint.
+        :class:`kinefuse.core.skeleton.TrackingState` per reported joint.
     visible : (T, 25) bool
         Evaluation only: the true joint (true label) is inside the view and range and not hidden
         by the body from this sensor (ray cast against the capsules).
@@ -313,7 +313,7 @@ def simulate_tracker(
     intrinsics : Intrinsics
         Its depth camera (joints outside its view and range are guessed, ``INFERRED``).
     radii : (24,) float
-        Capsule radius per bone (:func:`kinefuse.skeleton.capsule_radii`), metres.
+        Capsule radius per bone (:func:`kinefuse.core.skeleton.capsule_radii`), metres.
     rng : numpy.random.Generator
         Source of all randomness (seed it for reproducible sessions).
     params : TrackerParams, optional

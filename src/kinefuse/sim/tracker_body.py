@@ -13,10 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import lfilter
 
-from kinefuse.errors import InputError
-from kinefuse.geometry.raycast import ray_capsules_batched
-from kinefuse.sim.tracker_params import TrackerParams
-from kinefuse.skeleton import (
+from kinefuse.core.geometry.raycast import ray_capsules_batched
+from kinefuse.core.skeleton import (
     JOINT_INDEX,
     JOINTS,
     MIRROR_INDEX,
@@ -25,6 +23,8 @@ from kinefuse.skeleton import (
     bone_index_array,
     standing_pose,
 )
+from kinefuse.errors import InputError
+from kinefuse.sim.tracker_params import TrackerParams
 
 Array = NDArray[np.float64]
 _MIRROR: Final = np.asarray(MIRROR_INDEX)
@@ -129,7 +129,7 @@ def body_visibility(
     joints_sensor : (T, 25, 3) float
         True joints in the sensor frame, metres.
     radii : (24,) float
-        Capsule radius per bone, in :data:`kinefuse.skeleton.BONES` order, metres.
+        Capsule radius per bone, in :data:`kinefuse.core.skeleton.BONES` order, metres.
     margin_m : float
         A capsule hides a point only if the ray meets it at least this far in front of it.
     sample_radius_factor : float
@@ -153,7 +153,7 @@ def body_visibility(
     if r.shape != (len(bones),) or not np.all(r > 0):
         raise InputError(
             f"radii must be {len(bones)} positive capsule radii in metres (BONES order), "
-            f"got shape {r.shape}; use kinefuse.skeleton.capsule_radii(height_m)"
+            f"got shape {r.shape}; use kinefuse.core.skeleton.capsule_radii(height_m)"
         )
     n_t = p.shape[0]
     n_s = _SAMPLES.shape[0]
@@ -200,7 +200,7 @@ def _check_rigid(sensor2world: ArrayLike) -> Array:
     if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
         raise InputError(
             "sensor2world's rotation part is not a proper rotation (R^T R = I, det R = +1); "
-            "build it with kinefuse.geometry.transforms.look_at or make_transform"
+            "build it with kinefuse.core.geometry.transforms.look_at or make_transform"
         )
     if not np.allclose(t[3], [0.0, 0.0, 0.0, 1.0]):
         raise InputError(f"sensor2world's last row must be [0, 0, 0, 1], got {t[3]}")
@@ -306,7 +306,7 @@ def chain_correlate(noise: ArrayLike, rho: float) -> Array:
 
 
 def bone_lengths(joints: ArrayLike, seen: ArrayLike | None = None) -> Array:
-    """The body's bone lengths ``(24,)`` (:data:`kinefuse.skeleton.BONES` order), metres.
+    """The body's bone lengths ``(24,)`` (:data:`kinefuse.core.skeleton.BONES` order), metres.
 
     The median over the frames of ``joints`` ``(T, 25, 3)`` in which both ends of the bone are
     ``seen`` ``(T, 25)`` bool (default: all frames). A bone never seen takes its mirrored twin's

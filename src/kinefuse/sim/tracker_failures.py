@@ -39,8 +39,8 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS
 from kinefuse.sim.tracker_params import TrackerParams
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
 
 Array = NDArray[np.float64]
 

@@ -17,8 +17,8 @@ from typing import Any, Final
 
 import numpy as np
 
+from kinefuse.core.skeleton import JOINT_INDEX, JOINTS, N_JOINTS
 from kinefuse.errors import InputError
-from kinefuse.skeleton import JOINT_INDEX, JOINTS, N_JOINTS
 
 #: Joint groups used to write the per-joint parameters compactly.
 JOINT_GROUPS: Final[dict[str, tuple[str, ...]]] = {
@@ -106,7 +106,7 @@ class TrackerParams:
     ``measurement``: measured by us on real recordings shipped in ``../shared/data``;
     ``tuned``: fitted so the simulated two-sensor disagreement matches the real one, see
     ``docs/realism.md``; ``assumption``: a stated guess) and ``source``. Per-joint values are
-    25-tuples in :data:`kinefuse.skeleton.JOINTS` order (build them with :func:`per_joint`).
+    25-tuples in :data:`kinefuse.core.skeleton.JOINTS` order (build them with :func:`per_joint`).
     """
 
     # (a) subject-level bias ---------------------------------------------------------------

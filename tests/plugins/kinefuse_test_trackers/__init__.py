@@ -17,9 +17,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from kinefuse.core.skeleton import N_JOINTS, TrackingState, standing_pose
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.trackers import TrackedBody, TrackerResult
-from kinefuse.skeleton import N_JOINTS, TrackingState, standing_pose
 
 
 class Nobody:

@@ -5,7 +5,7 @@ apart. Checked on the 25 joints, in this order, each refusal one short reason:
 
 1. **bones of human length**: the median ratio of the measured bones (upper arms, forearms,
    thighs, shanks, shoulder and hip widths, trunk) to the reference adult's
-   (:func:`kinefuse.skeleton.standing_pose`, 1.75 m) gives the body's scale; outside
+   (:func:`kinefuse.core.skeleton.standing_pose`, 1.75 m) gives the body's scale; outside
    ``min_scale``..``max_scale`` (a person 0.9 to 2.3 m tall) the detection is refused;
 2. **consistent left/right**: the shoulders' left-to-right direction and the hips' agree (a body
    whose hips face the other way is two half-detections), and the two sides' bones agree;
@@ -28,7 +28,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.skeleton import JOINT_INDEX, JOINTS, TrackingState, standing_pose
+from kinefuse.core.skeleton import JOINT_INDEX, JOINTS, TrackingState, standing_pose
 
 __all__ = ["GateParams", "GateResult", "check_body"]
 

@@ -16,7 +16,7 @@ silhouette, goes behind it at its parent's depth; a body turned to the side hide
 shoulder and hip behind the trunk (:func:`_trunk_sides`).
 
 The surface seen is the skin; the joint is inside. Each point is pushed along its ray by the
-limb's radius (:data:`kinefuse.skeleton.CAPSULE_RADII_M`, the project's nominal radii of a
+limb's radius (:data:`kinefuse.core.skeleton.CAPSULE_RADII_M`, the project's nominal radii of a
 1.75 m adult: an assumption, a couple of centimetres off for a real body).
 """
 
@@ -29,9 +29,9 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import CAPSULE_RADII_M, JOINT_INDEX, TrackingState, standing_pose
 from kinefuse.devices.pose.landmarks import LM, N_LIFTED
-from kinefuse.skeleton import CAPSULE_RADII_M, JOINT_INDEX, TrackingState, standing_pose
 
 __all__ = ["LiftParams", "LiftResult", "lift_landmarks"]
 
@@ -189,7 +189,7 @@ class LiftResult:
         Joint centres in the depth camera's frame (x right, y down, z forward), metres; NaN
         where not lifted.
     states : (36,) int8
-        :class:`~kinefuse.skeleton.TrackingState`.
+        :class:`~kinefuse.core.skeleton.TrackingState`.
     hidden : (36,) bool
         Hidden behind another limb (placed behind it and inferred).
     """

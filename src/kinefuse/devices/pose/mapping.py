@@ -14,9 +14,9 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
+from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
 from kinefuse.devices.pose.landmarks import LM
 from kinefuse.devices.pose.lift import LiftResult
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS, TrackingState
 
 __all__ = ["DERIVED", "DIRECT", "to_kinect"]
 

@@ -9,7 +9,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from kinefuse.camera.intrinsics import Intrinsics
+from kinefuse.core.camera.intrinsics import Intrinsics
+from kinefuse.core.skeleton import JOINT_INDEX, N_JOINTS
 from kinefuse.devices.capture import CameraCalibration, Capture
 from kinefuse.devices.pose.gates import GateParams, GateResult, check_body
 from kinefuse.devices.pose.landmarks import LM, Landmarks2D, with_virtual
@@ -18,7 +19,6 @@ from kinefuse.devices.pose.mapping import DIRECT, to_kinect
 from kinefuse.devices.trackers import TrackedBody, TrackerResult
 from kinefuse.devices.undistort import undistort_pixels
 from kinefuse.errors import InputError
-from kinefuse.skeleton import JOINT_INDEX, N_JOINTS
 
 __all__ = ["LandmarkModel", "PoseTracker", "Stages", "body_from_landmarks", "ir_to_rgb"]
 
