@@ -228,6 +228,9 @@ def test_evaluate_cli_reports_people_only_with_bystanders(sessions, capsys) -> N
             # not: the test above)
             assert report["people"]["identity"] >= 0.99
             assert report["people"]["assignment"].startswith("the association")
+            # the main table is the subject's, fused from their own bodies as `fuse` does
+            subject = report["people"]["persons"]["0"]["best"]["mae_m"]
+            assert report["best"]["mae_m"] == pytest.approx(subject)
 
 
 def test_a_missing_bystander_clip_is_refused(tmp_path, shared_data, capsys) -> None:

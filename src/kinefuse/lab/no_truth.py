@@ -141,6 +141,7 @@ def evaluate_without_truth(
     from kinefuse.pipeline.store_inputs import (
         clip_grid,
         frame_grid,
+        load_people,
         load_usable_sensors,
         run_method,
     )
@@ -151,7 +152,8 @@ def evaluate_without_truth(
     stored = any(store.calibration(n) for n in ("full", "paper", "body"))
     if calibration is not None or stored:
         poses, source = resolve_poses(store, calibration, False)
-        sensors, screen = load_usable_sensors(store, poses)
+        people, per_person, screen = load_people(store, poses)  # the subject's bodies only
+        sensors = per_person[people.subject]
     else:
         sensors, screen = load_usable_sensors(store, {s.id: np.eye(4) for s in infos})
     streams = {

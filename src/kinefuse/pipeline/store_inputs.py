@@ -24,8 +24,15 @@ from numpy.typing import NDArray
 
 from kinefuse.capture.calibration.calibration_run import CalibrationInput, LiveSightings
 from kinefuse.capture.calibration.floor import FloorPlane
-from kinefuse.capture.fusion.fusion_run import CalibratedSensor, MethodResult, clip_grid, frame_grid
+from kinefuse.capture.fusion.fusion_run import (
+    CalibratedSensor,
+    MethodResult,
+    clip_grid,
+    frame_grid,
+    people_of,
+)
 from kinefuse.capture.fusion.fusion_run import run_method as _run_method
+from kinefuse.capture.fusion.people import People
 from kinefuse.capture.occlusion.segments import detect_occlusion
 from kinefuse.capture.sync import sensor_timebase
 from kinefuse.core.skeleton import N_JOINTS
@@ -149,6 +156,21 @@ def load_usable_sensors(
         for sid in screen.usable
     ]
     return sensors, screen
+
+
+def load_people(
+    store: SessionStore, poses: dict[str, Array], *, subject: int | None = None
+) -> tuple[People, dict[int, list[CalibratedSensor]], SensorScreen]:
+    """The people of a stored session and each one's sensors (:func:`load_usable_sensors` with
+    every body, then :func:`kinefuse.capture.fusion.fusion_run.people_of` with the session's
+    phases and the live server's picks for the subject's rule). ``per_person[people.subject]``
+    is what the commands fuse by default; for a one-person session it is
+    ``load_usable_sensors(store, poses)``, unchanged."""
+    everyone, screen = load_usable_sensors(store, poses, bodies="all")
+    people, per_person = people_of(
+        everyone, subject=subject, phases_s=subject_phases(store), picks=subject_picks(store)
+    )
+    return people, per_person, screen
 
 
 def gather_usable_calibration(

@@ -80,28 +80,18 @@ def sequence_from_session(
     file or the true poses; the result is not stored. The session's range-of-motion phase, if it
     has one, comes along as protocol metadata.
     """
-    from kinefuse.capture.fusion.fusion_run import people_of
     from kinefuse.capture.fusion.methods import METHODS
     from kinefuse.formats.store.session_store import SessionStore
     from kinefuse.lab.poses import resolve_poses
     from kinefuse.pipeline.analysis_chain import fused_limb_counts
-    from kinefuse.pipeline.store_inputs import (
-        frame_grid,
-        load_usable_sensors,
-        run_method,
-        subject_phases,
-        subject_picks,
-    )
+    from kinefuse.pipeline.store_inputs import frame_grid, load_people, run_method
 
     if method not in METHODS:
         raise InputError(f"unknown fusion method {method!r}; choose from {', '.join(METHODS)}")
     with SessionStore.open(path) as store:
         poses, source = resolve_poses(store, calibration, true_calibration)
-        everyone, screen = load_usable_sensors(store, poses, bodies="all")
-        grid = frame_grid(everyone)
-        people, per_person = people_of(
-            everyone, subject=subject, phases_s=subject_phases(store), picks=subject_picks(store)
-        )
+        people, per_person, screen = load_people(store, poses, subject=subject)
+        grid = frame_grid([s for per in per_person.values() for s in per])
         sensors = per_person[people.subject]
         res = run_method(sensors, grid, method)
         meta = store.meta()

@@ -92,7 +92,7 @@ def run_evaluate(
     from kinefuse.capture.fusion.methods import METHODS
     from kinefuse.core.outputs import atomic_dir, check_output_folder
     from kinefuse.lab.fusion_truth import calibration_alignment, evaluate, write_tables
-    from kinefuse.pipeline.store_inputs import load_usable_sensors
+    from kinefuse.pipeline.store_inputs import load_people
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -111,7 +111,10 @@ def run_evaluate(
             )
         poses, source = resolve_poses(store, calibration, true_calibration)
         say("reading the sensors' streams and clocks")
-        sensors, screen = load_usable_sensors(store, poses)
+        # the subject as the other commands fuse them: their own bodies only (with bystanders
+        # in the room, every sensor's first-listed body would mix people)
+        people, per_person, screen = load_people(store, poses)
+        sensors = per_person[people.subject]
         poses = {s.id: poses[s.id] for s in sensors}
         truth2world = None
         if not true_calibration:

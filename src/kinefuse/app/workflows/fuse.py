@@ -133,18 +133,10 @@ def run_fuse(
     step.
     """
     say = progress or (lambda _msg: None)
-    from kinefuse.capture.fusion.fusion_run import people_of
     from kinefuse.capture.fusion.status import status_counts
     from kinefuse.core.outputs import check_output_folder
     from kinefuse.formats.export import check_export_path, export_skeleton
-    from kinefuse.pipeline.store_inputs import (
-        clip_grid,
-        frame_grid,
-        load_usable_sensors,
-        run_method,
-        subject_phases,
-        subject_picks,
-    )
+    from kinefuse.pipeline.store_inputs import clip_grid, frame_grid, load_people, run_method
 
     if people not in PEOPLE:
         raise InputError(f"--people {people!r}: choose one of {', '.join(PEOPLE)}")
@@ -156,16 +148,14 @@ def run_fuse(
         store.require_complete(allow_incomplete=allow_incomplete)
         poses, source = resolve_poses(store, calibration, true_calibration)
         say("reading the sensors' streams and clocks")
-        sensors, screen = load_usable_sensors(store, poses, bodies="all")
+        found, per_person, screen = load_people(store, poses, subject=subject)
+        everyone = [s for per in per_person.values() for s in per]
         warnings = screen.notes() + [
-            f"sensor {s.id} has no body frames: the fusion uses the other sensors only"
-            for s in sensors
-            if not s.observations.has_body.any()
+            f"sensor {sid} has no body frames: the fusion uses the other sensors only"
+            for sid in dict.fromkeys(s.id for s in everyone)
+            if not any(s.observations.has_body.any() for s in everyone if s.id == sid)
         ]
-        grid = clip_grid(frame_grid(sensors), start_s, end_s)
-        found, per_person = people_of(
-            sensors, subject=subject, phases_s=subject_phases(store), picks=subject_picks(store)
-        )
+        grid = clip_grid(frame_grid(everyone), start_s, end_s)
         chosen = list(found.ids) if people == "all" else [found.subject]
         results = {}
         for pid in chosen:
@@ -202,7 +192,7 @@ def run_fuse(
         also_out=tuple(str(o) for o in also_out),
         stored_in_session=store_result,
         warnings=tuple(warnings),
-        sensors=tuple(s.id for s in sensors),
+        sensors=tuple(s.id for s in per_person[found.subject]),
         left_out=dict(screen.left_out),
         people=found.ids,
         subject=found.subject,
