@@ -26,6 +26,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -622,7 +623,9 @@ def _position_constants(
     fp = frames[:, par]
     d_loc = unit(tmv(fp, u))
     l0 = _mean_rot(tmm(fp[win], n0))
-    d0 = unit(np.nanmean(d_loc[win], axis=0))
+    with warnings.catch_warnings():  # a limb never seen in the window: NaN, its status says so
+        warnings.simplefilter("ignore", RuntimeWarning)
+        d0 = unit(np.nanmean(d_loc[win], axis=0))
     l0 = minimal_rotation(l0 @ axis_l, d0) @ l0  # the long axis onto the default direction
     carried_k = LimbConstants("carried", eye, l0, d0, axis_l)
     if not lb.twist_observable:

@@ -151,9 +151,9 @@ def minimal_rotation(a: Array, b: Array) -> Array:
     v = np.cross(a, b)
     c = np.einsum("...i,...i->...", a, b)
     vx = skew(v)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # anti-parallel: replaced below
         f = 1.0 / (1.0 + c)
-    r = np.eye(3) + vx + (vx @ vx) * f[..., None, None]
+        r = np.eye(3) + vx + (vx @ vx) * f[..., None, None]
     # anti-parallel: rotate by pi about any axis orthogonal to a
     anti = c < -1.0 + 1e-9
     if np.any(anti):
