@@ -238,7 +238,8 @@ def test_detect_occlusion_sensors_stacks_sensors():
 def test_detect_occlusion_validates_input():
     with pytest.raises(InputError, match=r"joints_sensor must have shape \(T, 25, 3\)"):
         detect_occlusion(np.zeros((4, 24, 3)), Intrinsics())
-    with pytest.raises(InputError, match=r"intrinsics must be a kinefuse\.core\.camera\.intrinsics"):
+    must = r"intrinsics must be a kinefuse\.core\.camera\.intrinsics"
+    with pytest.raises(InputError, match=must):
         detect_occlusion(np.zeros((1, 25, 3)), "kinect")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="near_m must be a positive distance"):
         detect_occlusion(np.zeros((1, 25, 3)), Intrinsics(), near_m=-1.0)
